@@ -1,0 +1,100 @@
+"""The compiler <-> runtime interface, declared once.
+
+Everything the generated kernels and the C++ runtime must agree on lives here:
+the ABI version, the kernel signatures, the layout of a surfel's row and of the
+context struct a kernel may read, and the event numbering.  The C++ side does
+not restate any of it: CMake runs this file as a script
+(``python abi.py --header OUT``) to generate ``gamma_abi.h``, and the compiler's
+code generator builds its LLVM types from the same tables.  Only the standard
+library is imported so the build can run it before the package is installed.
+"""
+
+from __future__ import annotations
+
+import sys
+
+#: Bumped whenever anything below changes; the runtime refuses kernels whose
+#: version differs (checked at load time by ``gamma.runtime``).
+ABI_VERSION = 1
+
+#: A surfel's state is one row of floats.  The first three slots are its
+#: gamma-reflectance, then the properties of its surface in declaration order.
+REFLECTANCE_SLOTS = ("straight", "parabolic", "flow")  # Delta_s, Delta_p, Delta_f
+ROW_HEADER = len(REFLECTANCE_SLOTS)
+
+#: Events a transport rule can be attached to; the value is the index used by
+#: the runtime's kernel table.
+EVENTS = {"hit": 0, "settle": 1}
+
+#: Fields of the read-only context a kernel receives, in struct order.
+#: (name, C type, element count).  All fields are 4 bytes wide so the struct
+#: has no padding; offsets are computed, not written down twice.
+CONTEXT_FIELDS = (
+    ("position", "float", 3),       # hit point (transport) / surfel position (update)
+    ("normal", "float", 3),         # geometric normal facing the incoming ray / surfel normal
+    ("direction", "float", 3),      # travel direction of the gamma-ton (zero in update rules)
+    ("iteration", "int32_t", 1),    # 1-based iteration number (iter_0001 is the first)
+    ("interactions", "int32_t", 1), # interactions of this gamma-ton so far, this one included
+)
+
+_C_SIZE = {"float": 4, "int32_t": 4}
+
+
+def context_offsets() -> dict[str, int]:
+    """Byte offset of every context field."""
+    offsets, at = {}, 0
+    for name, ctype, count in CONTEXT_FIELDS:
+        offsets[name] = at
+        at += _C_SIZE[ctype] * count
+    return offsets
+
+
+CONTEXT_SIZE = sum(_C_SIZE[t] * n for _, t, n in CONTEXT_FIELDS)
+
+#: Kernel signatures.  Transport kernels get the gamma-ton's carried attributes
+#: (read/write), the surfel's row as it was at the start of the iteration
+#: (read-only) and a zeroed delta row the runtime adds to the surfel after the
+#: tracing pass.  Update kernels get the surfel's row in place.
+TRANSPORT_SIGNATURE = (
+    "void",
+    (("float*", "ton"), ("const float*", "surf"), ("float*", "surf_delta"),
+     ("const GammaContext*", "ctx")),
+)
+UPDATE_SIGNATURE = ("void", (("float*", "surf"), ("const GammaContext*", "ctx")))
+
+
+def c_header() -> str:
+    """The C header the runtime includes (generated at build time)."""
+    lines = [
+        "/* Generated from compiler/gamma/abi.py by CMake. Do not edit. */",
+        "#pragma once",
+        "#include <stdint.h>",
+        "#include <stddef.h>",
+        f"#define GAMMA_ABI_VERSION {ABI_VERSION}",
+        f"#define GAMMA_ROW_HEADER {ROW_HEADER}",
+    ]
+    for i, slot in enumerate(REFLECTANCE_SLOTS):
+        lines.append(f"#define GAMMA_ROW_DELTA_{slot.upper()} {i}")
+    for name, value in EVENTS.items():
+        lines.append(f"#define GAMMA_EVENT_{name.upper()} {value}")
+    lines.append(f"#define GAMMA_EVENT_COUNT {len(EVENTS)}")
+    lines.append("typedef struct GammaContext {")
+    for name, ctype, count in CONTEXT_FIELDS:
+        lines.append(f"    {ctype} {name}{f'[{count}]' if count > 1 else ''};")
+    lines.append("} GammaContext;")
+    for name, off in context_offsets().items():
+        lines.append(f"static_assert(offsetof(GammaContext, {name}) == {off}, \"GammaContext layout\");")
+    lines.append(f"static_assert(sizeof(GammaContext) == {CONTEXT_SIZE}, \"GammaContext size\");")
+    for tname, (ret, params) in (("GammaTransportKernel", TRANSPORT_SIGNATURE),
+                                 ("GammaUpdateKernel", UPDATE_SIGNATURE)):
+        args = ", ".join(f"{t} {n}" for t, n in params)
+        lines.append(f"typedef {ret} (*{tname})({args});")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 3 and sys.argv[1] == "--header":
+        with open(sys.argv[2], "w", encoding="utf-8") as out:
+            out.write(c_header())
+    else:
+        sys.stdout.write(c_header())

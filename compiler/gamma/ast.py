@@ -1,0 +1,147 @@
+"""AST of a .gamma file: plain dataclasses, every node with its source position.
+
+The parser (``parser.py``) builds these; the checker, the code generator and
+the reference interpreter all walk the same tree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Pos:
+    """A source span on one line: 1-based line and column, and its width."""
+
+    line: int
+    col: int
+    width: int = 1
+
+
+# ---- expressions ------------------------------------------------------------
+
+@dataclass
+class Number:
+    value: float
+    pos: Pos
+
+
+@dataclass
+class Ref:
+    """A dotted name: ``iteration``, ``t.patina``, ``s.reflectance.straight``."""
+
+    parts: list[str]
+    pos: Pos
+    part_pos: list[Pos] = field(default_factory=list)
+
+
+@dataclass
+class Unary:
+    op: str  # '-'
+    operand: "Expr"
+    pos: Pos
+
+
+@dataclass
+class Binary:
+    op: str  # '+', '-', '*', '/'
+    left: "Expr"
+    right: "Expr"
+    pos: Pos
+
+
+@dataclass
+class Call:
+    name: str
+    args: list["Expr"]
+    pos: Pos
+
+
+Expr = Number | Ref | Unary | Binary | Call
+
+
+# ---- statements and declarations -------------------------------------------
+
+@dataclass
+class Assign:
+    target: Ref
+    op: str  # '=', '+=', '-=', '*='
+    value: Expr
+    pos: Pos  # of the operator
+
+
+@dataclass
+class Init:
+    name: str
+    value: Expr
+    pos: Pos
+
+
+@dataclass
+class TonDecl:
+    name: str
+    pos: Pos
+    motion: list[Init] = field(default_factory=list)
+    carry: list[Init] = field(default_factory=list)
+    bounce: Expr | None = None
+    step: Expr | None = None
+    repeated: list[tuple[str, Expr]] = field(default_factory=list)  # 2nd 'bounce'/'step'
+
+
+@dataclass
+class SurfaceDecl:
+    name: str
+    pos: Pos
+    reflectance: list[Init] = field(default_factory=list)
+    properties: list[Init] = field(default_factory=list)
+
+
+@dataclass
+class SourceDecl:
+    name: str
+    pos: Pos
+    kind: str
+    kind_pos: Pos
+    args: list[Expr]
+    ton: str
+    ton_pos: Pos
+    count: Expr
+
+
+@dataclass
+class Param:
+    name: str
+    type_name: str
+    pos: Pos
+    type_pos: Pos
+
+
+@dataclass
+class RuleDecl:
+    """``on EVENT(t: Ton, s: Surface) { ... }``"""
+
+    event: str
+    event_pos: Pos
+    ton: Param
+    surface: Param
+    body: list[Assign]
+    pos: Pos
+
+
+@dataclass
+class UpdateDecl:
+    """``update(s: Surface) { ... }``"""
+
+    surface: Param
+    body: list[Assign]
+    pos: Pos
+
+
+Decl = TonDecl | SurfaceDecl | SourceDecl | RuleDecl | UpdateDecl
+
+
+@dataclass
+class Module:
+    path: str
+    source: str
+    decls: list[Decl]

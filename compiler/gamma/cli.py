@@ -1,0 +1,120 @@
+"""The ``gammac`` command: ``check``, ``run`` and ``emit``.
+
+Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
+2 a usage error.  A user mistake is reported as diagnostics or a one-line
+``gammac: error: ...``, never as a Python traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .diagnostics import GammaError
+
+EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"'{text}' is negative")
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="gammac", description="Compile and run .gamma weathering effects.")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    c = sub.add_parser("check", help="parse and check an effect; report every error")
+    c.add_argument("file")
+    e = sub.add_parser("emit", help="print the compiled form of an effect")
+    e.add_argument("file")
+    what = e.add_mutually_exclusive_group(required=True)
+    what.add_argument("--ir", action="store_const", dest="what", const="ir", help="LLVM IR as generated")
+    what.add_argument("--ir-opt", action="store_const", dest="what", const="ir-opt", help="LLVM IR after optimisation")
+    what.add_argument("--asm", action="store_const", dest="what", const="asm", help="native assembly")
+    r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
+    r.add_argument("file")
+    r.add_argument("--scene", required=True, help="OBJ or PLY mesh")
+    r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--assign", help="surface the mesh is made of (needed if the effect declares several)")
+    r.add_argument("--iterations", type=_positive, default=10)
+    r.add_argument("--surfels", type=_positive, default=100_000)
+    r.add_argument("--tons", type=_positive, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
+    r.add_argument("--seed", type=_positive, default=1)
+    r.add_argument("--threads", type=_positive, default=0, help="worker threads (default: all cores)")
+    r.add_argument("--max-interactions", type=_positive, default=100, help="bound on interactions per gamma-ton")
+    r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
+    r.add_argument("--size", type=_positive, default=512, help="render width and height in pixels")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def _load(path: str):
+    from .checker import load
+
+    try:
+        return load(path)
+    except FileNotFoundError:
+        raise _Fail(f"cannot read '{path}': file not found") from None
+    except UnicodeDecodeError:
+        raise _Fail(f"cannot read '{path}': it is not UTF-8 text") from None
+    except OSError as err:
+        raise _Fail(f"cannot read '{path}': {getattr(err, 'strerror', None) or err}") from None
+
+
+class _Fail(Exception):
+    pass
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        effect = _load(args.file)
+        if args.command == "check":
+            return EXIT_OK
+        if args.command == "emit":
+            from .backend import assembly, compile_ir
+            from .codegen import generate
+
+            module = generate(effect)
+            if args.what == "ir":
+                text = str(module)
+            elif args.what == "ir-opt":
+                text = str(compile_ir(module))
+            else:
+                text = assembly(module)
+            sys.stdout.write(text)
+            return EXIT_OK
+        from .runner import RunError, RunOptions, run
+
+        opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign,
+                          iterations=args.iterations, surfels=args.surfels, tons=args.tons,
+                          seed=args.seed, threads=args.threads,
+                          max_interactions=args.max_interactions, show=args.show,
+                          width=args.size, height=args.size, progress=not args.quiet)
+        try:
+            run(effect, opts)
+        except RunError as err:
+            raise _Fail(str(err)) from None
+        print(f"gammac: wrote {args.out}/maps, {args.out}/renders and {args.out}/summary.json",
+              file=sys.stderr)
+        return EXIT_OK
+    except GammaError as err:
+        print(err.render(), file=sys.stderr)
+        n = len(err.diagnostics)
+        print(f"{n} error{'s' if n != 1 else ''} in {err.path}", file=sys.stderr)
+        return EXIT_INPUT
+    except _Fail as err:
+        print(f"gammac: error: {err}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("gammac: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,52 @@
+"""Diagnostics: positioned messages, collected, printed like a C compiler.
+
+    patina.gamma:12:5: error: unknown property 'patna' of surface Copper
+        s.patna += 0.05 * t.patina
+          ^~~~~
+
+A user mistake never reaches the user as a Python traceback: every phase
+collects ``Diagnostic`` objects and raises ``GammaError`` holding all of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .ast import Pos
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    pos: Pos
+    message: str
+    severity: str = "error"  # or "warning"
+
+    def format(self, path: str, source: str) -> str:
+        lines = source.splitlines()
+        head = f"{path}:{self.pos.line}:{self.pos.col}: {self.severity}: {self.message}"
+        if not 1 <= self.pos.line <= len(lines):
+            return head
+        text = lines[self.pos.line - 1].expandtabs(1)
+        caret = " " * (self.pos.col - 1) + "^" + "~" * max(0, self.pos.width - 1)
+        return f"{head}\n    {text}\n    {caret}"
+
+
+class GammaError(Exception):
+    """Raised with every error found in one file."""
+
+    def __init__(self, path: str, source: str, diagnostics: list[Diagnostic]):
+        self.path = path
+        self.source = source
+        self.diagnostics = sorted(diagnostics, key=lambda d: (d.pos.line, d.pos.col))
+        super().__init__(self.render())
+
+    def render(self) -> str:
+        return "\n".join(d.format(self.path, self.source) for d in self.diagnostics)
+
+
+def did_you_mean(name: str, candidates) -> str:
+    """' (did you mean 'x'?)' for a close candidate, else ''."""
+    import difflib
+
+    close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""

@@ -1,0 +1,123 @@
+"""What a run writes: PLY maps, false-colour PNG renders, summary.json.
+
+Every file is written atomically (to a temporary name in the same folder,
+then renamed), so an interrupted run never leaves a half-written file.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def ply_bytes(columns: dict[str, np.ndarray], comments: list[str] = ()) -> bytes:
+    """A binary little-endian PLY point cloud, one float32 property per column."""
+    names = list(columns)
+    n = len(next(iter(columns.values())))
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {c}" for c in comments]
+    header.append(f"element vertex {n}")
+    header += [f"property float {name}" for name in names]
+    header.append("end_header")
+    table = np.empty((n, len(names)), dtype="<f4")
+    for j, name in enumerate(names):
+        table[:, j] = columns[name]
+    return ("\n".join(header) + "\n").encode("ascii") + table.tobytes()
+
+
+def read_ply(path: Path) -> dict[str, np.ndarray]:
+    """Read back a PLY written by ``ply_bytes`` (tests and tools)."""
+    data = Path(path).read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    names, n = [], 0
+    for line in data[:end].decode("ascii").splitlines():
+        parts = line.split()
+        if parts[:2] == ["element", "vertex"]:
+            n = int(parts[2])
+        elif parts[:2] == ["property", "float"]:
+            names.append(parts[2])
+    table = np.frombuffer(data[end:], dtype="<f4").reshape(n, len(names))
+    return {name: table[:, j].copy() for j, name in enumerate(names)}
+
+
+# ---- false colour -------------------------------------------------------------
+
+# Polynomial fit of matplotlib's viridis (Matt Zucker's CC0 fit), evaluated
+# with Horner's rule; keeps numpy the only dependency for colour mapping.
+_VIRIDIS = np.array([
+    [0.2777273272234177, 0.005407344544966578, 0.3340998053353061],
+    [0.1050930431085774, 1.404613529898575, 1.384590162594685],
+    [-0.3308618287255563, 0.214847559468213, 0.09509516302823659],
+    [-4.634230498983486, -5.799100973351585, -19.33244095627987],
+    [6.228269936347081, 14.17993336680509, 56.69055260068105],
+    [4.776384997670288, -13.74514537774601, -65.35303263337234],
+    [-5.435455855934631, 4.645852612178535, 26.3124352495832],
+])
+
+
+def viridis(t: np.ndarray) -> np.ndarray:
+    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)[..., None]
+    rgb = _VIRIDIS[6]
+    for c in _VIRIDIS[5::-1]:
+        rgb = c + t * rgb
+    return np.clip(rgb, 0.0, 1.0)
+
+
+def false_colour_png(value: np.ndarray, shade: np.ndarray, vmin: float, vmax: float,
+                     label: str, title: str) -> bytes:
+    """Shaded false-colour image of ``value`` (NaN = background) with a colour bar."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    h, w = value.shape
+    span = vmax - vmin if vmax > vmin else 1.0
+    rgb = viridis((np.nan_to_num(value, nan=vmin) - vmin) / span) * shade[..., None]
+    background = np.linspace(0.97, 0.85, h)[:, None, None] * np.ones((1, w, 3))
+    rgb = np.where(np.isnan(value)[..., None], background, rgb)
+    bar_w = 150
+    canvas = Image.new("RGB", (w + bar_w, h), (255, 255, 255))
+    canvas.paste(Image.fromarray((rgb * 255 + 0.5).astype(np.uint8)), (0, 0))
+    draw = ImageDraw.Draw(canvas)
+    try:
+        font = ImageFont.load_default(size=max(11, h // 40))
+    except TypeError:  # Pillow without FreeType
+        font = ImageFont.load_default()
+    top, bottom = int(h * 0.12), int(h * 0.88)
+    x0 = w + 20
+    ramp = viridis(np.linspace(1.0, 0.0, bottom - top))
+    bar = Image.fromarray((np.repeat(ramp[:, None, :], 24, axis=1) * 255 + 0.5).astype(np.uint8))
+    canvas.paste(bar, (x0, top))
+    draw.rectangle([x0 - 1, top - 1, x0 + 24, bottom], outline=(0, 0, 0))
+    for k in range(5):
+        frac = k / 4
+        y = bottom - frac * (bottom - top)
+        draw.line([x0 + 24, y, x0 + 30, y], fill=(0, 0, 0))
+        draw.text((x0 + 34, y), f"{vmin + frac * span:.3g}", fill=(0, 0, 0), font=font, anchor="lm")
+    draw.text((x0 - 4, top - 10), label, fill=(0, 0, 0), font=font, anchor="lb")
+    draw.text((10, 10), title, fill=(0, 0, 0), font=font)
+    out = io.BytesIO()
+    canvas.save(out, format="PNG")
+    return out.getvalue()
+
+
+def write_json(path: Path, obj) -> None:
+    atomic_write(path, (json.dumps(obj, indent=2) + "\n").encode("utf-8"))

@@ -1,0 +1,210 @@
+"""Parse .gamma source text into the AST (``ast.py``).
+
+The grammar is ``language/gamma.lark`` (installed next to this module as
+``gamma.lark``).  lark's LALR parser stops at the first syntax error; to report
+every syntax error of a file we blank out the declaration that failed (keeping
+line breaks so positions stay true) and parse again.
+"""
+
+from __future__ import annotations
+
+import re
+from functools import lru_cache
+from pathlib import Path
+
+import lark
+from lark import Token, Transformer, v_args
+
+from . import ast as A
+from .diagnostics import Diagnostic, GammaError
+
+_DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update)\b", re.MULTILINE)
+
+
+def grammar_path() -> Path:
+    here = Path(__file__).resolve().parent
+    for candidate in (here / "gamma.lark", here.parent.parent / "language" / "gamma.lark"):
+        if candidate.is_file():
+            return candidate
+    raise FileNotFoundError("gamma.lark not found next to the compiler or in language/")
+
+
+@lru_cache(maxsize=1)
+def _parser() -> lark.Lark:
+    return lark.Lark(grammar_path().read_text(encoding="utf-8"), parser="lalr",
+                     propagate_positions=True, maybe_placeholders=True)
+
+
+def _pos(tok) -> A.Pos:
+    return A.Pos(tok.line, tok.column, max(1, len(str(tok))))
+
+
+def _meta_pos(meta) -> A.Pos:
+    width = meta.end_column - meta.column if meta.end_line == meta.line else 1
+    return A.Pos(meta.line, meta.column, max(1, width))
+
+
+@v_args(meta=True)
+class _ToAst(Transformer):
+    # expressions
+    def number(self, meta, c):
+        return A.Number(float(c[0]), _pos(c[0]))
+
+    def ref(self, meta, c):
+        return A.Ref([str(t) for t in c], _meta_pos(meta), [_pos(t) for t in c])
+
+    def call(self, meta, c):
+        args = [a for a in c[1:] if a is not None]
+        return A.Call(str(c[0]), args, _pos(c[0]))
+
+    def _bin(op):
+        def build(self, meta, c):
+            return A.Binary(op, c[0], c[1], _meta_pos(meta))
+        return build
+
+    add, sub, mul, div = _bin("+"), _bin("-"), _bin("*"), _bin("/")
+
+    def neg(self, meta, c):
+        return A.Unary("-", c[0], _meta_pos(meta))
+
+    def unary(self, meta, c):  # unary plus
+        return c[0]
+
+    # statements
+    def target(self, meta, c):
+        return A.Ref([str(t) for t in c], _meta_pos(meta), [_pos(t) for t in c])
+
+    def stmt(self, meta, c):
+        return A.Assign(c[0], str(c[1]), c[2], _pos(c[1]))
+
+    def block(self, meta, c):
+        return list(c)
+
+    def param(self, meta, c):
+        return A.Param(str(c[0]), str(c[1]), _pos(c[0]), _pos(c[1]))
+
+    # declarations
+    def init(self, meta, c):
+        return A.Init(str(c[0]), c[1], _pos(c[0]))
+
+    def init_list(self, meta, c):
+        return list(c)
+
+    def motion(self, meta, c):
+        return ("motion", c[0])
+
+    def carry(self, meta, c):
+        return ("carry", c[0])
+
+    def bounce(self, meta, c):
+        return ("bounce", c[0])
+
+    def step(self, meta, c):
+        return ("step", c[0])
+
+    def reflectance(self, meta, c):
+        return ("reflectance", c[0])
+
+    def property(self, meta, c):
+        return ("properties", c[0])
+
+    def ton_decl(self, meta, c):
+        decl = A.TonDecl(str(c[0]), _pos(c[0]))
+        for key, value in c[1:]:
+            if key in ("motion", "carry"):
+                getattr(decl, key).extend(value)
+            elif getattr(decl, key) is None:
+                setattr(decl, key, value)
+            else:
+                decl.repeated.append((key, value))
+        return decl
+
+    def surface_decl(self, meta, c):
+        decl = A.SurfaceDecl(str(c[0]), _pos(c[0]))
+        for key, value in c[1:]:
+            getattr(decl, key).extend(value)
+        return decl
+
+    def source_decl(self, meta, c):
+        name, kind = c[0], c[1]
+        ton, count = c[-2], c[-1]
+        args = [a for a in c[2:-2] if a is not None]
+        return A.SourceDecl(str(name), _pos(name), str(kind), _pos(kind), args,
+                            str(ton), _pos(ton), count)
+
+    def rule_decl(self, meta, c):
+        event, ton, surf, body = c
+        return A.RuleDecl(str(event), _pos(event), ton, surf, body, _meta_pos(meta))
+
+    def update_decl(self, meta, c):
+        surf, body = c
+        return A.UpdateDecl(surf, body, _meta_pos(meta))
+
+    def start(self, meta, c):
+        return list(c)
+
+
+def _describe(token: Token) -> str:
+    if token.type == "$END":
+        return "end of file"
+    return f"'{token}'"
+
+
+def _syntax_diagnostic(err: lark.exceptions.LarkError) -> Diagnostic:
+    if isinstance(err, lark.exceptions.UnexpectedToken):
+        tok = err.token
+        expected = sorted(err.accepts or err.expected)
+        names = {"NAME": "a name", "NUMBER": "a number", "ASSIGN_OP": "'=' or '+='",
+                 "RBRACE": "'}'", "LBRACE": "'{'", "LPAR": "'('", "RPAR": "')'",
+                 "COMMA": "','", "COLON": "':'", "EQUAL": "'='", "SEMICOLON": "';'",
+                 "MINUS": "'-'", "PLUS": "'+'", "STAR": "'*'", "SLASH": "'/'", "DOT": "'.'"}
+        shown = [names.get(e, f"'{e.lower()}'")
+                 for e in expected if not e.startswith("__")]
+        hint = f"; expected {', '.join(sorted(set(shown))[:6])}" if shown else ""
+        if tok.type == "$END":
+            return Diagnostic(A.Pos(err.line if err.line > 0 else 1, max(1, err.column)),
+                              f"unexpected end of file{hint}")
+        return Diagnostic(_pos(tok), f"syntax error: unexpected {_describe(tok)}{hint}")
+    if isinstance(err, lark.exceptions.UnexpectedCharacters):
+        return Diagnostic(A.Pos(err.line, err.column),
+                          f"syntax error: unexpected character '{err.char}'")
+    if isinstance(err, lark.exceptions.UnexpectedEOF):
+        return Diagnostic(A.Pos(1, 1), "unexpected end of file")
+    return Diagnostic(A.Pos(1, 1), f"syntax error: {err}")
+
+
+def _offset(text: str, line: int, col: int) -> int:
+    lines = text.split("\n")
+    return sum(len(l) + 1 for l in lines[: line - 1]) + col - 1
+
+
+def _blank(text: str, start: int, end: int) -> str:
+    return text[:start] + re.sub(r"[^\n]", " ", text[start:end]) + text[end:]
+
+
+def parse(source: str, path: str = "<input>") -> A.Module:
+    """Parse a whole file; raise GammaError with every syntax error found."""
+    diagnostics: list[Diagnostic] = []
+    text = source
+    for _ in range(100):
+        try:
+            tree = _parser().parse(text)
+            break
+        except lark.exceptions.LarkError as err:
+            diag = _syntax_diagnostic(err)
+            diagnostics.append(diag)
+            at = min(_offset(text, diag.pos.line, diag.pos.col), len(text))
+            starts = [m.start(1) for m in _DECL_START.finditer(text)]
+            before = [s for s in starts if s <= at]
+            after = [s for s in starts if s > at]
+            start = before[-1] if before else 0
+            end = after[0] if after else len(text)
+            if start == 0 and not before and not after or text[start:end].strip() == "":
+                break
+            text = _blank(text, start, end)
+    else:
+        tree = None
+    if diagnostics:
+        raise GammaError(path, source, diagnostics)
+    decls = _ToAst().transform(tree)
+    return A.Module(path, source, decls)

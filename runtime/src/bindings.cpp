@@ -1,0 +1,195 @@
+// nanobind module gamma._runtime
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/array.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include <cstring>
+
+#include "gamma/config.h"
+#include "gamma/error.h"
+#include "gamma/mesh.h"
+#include "gamma/simulation.h"
+#include "gamma_abi.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+using gamma::Error;
+
+namespace {
+
+template <typename T>
+nb::ndarray<nb::numpy, T> to_numpy(std::vector<T> data, std::initializer_list<size_t> shape) {
+    auto* heap = new std::vector<T>(std::move(data));
+    nb::capsule owner(heap, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+    return nb::ndarray<nb::numpy, T>(heap->data(), shape.size(), shape.begin(), owner);
+}
+
+nb::object numpy_asarray(nb::handle obj, const char* dtype) {
+    nb::module_ np = nb::module_::import_("numpy");
+    return np.attr("ascontiguousarray")(obj, "dtype"_a = dtype);
+}
+
+using F32 = nb::ndarray<const float, nb::c_contig, nb::device::cpu>;
+using I32 = nb::ndarray<const int32_t, nb::c_contig, nb::device::cpu>;
+
+F32 as_f32(nb::handle obj) { return nb::cast<F32>(numpy_asarray(obj, "float32")); }
+I32 as_i32(nb::handle obj) { return nb::cast<I32>(numpy_asarray(obj, "int32")); }
+
+}  // namespace
+
+NB_MODULE(_runtime, m) {
+    m.doc() = "gamma weathering runtime (gamma-ton tracing)";
+    m.attr("ABI_VERSION") = GAMMA_ABI_VERSION;
+    m.attr("CHUNK_SIZE") = gamma::kChunkSize;
+
+    nb::register_exception_translator([](const std::exception_ptr& p, void*) {
+        try {
+            std::rethrow_exception(p);
+        } catch (const Error& e) {
+            PyErr_SetString(PyExc_ValueError, e.what());
+        }
+    });
+
+    nb::class_<gamma::Mesh>(m, "Mesh")
+        .def_static("load", [](const std::string& path) { return gamma::Mesh::load(path); }, "path"_a)
+        .def_static(
+            "from_arrays",
+            [](nb::handle verts, nb::handle tris) {
+                F32 v = as_f32(verts);
+                I32 t = as_i32(tris);
+                if (v.ndim() != 2 || v.shape(1) != 3) throw Error("from_arrays: vertices must have shape (n, 3)");
+                if (t.ndim() != 2 || t.shape(1) != 3) throw Error("from_arrays: triangles must have shape (m, 3)");
+                return gamma::Mesh::from_arrays(v.data(), v.shape(0), t.data(), t.shape(0));
+            },
+            "vertices"_a, "triangles"_a)
+        .def_prop_ro("num_vertices", &gamma::Mesh::num_vertices)
+        .def_prop_ro("num_triangles", &gamma::Mesh::num_triangles)
+        .def_prop_ro("degenerate_dropped", [](const gamma::Mesh& me) { return me.degenerate_dropped; })
+        .def_prop_ro("name", [](const gamma::Mesh& me) { return me.name; })
+        .def_prop_ro("bounds",
+                     [](const gamma::Mesh& me) {
+                         return nb::make_tuple(nb::make_tuple(me.lo[0], me.lo[1], me.lo[2]),
+                                               nb::make_tuple(me.hi[0], me.hi[1], me.hi[2]));
+                     })
+        .def("vertices", [](const gamma::Mesh& me) { return to_numpy<float>(me.vertices, {me.num_vertices(), 3}); })
+        .def("triangles",
+             [](const gamma::Mesh& me) { return to_numpy<int32_t>(me.triangles, {me.num_triangles(), 3}); });
+
+    nb::class_<gamma::Config>(m, "Config")
+        .def(nb::init<>())
+        .def_rw("surfels", &gamma::Config::surfels)
+        .def_rw("seed", &gamma::Config::seed)
+        .def_rw("threads", &gamma::Config::threads)
+        .def_rw("max_interactions", &gamma::Config::max_interactions)
+        .def_rw("row_width", &gamma::Config::row_width)
+        .def_rw("surface_rows", &gamma::Config::surface_rows)
+        .def_prop_rw(
+            "triangle_surface",
+            [](const gamma::Config& c) {
+                return to_numpy<int32_t>(c.triangle_surface, {c.triangle_surface.size()});
+            },
+            [](gamma::Config& c, nb::handle obj) {
+                if (obj.is_none()) { c.triangle_surface.clear(); return; }
+                I32 a = as_i32(obj);
+                if (a.ndim() != 1) throw Error("config: triangle_surface must be one-dimensional");
+                c.triangle_surface.assign(a.data(), a.data() + a.shape(0));
+            })
+        .def("add_ton_type", &gamma::Config::add_ton_type, "ks"_a, "kp"_a, "kf"_a, "initial_carry"_a)
+        .def("add_source", &gamma::Config::add_source, "kind"_a, "ton_type"_a, "count"_a,
+             "position"_a = std::array<float, 3>{0, 0, 0})
+        .def("set_transport", &gamma::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
+             "writes_surface"_a)
+        .def("set_update", &gamma::Config::set_update, "surface"_a, "address"_a)
+        .def_prop_ro("num_ton_types", [](const gamma::Config& c) { return c.ton_types.size(); })
+        .def_prop_ro("num_sources", [](const gamma::Config& c) { return c.sources.size(); });
+
+    nb::class_<gamma::Simulation>(m, "Simulation")
+        .def(
+            "__init__",
+            [](gamma::Simulation* self, const gamma::Mesh& mesh, const gamma::Config& cfg) {
+                nb::gil_scoped_release nogil;
+                new (self) gamma::Simulation(mesh, cfg);
+            },
+            "mesh"_a, "config"_a)
+        .def_prop_ro("num_surfels", &gamma::Simulation::num_surfels)
+        .def_prop_ro("row_width", &gamma::Simulation::row_width)
+        .def("surfel_positions",
+             [](const gamma::Simulation& s) { return to_numpy<float>(s.surfels().position, {s.num_surfels(), 3}); })
+        .def("surfel_normals",
+             [](const gamma::Simulation& s) { return to_numpy<float>(s.surfels().normal, {s.num_surfels(), 3}); })
+        .def("surfel_triangles",
+             [](const gamma::Simulation& s) { return to_numpy<int32_t>(s.surfels().triangle, {s.num_surfels()}); })
+        .def("surfel_surfaces",
+             [](const gamma::Simulation& s) { return to_numpy<int32_t>(s.surfel_surfaces(), {s.num_surfels()}); })
+        .def("rows",
+             [](const gamma::Simulation& s) {
+                 return to_numpy<float>(s.rows(), {s.num_surfels(), size_t(s.row_width())});
+             })
+        .def("set_rows",
+             [](gamma::Simulation& s, nb::handle obj) {
+                 F32 a = as_f32(obj);
+                 if (a.ndim() != 2 || a.shape(0) != s.num_surfels() || a.shape(1) != size_t(s.row_width()))
+                     throw Error("set_rows: expected shape (" + std::to_string(s.num_surfels()) + ", " +
+                                 std::to_string(s.row_width()) + ")");
+                 s.set_rows(a.data());
+             })
+        .def("trace",
+             [](gamma::Simulation& s, int iteration) {
+                 gamma::TraceStats st;
+                 {
+                     nb::gil_scoped_release nogil;
+                     st = s.trace(iteration);
+                 }
+                 nb::dict d;
+                 d["emitted"] = st.emitted;
+                 d["settled"] = st.settled;
+                 d["escaped"] = st.escaped;
+                 d["capped"] = st.capped;
+                 d["untraced"] = st.untraced;
+                 d["interactions"] = st.interactions;
+                 d["rays"] = st.rays;
+                 d["trace_seconds"] = st.trace_seconds;
+                 return d;
+             },
+             "iteration"_a)
+        .def("update",
+             [](gamma::Simulation& s, int iteration) {
+                 nb::gil_scoped_release nogil;
+                 return s.update(iteration);
+             },
+             "iteration"_a)
+        .def("raw_raycast",
+             [](gamma::Simulation& s, int64_t n_rays, int threads, uint64_t seed) {
+                 gamma::RaycastStats st;
+                 {
+                     nb::gil_scoped_release nogil;
+                     st = s.raw_raycast(n_rays, threads, seed);
+                 }
+                 nb::dict d;
+                 d["rays"] = st.rays;
+                 d["hits"] = st.hits;
+                 d["seconds"] = st.seconds;
+                 return d;
+             },
+             "n_rays"_a, "threads"_a, "seed"_a)
+        .def("render",
+             [](const gamma::Simulation& s, nb::handle values, std::array<float, 3> eye, std::array<float, 3> target,
+                std::array<float, 3> up, float fov_deg, int width, int height, int threads) {
+                 F32 v = as_f32(values);
+                 if (v.ndim() != 1 || v.shape(0) != s.num_surfels())
+                     throw Error("render: values must have shape (" + std::to_string(s.num_surfels()) + ",)");
+                 if (width < 1 || height < 1) throw Error("render: width and height must be positive");
+                 if (!(fov_deg > 0 && fov_deg < 180)) throw Error("render: fov_deg must be in (0, 180)");
+                 const size_t npx = size_t(width) * size_t(height);
+                 std::vector<float> val(npx), shade(npx);
+                 {
+                     nb::gil_scoped_release nogil;
+                     s.render(v.data(), eye, target, up, fov_deg, width, height, threads, val.data(), shade.data());
+                 }
+                 return nb::make_tuple(to_numpy<float>(std::move(val), {size_t(height), size_t(width)}),
+                                       to_numpy<float>(std::move(shade), {size_t(height), size_t(width)}));
+             },
+             "values"_a, "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a);
+}
