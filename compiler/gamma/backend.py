@@ -17,9 +17,14 @@ from .codegen import generate
 
 
 @lru_cache(maxsize=1)
-def _target_machine():
+def _initialise() -> None:
     llvm.initialize_native_target()
     llvm.initialize_native_asmprinter()
+
+
+def _target_machine():
+    """A new target machine: an MCJIT engine takes ownership of the one it gets."""
+    _initialise()
     target = llvm.Target.from_triple(llvm.get_process_triple())
     # Host CPU, opt level 3, but no fast-math: IR carries no fast flags and FP
     # contraction stays off, so kernels round exactly like the interpreter.

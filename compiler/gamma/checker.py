@@ -267,7 +267,7 @@ class _Checker:
     def ton(self, d: A.TonDecl, index: int) -> TonType:
         motion = self.inits(d.motion, "motion probability", MOTION_NAMES, unit=True)
         values = tuple(motion.get(n, (0.0, None))[0] for n in MOTION_NAMES)
-        if sum(values) > 1.0 + 1e-6:
+        if all(0.0 <= v <= 1.0 for v in values) and sum(values) > 1.0 + 1e-6:
             first = d.motion[0].pos if d.motion else d.pos
             self.error(first, f"motion probabilities of ton {d.name} sum to {sum(values):g}, "
                        "more than 1 (settling takes 1 - straight - parabolic - flow)")
