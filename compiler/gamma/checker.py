@@ -257,7 +257,7 @@ class _Checker:
             if isinstance(d, A.RuleDecl):
                 self.rule(d, tons, surfaces, kernels)
             elif isinstance(d, A.UpdateDecl):
-                self.update(d, surfaces, kernels)
+                self.update(d, surfaces, tons, kernels)
         width = abi.ROW_HEADER + max((len(s.properties) for s in surfaces.values()), default=0)
         if self.diags:
             raise GammaError(self.module.path, self.module.source, self.diags)
@@ -364,8 +364,8 @@ class _Checker:
         key = (d.event, ton.index, surf.index)
         kernels.setdefault(key, Kernel(d.event, ton, surf)).bodies.append((scope, d.body))
 
-    def update(self, d: A.UpdateDecl, surfaces, kernels) -> None:
-        surf = self.param(d.surface, surfaces, {}, "surface", "")
+    def update(self, d: A.UpdateDecl, surfaces, tons, kernels) -> None:
+        surf = self.param(d.surface, surfaces, tons, "surface", "ton type")
         if surf is None:
             return
         scope = Scope("update", None, None, d.surface.name, surf)

@@ -155,7 +155,9 @@ def run(effect: Effect, opts: RunOptions) -> dict:
         raise RunError(f"--show {shown}: surface {surface.name} has no such property "
                        f"({', '.join(surface.properties) or 'none'})")
     for name, value, low in (("--iterations", opts.iterations, 1), ("--surfels", opts.surfels, 1),
-                             ("--threads", opts.threads, 0), ("--tons", opts.tons or 0, 0)):
+                             ("--threads", opts.threads, 0), ("--tons", opts.tons or 0, 0),
+                             ("--max-interactions", opts.max_interactions, 1),
+                             ("--size", min(opts.width, opts.height), 16)):
         if value < low:
             raise RunError(f"{name} must be at least {low}, not {value}")
     rt = runtime_module()
@@ -172,7 +174,10 @@ def run(effect: Effect, opts: RunOptions) -> dict:
     cfg = build_config(rt, effect, kernels, opts)
     cfg.triangle_surface = np.full(mesh.num_triangles, surface.index, dtype=np.int32)
     t0 = time.perf_counter()
-    sim = rt.Simulation(mesh, cfg)
+    try:
+        sim = rt.Simulation(mesh, cfg)
+    except ValueError as err:
+        raise RunError(str(err)) from None
     setup_seconds = time.perf_counter() - t0
 
     out = Path(opts.out)
@@ -196,6 +201,10 @@ def run(effect: Effect, opts: RunOptions) -> dict:
     progress = Progress(opts.iterations, opts.progress)
     for it in range(1, opts.iterations + 1):
         stats = sim.trace(it)
+        if stats["untraced"]:
+            raise RunError(f"iteration {it}: {stats['untraced']} gamma-tons chose parabolic or flow "
+                           "motion (an update rule made a reflectance negative?), which this "
+                           "version does not trace")
         update_seconds = sim.update(it)
         rows = sim.rows()
         record = {k: stats[k] for k in ("emitted", "settled", "escaped", "capped", "interactions",

@@ -1,0 +1,69 @@
+# Quick start:  make demo   (installs what is missing, runs the patina demo)
+#               make test   (C++ runtime tests with sanitizers, then pytest)
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+SCENES ?= $(abspath ../shared/scenes)
+DEMO_OUT ?= out/patina-bunny
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
+	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev
+PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis
+SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
+	CMakeLists.txt pyproject.toml
+
+.PHONY: all demo test deps install runtime-tests pytest bench clean
+
+all: install
+
+deps:
+	@missing=$$(for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "== installing system packages:" $$missing; \
+	  $(SUDO) apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+
+$(PY): | deps
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+
+$(VENV)/.deps: $(PY) Makefile
+	$(PY) -m pip install -q $(PY_PACKAGES)
+	touch $@
+
+# The package (compiler + C++ runtime) is rebuilt when any source changes;
+# scikit-build-core keeps its build folder (build/) so rebuilds are incremental.
+$(VENV)/.installed: $(VENV)/.deps $(SOURCES)
+	$(PY) -m pip install -q --no-build-isolation .
+	touch $@
+
+install: deps $(VENV)/.installed
+
+demo: install
+	$(VENV)/bin/gammac run examples/patina.gamma --scene $(SCENES)/stanford-bunny.obj \
+	  --surfels 100000 --iterations 10 --out $(DEMO_OUT)
+	@echo
+	@echo "Patina on the Stanford bunny, one picture per iteration:"
+	@echo "  $(abspath $(DEMO_OUT))/renders/iter_0001.png ... iter_0010.png"
+	@echo "Maps (PLY point clouds): $(abspath $(DEMO_OUT))/maps/   Figures: $(abspath $(DEMO_OUT))/summary.json"
+
+# Runtime unit tests, built separately with AddressSanitizer + UBSan.
+runtime-tests: install
+	cmake -S . -B build-tests -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+	  -DGAMMA_BUILD_TESTS=ON -DGAMMA_SANITIZE=ON -DPython_EXECUTABLE=$(abspath $(PY)) \
+	  -Dnanobind_DIR=$$($(PY) -m nanobind --cmake_dir) > /dev/null
+	cmake --build build-tests --target runtime_tests
+	./build-tests/runtime_tests
+
+pytest: install
+	$(PY) -m pytest -q tests
+
+test: runtime-tests pytest
+
+bench: install
+	$(PY) bench/bench_patina.py
+
+clean:
+	rm -rf build build-tests out $(VENV)

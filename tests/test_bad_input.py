@@ -1,0 +1,96 @@
+"""Bad input ends with a non-zero exit, a one-line message and no traceback,
+and leaves no half-written output behind."""
+
+import pytest
+
+from conftest import ROOT, SCENES, run_gammac
+
+PATINA = ROOT / "examples" / "patina.gamma"
+
+
+def assert_one_line_error(result, *fragments):
+    assert result.returncode == 1, (result.returncode, result.stderr)
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("gammac: error: ")
+    for fragment in fragments:
+        assert fragment in lines[0]
+
+
+def run_on(tmp_path, mesh):
+    return run_gammac("run", PATINA, "--scene", mesh, "--surfels", 100, "--tons", 100,
+                      "--iterations", 1, "--quiet", "--out", tmp_path / "out")
+
+
+def test_missing_mesh(tmp_path):
+    r = run_on(tmp_path, tmp_path / "nowhere.obj")
+    assert_one_line_error(r, "nowhere.obj", "not found")
+    assert not (tmp_path / "out").exists()
+
+
+def test_empty_mesh(tmp_path):
+    (tmp_path / "empty.obj").write_text("")
+    assert_one_line_error(run_on(tmp_path, tmp_path / "empty.obj"), "empty.obj")
+
+
+def test_garbage_mesh(tmp_path):
+    (tmp_path / "garbage.ply").write_bytes(bytes(range(256)) * 8)
+    assert_one_line_error(run_on(tmp_path, tmp_path / "garbage.ply"), "garbage.ply")
+
+
+def test_mesh_without_triangles(tmp_path):
+    (tmp_path / "points.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    assert_one_line_error(run_on(tmp_path, tmp_path / "points.obj"), "no triangles")
+
+
+def test_nan_vertex(tmp_path):
+    (tmp_path / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\n")
+    assert_one_line_error(run_on(tmp_path, tmp_path / "nan.obj"), "non-finite")
+
+
+def test_only_degenerate_triangles(tmp_path):
+    (tmp_path / "flat.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
+    assert_one_line_error(run_on(tmp_path, tmp_path / "flat.obj"), "degenerate")
+
+
+def test_missing_effect(tmp_path):
+    r = run_gammac("run", tmp_path / "none.gamma", "--scene", SCENES / "spot.obj", "--out", tmp_path / "o")
+    assert_one_line_error(r, "none.gamma", "not found")
+
+
+def test_binary_effect(tmp_path):
+    (tmp_path / "bin.gamma").write_bytes(b"\xff\xfe\x00garbage\x80")
+    assert_one_line_error(run_gammac("check", tmp_path / "bin.gamma"), "not UTF-8")
+
+
+def test_malformed_effect_reports_diagnostics(tmp_path):
+    (tmp_path / "bad.gamma").write_text("ton T { motion straight = }\n")
+    r = run_gammac("run", tmp_path / "bad.gamma", "--scene", SCENES / "spot.obj", "--out", tmp_path / "o")
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    assert r.stderr.startswith("bad.gamma:1:27: error: ") or ":1:27: error: " in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_untraced_motion_is_refused_not_faked(tmp_path):
+    (tmp_path / "rain.gamma").write_text(
+        "ton Rain { motion parabolic = 0.8, flow = 0.2 carry h = 1 }\n"
+        "surface Cement { reflectance parabolic = 0.4 property h = 0 }\n"
+        "source rain = environment(hemisphere) emits Rain count 10\n")
+    r = run_gammac("run", tmp_path / "rain.gamma", "--scene", SCENES / "spot.obj", "--out", tmp_path / "o")
+    assert r.returncode == 1 and "parabolic motion is not traced" in r.stderr
+    assert "flow motion is not traced" in r.stderr
+    assert run_gammac("check", tmp_path / "rain.gamma").returncode == 0
+
+
+@pytest.mark.parametrize("args", [["--iterations", "x"], ["--surfels", "-3"], ["--bogus"], []])
+def test_usage_errors_exit_2(tmp_path, args):
+    base = ["run", PATINA, "--scene", SCENES / "spot.obj", "--out", tmp_path / "o"] if args else ["run"]
+    r = run_gammac(*base, *args)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+
+
+def test_unknown_surface_assignment(tmp_path):
+    r = run_gammac("run", PATINA, "--scene", SCENES / "spot.obj", "--assign", "Bronze",
+                   "--out", tmp_path / "o")
+    assert_one_line_error(r, "Bronze", "Copper")

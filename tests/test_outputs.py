@@ -1,0 +1,68 @@
+"""The output contract of ``gammac run`` (maps, renders, summary)."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import ROOT, SCENES, run_gammac
+from gamma.outputs import read_ply
+
+
+@pytest.fixture(scope="module")
+def spot_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("spot") / "out"
+    r = run_gammac("run", ROOT / "examples" / "patina.gamma", "--scene", SCENES / "spot.obj",
+                   "--surfels", 8000, "--tons", 40000, "--iterations", 3, "--size", 200,
+                   "--seed", 3, "--out", out)
+    assert r.returncode == 0, r.stderr
+    return out, r
+
+
+def test_maps_are_ply_point_clouds_with_every_column(spot_run):
+    out, _ = spot_run
+    for i in (1, 2, 3):
+        cols = read_ply(out / "maps" / f"iter_{i:04d}.ply")
+        assert list(cols) == ["x", "y", "z", "nx", "ny", "nz", "patina", "reflectance_straight",
+                              "reflectance_parabolic", "reflectance_flow"]
+        assert len(cols["x"]) == 8000
+        n = np.stack([cols["nx"], cols["ny"], cols["nz"]], 1)
+        assert np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-5)
+        assert np.all(cols["reflectance_straight"] == np.float32(0.5))
+
+
+def test_patina_grows_and_matches_the_summary(spot_run):
+    out, _ = spot_run
+    summary = json.loads((out / "summary.json").read_text())
+    sums = [it["property_sums"]["patina"] for it in summary["iterations"]]
+    assert sums[0] > 0 and sums[0] < sums[1] < sums[2]
+    last = read_ply(out / "maps" / "iter_0003.ply")["patina"]
+    assert float(np.sum(last, dtype=np.float64)) == pytest.approx(sums[2], rel=1e-9)
+    for key in ("surfels", "triangles", "threads", "seed", "versions"):
+        assert key in summary
+    assert summary["surfels"] == 8000 and summary["seed"] == 3
+    for it in summary["iterations"]:
+        assert it["emitted"] == 40000
+        assert it["emitted"] == it["settled"] + it["escaped"] + it["capped"] + it["untraced"]
+        assert it["trace_seconds"] > 0 and it["update_seconds"] >= 0
+
+
+def test_one_render_per_iteration_with_colour_bar(spot_run):
+    out, _ = spot_run
+    for i in (1, 2, 3):
+        img = Image.open(out / "renders" / f"iter_{i:04d}.png")
+        assert img.size[1] == 200 and img.size[0] > 200   # picture plus the colour bar
+        pixels = np.asarray(img.convert("RGB")).astype(int)
+        assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 50   # not blank
+
+
+def test_no_temporary_files_left(spot_run):
+    out, _ = spot_run
+    leftovers = [p for p in out.rglob("*") if p.name.startswith(".")]
+    assert leftovers == []
+
+
+def test_progress_is_shown(spot_run):
+    _, r = spot_run
+    assert "3/3" in r.stderr and "γ-tons/s" in r.stderr
