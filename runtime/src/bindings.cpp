@@ -15,7 +15,7 @@
 
 namespace nb = nanobind;
 using namespace nb::literals;
-using gamma::Error;
+using gammart::Error;
 
 namespace {
 
@@ -42,7 +42,7 @@ I32 as_i32(nb::handle obj) { return nb::cast<I32>(numpy_asarray(obj, "int32")); 
 NB_MODULE(_runtime, m) {
     m.doc() = "gamma weathering runtime (gamma-ton tracing)";
     m.attr("ABI_VERSION") = GAMMA_ABI_VERSION;
-    m.attr("CHUNK_SIZE") = gamma::kChunkSize;
+    m.attr("CHUNK_SIZE") = gammart::kChunkSize;
 
     nb::register_exception_translator([](const std::exception_ptr& p, void*) {
         try {
@@ -52,8 +52,8 @@ NB_MODULE(_runtime, m) {
         }
     });
 
-    nb::class_<gamma::Mesh>(m, "Mesh")
-        .def_static("load", [](const std::string& path) { return gamma::Mesh::load(path); }, "path"_a)
+    nb::class_<gammart::Mesh>(m, "Mesh")
+        .def_static("load", [](const std::string& path) { return gammart::Mesh::load(path); }, "path"_a)
         .def_static(
             "from_arrays",
             [](nb::handle verts, nb::handle tris) {
@@ -61,74 +61,75 @@ NB_MODULE(_runtime, m) {
                 I32 t = as_i32(tris);
                 if (v.ndim() != 2 || v.shape(1) != 3) throw Error("from_arrays: vertices must have shape (n, 3)");
                 if (t.ndim() != 2 || t.shape(1) != 3) throw Error("from_arrays: triangles must have shape (m, 3)");
-                return gamma::Mesh::from_arrays(v.data(), v.shape(0), t.data(), t.shape(0));
+                return gammart::Mesh::from_arrays(v.data(), v.shape(0), t.data(), t.shape(0));
             },
             "vertices"_a, "triangles"_a)
-        .def_prop_ro("num_vertices", &gamma::Mesh::num_vertices)
-        .def_prop_ro("num_triangles", &gamma::Mesh::num_triangles)
-        .def_prop_ro("degenerate_dropped", [](const gamma::Mesh& me) { return me.degenerate_dropped; })
-        .def_prop_ro("name", [](const gamma::Mesh& me) { return me.name; })
+        .def_prop_ro("num_vertices", &gammart::Mesh::num_vertices)
+        .def_prop_ro("num_triangles", &gammart::Mesh::num_triangles)
+        .def_prop_ro("degenerate_dropped", [](const gammart::Mesh& me) { return me.degenerate_dropped; })
+        .def_prop_ro("name", [](const gammart::Mesh& me) { return me.name; })
         .def_prop_ro("bounds",
-                     [](const gamma::Mesh& me) {
+                     [](const gammart::Mesh& me) {
                          return nb::make_tuple(nb::make_tuple(me.lo[0], me.lo[1], me.lo[2]),
                                                nb::make_tuple(me.hi[0], me.hi[1], me.hi[2]));
                      })
-        .def("vertices", [](const gamma::Mesh& me) { return to_numpy<float>(me.vertices, {me.num_vertices(), 3}); })
+        .def("vertices", [](const gammart::Mesh& me) { return to_numpy<float>(me.vertices, {me.num_vertices(), 3}); })
         .def("triangles",
-             [](const gamma::Mesh& me) { return to_numpy<int32_t>(me.triangles, {me.num_triangles(), 3}); });
+             [](const gammart::Mesh& me) { return to_numpy<int32_t>(me.triangles, {me.num_triangles(), 3}); });
 
-    nb::class_<gamma::Config>(m, "Config")
+    nb::class_<gammart::Config>(m, "Config")
         .def(nb::init<>())
-        .def_rw("surfels", &gamma::Config::surfels)
-        .def_rw("seed", &gamma::Config::seed)
-        .def_rw("threads", &gamma::Config::threads)
-        .def_rw("max_interactions", &gamma::Config::max_interactions)
-        .def_rw("row_width", &gamma::Config::row_width)
-        .def_rw("surface_rows", &gamma::Config::surface_rows)
+        .def_rw("surfels", &gammart::Config::surfels)
+        .def_rw("seed", &gammart::Config::seed)
+        .def_rw("threads", &gammart::Config::threads)
+        .def_rw("max_interactions", &gammart::Config::max_interactions)
+        .def_rw("row_width", &gammart::Config::row_width)
+        .def_rw("surface_rows", &gammart::Config::surface_rows)
         .def_prop_rw(
             "triangle_surface",
-            [](const gamma::Config& c) {
-                return to_numpy<int32_t>(c.triangle_surface, {c.triangle_surface.size()});
+            [](const gammart::Config& c) -> nb::object {
+                return nb::cast(to_numpy<int32_t>(c.triangle_surface, {c.triangle_surface.size()}),
+                                nb::rv_policy::move);
             },
-            [](gamma::Config& c, nb::handle obj) {
+            [](gammart::Config& c, nb::handle obj) {
                 if (obj.is_none()) { c.triangle_surface.clear(); return; }
                 I32 a = as_i32(obj);
                 if (a.ndim() != 1) throw Error("config: triangle_surface must be one-dimensional");
                 c.triangle_surface.assign(a.data(), a.data() + a.shape(0));
             })
-        .def("add_ton_type", &gamma::Config::add_ton_type, "ks"_a, "kp"_a, "kf"_a, "initial_carry"_a)
-        .def("add_source", &gamma::Config::add_source, "kind"_a, "ton_type"_a, "count"_a,
+        .def("add_ton_type", &gammart::Config::add_ton_type, "ks"_a, "kp"_a, "kf"_a, "initial_carry"_a)
+        .def("add_source", &gammart::Config::add_source, "kind"_a, "ton_type"_a, "count"_a,
              "position"_a = std::array<float, 3>{0, 0, 0})
-        .def("set_transport", &gamma::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
+        .def("set_transport", &gammart::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
              "writes_surface"_a)
-        .def("set_update", &gamma::Config::set_update, "surface"_a, "address"_a)
-        .def_prop_ro("num_ton_types", [](const gamma::Config& c) { return c.ton_types.size(); })
-        .def_prop_ro("num_sources", [](const gamma::Config& c) { return c.sources.size(); });
+        .def("set_update", &gammart::Config::set_update, "surface"_a, "address"_a)
+        .def_prop_ro("num_ton_types", [](const gammart::Config& c) { return c.ton_types.size(); })
+        .def_prop_ro("num_sources", [](const gammart::Config& c) { return c.sources.size(); });
 
-    nb::class_<gamma::Simulation>(m, "Simulation")
+    nb::class_<gammart::Simulation>(m, "Simulation")
         .def(
             "__init__",
-            [](gamma::Simulation* self, const gamma::Mesh& mesh, const gamma::Config& cfg) {
+            [](gammart::Simulation* self, const gammart::Mesh& mesh, const gammart::Config& cfg) {
                 nb::gil_scoped_release nogil;
-                new (self) gamma::Simulation(mesh, cfg);
+                new (self) gammart::Simulation(mesh, cfg);
             },
             "mesh"_a, "config"_a)
-        .def_prop_ro("num_surfels", &gamma::Simulation::num_surfels)
-        .def_prop_ro("row_width", &gamma::Simulation::row_width)
+        .def_prop_ro("num_surfels", &gammart::Simulation::num_surfels)
+        .def_prop_ro("row_width", &gammart::Simulation::row_width)
         .def("surfel_positions",
-             [](const gamma::Simulation& s) { return to_numpy<float>(s.surfels().position, {s.num_surfels(), 3}); })
+             [](const gammart::Simulation& s) { return to_numpy<float>(s.surfels().position, {s.num_surfels(), 3}); })
         .def("surfel_normals",
-             [](const gamma::Simulation& s) { return to_numpy<float>(s.surfels().normal, {s.num_surfels(), 3}); })
+             [](const gammart::Simulation& s) { return to_numpy<float>(s.surfels().normal, {s.num_surfels(), 3}); })
         .def("surfel_triangles",
-             [](const gamma::Simulation& s) { return to_numpy<int32_t>(s.surfels().triangle, {s.num_surfels()}); })
+             [](const gammart::Simulation& s) { return to_numpy<int32_t>(s.surfels().triangle, {s.num_surfels()}); })
         .def("surfel_surfaces",
-             [](const gamma::Simulation& s) { return to_numpy<int32_t>(s.surfel_surfaces(), {s.num_surfels()}); })
+             [](const gammart::Simulation& s) { return to_numpy<int32_t>(s.surfel_surfaces(), {s.num_surfels()}); })
         .def("rows",
-             [](const gamma::Simulation& s) {
+             [](const gammart::Simulation& s) {
                  return to_numpy<float>(s.rows(), {s.num_surfels(), size_t(s.row_width())});
              })
         .def("set_rows",
-             [](gamma::Simulation& s, nb::handle obj) {
+             [](gammart::Simulation& s, nb::handle obj) {
                  F32 a = as_f32(obj);
                  if (a.ndim() != 2 || a.shape(0) != s.num_surfels() || a.shape(1) != size_t(s.row_width()))
                      throw Error("set_rows: expected shape (" + std::to_string(s.num_surfels()) + ", " +
@@ -136,8 +137,8 @@ NB_MODULE(_runtime, m) {
                  s.set_rows(a.data());
              })
         .def("trace",
-             [](gamma::Simulation& s, int iteration) {
-                 gamma::TraceStats st;
+             [](gammart::Simulation& s, int iteration) {
+                 gammart::TraceStats st;
                  {
                      nb::gil_scoped_release nogil;
                      st = s.trace(iteration);
@@ -155,14 +156,14 @@ NB_MODULE(_runtime, m) {
              },
              "iteration"_a)
         .def("update",
-             [](gamma::Simulation& s, int iteration) {
+             [](gammart::Simulation& s, int iteration) {
                  nb::gil_scoped_release nogil;
                  return s.update(iteration);
              },
              "iteration"_a)
         .def("raw_raycast",
-             [](gamma::Simulation& s, int64_t n_rays, int threads, uint64_t seed) {
-                 gamma::RaycastStats st;
+             [](gammart::Simulation& s, int64_t n_rays, int threads, uint64_t seed) {
+                 gammart::RaycastStats st;
                  {
                      nb::gil_scoped_release nogil;
                      st = s.raw_raycast(n_rays, threads, seed);
@@ -175,7 +176,7 @@ NB_MODULE(_runtime, m) {
              },
              "n_rays"_a, "threads"_a, "seed"_a)
         .def("render",
-             [](const gamma::Simulation& s, nb::handle values, std::array<float, 3> eye, std::array<float, 3> target,
+             [](const gammart::Simulation& s, nb::handle values, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads) {
                  F32 v = as_f32(values);
                  if (v.ndim() != 1 || v.shape(0) != s.num_surfels())

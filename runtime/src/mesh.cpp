@@ -4,13 +4,17 @@
 #include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
 #include <OpenMesh/Core/System/omstream.hh>
 
+#include <cctype>
+#include <cfloat>
 #include <cmath>
+#include <cstdlib>
+#include <fstream>
 #include <filesystem>
 #include <mutex>
 
 #include "gamma/error.h"
 
-namespace gamma {
+namespace gammart {
 
 namespace {
 using OMesh = OpenMesh::TriMesh_ArrayKernelT<>;
@@ -75,6 +79,35 @@ Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::s
     mesh.vertices = std::move(verts);
     return mesh;
 }
+// OpenMesh's OBJ reader silently drops vertices it cannot parse as finite
+// numbers (nan, inf, 1e999), which would surface as a confusing "no
+// triangles" error; scan the 'v' lines ourselves first.
+void check_obj_coordinates(const std::string& path) {
+    std::string ext = std::filesystem::path(path).extension().string();
+    for (auto& ch : ext) ch = char(std::tolower(static_cast<unsigned char>(ch)));
+    if (ext != ".obj") return;
+    std::ifstream in(path);
+    std::string line;
+    size_t vertex = 0;
+    while (std::getline(in, line)) {
+        size_t a = line.find_first_not_of(" \t");
+        if (a == std::string::npos || line.compare(a, 2, "v ") != 0) {
+            if (a == std::string::npos || line.compare(a, 2, "v\t") != 0) continue;
+        }
+        const char* p = line.c_str() + a + 2;
+        for (int k = 0; k < 3; ++k) {
+            char* endp = nullptr;
+            double c = std::strtod(p, &endp);
+            if (endp == p) break;  // malformed: leave it to OpenMesh
+            if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
+                throw Error("mesh " + q(path) + ": vertex " + std::to_string(vertex) +
+                            " has a non-finite coordinate");
+            p = endp;
+        }
+        ++vertex;
+    }
+}
+
 }  // namespace
 
 float Mesh::diagonal() const {
@@ -105,6 +138,7 @@ Mesh Mesh::load(const std::string& path) {
         throw Error("cannot read mesh " + q(path) + ": file not found");
     if (std::filesystem::is_directory(path, ec))
         throw Error("cannot read mesh " + q(path) + ": is a directory");
+    check_obj_coordinates(path);
     OMesh om;
     OpenMesh::IO::Options opt;
     bool ok = false;
@@ -139,4 +173,4 @@ Mesh Mesh::from_arrays(const float* verts, size_t n, const int32_t* tris, size_t
     return build(std::vector<float>(verts, verts + 3 * n), tris, m, name);
 }
 
-}  // namespace gamma
+}  // namespace gammart

@@ -17,7 +17,7 @@
 #include "gamma/philox.h"
 #include "gamma/vec.h"
 
-namespace gamma {
+namespace gammart {
 
 namespace {
 
@@ -147,8 +147,11 @@ struct Simulation::Impl {
 };
 
 int Simulation::threads_for(int requested) const {
-    if (requested <= 0) return std::max(1, tbb::info::default_concurrency());
-    return requested;
+    // <= 0: all hardware threads; more than the hardware offers is clamped
+    // (results never depend on the thread count).
+    const int hw = std::max(1, tbb::info::default_concurrency());
+    if (requested <= 0) return hw;
+    return std::min(requested, hw);
 }
 
 Simulation::Simulation(const Mesh& mesh, const Config& config)
@@ -546,4 +549,4 @@ void Simulation::render(const float* values, std::array<float, 3> eye, std::arra
     });
 }
 
-}  // namespace gamma
+}  // namespace gammart

@@ -7,7 +7,7 @@
 #include "gamma/error.h"
 #include "gamma/philox.h"
 
-namespace gamma {
+namespace gammart {
 
 namespace {
 
@@ -95,62 +95,72 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
     auto key_of = [](int64_t x, int64_t y, int64_t z) {
         return (uint64_t(x) << 42) | (uint64_t(y) << 21) | uint64_t(z);
     };
-    // Sort points by cell key; map key -> range.
+    // Sort points by cell key and work on a copy in that order, so that the
+    // points of a cell (and of neighbouring z-cells) are contiguous in memory.
     std::vector<std::pair<uint64_t, uint32_t>> order(m);
     for (size_t i = 0; i < m; ++i)
         order[i] = {key_of(cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)), uint32_t(i)};
     std::sort(order.begin(), order.end());
-    std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> cells;
+    std::vector<float> sp(3 * m);
+    for (size_t a = 0; a < m; ++a)
+        for (int k = 0; k < 3; ++k) sp[3 * a + k] = pts[3 * size_t(order[a].second) + k];
+    struct Cell { uint64_t key; uint32_t begin, end; };
+    std::vector<Cell> cell_list;
+    std::unordered_map<uint64_t, uint32_t> cells;  // key -> index in cell_list
     cells.reserve(m);
     for (size_t a = 0; a < m;) {
         size_t b = a;
         while (b < m && order[b].first == order[a].first) ++b;
-        cells.emplace(order[a].first, std::make_pair(uint32_t(a), uint32_t(b)));
+        cells.emplace(order[a].first, uint32_t(cell_list.size()));
+        cell_list.push_back({order[a].first, uint32_t(a), uint32_t(b)});
         a = b;
     }
-    // Neighbour lists (CSR) and initial weights.
+    // Neighbour lists (CSR, in sorted index space) and initial weights.
     std::vector<uint64_t> offs(m + 1, 0);
     std::vector<uint32_t> nbr;
     nbr.reserve(m * 24);
     std::vector<double> w(m, 0.0);
     const double r2sq = r2 * r2;
+    const double inv_r2 = 1.0 / r2;
     auto weight = [&](uint32_t i, uint32_t j) {
         double d2 = 0;
         for (int k = 0; k < 3; ++k) {
-            double d = double(pts[3 * size_t(i) + k]) - pts[3 * size_t(j) + k];
+            double d = double(sp[3 * size_t(i) + k]) - sp[3 * size_t(j) + k];
             d2 += d * d;
         }
-        double t = 1.0 - std::sqrt(d2) / r2;
+        double t = 1.0 - std::sqrt(d2) * inv_r2;
         t = t * t;  // ^2
         t = t * t;  // ^4
         return t * t;  // ^8
     };
-    for (size_t i = 0; i < m; ++i) {
-        int64_t cx = cell_of(i, 0), cy = cell_of(i, 1), cz = cell_of(i, 2);
+    std::vector<std::pair<uint32_t, uint32_t>> ranges;
+    for (const Cell& cl : cell_list) {
+        const int64_t cx = int64_t(cl.key >> 42), cy = int64_t((cl.key >> 21) & 0x1fffff),
+                      cz = int64_t(cl.key & 0x1fffff);
+        ranges.clear();
         for (int64_t dx = -1; dx <= 1; ++dx)
             for (int64_t dy = -1; dy <= 1; ++dy)
                 for (int64_t dz = -1; dz <= 1; ++dz) {
                     if (cx + dx < 0 || cy + dy < 0 || cz + dz < 0) continue;
                     auto it = cells.find(key_of(cx + dx, cy + dy, cz + dz));
                     if (it == cells.end()) continue;
-                    for (uint32_t a = it->second.first; a < it->second.second; ++a) {
-                        uint32_t j = order[a].second;
-                        if (j == i) continue;
-                        double d2 = 0;
-                        for (int k = 0; k < 3; ++k) {
-                            double d = double(pts[3 * i + k]) - pts[3 * size_t(j) + k];
-                            d2 += d * d;
-                        }
-                        if (d2 < r2sq) nbr.push_back(j);
-                    }
+                    const Cell& nc = cell_list[it->second];
+                    ranges.emplace_back(nc.begin, nc.end);
                 }
-        // Fixed neighbour order (cell visiting order is fixed, but sort anyway so
-        // the float sums below do not depend on hash-map internals).
-        std::sort(nbr.begin() + int64_t(offs[i]), nbr.end());
-        offs[i + 1] = nbr.size();
-        double s = 0;
-        for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) s += weight(uint32_t(i), nbr[a]);
-        w[i] = s;
+        for (uint32_t i = cl.begin; i < cl.end; ++i) {
+            const float px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+            for (const auto& rg : ranges)
+                for (uint32_t j = rg.first; j < rg.second; ++j) {
+                    if (j == i) continue;
+                    const double dx = double(px) - sp[3 * size_t(j)], dy = double(py) - sp[3 * size_t(j) + 1],
+                                 dz = double(pz) - sp[3 * size_t(j) + 2];
+                    if (dx * dx + dy * dy + dz * dz < r2sq) nbr.push_back(j);
+                }
+            offs[i + 1] = nbr.size();
+            double sum = 0;
+            for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) sum += weight(i, nbr[a]);
+            w[i] = sum;
+        }
     }
     IndexedMaxHeap heap(w);
     size_t alive = m;
@@ -166,8 +176,8 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
         }
     }
     kept.reserve(keep);
-    for (size_t i = 0; i < m; ++i)
-        if (heap.contains(uint32_t(i))) kept.push_back(uint32_t(i));
+    for (size_t a = 0; a < m; ++a)
+        if (heap.contains(uint32_t(a))) kept.push_back(order[a].second);
     return kept;
 }
 
@@ -245,4 +255,4 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     return out;
 }
 
-}  // namespace gamma
+}  // namespace gammart

@@ -9,7 +9,7 @@
 namespace gamma_test {
 
 // Closed icosphere of radius r centred at the origin.
-inline gamma::Mesh icosphere(int subdiv, float r = 1.0f) {
+inline gammart::Mesh icosphere(int subdiv, float r = 1.0f) {
     const float t = (1.0f + std::sqrt(5.0f)) / 2.0f;
     std::vector<std::array<float, 3>> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
                                            {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
@@ -46,14 +46,14 @@ inline gamma::Mesh icosphere(int subdiv, float r = 1.0f) {
     for (auto& p : v) for (float c : p) vf.push_back(c * r);
     std::vector<int32_t> tf;
     for (auto& tri : f) for (int c : tri) tf.push_back(c);
-    return gamma::Mesh::from_arrays(vf.data(), v.size(), tf.data(), f.size(), "icosphere");
+    return gammart::Mesh::from_arrays(vf.data(), v.size(), tf.data(), f.size(), "icosphere");
 }
 
 // Unit square in the z=0 plane as three triangles of areas 0.15, 0.35, 0.5.
-inline gamma::Mesh unit_square() {
+inline gammart::Mesh unit_square() {
     std::vector<float> v = {0, 0, 0, 0.3f, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
     std::vector<int32_t> t = {0, 1, 4, 1, 2, 3, 1, 3, 4};
-    return gamma::Mesh::from_arrays(v.data(), 5, t.data(), 3, "square");
+    return gammart::Mesh::from_arrays(v.data(), 5, t.data(), 3, "square");
 }
 
 }  // namespace gamma_test

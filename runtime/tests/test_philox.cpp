@@ -2,7 +2,7 @@
 
 #include "gamma/philox.h"
 
-using namespace gamma;
+using namespace gammart;
 
 TEST(Philox, KnownAnswerZero) {
     Philox4 r = philox4x32_10({0, 0, 0, 0}, {0, 0});

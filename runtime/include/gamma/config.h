@@ -6,7 +6,7 @@
 
 #include "gamma_abi.h"
 
-namespace gamma {
+namespace gammart {
 
 struct TonType {
     float ks = 0, kp = 0, kf = 0;
@@ -48,7 +48,7 @@ struct Config {
         ton_types.push_back({ks, kp, kf, std::move(carry)});
         return int(ton_types.size()) - 1;
     }
-    void add_source(std::string kind, int ton_type, int64_t count, std::array<float, 3> pos) {
+    void add_source(std::string kind, int ton_type, int64_t count, std::array<float, 3> pos = {0, 0, 0}) {
         sources.push_back({std::move(kind), ton_type, count, pos});
     }
     void set_transport(int event, int ton_type, int surface, uint64_t address, bool writes) {
@@ -57,4 +57,4 @@ struct Config {
     void set_update(int surface, uint64_t address) { updates.push_back({surface, address}); }
 };
 
-}  // namespace gamma
+}  // namespace gammart

@@ -4,7 +4,7 @@
 #include <string>
 #include <vector>
 
-namespace gamma {
+namespace gammart {
 
 // Triangle mesh after validation and removal of degenerate triangles.
 struct Mesh {
@@ -21,11 +21,11 @@ struct Mesh {
     float diagonal() const;
     double area() const;  // total area of kept triangles
 
-    // Loads OBJ/PLY (anything OpenMesh reads).  Throws gamma::Error.
+    // Loads OBJ/PLY (anything OpenMesh reads).  Throws gammart::Error.
     static Mesh load(const std::string& path);
-    // Validates and builds from raw arrays.  Throws gamma::Error.
+    // Validates and builds from raw arrays.  Throws gammart::Error.
     static Mesh from_arrays(const float* verts, size_t n, const int32_t* tris, size_t m,
                             const std::string& name = "<arrays>");
 };
 
-}  // namespace gamma
+}  // namespace gammart

@@ -3,7 +3,7 @@
 #include <array>
 #include <cstdint>
 
-namespace gamma {
+namespace gammart {
 
 using Philox4 = std::array<uint32_t, 4>;
 
@@ -53,4 +53,4 @@ private:
 // Iteration value reserved for the surfel-sampling stream.
 constexpr uint32_t kSamplingIteration = 0xFFFFFFFFu;
 
-}  // namespace gamma
+}  // namespace gammart

@@ -9,7 +9,7 @@
 #include "gamma/mesh.h"
 #include "gamma/surfels.h"
 
-namespace gamma {
+namespace gammart {
 
 struct TraceStats {
     int64_t emitted = 0, settled = 0, escaped = 0, capped = 0, untraced = 0;
@@ -27,7 +27,7 @@ constexpr int64_t kChunkSize = 1024;
 
 class Simulation {
 public:
-    // Validates config (throws gamma::Error), resamples surfels, builds the
+    // Validates config (throws gammart::Error), resamples surfels, builds the
     // Embree scene and the surfel kd-tree.
     Simulation(const Mesh& mesh, const Config& config);
     ~Simulation();
@@ -66,4 +66,4 @@ private:
     int threads_for(int requested) const;
 };
 
-}  // namespace gamma
+}  // namespace gammart

@@ -4,7 +4,7 @@
 
 #include "gamma/mesh.h"
 
-namespace gamma {
+namespace gammart {
 
 struct SurfelSet {
     std::vector<float> position;   // N*3
@@ -22,4 +22,4 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed);
 // Returns the indices of the kept points (ascending order not guaranteed).
 std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t keep, double r_max);
 
-}  // namespace gamma
+}  // namespace gammart

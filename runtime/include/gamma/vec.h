@@ -2,7 +2,7 @@
 #pragma once
 #include <cmath>
 
-namespace gamma {
+namespace gammart {
 struct V3 {
     float x = 0, y = 0, z = 0;
 };
@@ -27,4 +27,4 @@ inline void onb(V3 n, V3& t, V3& b) {
     t = {1.0f + sign * n.x * n.x * a, sign * bb, -sign * n.x};
     b = {bb, sign + n.y * n.y * a, -n.y};
 }
-}  // namespace gamma
+}  // namespace gammart

@@ -1,0 +1,206 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+
+#include "gamma/error.h"
+#include "gamma/simulation.h"
+#include "helpers.h"
+
+using namespace gammart;
+
+namespace {
+
+// Hand-written transport kernels (stand-ins for JIT'd ones).
+extern "C" void k_hit(float* ton, const float* surf, float* delta, const GammaContext* ctx) {
+    delta[3] = ton[0] * 0.1f + surf[4] * 0.01f;
+    delta[4] = ctx->position[0] * 1e-3f + float(ctx->interactions) * 1e-4f;
+    ton[0] = ton[0] * 0.9f + surf[3] * 0.05f;
+}
+extern "C" void k_settle(float* ton, const float*, float* delta, const GammaContext* ctx) {
+    delta[3] += ton[0] * 0.33f;
+    delta[4] += ctx->normal[1] * 1e-3f;
+}
+extern "C" void k_update(float* surf, const GammaContext* ctx) {
+    surf[4] = surf[4] * 0.5f + surf[3] * 0.25f + ctx->position[2] * 1e-3f;
+}
+
+uint64_t addr(void* f) { return uint64_t(reinterpret_cast<uintptr_t>(f)); }
+
+Config base_config(int W, float ds) {
+    Config c;
+    c.surfels = 2000;
+    c.seed = 5;
+    c.threads = 1;
+    c.row_width = W;
+    std::vector<float> row(size_t(W), 0.0f);
+    row[GAMMA_ROW_DELTA_STRAIGHT] = ds;
+    c.surface_rows = {row};
+    return c;
+}
+
+}  // namespace
+
+TEST(Trace, PatinaMeanInteractions) {
+    Mesh m = gamma_test::icosphere(4);
+    Config c = base_config(3, 0.5f);
+    c.threads = 2;
+    int t = c.add_ton_type(1, 0, 0, {});
+    c.add_source("point", t, 100000, {0, 0, 0});
+    Simulation sim(m, c);
+    TraceStats st = sim.trace(0);
+    EXPECT_EQ(st.emitted, 100000);
+    EXPECT_EQ(st.escaped, 0);
+    EXPECT_EQ(st.capped, 0);
+    EXPECT_EQ(st.untraced, 0);
+    EXPECT_EQ(st.settled, 100000);
+    EXPECT_EQ(st.rays, st.interactions);
+    const double mean = double(st.interactions) / double(st.emitted);
+    EXPECT_NEAR(mean, 2.5, 0.02);
+}
+
+TEST(Trace, CappedAtMaxInteractions) {
+    Mesh m = gamma_test::icosphere(3);
+    Config c = base_config(3, 0.0f);
+    c.max_interactions = 25;
+    int t = c.add_ton_type(1, 0, 0, {});
+    c.add_source("point", t, 5000, {0.1f, 0.2f, -0.1f});
+    Simulation sim(m, c);
+    TraceStats st = sim.trace(0);
+    EXPECT_EQ(st.capped, 5000);
+    EXPECT_EQ(st.escaped, 0);
+    EXPECT_EQ(st.settled, 0);
+    EXPECT_EQ(st.interactions, 25 * 5000);
+    EXPECT_EQ(st.rays, 25 * 5000);
+}
+
+TEST(Trace, BounceAndFlowCountedUntraced) {
+    Mesh m = gamma_test::icosphere(2);
+    Config c = base_config(3, 0.0f);
+    int a = c.add_ton_type(0, 1, 0, {});
+    int b = c.add_ton_type(0, 0, 1, {});
+    c.add_source("point", a, 1000, {0, 0, 0});
+    c.add_source("point", b, 1000, {0, 0, 0});
+    Simulation sim(m, c);
+    TraceStats st = sim.trace(0);
+    EXPECT_EQ(st.untraced, 2000);
+    EXPECT_EQ(st.interactions, 2000);
+}
+
+TEST(Trace, EnvironmentSourcesOutsideSphere) {
+    Mesh m = gamma_test::icosphere(3);
+    Config c = base_config(3, 1.0f);
+    int t = c.add_ton_type(0, 0, 0, {});
+    c.add_source("sphere", t, 20000);
+    c.add_source("hemisphere", t, 20000);
+    Simulation sim(m, c);
+    TraceStats st = sim.trace(0);
+    EXPECT_EQ(st.emitted, 40000);
+    EXPECT_EQ(st.settled + st.escaped, 40000);
+    // Cosine-weighted inward from R = 1.05 * half diagonal (= 1.05*sqrt(3)):
+    // fraction hitting the unit sphere = (1/R)^2.
+    const double R = 1.05 * std::sqrt(3.0);
+    EXPECT_NEAR(double(st.settled) / 40000.0, 1.0 / (R * R), 0.015);
+}
+
+static std::vector<float> run_threads(int threads) {
+    Mesh m = gamma_test::icosphere(3);
+    const int W = 5;
+    Config c = base_config(W, 0.3f);
+    c.surfels = 3000;
+    c.threads = threads;
+    std::vector<float> row2 = {0.2f, 0, 0, 0.5f, 0.25f};
+    c.surface_rows.push_back(row2);
+    c.surface_rows[0][3] = 1.0f;
+    c.triangle_surface.resize(m.num_triangles());
+    for (size_t i = 0; i < m.num_triangles(); ++i) c.triangle_surface[i] = int32_t(i % 2);
+    int t0 = c.add_ton_type(1, 0, 0, {1.0f});
+    int t1 = c.add_ton_type(0.7f, 0, 0, {0.5f});
+    c.add_source("point", t0, 30000, {0.1f, 0, 0});
+    c.add_source("point", t1, 20000, {-0.2f, 0.1f, 0});
+    for (int ty : {t0, t1})
+        for (int s : {0, 1}) {
+            c.set_transport(GAMMA_EVENT_HIT, ty, s, addr(reinterpret_cast<void*>(&k_hit)), true);
+            c.set_transport(GAMMA_EVENT_SETTLE, ty, s, addr(reinterpret_cast<void*>(&k_settle)), true);
+        }
+    c.set_update(0, addr(reinterpret_cast<void*>(&k_update)));
+    Simulation sim(m, c);
+    for (int it = 0; it < 3; ++it) {
+        sim.trace(it);
+        sim.update(it);
+    }
+    return sim.rows();
+}
+
+TEST(Trace, BitIdenticalAcrossThreadCounts) {
+    std::vector<float> a = run_threads(1), b = run_threads(2), c4 = run_threads(4);
+    ASSERT_EQ(a.size(), b.size());
+    EXPECT_EQ(0, std::memcmp(a.data(), b.data(), a.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(a.data(), c4.data(), a.size() * sizeof(float)));
+    // The kernels actually changed something.
+    double s = 0;
+    for (size_t i = 0; i < a.size(); i += 5) s += a[i + 3];
+    EXPECT_GT(s, 3000.0 * 0.5);
+}
+
+TEST(Trace, NearestSurfelIsNearest) {
+    Mesh m = gamma_test::icosphere(3);
+    Config c = base_config(3, 0.0f);
+    Simulation sim(m, c);
+    const auto& P = sim.surfels().position;
+    for (int q = 0; q < 50; ++q) {
+        float p[3] = {std::sin(q * 1.3f), std::cos(q * 0.7f), std::sin(q * 0.31f)};
+        uint32_t got = sim.nearest_surfel(p);
+        float best = 1e30f;
+        for (size_t i = 0; i < sim.num_surfels(); ++i) {
+            float d = 0;
+            for (int k = 0; k < 3; ++k) d += (P[3 * i + k] - p[k]) * (P[3 * i + k] - p[k]);
+            best = std::min(best, d);
+        }
+        float dg = 0;
+        for (int k = 0; k < 3; ++k) dg += (P[3 * got + k] - p[k]) * (P[3 * got + k] - p[k]);
+        EXPECT_EQ(dg, best);
+    }
+}
+
+TEST(Config, Errors) {
+    Mesh m = gamma_test::icosphere(1);
+    auto expect_fail = [&](Config c, const char* needle) {
+        try {
+            Simulation sim(m, c);
+            ADD_FAILURE() << "no error for " << needle;
+        } catch (const Error& e) {
+            EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+        }
+    };
+    Config c = base_config(3, 0);
+    c.surfels = 100;
+    int t = c.add_ton_type(1, 0, 0, {});
+    Config bad = c;
+    bad.add_source("laser", t, 10, {0, 0, 0});
+    expect_fail(bad, "unknown source kind");
+    bad = c;
+    bad.add_source("point", 3, 10, {0, 0, 0});
+    expect_fail(bad, "ton type index");
+    bad = c;
+    bad.row_width = 2;
+    expect_fail(bad, "row_width");
+    bad = c;
+    bad.set_transport(GAMMA_EVENT_HIT, 0, 4, 0, false);
+    expect_fail(bad, "surface index");
+}
+
+TEST(Render, BackgroundIsNaN) {
+    Mesh m = gamma_test::icosphere(3);
+    Config c = base_config(3, 0);
+    Simulation sim(m, c);
+    std::vector<float> values(sim.num_surfels(), 2.0f);
+    const int W = 32, H = 24;
+    std::vector<float> val(W * H), shade(W * H);
+    sim.render(values.data(), {0, 0, 4}, {0, 0, 0}, {0, 1, 0}, 40.0f, W, H, 2, val.data(), shade.data());
+    EXPECT_TRUE(std::isnan(val[0]));
+    const float centre = val[(H / 2) * W + W / 2];
+    EXPECT_NEAR(centre, 2.0f, 1e-5);
+    EXPECT_GE(shade[(H / 2) * W + W / 2], 0.25f);
+    EXPECT_LE(shade[(H / 2) * W + W / 2], 1.0f);
+}
