@@ -8,9 +8,6 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-SCENES = ROOT.parent / "shared" / "scenes"
-if not SCENES.is_dir():
-    SCENES = ROOT / "examples" / "scenes"
 
 
 def run_gammac(*args, cwd=None, timeout=600):
@@ -25,3 +22,16 @@ def rt():
     import gamma._runtime as runtime
 
     return runtime
+
+
+@pytest.fixture(scope="session")
+def bumpy_obj(tmp_path_factory):
+    """A generated closed mesh with concave and convex regions (OBJ path)."""
+    from meshes import bumpy_sphere, write_obj
+
+    return write_obj(tmp_path_factory.mktemp("mesh") / "bumpy.obj", *bumpy_sphere())
+
+
+@pytest.fixture(scope="session")
+def box_obj():
+    return Path(__file__).parent / "golden" / "open_box.obj"

@@ -37,3 +37,15 @@ def write_obj(path, verts, faces):
         for a, b, c in faces:
             out.write(f"f {a + 1} {b + 1} {c + 1}\n")
     return path
+
+
+def bumpy_sphere(subdivisions: int = 4, seed: int = 0):
+    """A closed sphere with smooth random bumps and dents: convex and concave
+    regions, like a small real object, with no file outside the repository."""
+    verts, faces = icosphere(subdivisions)
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(size=(12, 3))
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    amplitude = rng.uniform(-0.25, 0.25, size=12)
+    bump = sum(a * np.exp(-np.sum((verts - c) ** 2, axis=1) / 0.08) for a, c in zip(amplitude, centres))
+    return verts * (1 + bump)[:, None], faces

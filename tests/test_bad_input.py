@@ -3,7 +3,7 @@ and leaves no half-written output behind."""
 
 import pytest
 
-from conftest import ROOT, SCENES, run_gammac
+from conftest import ROOT, run_gammac
 
 PATINA = ROOT / "examples" / "patina.gamma"
 
@@ -54,8 +54,8 @@ def test_only_degenerate_triangles(tmp_path):
     assert_one_line_error(run_on(tmp_path, tmp_path / "flat.obj"), "degenerate")
 
 
-def test_missing_effect(tmp_path):
-    r = run_gammac("run", tmp_path / "none.gamma", "--scene", SCENES / "spot.obj", "--out", tmp_path / "o")
+def test_missing_effect(tmp_path, box_obj):
+    r = run_gammac("run", tmp_path / "none.gamma", "--scene", box_obj, "--out", tmp_path / "o")
     assert_one_line_error(r, "none.gamma", "not found")
 
 
@@ -64,33 +64,33 @@ def test_binary_effect(tmp_path):
     assert_one_line_error(run_gammac("check", tmp_path / "bin.gamma"), "not UTF-8")
 
 
-def test_malformed_effect_reports_diagnostics(tmp_path):
+def test_malformed_effect_reports_diagnostics(tmp_path, box_obj):
     (tmp_path / "bad.gamma").write_text("ton T { motion straight = }\n")
-    r = run_gammac("run", tmp_path / "bad.gamma", "--scene", SCENES / "spot.obj", "--out", tmp_path / "o")
+    r = run_gammac("run", tmp_path / "bad.gamma", "--scene", box_obj, "--out", tmp_path / "o")
     assert r.returncode == 1 and "Traceback" not in r.stderr
     assert r.stderr.startswith("bad.gamma:1:27: error: ") or ":1:27: error: " in r.stderr
     assert not (tmp_path / "o").exists()
 
 
-def test_untraced_motion_is_refused_not_faked(tmp_path):
+def test_untraced_motion_is_refused_not_faked(tmp_path, box_obj):
     (tmp_path / "rain.gamma").write_text(
         "ton Rain { motion parabolic = 0.8, flow = 0.2 carry h = 1 }\n"
         "surface Cement { reflectance parabolic = 0.4 property h = 0 }\n"
         "source rain = environment(hemisphere) emits Rain count 10\n")
-    r = run_gammac("run", tmp_path / "rain.gamma", "--scene", SCENES / "spot.obj", "--out", tmp_path / "o")
+    r = run_gammac("run", tmp_path / "rain.gamma", "--scene", box_obj, "--out", tmp_path / "o")
     assert r.returncode == 1 and "parabolic motion is not traced" in r.stderr
     assert "flow motion is not traced" in r.stderr
     assert run_gammac("check", tmp_path / "rain.gamma").returncode == 0
 
 
 @pytest.mark.parametrize("args", [["--iterations", "x"], ["--surfels", "-3"], ["--bogus"], []])
-def test_usage_errors_exit_2(tmp_path, args):
-    base = ["run", PATINA, "--scene", SCENES / "spot.obj", "--out", tmp_path / "o"] if args else ["run"]
+def test_usage_errors_exit_2(tmp_path, box_obj, args):
+    base = ["run", PATINA, "--scene", box_obj, "--out", tmp_path / "o"] if args else ["run"]
     r = run_gammac(*base, *args)
     assert r.returncode == 2 and "Traceback" not in r.stderr
 
 
-def test_unknown_surface_assignment(tmp_path):
-    r = run_gammac("run", PATINA, "--scene", SCENES / "spot.obj", "--assign", "Bronze",
+def test_unknown_surface_assignment(tmp_path, box_obj):
+    r = run_gammac("run", PATINA, "--scene", box_obj, "--assign", "Bronze",
                    "--out", tmp_path / "o")
     assert_one_line_error(r, "Bronze", "Copper")

@@ -2,7 +2,7 @@
 
 import pytest
 
-from conftest import SCENES, run_gammac
+from conftest import run_gammac
 
 EFFECT = """
 ton Weather { motion straight = 1.0  carry patina = 1.0, grime = 0.0 }
@@ -21,13 +21,14 @@ update(s: Copper) {
 """
 
 
-@pytest.mark.parametrize("scene", ["teapot.obj", "spot.obj"])
-def test_maps_are_bit_identical_at_one_and_two_threads(tmp_path, scene):
+@pytest.mark.parametrize("scene", ["bumpy_obj", "box_obj"])
+def test_maps_are_bit_identical_at_one_and_two_threads(tmp_path, scene, request):
+    mesh = request.getfixturevalue(scene)
     (tmp_path / "e.gamma").write_text(EFFECT)
     maps = {}
     for threads in (1, 2):
         out = tmp_path / f"t{threads}"
-        r = run_gammac("run", tmp_path / "e.gamma", "--scene", SCENES / scene, "--surfels", 20000,
+        r = run_gammac("run", tmp_path / "e.gamma", "--scene", mesh, "--surfels", 20000,
                        "--iterations", 3, "--threads", threads, "--seed", 7, "--quiet", "--out", out)
         assert r.returncode == 0, r.stderr
         maps[threads] = [(out / "maps" / f"iter_{i:04d}.ply").read_bytes() for i in (1, 2, 3)]
@@ -35,11 +36,11 @@ def test_maps_are_bit_identical_at_one_and_two_threads(tmp_path, scene):
     assert maps[1][0] != maps[1][2]   # the state really changes between iterations
 
 
-def test_another_seed_gives_another_map(tmp_path):
+def test_another_seed_gives_another_map(tmp_path, bumpy_obj):
     (tmp_path / "e.gamma").write_text(EFFECT)
     out = {}
     for seed in (1, 2):
-        r = run_gammac("run", tmp_path / "e.gamma", "--scene", SCENES / "spot.obj", "--surfels", 5000,
+        r = run_gammac("run", tmp_path / "e.gamma", "--scene", bumpy_obj, "--surfels", 5000,
                        "--iterations", 1, "--seed", seed, "--quiet", "--out", tmp_path / f"s{seed}")
         assert r.returncode == 0, r.stderr
         out[seed] = (tmp_path / f"s{seed}" / "maps" / "iter_0001.ply").read_bytes()

@@ -6,22 +6,22 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conftest import ROOT, SCENES, run_gammac
+from conftest import ROOT, run_gammac
 from gamma.outputs import read_ply
 
 
 @pytest.fixture(scope="module")
-def spot_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("spot") / "out"
-    r = run_gammac("run", ROOT / "examples" / "patina.gamma", "--scene", SCENES / "spot.obj",
+def patina_run(tmp_path_factory, bumpy_obj):
+    out = tmp_path_factory.mktemp("patina") / "out"
+    r = run_gammac("run", ROOT / "examples" / "patina.gamma", "--scene", bumpy_obj,
                    "--surfels", 8000, "--tons", 40000, "--iterations", 3, "--size", 200,
                    "--seed", 3, "--out", out)
     assert r.returncode == 0, r.stderr
     return out, r
 
 
-def test_maps_are_ply_point_clouds_with_every_column(spot_run):
-    out, _ = spot_run
+def test_maps_are_ply_point_clouds_with_every_column(patina_run):
+    out, _ = patina_run
     for i in (1, 2, 3):
         cols = read_ply(out / "maps" / f"iter_{i:04d}.ply")
         assert list(cols) == ["x", "y", "z", "nx", "ny", "nz", "patina", "reflectance_straight",
@@ -32,8 +32,8 @@ def test_maps_are_ply_point_clouds_with_every_column(spot_run):
         assert np.all(cols["reflectance_straight"] == np.float32(0.5))
 
 
-def test_patina_grows_and_matches_the_summary(spot_run):
-    out, _ = spot_run
+def test_patina_grows_and_matches_the_summary(patina_run):
+    out, _ = patina_run
     summary = json.loads((out / "summary.json").read_text())
     sums = [it["property_sums"]["patina"] for it in summary["iterations"]]
     assert sums[0] > 0 and sums[0] < sums[1] < sums[2]
@@ -48,8 +48,8 @@ def test_patina_grows_and_matches_the_summary(spot_run):
         assert it["trace_seconds"] > 0 and it["update_seconds"] >= 0
 
 
-def test_one_render_per_iteration_with_colour_bar(spot_run):
-    out, _ = spot_run
+def test_one_render_per_iteration_with_colour_bar(patina_run):
+    out, _ = patina_run
     for i in (1, 2, 3):
         img = Image.open(out / "renders" / f"iter_{i:04d}.png")
         assert img.size[1] == 200 and img.size[0] > 200   # picture plus the colour bar
@@ -57,12 +57,12 @@ def test_one_render_per_iteration_with_colour_bar(spot_run):
         assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 50   # not blank
 
 
-def test_no_temporary_files_left(spot_run):
-    out, _ = spot_run
+def test_no_temporary_files_left(patina_run):
+    out, _ = patina_run
     leftovers = [p for p in out.rglob("*") if p.name.startswith(".")]
     assert leftovers == []
 
 
-def test_progress_is_shown(spot_run):
-    _, r = spot_run
+def test_progress_is_shown(patina_run):
+    _, r = patina_run
     assert "3/3" in r.stderr and "γ-tons/s" in r.stderr
