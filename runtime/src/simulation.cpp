@@ -368,12 +368,13 @@ TraceStats Simulation::trace(int iteration) {
                 const TransportSlot& hit = I.slot(GAMMA_EVENT_HIT, so.ton_type, surface);
                 if (hit.fn) call(hit, s, ctx);
                 if (!(xi < c1)) {
-                    // settle (bounce / flow are not traced in this slice: treated
-                    // as settle, counted as untraced)
+                    // Bounce and flow are not traced in this version: such a gamma-ton
+                    // ends uncounted as settled and deposits nothing (the runner stops
+                    // the run with an error rather than publish maps without them).
+                    if (xi < c3) { ++st.untraced; break; }
                     const TransportSlot& se = I.slot(GAMMA_EVENT_SETTLE, so.ton_type, surface);
                     if (se.fn) call(se, s, ctx);
-                    if (xi < c3) ++st.untraced;
-                    else ++st.settled;
+                    ++st.settled;
                     break;
                 }
                 if (inter >= max_inter) { ++st.capped; break; }
