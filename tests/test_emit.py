@@ -1,0 +1,22 @@
+"""``gammac emit``: the compiler can be looked inside."""
+
+import pytest
+
+from conftest import ROOT, run_gammac
+
+PATINA = ROOT / "examples" / "patina.gamma"
+
+
+@pytest.mark.parametrize("flag,needle", [("--ir", "define external void @\"gamma_settle__Weather__Copper\""),
+                                         ("--ir-opt", "define void @gamma_settle__Weather__Copper"),
+                                         ("--asm", "gamma_settle__Weather__Copper:")])
+def test_emit(flag, needle):
+    r = run_gammac("emit", flag, PATINA)
+    assert r.returncode == 0, r.stderr
+    assert needle in r.stdout
+
+
+def test_ir_points_back_to_the_source():
+    r = run_gammac("emit", "--ir", PATINA)
+    line = next(i for i, l in enumerate(PATINA.read_text().splitlines(), 1) if "s.patina +=" in l)
+    assert f"; {line}:5: s.patina += ..." in r.stdout
