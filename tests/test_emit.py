@@ -7,9 +7,9 @@ from conftest import ROOT, run_gammac
 PATINA = ROOT / "examples" / "patina.gamma"
 
 
-@pytest.mark.parametrize("flag,needle", [("--ir", "define external void @\"gamma_settle__Weather__Copper\""),
-                                         ("--ir-opt", "define void @gamma_settle__Weather__Copper"),
-                                         ("--asm", "gamma_settle__Weather__Copper:")])
+@pytest.mark.parametrize("flag,needle", [("--ir", "define external void @\"gamma.settle.Weather.Copper\""),
+                                         ("--ir-opt", "define void @\"gamma.settle.Weather.Copper\""),
+                                         ("--asm", "gamma.settle.Weather.Copper:")])
 def test_emit(flag, needle):
     r = run_gammac("emit", flag, PATINA)
     assert r.returncode == 0, r.stderr

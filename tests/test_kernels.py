@@ -53,8 +53,10 @@ def random_expr(rng, names, depth=0):
 
 
 def random_effect(rng):
-    reads_t = ["t.a", "t.b", "s.p", "s.q", "s.reflectance.straight", "iteration", "interactions"]
-    reads_u = ["s.p", "s.q", "s.reflectance.straight", "s.reflectance.flow", "iteration"]
+    reads_t = ["t.a", "t.b", "s.p", "s.q", "s.reflectance.straight", "iteration", "interactions",
+               "height", "position.x", "normal.y", "direction.z"]
+    reads_u = ["s.p", "s.q", "s.reflectance.straight", "s.reflectance.flow", "iteration",
+               "height", "position.z", "normal.x"]
     hit = [f"{rng.choice(['t.a', 't.b'])} {rng.choice(['=', '+=', '-=', '*='])} {random_expr(rng, reads_t)}"
            if rng.random() < 0.5 else
            f"{rng.choice(['s.p', 's.q'])} {rng.choice(['+=', '-='])} {random_expr(rng, reads_t)}"
@@ -91,8 +93,12 @@ def test_compiled_matches_interpreter(seed):
         ton = (data.standard_normal(2) * scale).astype(np.float32)
         surf = (data.standard_normal(effect.row_width) * scale).astype(np.float32)
         it, n = int(data.integers(1, 50)), int(data.integers(1, 10))
-        ctx = GammaContext(iteration=it, interactions=n)
-        ictx = Context(iteration=it, interactions=n)
+        vec = data.standard_normal((4, 3)).astype(np.float32)
+        ctx = GammaContext(iteration=it, interactions=n, height=float(vec[3, 0]),
+                           position=(ctypes.c_float * 3)(*vec[0]), normal=(ctypes.c_float * 3)(*vec[1]),
+                           direction=(ctypes.c_float * 3)(*vec[2]))
+        ictx = Context(iteration=it, interactions=n, height=vec[3, 0], position=vec[0],
+                       normal=vec[1], direction=vec[2])
 
         ton_c, delta_c = ton.copy(), np.zeros_like(surf)
         hit_fn(ptr(ton_c), ptr(surf), ptr(delta_c), ctypes.byref(ctx))

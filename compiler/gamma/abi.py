@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import sys
 
-#: Bumped whenever anything below changes; the runtime refuses kernels whose
-#: version differs (checked at load time by ``gamma.runtime``).
-ABI_VERSION = 1
+#: Bumped whenever anything below changes; ``runner.runtime_module`` refuses a
+#: runtime built for another version.
+ABI_VERSION = 2
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -24,7 +24,8 @@ ROW_HEADER = len(REFLECTANCE_SLOTS)
 
 #: Events a transport rule can be attached to; the value is the index used by
 #: the runtime's kernel table.
-EVENTS = {"hit": 0, "settle": 1}
+#: ``hit`` fires at every interaction, before the outcome's own event.
+EVENTS = {"hit": 0, "reflect": 1, "bounce": 2, "flow": 3, "settle": 4}
 
 #: Fields of the read-only context a kernel receives, in struct order.
 #: (name, C type, element count).  All fields are 4 bytes wide so the struct
@@ -33,6 +34,7 @@ CONTEXT_FIELDS = (
     ("position", "float", 3),       # hit point (transport) / surfel position (update)
     ("normal", "float", 3),         # geometric normal facing the incoming ray / surfel normal
     ("direction", "float", 3),      # travel direction of the gamma-ton (zero in update rules)
+    ("height", "float", 1),         # height of position above the scene's lowest point, along "up"
     ("iteration", "int32_t", 1),    # 1-based iteration number (iter_0001 is the first)
     ("interactions", "int32_t", 1), # interactions of this gamma-ton so far, this one included
 )
@@ -74,7 +76,7 @@ def c_header() -> str:
         f"#define GAMMA_ROW_HEADER {ROW_HEADER}",
     ]
     for i, slot in enumerate(REFLECTANCE_SLOTS):
-        lines.append(f"#define GAMMA_ROW_DELTA_{slot.upper()} {i}")
+        lines.append(f"#define GAMMA_ROW_REFLECTANCE_{slot.upper()} {i}")
     for name, value in EVENTS.items():
         lines.append(f"#define GAMMA_EVENT_{name.upper()} {value}")
     lines.append(f"#define GAMMA_EVENT_COUNT {len(EVENTS)}")

@@ -57,7 +57,15 @@ class Call:
     pos: Pos
 
 
-Expr = Number | Ref | Unary | Binary | Call
+@dataclass
+class Vector:
+    """``(a, b, c)``: only meaningful as a source argument."""
+
+    items: list["Expr"]
+    pos: Pos
+
+
+Expr = Number | Ref | Unary | Binary | Call | Vector
 
 
 # ---- statements and declarations -------------------------------------------
@@ -97,21 +105,31 @@ class SurfaceDecl:
 
 
 @dataclass
+class SourceArg:
+    name: str | None      # None for a positional argument
+    value: Expr
+    pos: Pos
+
+
+@dataclass
 class SourceDecl:
     name: str
     pos: Pos
     kind: str
     kind_pos: Pos
-    args: list[Expr]
+    args: list[SourceArg]
     ton: str
     ton_pos: Pos
     count: Expr
+    first: Expr | None = None   # `from N`
+    last: Expr | None = None    # `until N`
+    repeated_window: list[Expr] = field(default_factory=list)
 
 
 @dataclass
 class Param:
     name: str
-    type_name: str
+    type_name: str        # a declared name, or '*' (every ton type / every surface)
     pos: Pos
     type_pos: Pos
 

@@ -10,6 +10,7 @@ grouped per kernel.  Name lookup inside rule bodies is done by one function,
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from . import abi
@@ -17,16 +18,59 @@ from . import ast as A
 from .diagnostics import Diagnostic, GammaError, did_you_mean
 
 MOTION_NAMES = abi.REFLECTANCE_SLOTS  # straight, parabolic, flow
-TRACED_EVENTS = tuple(abi.EVENTS)      # events this runtime fires
-FUTURE_EVENTS = ("reflect", "bounce", "flow")
-CONTEXT_VALUES = {"iteration": "update", "interactions": "transport"}  # name -> narrowest rule kind
+EVENTS = tuple(abi.EVENTS)             # hit, reflect, bounce, flow, settle
+#: Read-only context values: name -> (rules that may read it, components).
+CONTEXT_VALUES = {
+    "iteration": (("transport", "update"), ()),
+    "interactions": (("transport",), ()),
+    "height": (("transport", "update"), ()),
+    "position": (("transport", "update"), ("x", "y", "z")),
+    "normal": (("transport", "update"), ("x", "y", "z")),
+    "direction": (("transport",), ("x", "y", "z")),
+}
 FUNCTIONS = {"min": (2, None), "max": (2, None), "clamp": (3, 3)}  # name -> (min args, max args)
-RESERVED_PROPERTY_NAMES = {"x", "y", "z", "nx", "ny", "nz", "reflectance", "motion"}
-SOURCE_KINDS = ("environment", "point")
-ENVIRONMENT_SHAPES = ("sphere", "hemisphere")
+RESERVED_PROPERTY_NAMES = {"x", "y", "z", "nx", "ny", "nz", "surface", "reflectance", "motion"}
+MAX_COUNT = 1e12  # gamma-tons per source and iteration
+REQUIRED = object()
+#: Parameters of each source kind, in positional order: (name, type, default).
+SOURCE_PARAMS = {
+    "point": (("position", "place", REQUIRED),),
+    "spot": (("position", "place", REQUIRED), ("direction", "direction", "down"),
+             ("angle", "angle", REQUIRED), ("falloff", "nonnegative", 0.0)),
+    "area": (("shape", ("rect", "disk"), REQUIRED), ("position", "place", REQUIRED),
+             ("normal", "direction", "down"), ("size", "size2", None), ("radius", "length", None),
+             ("emission", ("parallel", "uniform", "cosine"), "parallel")),
+    "directional": (("direction", "direction", "down"),),
+    "environment": (("shape", ("sphere", "hemisphere"), REQUIRED),),
+}
+SOURCE_KINDS = tuple(SOURCE_PARAMS)
 
 
 # ---- the checked effect -------------------------------------------------------
+
+@dataclass(frozen=True)
+class Length:
+    """A length in scene units, or a fraction of the scene's bounding-box diagonal."""
+
+    value: float
+    relative: bool = False
+
+    def resolve(self, diagonal: float) -> float:
+        return self.value * diagonal if self.relative else self.value
+
+
+@dataclass(frozen=True)
+class Place:
+    """A point in scene units, or as fractions of the bounding box (0 = min, 1 = max)."""
+
+    value: tuple[float, float, float]
+    relative: bool = False
+
+    def resolve(self, lo, hi) -> tuple[float, float, float]:
+        if not self.relative:
+            return self.value
+        return tuple(float(a + f * (b - a)) for f, a, b in zip(self.value, lo, hi))
+
 
 @dataclass
 class TonType:
@@ -35,8 +79,8 @@ class TonType:
     motion: tuple[float, float, float]
     carry: dict[str, int]          # attribute -> slot in the ton array
     initial: list[float]
-    bounce: float | None
-    step: float | None
+    bounce: Length | None          # None: the runner's default
+    step: Length | None
     decl: A.TonDecl
 
 
@@ -52,10 +96,12 @@ class Surface:
 @dataclass
 class Source:
     name: str
-    kind: str                      # 'sphere' | 'hemisphere' | 'point' (runtime kinds)
+    kind: str                      # the runtime's kind: point spot rect disk directional sphere hemisphere
     ton: int
     count: int
-    position: tuple[float, float, float]
+    params: dict                   # checked parameters (Place, Length, 'down'/'up' or a vector, ...)
+    first: int                     # first iteration it emits in (1-based)
+    last: int                      # last iteration it emits in; 0 = no end
     decl: A.SourceDecl
 
 
@@ -64,8 +110,8 @@ class Slot:
     """Where a name in a rule body lives."""
 
     space: str      # 'ton' | 'surf' | 'ctx'
-    index: int      # slot in the ton array / surfel row; ctx: unused
-    name: str
+    index: int      # slot in the ton array / surfel row; ctx: vector component (0 for scalars)
+    name: str       # ctx: the context field
     writable_ops: tuple[str, ...]
 
 
@@ -84,11 +130,18 @@ class Scope:
         parts = ref.parts
         head = parts[0]
         transport = self.kind == "transport"
-        if len(parts) == 1:
-            if head in CONTEXT_VALUES and (transport or CONTEXT_VALUES[head] == "update"):
+        if head in CONTEXT_VALUES and head not in (self.ton_param, self.surf_param):
+            kinds, components = CONTEXT_VALUES[head]
+            if self.kind not in kinds:
+                return f"'{head}' is not available in {self.kind} rules"
+            if not components:
+                if len(parts) > 1:
+                    return f"'{head}' is a number and has no fields"
                 return Slot("ctx", 0, head, ())
-            if head in CONTEXT_VALUES:
-                return f"'{head}' is not available in update rules"
+            if len(parts) != 2 or parts[1] not in components:
+                return f"'{head}' is a vector: write {head}.x, {head}.y or {head}.z"
+            return Slot("ctx", components.index(parts[1]), head, ())
+        if len(parts) == 1:
             if head in (self.ton_param, self.surf_param):
                 what = "gamma-ton" if head == self.ton_param else "surfel"
                 return f"'{head}' is a {what}, not a value; write {head}.NAME"
@@ -125,9 +178,7 @@ class Scope:
                 return f"'{head}.{attr}' has no fields"
             return (f"surface {self.surface.name} has no property '{attr}'"
                     f"{did_you_mean(attr, self.surface.properties)}")
-        names = [n for n in (self.ton_param, self.surf_param) if n]
-        if head in CONTEXT_VALUES:
-            return f"'{head}' is a number and has no fields"
+        names = [n for n in (self.ton_param, self.surf_param) if n] + list(CONTEXT_VALUES)
         return f"unknown name '{head}'{did_you_mean(head, names)}"
 
 
@@ -141,10 +192,17 @@ class Kernel:
     bodies: list[tuple[Scope, list[A.Assign]]] = field(default_factory=list)
 
     @property
-    def symbol(self) -> str:
+    def label(self) -> str:
         if self.ton is None:
-            return f"gamma_update__{self.surface.name}"
-        return f"gamma_{self.event}__{self.ton.name}__{self.surface.name}"
+            return f"update({self.surface.name})"
+        return f"on {self.event}({self.ton.name}, {self.surface.name})"
+
+    @property
+    def symbol(self) -> str:
+        # '.' cannot occur in a name, so symbols never collide
+        if self.ton is None:
+            return f"gamma.update.{self.surface.name}"
+        return f"gamma.{self.event}.{self.ton.name}.{self.surface.name}"
 
     @property
     def writes_surface(self) -> bool:
@@ -200,14 +258,20 @@ class _Checker:
         self.diags: list[Diagnostic] = []
 
     def error(self, pos: A.Pos, message: str) -> None:
-        self.diags.append(Diagnostic(pos, message))
+        diag = Diagnostic(pos, message)
+        if diag not in self.diags:  # a wildcard rule is checked once per expansion
+            self.diags.append(diag)
 
     def constant(self, expr: A.Expr, what: str) -> float | None:
         try:
-            return const_value(expr)
+            value = const_value(expr)
         except NotConstant as nc:
             self.error(nc.pos, f"{what} must be a constant number")
             return None
+        if not math.isfinite(value):
+            self.error(expr.pos, f"{what} is not a finite number")
+            return None
+        return value
 
     def inits(self, inits: list[A.Init], what: str, allowed=None, unit=False):
         """Check a list of `name = value`; return {name: (value, Init)}."""
@@ -277,11 +341,8 @@ class _Checker:
                 self.error(init.pos, f"'{name}' is reserved")
         for key, expr in d.repeated:
             self.error(expr.pos, f"'{key}' is given twice in ton {d.name}")
-        bounce = self.constant(d.bounce, "bounce distance") if d.bounce is not None else None
-        step = self.constant(d.step, "flow step") if d.step is not None else None
-        for what, v, e in (("bounce distance", bounce, d.bounce), ("flow step", step, d.step)):
-            if v is not None and v <= 0:
-                self.error(e.pos, f"{what} must be positive, not {v:g}")
+        bounce = self.length(d.bounce, "the bounce distance") if d.bounce is not None else None
+        step = self.length(d.step, "the flow step") if d.step is not None else None
         return TonType(d.name, index, values, {n: i for i, n in enumerate(carry)},
                        [v for v, _ in carry.values()], bounce, step, d)
 
@@ -296,6 +357,149 @@ class _Checker:
         slots = {n: abi.ROW_HEADER + i for i, n in enumerate(props)}
         return Surface(d.name, index, slots, row, d)
 
+    # -- scene values (source arguments, bounce distance, flow step) --
+
+    def relative_args(self, e: A.Expr, n: int, what: str) -> tuple | None:
+        """The constants of ``relative(...)`` with n arguments, else None."""
+        if len(e.args) != n:
+            self.error(e.pos, f"relative() takes {n} argument{'s' if n > 1 else ''} for {what}")
+            return None
+        values = [self.constant(a, f"an argument of relative()") for a in e.args]
+        return None if None in values else tuple(values)
+
+    def length(self, e: A.Expr, what: str) -> Length | None:
+        if isinstance(e, A.Call) and e.name == "relative":
+            values = self.relative_args(e, 1, what)
+            result = Length(values[0], True) if values else None
+        else:
+            value = self.constant(e, what)
+            result = Length(value) if value is not None else None
+        if result is not None and result.value <= 0:
+            self.error(e.pos, f"{what} must be positive, not {result.value:g}")
+            return None
+        return result
+
+    def place(self, e: A.Expr, what: str) -> Place | None:
+        if isinstance(e, A.Call) and e.name == "relative":
+            values = self.relative_args(e, 3, what)
+            return Place(values, True) if values else None
+        if isinstance(e, A.Vector) and len(e.items) == 3:
+            values = [self.constant(a, what) for a in e.items]
+            return None if None in values else Place(tuple(values))
+        self.error(e.pos, f"{what} must be a point (x, y, z) or relative(fx, fy, fz)")
+        return None
+
+    def direction(self, e: A.Expr, what: str):
+        if isinstance(e, A.Ref) and e.parts in (["down"], ["up"]):
+            return e.parts[0]
+        if isinstance(e, A.Vector) and len(e.items) == 3:
+            values = [self.constant(a, what) for a in e.items]
+            if None in values:
+                return None
+            if not any(values):
+                self.error(e.pos, f"{what} must not be the zero vector")
+                return None
+            return tuple(values)
+        self.error(e.pos, f"{what} must be a direction (x, y, z), down or up")
+        return None
+
+    def source_value(self, kind_of_value, e: A.Expr, what: str):
+        if isinstance(kind_of_value, tuple):  # one of a few words
+            if isinstance(e, A.Ref) and len(e.parts) == 1 and e.parts[0] in kind_of_value:
+                return e.parts[0]
+            word = e.parts[0] if isinstance(e, A.Ref) else ""
+            self.error(e.pos, f"{what} must be one of {', '.join(kind_of_value)}"
+                       f"{did_you_mean(word, kind_of_value) if word else ''}")
+            return None
+        if kind_of_value == "place":
+            return self.place(e, what)
+        if kind_of_value == "direction":
+            return self.direction(e, what)
+        if kind_of_value == "length":
+            return self.length(e, what)
+        if kind_of_value == "size2":
+            if isinstance(e, A.Vector) and len(e.items) == 2:
+                sizes = [self.length(a, what) for a in e.items]
+                return None if None in sizes else tuple(sizes)
+            self.error(e.pos, f"{what} must be (width, height)")
+            return None
+        value = self.constant(e, what)
+        if value is None:
+            return None
+        if kind_of_value == "angle" and not 0 < value <= 180:
+            self.error(e.pos, f"{what} must be in (0, 180] degrees, not {value:g}")
+            return None
+        if kind_of_value == "nonnegative" and value < 0:
+            self.error(e.pos, f"{what} must not be negative, not {value:g}")
+            return None
+        return value
+
+    def source_params(self, d: A.SourceDecl) -> dict | None:
+        spec = SOURCE_PARAMS[d.kind]
+        names = [name for name, _, _ in spec]
+        args = list(d.args)
+        positional = [a for a in args if a.name is None]
+        if d.kind == "point" and len(positional) == 3 and len(args) == 3:  # point(x, y, z)
+            args = [A.SourceArg(None, A.Vector([a.value for a in args], args[0].pos), args[0].pos)]
+        given: dict[str, A.SourceArg] = {}
+        ok = True
+        misspelt = None  # set to False by an unknown name: then "needs" errors are noise
+        for i, arg in enumerate(args):
+            name = arg.name
+            if name is None:
+                if any(a.name for a in args[:i]):
+                    self.error(arg.pos, "a positional argument cannot follow a named one")
+                    ok = False
+                    continue
+                if i >= len(spec):
+                    self.error(arg.pos, f"{d.kind}() takes at most {len(spec)} arguments")
+                    ok = False
+                    continue
+                name = names[i]
+            elif name not in names:
+                self.error(arg.pos, f"{d.kind}() has no parameter '{name}'; it takes "
+                           f"{', '.join(names)}{did_you_mean(name, names)}")
+                ok = misspelt = False
+                continue
+            if name in given:
+                self.error(arg.pos, f"'{name}' is given twice")
+                ok = False
+                continue
+            given[name] = arg
+        params = {}
+        for name, kind_of_value, default in spec:
+            if name in given:
+                value = self.source_value(kind_of_value, given[name].value, f"'{name}' of {d.kind}()")
+                ok = ok and value is not None
+                params[name] = value
+            elif default is REQUIRED:
+                if misspelt is None:
+                    self.error(d.kind_pos, f"{d.kind}() needs '{name}'")
+                ok = False
+            else:
+                params[name] = default
+        if ok and d.kind == "area":
+            shape = params["shape"]
+            need, forbid = ("size", "radius") if shape == "rect" else ("radius", "size")
+            if params[need] is None:
+                self.error(d.kind_pos, f"area({shape}) needs '{need}'")
+                ok = False
+            if forbid in given:
+                self.error(given[forbid].pos, f"area({shape}) takes '{need}', not '{forbid}'")
+                ok = False
+        return params if ok else None
+
+    def iteration_number(self, e: A.Expr | None, what: str) -> int | None:
+        if e is None:
+            return 0
+        value = self.constant(e, what)
+        if value is None:
+            return None
+        if value < 1 or value != int(value) or value > 2**31 - 1:
+            self.error(e.pos, f"{what} must be an iteration number (1, 2, ...), not {value:g}")
+            return None
+        return int(value)
+
     def source(self, d: A.SourceDecl, tons, surfaces) -> Source | None:
         ok = True
         ton = tons.get(d.ton)
@@ -306,35 +510,32 @@ class _Checker:
             else:
                 self.error(d.ton_pos, f"unknown ton type '{d.ton}'{did_you_mean(d.ton, tons)}")
         count = self.constant(d.count, "the count of a source")
-        if count is not None and (count < 1 or count != int(count)):
-            self.error(d.count.pos, f"the count of a source must be a positive whole number, "
-                       f"not {count:g}")
+        if count is not None and not (math.isfinite(count) and 1 <= count <= MAX_COUNT
+                                      and count == int(count)):
+            self.error(d.count.pos, f"the count of a source must be a whole number from 1 to "
+                       f"{MAX_COUNT:g}, not {count:g}")
             ok = False
-        kind, position = None, (0.0, 0.0, 0.0)
-        if d.kind == "environment":
-            shape = d.args[0] if len(d.args) == 1 else None
-            if isinstance(shape, A.Ref) and len(shape.parts) == 1 \
-                    and shape.parts[0] in ENVIRONMENT_SHAPES:
-                kind = shape.parts[0]
-            else:
-                self.error(shape.pos if shape is not None else d.kind_pos,
-                           "environment takes one argument: sphere or hemisphere")
-        elif d.kind == "point":
-            if len(d.args) != 3:
-                self.error(d.kind_pos, f"point takes three coordinates (x, y, z), "
-                           f"not {len(d.args)} arguments")
-            else:
-                coords = [self.constant(a, "a point source coordinate") for a in d.args]
-                if None not in coords:
-                    kind, position = "point", tuple(coords)
-        else:
+        for extra in d.repeated_window:
+            self.error(extra.pos, "'from' or 'until' is given twice")
+        first = self.iteration_number(d.first, "'from'")
+        last = self.iteration_number(d.last, "'until'")
+        if first and last and last < first:
+            self.error(d.last.pos, f"'until {last}' is before 'from {first}'")
+            ok = False
+        if d.kind not in SOURCE_PARAMS:
             self.error(d.kind_pos, f"unknown source kind '{d.kind}'; expected one of "
                        f"{', '.join(SOURCE_KINDS)}{did_you_mean(d.kind, SOURCE_KINDS)}")
-        if not ok or kind is None or count is None:
             return None
-        return Source(d.name, kind, ton.index, int(count), position, d)
+        params = self.source_params(d)
+        if not ok or params is None or count is None or first is None or last is None:
+            return None
+        kind = params.get("shape", d.kind) if d.kind in ("area", "environment") else d.kind
+        return Source(d.name, kind, ton.index, int(count), params, first or 1, last, d)
 
-    def param(self, p: A.Param, table: dict, other: dict, want: str, other_kind: str):
+    def param(self, p: A.Param, table: dict, other: dict, want: str, other_kind: str) -> list:
+        """The declarations a rule parameter stands for ('*' = all of them)."""
+        if p.type_name == "*":
+            return list(table.values())
         found = table.get(p.type_name)
         if found is None:
             if p.type_name in other:
@@ -342,36 +543,31 @@ class _Checker:
             else:
                 self.error(p.type_pos, f"unknown {want} '{p.type_name}'"
                            f"{did_you_mean(p.type_name, table)}")
-        return found
+            return []
+        return [found]
 
     def rule(self, d: A.RuleDecl, tons, surfaces, kernels) -> None:
-        if d.event not in TRACED_EVENTS:
-            if d.event in FUTURE_EVENTS:
-                self.error(d.event_pos, f"event '{d.event}' is not supported yet "
-                           f"(supported: {', '.join(TRACED_EVENTS)})")
-            else:
-                self.error(d.event_pos, f"unknown event '{d.event}'; expected one of "
-                           f"{', '.join(TRACED_EVENTS)}{did_you_mean(d.event, TRACED_EVENTS)}")
-        ton = self.param(d.ton, tons, surfaces, "ton type", "surface")
-        surf = self.param(d.surface, surfaces, tons, "surface", "ton type")
+        if d.event not in EVENTS:
+            self.error(d.event_pos, f"unknown event '{d.event}'; expected one of "
+                       f"{', '.join(EVENTS)}{did_you_mean(d.event, EVENTS)}")
+        ton_types = self.param(d.ton, tons, surfaces, "ton type", "surface")
+        surfs = self.param(d.surface, surfaces, tons, "surface", "ton type")
         if d.ton.name == d.surface.name:
             self.error(d.surface.pos, f"both parameters are named '{d.ton.name}'")
             return
-        if ton is None or surf is None:
-            return
-        scope = Scope("transport", d.ton.name, ton, d.surface.name, surf)
-        self.body(scope, d.body)
-        key = (d.event, ton.index, surf.index)
-        kernels.setdefault(key, Kernel(d.event, ton, surf)).bodies.append((scope, d.body))
+        for ton in ton_types:
+            for surf in surfs:
+                scope = Scope("transport", d.ton.name, ton, d.surface.name, surf)
+                self.body(scope, d.body)
+                key = (d.event, ton.index, surf.index)
+                kernels.setdefault(key, Kernel(d.event, ton, surf)).bodies.append((scope, d.body))
 
     def update(self, d: A.UpdateDecl, surfaces, tons, kernels) -> None:
-        surf = self.param(d.surface, surfaces, tons, "surface", "ton type")
-        if surf is None:
-            return
-        scope = Scope("update", None, None, d.surface.name, surf)
-        self.body(scope, d.body)
-        kernels.setdefault(("update", surf.index), Kernel("update", None, surf)).bodies.append(
-            (scope, d.body))
+        for surf in self.param(d.surface, surfaces, tons, "surface", "ton type"):
+            scope = Scope("update", None, None, d.surface.name, surf)
+            self.body(scope, d.body)
+            kernels.setdefault(("update", surf.index), Kernel("update", None, surf)).bodies.append(
+                (scope, d.body))
 
     def body(self, scope: Scope, body: list[A.Assign]) -> None:
         for st in body:
@@ -404,7 +600,13 @@ class _Checker:
         elif isinstance(e, A.Binary):
             self.expr(scope, e.left)
             self.expr(scope, e.right)
+        elif isinstance(e, A.Vector):
+            self.error(e.pos, "a vector is not a value in a rule; use its components")
         elif isinstance(e, A.Call):
+            if e.name == "relative":
+                self.error(e.pos, "relative() describes a place or length in the scene; "
+                           "it is not a value in a rule")
+                return
             if e.name not in FUNCTIONS:
                 self.error(e.pos, f"unknown function '{e.name}'{did_you_mean(e.name, FUNCTIONS)}")
             else:
@@ -418,7 +620,12 @@ class _Checker:
 
 
 def check(module: A.Module) -> Effect:
-    return _Checker(module).run()
+    from .parser import too_deep
+
+    try:
+        return _Checker(module).run()
+    except RecursionError:
+        raise too_deep(module.path, module.source) from None
 
 
 def load(path: str) -> Effect:

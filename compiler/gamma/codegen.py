@@ -60,10 +60,14 @@ class _KernelBuilder:
     def load_ref(self, ref: A.Ref):
         slot = self.scope.resolve(ref)
         if slot.space == "ctx":
-            field = self.b.gep(self.ctx, [ir.Constant(I32, 0), ir.Constant(I32, _CONTEXT_INDEX[slot.name])],
-                               inbounds=True, source_etype=CONTEXT_TYPE)
-            value = self.b.load(field, typ=I32)
-            return self.b.sitofp(value, F32)
+            index = _CONTEXT_INDEX[slot.name]
+            _, ctype, count = abi.CONTEXT_FIELDS[index]
+            path = [ir.Constant(I32, 0), ir.Constant(I32, index)]
+            if count > 1:
+                path.append(ir.Constant(I32, slot.index))
+            field = self.b.gep(self.ctx, path, inbounds=True, source_etype=CONTEXT_TYPE)
+            value = self.b.load(field, typ=_CTYPES[ctype])
+            return value if ctype == "float" else self.b.sitofp(value, F32)
         base = self.ton if slot.space == "ton" else self.surf
         return self.b.load(self.slot_ptr(base, slot.index), typ=F32)
 

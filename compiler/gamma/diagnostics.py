@@ -27,7 +27,12 @@ class Diagnostic:
         if not 1 <= self.pos.line <= len(lines):
             return head
         text = lines[self.pos.line - 1].expandtabs(1)
-        caret = " " * (self.pos.col - 1) + "^" + "~" * max(0, self.pos.width - 1)
+        col, width = self.pos.col, min(self.pos.width, 60)
+        if len(text) > 120:  # show a window of a very long line around the caret
+            start = max(0, col - 60)
+            text = ("..." if start else "") + text[start:start + 120] + "..."
+            col = col - start + (3 if start else 0)
+        caret = " " * (col - 1) + "^" + "~" * max(0, width - 1)
         return f"{head}\n    {text}\n    {caret}"
 
 

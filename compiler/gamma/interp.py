@@ -18,11 +18,16 @@ f32 = np.float32
 
 
 class Context:
-    """Values of the read-only context (see ``abi.CONTEXT_FIELDS``)."""
+    """Values of the read-only context (fields of ``abi.CONTEXT_FIELDS``)."""
 
-    def __init__(self, iteration: int = 0, interactions: int = 0):
+    def __init__(self, iteration: int = 0, interactions: int = 0, height: float = 0.0,
+                 position=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 0.0)):
         self.iteration = iteration
         self.interactions = interactions
+        self.height = f32(height)
+        self.position = np.asarray(position, np.float32)
+        self.normal = np.asarray(normal, np.float32)
+        self.direction = np.asarray(direction, np.float32)
 
 
 def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context):
@@ -31,7 +36,8 @@ def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context):
     if isinstance(e, A.Ref):
         slot = scope.resolve(e)
         if slot.space == "ctx":
-            return f32(getattr(ctx, slot.name))
+            value = getattr(ctx, slot.name)
+            return f32(value[slot.index] if np.ndim(value) else value)
         return (ton if slot.space == "ton" else surf)[slot.index]
     if isinstance(e, A.Unary):
         return -_eval(e.operand, scope, ton, surf, ctx)

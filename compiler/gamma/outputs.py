@@ -42,7 +42,7 @@ def ply_bytes(columns: dict[str, np.ndarray], comments: list[str] = ()) -> bytes
     names = list(columns)
     n = len(next(iter(columns.values())))
     header = ["ply", "format binary_little_endian 1.0"]
-    header += [f"comment {c}" for c in comments]
+    header += [f"comment {ascii(c)[1:-1]}" for c in comments]  # PLY headers are ASCII
     header.append(f"element vertex {n}")
     header += [f"property float {name}" for name in names]
     header.append("end_header")
@@ -55,10 +55,13 @@ def ply_bytes(columns: dict[str, np.ndarray], comments: list[str] = ()) -> bytes
 def read_ply(path: Path) -> dict[str, np.ndarray]:
     """Read back a PLY written by ``ply_bytes`` (tests and tools)."""
     data = Path(path).read_bytes()
-    end = data.index(b"end_header\n") + len(b"end_header\n")
-    names, n = [], 0
-    for line in data[:end].decode("ascii").splitlines():
-        parts = line.split()
+    names, n, end = [], 0, 0
+    while True:
+        nl = data.index(b"\n", end)
+        parts = data[end:nl].decode("ascii").split()
+        end = nl + 1
+        if parts == ["end_header"]:
+            break
         if parts[:2] == ["element", "vertex"]:
             n = int(parts[2])
         elif parts[:2] == ["property", "float"]:
@@ -126,5 +129,17 @@ def false_colour_png(value: np.ndarray, shade: np.ndarray, vmin: float, vmax: fl
     return out.getvalue()
 
 
+def _finite_or_text(obj):
+    """JSON has no NaN/Infinity: non-finite floats are written as strings."""
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return str(obj)
+    if isinstance(obj, dict):
+        return {k: _finite_or_text(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_finite_or_text(v) for v in obj]
+    return obj
+
+
 def write_json(path: Path, obj) -> None:
-    atomic_write(path, (json.dumps(obj, indent=2) + "\n").encode("utf-8"))
+    text = json.dumps(_finite_or_text(obj), indent=2, allow_nan=False, ensure_ascii=False)
+    atomic_write(path, (text + "\n").encode("utf-8"))

@@ -64,6 +64,9 @@ class _ToAst(Transformer):
 
     add, sub, mul, div = _bin("+"), _bin("-"), _bin("*"), _bin("/")
 
+    def vector(self, meta, c):
+        return A.Vector(list(c), _meta_pos(meta))
+
     def neg(self, meta, c):
         return A.Unary("-", c[0], _meta_pos(meta))
 
@@ -125,12 +128,34 @@ class _ToAst(Transformer):
             getattr(decl, key).extend(value)
         return decl
 
+    def source_arg(self, meta, c):
+        return A.SourceArg(None, c[0], c[0].pos)
+
+    def named_arg(self, meta, c):
+        return A.SourceArg(str(c[0]), c[1], _pos(c[0]))
+
+    def window_from(self, meta, c):
+        return ("first", c[0])
+
+    def window_until(self, meta, c):
+        return ("last", c[0])
+
     def source_decl(self, meta, c):
         name, kind = c[0], c[1]
-        ton, count = c[-2], c[-1]
-        args = [a for a in c[2:-2] if a is not None]
-        return A.SourceDecl(str(name), _pos(name), str(kind), _pos(kind), args,
+        rest = list(c[2:])
+        windows = []
+        while rest and isinstance(rest[-1], tuple):
+            windows.insert(0, rest.pop())
+        ton, count = rest[-2], rest[-1]
+        args = [a for a in rest[:-2] if a is not None]
+        decl = A.SourceDecl(str(name), _pos(name), str(kind), _pos(kind), args,
                             str(ton), _pos(ton), count)
+        for key, expr in windows:
+            if getattr(decl, key) is None:
+                setattr(decl, key, expr)
+            else:
+                decl.repeated_window.append(expr)
+        return decl
 
     def rule_decl(self, meta, c):
         event, ton, surf, body = c
@@ -195,16 +220,31 @@ def parse(source: str, path: str = "<input>") -> A.Module:
             diagnostics.append(diag)
             at = min(_offset(text, diag.pos.line, diag.pos.col), len(text))
             starts = [m.start(1) for m in _DECL_START.finditer(text)]
-            before = [s for s in starts if s <= at]
-            after = [s for s in starts if s > at]
+            if at in starts:
+                # The unexpected token opens the next declaration (e.g. a missing
+                # '}'): the broken declaration is the one before it.
+                before = [s for s in starts if s < at]
+                end = at
+            else:
+                before = [s for s in starts if s <= at]
+                after = [s for s in starts if s > at]
+                end = after[0] if after else len(text)
             start = before[-1] if before else 0
-            end = after[0] if after else len(text)
-            if start == 0 and not before and not after or text[start:end].strip() == "":
+            if text[start:end].strip() == "":
                 break
             text = _blank(text, start, end)
     else:
         tree = None
     if diagnostics:
         raise GammaError(path, source, diagnostics)
-    decls = _ToAst().transform(tree)
+    try:
+        decls = _ToAst().transform(tree)
+    except RecursionError:
+        raise too_deep(path, source) from None
     return A.Module(path, source, decls)
+
+
+def too_deep(path: str, source: str) -> GammaError:
+    return GammaError(path, source, [Diagnostic(A.Pos(1, 1), "expressions are nested too deeply "
+                                                "for the compiler; split them with intermediate "
+                                                "ton attributes")])

@@ -115,11 +115,11 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: RunOptions):
 
 
 def auto_camera(bounds, fov_deg: float = 30.0):
-    """Eye, target and up framing the scene's bounding box from front-right-above."""
+    """Eye, target and up framing the scene's bounding box from front-left-above (+z front, +y up)."""
     lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
     centre = (lo + hi) / 2
     radius = np.linalg.norm(hi - lo) / 2
-    direction = np.array([0.45, 0.35, 1.0])
+    direction = np.array([-0.6, 0.35, 1.0])
     direction /= np.linalg.norm(direction)
     distance = radius / math.sin(math.radians(fov_deg) / 2) * 1.02
     return tuple(centre + direction * distance), tuple(centre), (0.0, 1.0, 0.0), fov_deg
@@ -187,7 +187,9 @@ def run(effect: Effect, opts: RunOptions) -> dict:
         columns_static[axis] = pos[:, j]
     for j, axis in enumerate(("nx", "ny", "nz")):
         columns_static[axis] = nrm[:, j]
-    threads = opts.threads or _cpu_count()
+    # The runtime never uses more threads than there are cores (results do not
+    # depend on it); the summary records what was actually used.
+    threads = min(opts.threads or _cpu_count(), _cpu_count())
     summary = {
         "effect": str(effect.path), "scene": str(opts.scene), "surface": surface.name,
         "surfels": sim.num_surfels, "triangles": mesh.num_triangles, "threads": threads,
