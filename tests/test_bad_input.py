@@ -72,15 +72,22 @@ def test_malformed_effect_reports_diagnostics(tmp_path, box_obj):
     assert not (tmp_path / "o").exists()
 
 
-def test_untraced_motion_is_refused_not_faked(tmp_path, box_obj):
-    (tmp_path / "rain.gamma").write_text(
-        "ton Rain { motion parabolic = 0.8, flow = 0.2 carry h = 1 }\n"
-        "surface Cement { reflectance parabolic = 0.4 property h = 0 }\n"
-        "source rain = environment(hemisphere) emits Rain count 10\n")
-    r = run_gammac("run", tmp_path / "rain.gamma", "--scene", box_obj, "--out", tmp_path / "o")
-    assert r.returncode == 1 and "parabolic motion is not traced" in r.stderr
-    assert "flow motion is not traced" in r.stderr
-    assert run_gammac("check", tmp_path / "rain.gamma").returncode == 0
+def test_unwritable_output_folder(tmp_path, box_obj):
+    (tmp_path / "file").write_text("not a folder")
+    r = run_gammac("run", PATINA, "--scene", box_obj, "--surfels", 100, "--tons", 10,
+                   "--out", tmp_path / "file" / "out")
+    assert_one_line_error(r, "cannot write to")
+
+
+@pytest.mark.parametrize("option,value", [("--surfels", "999999999999"), ("--seed", "99999999999999999999999"),
+                                          ("--threads", "99999"), ("--size", "4")])
+def test_out_of_range_options(tmp_path, box_obj, option, value):
+    r = run_gammac("run", PATINA, "--scene", box_obj, option, value, "--out", tmp_path / "o")
+    assert_one_line_error(r, option)
+
+
+def test_directory_as_mesh(tmp_path):
+    assert_one_line_error(run_on(tmp_path, tmp_path), "is a directory")
 
 
 @pytest.mark.parametrize("args", [["--iterations", "x"], ["--surfels", "-3"], ["--bogus"], []])
@@ -94,3 +101,11 @@ def test_unknown_surface_assignment(tmp_path, box_obj):
     r = run_gammac("run", PATINA, "--scene", box_obj, "--assign", "Bronze",
                    "--out", tmp_path / "o")
     assert_one_line_error(r, "Bronze", "Copper")
+
+
+def test_unassigned_parts(tmp_path, box_obj):
+    two = ("ton T { motion straight = 1 carry a = 1 }\nsurface A { property p = 0 }\n"
+           "surface B { property q = 0 }\nsource s = environment(sphere) emits T count 10\n")
+    (tmp_path / "two.gamma").write_text(two)
+    r = run_gammac("run", tmp_path / "two.gamma", "--scene", box_obj, "--out", tmp_path / "o")
+    assert_one_line_error(r, "no surface for", "--assign")

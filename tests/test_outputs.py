@@ -24,7 +24,7 @@ def test_maps_are_ply_point_clouds_with_every_column(patina_run):
     out, _ = patina_run
     for i in (1, 2, 3):
         cols = read_ply(out / "maps" / f"iter_{i:04d}.ply")
-        assert list(cols) == ["x", "y", "z", "nx", "ny", "nz", "patina", "reflectance_straight",
+        assert list(cols) == ["x", "y", "z", "nx", "ny", "nz", "surface", "patina", "reflectance_straight",
                               "reflectance_parabolic", "reflectance_flow"]
         assert len(cols["x"]) == 8000
         n = np.stack([cols["nx"], cols["ny"], cols["nz"]], 1)
@@ -44,7 +44,7 @@ def test_patina_grows_and_matches_the_summary(patina_run):
     assert summary["surfels"] == 8000 and summary["seed"] == 3
     for it in summary["iterations"]:
         assert it["emitted"] == 40000
-        assert it["emitted"] == it["settled"] + it["escaped"] + it["capped"] + it["untraced"]
+        assert it["emitted"] == it["settled"] + it["escaped"] + it["capped"]
         assert it["trace_seconds"] > 0 and it["update_seconds"] >= 0
 
 
@@ -55,6 +55,16 @@ def test_one_render_per_iteration_with_colour_bar(patina_run):
         assert img.size[1] == 200 and img.size[0] > 200   # picture plus the colour bar
         pixels = np.asarray(img.convert("RGB")).astype(int)
         assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 50   # not blank
+
+
+def test_a_rerun_replaces_the_earlier_run(tmp_path, bumpy_obj):
+    for iterations in (3, 1):
+        r = run_gammac("run", ROOT / "examples" / "patina.gamma", "--scene", bumpy_obj, "--surfels", 500,
+                       "--tons", 1000, "--iterations", iterations, "--size", 32, "--quiet",
+                       "--out", tmp_path)
+        assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "maps").iterdir()) == ["iter_0001.ply"]
+    assert sorted(p.name for p in (tmp_path / "renders").iterdir()) == ["iter_0001.png"]
 
 
 def test_no_temporary_files_left(patina_run):

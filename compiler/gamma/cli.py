@@ -15,7 +15,7 @@ from .diagnostics import GammaError
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
 
-def _positive(text: str) -> int:
+def _bounded_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -23,6 +23,18 @@ def _positive(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"'{text}' is negative")
     return value
+
+
+def _vector3(text: str) -> tuple[float, float, float]:
+    import math
+
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values) or not any(values):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a direction X,Y,Z")
+    return values
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -38,17 +50,20 @@ def _parser() -> argparse.ArgumentParser:
     what.add_argument("--asm", action="store_const", dest="what", const="asm", help="native assembly")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
-    r.add_argument("--scene", required=True, help="OBJ or PLY mesh")
+    r.add_argument("--scene", required=True, help="OBJ or PLY mesh, or a JSON scene file")
     r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--assign", help="surface the mesh is made of (needed if the effect declares several)")
-    r.add_argument("--iterations", type=_positive, default=10)
-    r.add_argument("--surfels", type=_positive, default=100_000)
-    r.add_argument("--tons", type=_positive, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
-    r.add_argument("--seed", type=_positive, default=1)
-    r.add_argument("--threads", type=_positive, default=0, help="worker threads (default: all cores)")
-    r.add_argument("--max-interactions", type=_positive, default=100, help="bound on interactions per gamma-ton")
+    r.add_argument("--assign", action="append", default=[], metavar="[PATTERN=]SURFACE",
+                   help="bind the parts whose object, group, material or file name matches "
+                        "PATTERN (default *) to SURFACE; repeatable, first match wins")
+    r.add_argument("--down", type=_vector3, metavar="X,Y,Z", help="gravity direction (default 0,-1,0)")
+    r.add_argument("--iterations", type=_bounded_int, default=10)
+    r.add_argument("--surfels", type=_bounded_int, default=100_000)
+    r.add_argument("--tons", type=_bounded_int, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
+    r.add_argument("--seed", type=_bounded_int, default=1)
+    r.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (default: all cores)")
+    r.add_argument("--max-interactions", type=_bounded_int, default=100, help="bound on interactions per gamma-ton")
     r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
-    r.add_argument("--size", type=_positive, default=512, help="render width and height in pixels")
+    r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -91,17 +106,17 @@ def main(argv=None) -> int:
             return EXIT_OK
         from .runner import RunError, RunOptions, run
 
-        opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign,
+        opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down,
                           iterations=args.iterations, surfels=args.surfels, tons=args.tons,
                           seed=args.seed, threads=args.threads,
                           max_interactions=args.max_interactions, show=args.show,
                           width=args.size, height=args.size, progress=not args.quiet)
         try:
-            run(effect, opts)
+            summary = run(effect, opts)
         except RunError as err:
             raise _Fail(str(err)) from None
-        print(f"gammac: wrote {args.out}/maps, {args.out}/renders and {args.out}/summary.json",
-              file=sys.stderr)
+        renders = f"{args.out}/renders, " if summary["rendered"] else ""
+        print(f"gammac: wrote {args.out}/maps, {renders}{args.out}/summary.json", file=sys.stderr)
         return EXIT_OK
     except GammaError as err:
         print(err.render(), file=sys.stderr)

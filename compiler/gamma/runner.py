@@ -1,8 +1,9 @@
 """``gammac run``: compile an effect, hand its kernels to the C++ runtime,
 iterate (trace, merge, update) and write the outputs.
 
-This module is the only one that talks to ``gamma._runtime``; it turns a
-checked ``Effect`` plus command-line options into the runtime's ``Config``.
+This module (with ``scene.py``, which assembles the mesh) is what talks to
+``gamma._runtime``: it turns a checked ``Effect`` plus command-line options
+into the runtime's ``Config`` and the run's outputs.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy as np
 from . import abi, __version__
 from .ast import Pos
 from .backend import JitKernels
-from .checker import Effect
+from .checker import Effect, Length, Source
 from .diagnostics import Diagnostic, GammaError
 from .outputs import atomic_write, false_colour_png, ply_bytes, write_json
 
@@ -31,7 +32,8 @@ class RunError(Exception):
 class RunOptions:
     scene: str
     out: str
-    assign: str | None = None
+    assign: list[str] = field(default_factory=list)   # PATTERN=SURFACE or SURFACE
+    down: tuple[float, float, float] | None = None    # None: the scene file's, else -y
     iterations: int = 10
     surfels: int = 100_000
     tons: int | None = None
@@ -53,18 +55,23 @@ def runtime_module():
     return rt
 
 
-def refuse_untraced_motion(effect: Effect) -> None:
-    """This runtime traces straight motion and settling only."""
-    diags = []
-    for ton in effect.tons.values():
-        for init in ton.decl.motion:
-            if init.name in ("parabolic", "flow") and ton.motion[abi.REFLECTANCE_SLOTS.index(init.name)] > 0:
-                diags.append(Diagnostic(init.pos, f"{init.name} motion is not traced by this "
-                                        "version of the runtime (straight motion and settling only)"))
-    if not effect.sources:
-        diags.append(Diagnostic(Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced"))
-    if diags:
-        raise GammaError(effect.path, effect.source, diags)
+#: Defaults for ton types that do not say, as fractions of the scene diagonal.
+DEFAULT_BOUNCE = Length(0.02, relative=True)
+DEFAULT_STEP = Length(0.005, relative=True)
+#: Upper bounds on options, so a typo cannot ask for terabytes.
+LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
+          "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
+          "--size": (16, 8192), "--seed": (0, 2**63 - 1)}
+
+
+def check_limits(opts: "RunOptions") -> None:
+    values = {"--iterations": opts.iterations, "--surfels": opts.surfels, "--threads": opts.threads,
+              "--tons": opts.tons or 0, "--max-interactions": opts.max_interactions,
+              "--size": min(opts.width, opts.height), "--seed": opts.seed}
+    for name, value in values.items():
+        low, high = LIMITS[name]
+        if not low <= value <= high:
+            raise RunError(f"{name} must be between {low} and {high:,}, not {value}")
 
 
 def split_counts(counts: list[int], total: int) -> list[int]:
@@ -78,34 +85,57 @@ def split_counts(counts: list[int], total: int) -> list[int]:
     return out
 
 
-def pick_surface(effect: Effect, name: str | None):
-    if name is None:
-        if len(effect.surfaces) == 1:
-            return next(iter(effect.surfaces.values()))
-        raise RunError("the effect declares several surfaces; choose one with --assign "
-                       f"({', '.join(effect.surfaces)})")
-    if name not in effect.surfaces:
-        raise RunError(f"--assign {name}: no such surface in {effect.path} "
-                       f"(surfaces: {', '.join(effect.surfaces) or 'none'})")
-    return effect.surfaces[name]
+def _direction(value, down) -> tuple[float, float, float]:
+    if value == "down":
+        return tuple(down)
+    if value == "up":
+        return tuple(-c for c in down)
+    return tuple(value)
 
 
-def build_config(rt, effect: Effect, kernels: JitKernels, opts: RunOptions):
+def source_arguments(src: Source, lo, hi, diagonal: float, down) -> dict:
+    """The runtime's ``add_source`` keyword arguments, in scene units."""
+    p = src.params
+    args = {"first_iteration": src.first, "last_iteration": src.last}
+    if "position" in p:
+        args["position"] = p["position"].resolve(lo, hi)
+    if "direction" in p:
+        args["direction"] = _direction(p["direction"], down)
+    if "normal" in p:
+        args["direction"] = _direction(p["normal"], down)
+    if "angle" in p:
+        args["angle_deg"] = p["angle"]
+        args["falloff"] = p["falloff"]
+    if p.get("size") is not None:
+        args["size"] = tuple(length.resolve(diagonal) for length in p["size"])
+    if p.get("radius") is not None:
+        args["radius"] = p["radius"].resolve(diagonal)
+    if "emission" in p:
+        args["emission"] = p["emission"]
+    return args
+
+
+def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bounds, down):
+    lo, hi = (np.asarray(b, float) for b in bounds)
+    diagonal = float(np.linalg.norm(hi - lo))
     cfg = rt.Config()
     cfg.surfels = opts.surfels
     cfg.seed = opts.seed
     cfg.threads = opts.threads or _cpu_count()
     cfg.max_interactions = opts.max_interactions
     cfg.row_width = effect.row_width
+    cfg.down = tuple(float(c) for c in down)
     cfg.surface_rows = [s.initial_row + [0.0] * (effect.row_width - len(s.initial_row))
                         for s in effect.surfaces.values()]
     for ton in effect.tons.values():
-        cfg.add_ton_type(*ton.motion, ton.initial)
+        bounce = (ton.bounce or DEFAULT_BOUNCE).resolve(diagonal)
+        step = (ton.step or DEFAULT_STEP).resolve(diagonal)
+        cfg.add_ton_type(*ton.motion, ton.initial, bounce, step)
     counts = [s.count for s in effect.sources]
     if opts.tons is not None:
         counts = split_counts(counts, opts.tons)
     for src, count in zip(effect.sources, counts):
-        cfg.add_source(src.kind, src.ton, count, src.position)
+        cfg.add_source(src.kind, src.ton, count, **source_arguments(src, lo, hi, diagonal, down))
     for k in effect.transport_kernels():
         cfg.set_transport(abi.EVENTS[k.event], k.ton.index, k.surface.index,
                           kernels.address[k.symbol], k.writes_surface)
@@ -147,103 +177,139 @@ class Progress:
         sys.stderr.flush()
 
 
-def run(effect: Effect, opts: RunOptions) -> dict:
-    refuse_untraced_motion(effect)
-    surface = pick_surface(effect, opts.assign)
-    shown = opts.show or next(iter(surface.properties), None)
-    if shown is not None and shown not in surface.properties:
-        raise RunError(f"--show {shown}: surface {surface.name} has no such property "
-                       f"({', '.join(surface.properties) or 'none'})")
-    for name, value, low in (("--iterations", opts.iterations, 1), ("--surfels", opts.surfels, 1),
-                             ("--threads", opts.threads, 0), ("--tons", opts.tons or 0, 0),
-                             ("--max-interactions", opts.max_interactions, 1),
-                             ("--size", min(opts.width, opts.height), 16)):
-        if value < low:
-            raise RunError(f"{name} must be at least {low}, not {value}")
-    rt = runtime_module()
-    if not Path(opts.scene).is_file():
-        raise RunError(f"cannot read mesh '{opts.scene}': file not found")
+def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarray) -> dict:
+    """One column per property name of any surface; 0 where a surfel's surface lacks it."""
+    columns: dict[str, np.ndarray] = {}
+    for surface in effect.surfaces.values():
+        mine = surfel_surface == surface.index
+        if not mine.any():
+            continue
+        for name, slot in surface.properties.items():
+            column = columns.setdefault(name, np.zeros(len(rows), np.float32))
+            column[mine] = rows[mine, slot]
+    return columns
+
+
+def prepare_output(out: Path) -> None:
+    """Create the folders up front (fail before any work) and drop the
+    iteration files of an earlier run, so the folder describes one run."""
     try:
-        mesh = rt.Mesh.load(opts.scene)
-    except ValueError as err:
+        for sub in ("maps", "renders"):
+            (out / sub).mkdir(parents=True, exist_ok=True)
+            for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9].*"):
+                stale.unlink()
+    except OSError as err:
+        raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
+
+
+STAT_KEYS = ("emitted", "settled", "escaped", "capped", "interactions", "rays",
+             "bounces", "flow_steps", "drips", "segments")
+
+
+def run(effect: Effect, opts: RunOptions) -> dict:
+    from .scene import SceneError, load_scene
+
+    check_limits(opts)
+    if not effect.sources:
+        raise GammaError(effect.path, effect.source, [Diagnostic(
+            Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced")])
+    rt = runtime_module()
+    try:
+        scene = load_scene(rt, opts.scene, effect, opts.assign, opts.down)
+    except SceneError as err:
         raise RunError(str(err)) from None
+    mesh = scene.mesh
     if mesh.degenerate_dropped:
         print(f"gammac: warning: {mesh.degenerate_dropped} degenerate triangles of "
               f"'{opts.scene}' ignored", file=sys.stderr)
+    present = [s for s in effect.surfaces.values() if scene.triangles_per_surface[s.name]]
+    shown = opts.show or next((n for s in present for n in s.properties), None)
+    if shown is not None and not any(shown in s.properties for s in present):
+        raise RunError(f"--show {shown}: no surface of the scene has that property "
+                       f"({', '.join(sorted({n for s in present for n in s.properties})) or 'none'})")
+    out = Path(opts.out)
+    prepare_output(out)
     kernels = JitKernels(effect)
-    cfg = build_config(rt, effect, kernels, opts)
-    cfg.triangle_surface = np.full(mesh.num_triangles, surface.index, dtype=np.int32)
     t0 = time.perf_counter()
     try:
+        cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
+        cfg.triangle_surface = scene.triangle_surface
         sim = rt.Simulation(mesh, cfg)
-    except ValueError as err:
-        raise RunError(str(err)) from None
+    except (ValueError, TypeError, RuntimeError) as err:
+        raise RunError(str(err).removeprefix("config: ")) from None
     setup_seconds = time.perf_counter() - t0
 
-    out = Path(opts.out)
-    columns_static = {}
+    surfel_surface = np.asarray(sim.surfel_surfaces())
     pos, nrm = sim.surfel_positions(), sim.surfel_normals()
-    for j, axis in enumerate("xyz"):
-        columns_static[axis] = pos[:, j]
-    for j, axis in enumerate(("nx", "ny", "nz")):
-        columns_static[axis] = nrm[:, j]
-    # The runtime never uses more threads than there are cores (results do not
-    # depend on it); the summary records what was actually used.
-    threads = min(opts.threads or _cpu_count(), _cpu_count())
+    static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
+    static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
+    static["surface"] = surfel_surface.astype(np.float32)
+    threads = min(opts.threads or _cpu_count(), LIMITS["--threads"][1])
     summary = {
-        "effect": str(effect.path), "scene": str(opts.scene), "surface": surface.name,
+        "effect": str(effect.path), "scene": str(opts.scene),
+        "surfaces": {name: {"triangles": count, "surfels": int(np.sum(surfel_surface == s.index))}
+                     for (name, count), s in zip(scene.triangles_per_surface.items(),
+                                                 effect.surfaces.values())},
         "surfels": sim.num_surfels, "triangles": mesh.num_triangles, "threads": threads,
-        "seed": opts.seed, "setup_seconds": setup_seconds,
+        "seed": opts.seed, "down": list(scene.down), "setup_seconds": setup_seconds,
         "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
-                     "llvm": ".".join(map(str, __import__("llvmlite.binding").binding.llvm_version_info)),
-                     "runtime": getattr(rt, "RUNTIME_VERSION", None)},
+                     "llvm": ".".join(map(str, llvm_version())),
+                     "runtime": getattr(rt, "RUNTIME_VERSION", None),
+                     "embree": getattr(rt, "EMBREE_VERSION", None)},
         "iterations": [],
     }
     history = []
     progress = Progress(opts.iterations, opts.progress)
-    for it in range(1, opts.iterations + 1):
-        stats = sim.trace(it)
-        if stats["untraced"]:
-            raise RunError(f"iteration {it}: {stats['untraced']} gamma-tons chose parabolic or flow "
-                           "motion (an update rule made a reflectance negative?), which this "
-                           "version does not trace")
-        update_seconds = sim.update(it)
-        rows = sim.rows()
-        record = {k: stats[k] for k in ("emitted", "settled", "escaped", "capped", "interactions",
-                                        "rays", "untraced")}
-        record["property_sums"] = {name: float(np.sum(rows[:, slot], dtype=np.float64))
-                                   for name, slot in surface.properties.items()}
-        record["trace_seconds"] = stats["trace_seconds"]
-        record["update_seconds"] = update_seconds
-        summary["iterations"].append(record)
-        columns = dict(columns_static)
-        for name, slot in surface.properties.items():
-            columns[name] = rows[:, slot]
-        for j, name in enumerate(abi.REFLECTANCE_SLOTS):
-            columns[f"reflectance_{name}"] = rows[:, j]
-        atomic_write(out / "maps" / f"iter_{it:04d}.ply",
-                     ply_bytes(columns, [f"gamma {__version__} iteration {it}",
-                                         f"effect {Path(effect.path).name} surface {surface.name}"]))
-        write_json(out / "summary.json", summary)
+    comments = [f"gamma {__version__}", f"effect {Path(effect.path).name}"]
+    try:
+        for it in range(1, opts.iterations + 1):
+            stats = sim.trace(it)
+            update_seconds = sim.update(it)
+            rows = sim.rows()
+            props = property_columns(effect, rows, surfel_surface)
+            record = {k: stats[k] for k in STAT_KEYS if k in stats}
+            record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
+                                       for name, col in props.items()}
+            record["trace_seconds"] = stats["trace_seconds"]
+            record["update_seconds"] = update_seconds
+            summary["iterations"].append(record)
+            columns = dict(static, **props)
+            for j, name in enumerate(abi.REFLECTANCE_SLOTS):
+                columns[f"reflectance_{name}"] = rows[:, j]
+            atomic_write(out / "maps" / f"iter_{it:04d}.ply",
+                         ply_bytes(columns, comments + [f"iteration {it}"]))
+            write_json(out / "summary.json", summary)
+            if shown is not None:
+                history.append(props[shown].copy())
+            rate = stats["emitted"] / max(stats["trace_seconds"], 1e-9)
+            progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
+                                f"{rate / 1e3:.0f}k γ-tons/s")
         if shown is not None:
-            history.append(rows[:, surface.properties[shown]].copy())
-        rate = stats["emitted"] / max(stats["trace_seconds"], 1e-9)
-        progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
-                            f"{rate / 1e3:.0f}k γ-tons/s")
-    if shown is not None:
-        render_history(sim, history, shown, out, opts, threads, mesh.bounds)
+            render_history(sim, history, shown, out, opts, threads, scene.bounds)
+    except OSError as err:
+        raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
+    summary["rendered"] = shown
     return summary
 
 
+def llvm_version():
+    import llvmlite.binding
+
+    return llvmlite.binding.llvm_version_info
+
+
 def render_history(sim, history, shown, out: Path, opts: RunOptions, threads: int, bounds) -> None:
-    """One false-colour PNG per iteration, all on the same colour scale."""
-    vmax = max(float(np.percentile(h, 99.5)) for h in history)
-    vmin = min(0.0, min(float(h.min()) for h in history))
+    """One false-colour PNG per iteration, all on the same colour scale
+    (non-finite values, which a rule can produce, are left out of the scale)."""
+    finite = [h[np.isfinite(h)] for h in history]
+    vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
+    vmin = min(0.0, min((float(f.min()) for f in finite if f.size), default=0.0))
     if vmax <= vmin:
         vmax = vmin + 1.0
     eye, target, up, fov = auto_camera(bounds)
     for it, values in enumerate(history, start=1):
-        value, shade = sim.render(np.ascontiguousarray(values, dtype=np.float32), eye, target, up,
+        values = np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin).astype(np.float32)
+        value, shade = sim.render(np.ascontiguousarray(values), eye, target, up,
                                   fov, opts.width, opts.height, threads)
         png = false_colour_png(value, shade, vmin, vmax, shown, f"{shown}, iteration {it}")
         atomic_write(out / "renders" / f"iter_{it:04d}.png", png)

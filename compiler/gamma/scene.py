@@ -1,0 +1,194 @@
+"""Scenes: what ``--scene`` names, assembled into one mesh whose every triangle
+is bound to a surface of the effect.
+
+``--scene`` is a mesh file (OBJ, PLY) or a JSON scene file listing several
+meshes with transforms (format in language/SPEC.md, "Scenes").  Triangles are
+bound to surfaces by assignment rules ``PATTERN=SURFACE``: a pattern (shell
+wildcards) matches a triangle when it matches its OBJ object, group or
+material name or its mesh's file name without extension.  Rules from the
+command line (``--assign``) come first, in the order given, then the rules of
+the scene file's mesh entry; the first rule that matches wins.  ``--assign
+SURFACE`` alone means ``*=SURFACE``.  An effect with a single surface needs no
+rule at all.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .checker import Effect
+
+
+class SceneError(Exception):
+    """A one-line, user-facing problem with the scene or its assignment."""
+
+
+@dataclass
+class Scene:
+    mesh: object                   # gamma._runtime.Mesh (all parts, transformed)
+    triangle_surface: np.ndarray   # int32 surface index per triangle
+    down: tuple[float, float, float]
+    bounds: tuple[tuple[float, ...], tuple[float, ...]]
+    triangles_per_surface: dict[str, int]
+
+    @property
+    def diagonal(self) -> float:
+        lo, hi = (np.asarray(b, float) for b in self.bounds)
+        return float(np.linalg.norm(hi - lo))
+
+
+def parse_assign(items: list[str], effect: Effect) -> list[tuple[str, str]]:
+    rules = []
+    for item in items:
+        pattern, _, surface = item.rpartition("=")
+        pattern = pattern or "*"
+        if surface not in effect.surfaces:
+            raise SceneError(f"--assign {item}: no surface '{surface}' in {effect.path} "
+                             f"(surfaces: {', '.join(effect.surfaces) or 'none'})")
+        rules.append((pattern, surface))
+    return rules
+
+
+def _vector(value, n: int, where: str) -> np.ndarray:
+    if (not isinstance(value, list) or len(value) != n
+            or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in value)):
+        raise SceneError(f"{where} must be a list of {n} finite numbers")
+    return np.asarray(value, dtype=float)
+
+
+def _rotation(degrees: np.ndarray) -> np.ndarray:
+    """Rotation about x, then y, then z (degrees, right-handed)."""
+    ax, ay, az = np.radians(degrees)
+    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _load_mesh(rt, path: Path):
+    if not path.is_file():
+        what = "is a directory" if path.is_dir() else "file not found"
+        raise SceneError(f"cannot read mesh '{path}': {what}")
+    try:
+        return rt.Mesh.load(str(path))
+    except (ValueError, RuntimeError) as err:
+        raise SceneError(str(err)) from None
+
+
+@dataclass
+class _Part:
+    mesh: object
+    stem: str
+    rules: list[tuple[str, str]]
+    vertices: np.ndarray | None = None   # transformed (None: untransformed single mesh)
+
+
+def _read_scene_file(rt, path: Path, effect: Effect):
+    try:
+        spec = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise SceneError(f"cannot read scene '{path}': {err}") from None
+    if not isinstance(spec, dict) or not isinstance(spec.get("meshes"), list) or not spec["meshes"]:
+        raise SceneError(f"scene '{path}' must be an object with a non-empty list \"meshes\"")
+    unknown = set(spec) - {"meshes", "down"}
+    if unknown:
+        raise SceneError(f"scene '{path}': unknown key '{sorted(unknown)[0]}' (keys: meshes, down)")
+    down = tuple(_vector(spec["down"], 3, f"scene '{path}': down")) if "down" in spec else None
+    parts = []
+    for i, entry in enumerate(spec["meshes"]):
+        where = f"scene '{path}': meshes[{i}]"
+        if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+            raise SceneError(f"{where} must be an object with a \"file\"")
+        unknown = set(entry) - {"file", "translate", "rotate", "scale", "assign"}
+        if unknown:
+            raise SceneError(f"{where}: unknown key '{sorted(unknown)[0]}' "
+                             "(keys: file, translate, rotate, scale, assign)")
+        mesh = _load_mesh(rt, path.parent / entry["file"])
+        scale = entry.get("scale", 1.0)
+        if isinstance(scale, (int, float)):
+            scale = [scale] * 3
+        scale = _vector(scale, 3, f"{where}.scale")
+        if np.any(scale == 0):
+            raise SceneError(f"{where}.scale must not be zero")
+        rotate = _vector(entry.get("rotate", [0, 0, 0]), 3, f"{where}.rotate")
+        translate = _vector(entry.get("translate", [0, 0, 0]), 3, f"{where}.translate")
+        verts = (np.asarray(mesh.vertices(), float) * scale) @ _rotation(rotate).T + translate
+        assign = entry.get("assign", {})
+        if not isinstance(assign, dict) or not all(isinstance(v, str) for v in assign.values()):
+            raise SceneError(f"{where}.assign must map patterns to surface names")
+        rules = []
+        for pattern, surface in assign.items():
+            if surface not in effect.surfaces:
+                raise SceneError(f"{where}.assign: no surface '{surface}' in {effect.path}")
+            rules.append((pattern, surface))
+        parts.append(_Part(mesh, Path(entry["file"]).stem, rules, verts))
+    return parts, down
+
+
+def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect) -> np.ndarray:
+    """Surface index per triangle of one part; -1 where no rule matches."""
+    m = part.mesh.num_triangles
+    names = list(part.mesh.part_names())
+    if m == 0:
+        return np.zeros(0, np.int32)
+    labels = np.stack([np.asarray(a, np.int64) for a in part.mesh.triangle_labels()], axis=1)
+    keys, inverse = np.unique(labels, axis=0, return_inverse=True)
+    chosen = np.full(len(keys), -1, np.int32)
+    for k, key in enumerate(keys):
+        candidates = [part.stem] + [names[i] for i in key if i >= 0]
+        for pattern, surface in rules:
+            if any(fnmatch.fnmatchcase(c, pattern) for c in candidates):
+                chosen[k] = effect.surfaces[surface].index
+                break
+    unbound = [k for k in range(len(keys)) if chosen[k] < 0]
+    if unbound:
+        described = []
+        for k in unbound[:3]:
+            kinds = ("object", "group", "material")
+            named = [f"{kind} '{names[i]}'" for kind, i in zip(kinds, keys[k]) if i >= 0]
+            described.append(" ".join(named) or "unnamed triangles")
+        more = f" (and {len(unbound) - 3} more)" if len(unbound) > 3 else ""
+        raise SceneError(f"no surface for {', '.join(described)}{more} of '{part.stem}': "
+                         "add --assign PATTERN=SURFACE")
+    return chosen[inverse.reshape(-1)]
+
+
+def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> Scene:
+    cli_rules = parse_assign(assign, effect)
+    if not cli_rules and len(effect.surfaces) == 1:
+        cli_rules = [("*", next(iter(effect.surfaces)))]
+    scene_path = Path(path)
+    if scene_path.suffix.lower() == ".json":
+        parts, file_down = _read_scene_file(rt, scene_path, effect)
+    else:
+        parts, file_down = [_Part(_load_mesh(rt, scene_path), scene_path.stem, [])], None
+    down = tuple(down) if down is not None else file_down or (0.0, -1.0, 0.0)
+    if not any(down):
+        raise SceneError("the down direction must not be the zero vector")
+    surface_of = [_bind(p, cli_rules + p.rules, effect) for p in parts]
+    if len(parts) == 1 and parts[0].vertices is None:
+        mesh = parts[0].mesh
+    else:
+        verts, tris, base = [], [], 0
+        for p in parts:
+            verts.append(p.vertices)
+            tris.append(np.asarray(p.mesh.triangles(), np.int64) + base)
+            base += len(p.vertices)
+        try:
+            mesh = rt.Mesh.from_arrays(np.concatenate(verts).astype(np.float32),
+                                       np.concatenate(tris).astype(np.int32))
+        except (ValueError, RuntimeError) as err:
+            raise SceneError(f"scene '{path}': {err}") from None
+    surface = np.concatenate(surface_of).astype(np.int32)
+    if len(surface) != mesh.num_triangles:
+        # from_arrays drops triangles that became degenerate under the transform
+        raise SceneError(f"scene '{path}': {len(surface) - mesh.num_triangles} triangles "
+                         "became degenerate after scaling")
+    counts = {name: int(np.sum(surface == s.index)) for name, s in effect.surfaces.items()}
+    return Scene(mesh, surface, down, mesh.bounds, counts)
