@@ -13,7 +13,7 @@ PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypo
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
-.PHONY: all demo test deps install runtime-tests pytest bench clean
+.PHONY: all demo stain test deps install runtime-tests pytest bench clean
 
 all: install
 
@@ -49,6 +49,13 @@ demo: install
 	@echo "  $(abspath $(DEMO_OUT))/renders/iter_0001.png ... iter_0010.png"
 	@echo "Maps (PLY point clouds): $(abspath $(DEMO_OUT))/maps/   Figures: $(abspath $(DEMO_OUT))/summary.json"
 
+# The paper's Fig. 8: rain, a rusty chain and a cement staircase (30 iterations).
+stain: install
+	$(PY) examples/scenes/make_staircase.py examples/scenes/staircase.obj
+	$(VENV)/bin/gammac run examples/stain-bleeding.gamma --scene examples/scenes/staircase.obj \
+	  --assign chain=Iron --assign '*=Cement' --show rust --iterations 30 --out out/stain-bleeding
+	@echo "Rust bleeding from the chain onto the steps: $(abspath out/stain-bleeding)/renders/"
+
 # Runtime unit tests, built separately with AddressSanitizer + UBSan.
 runtime-tests: install
 	cmake -S . -B build-tests -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
@@ -64,6 +71,7 @@ test: runtime-tests pytest
 
 bench: install
 	$(PY) bench/bench_patina.py
+	$(PY) bench/bench_stain.py
 
 clean:
 	rm -rf build build-tests out $(VENV)
