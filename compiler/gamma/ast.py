@@ -65,7 +65,23 @@ class Vector:
     pos: Pos
 
 
-Expr = Number | Ref | Unary | Binary | Call | Vector
+@dataclass
+class Compare:
+    op: str  # '<', '<=', '>', '>=', '==', '!='
+    left: "Expr"
+    right: "Expr"
+    pos: Pos
+
+
+@dataclass
+class Logic:
+    op: str  # 'and', 'or', 'not' (right is None for 'not')
+    left: "Expr"
+    right: "Expr | None"
+    pos: Pos
+
+
+Expr = Number | Ref | Unary | Binary | Call | Vector | Compare | Logic
 
 
 # ---- statements and declarations -------------------------------------------
@@ -76,6 +92,26 @@ class Assign:
     op: str  # '=', '+=', '-=', '*='
     value: Expr
     pos: Pos  # of the operator
+
+
+@dataclass
+class Let:
+    """``let name = value``: an immutable local, visible to the end of its block."""
+
+    name: str
+    value: Expr
+    pos: Pos
+
+
+@dataclass
+class If:
+    cond: Expr
+    then: list["Stmt"]
+    otherwise: list["Stmt"]
+    pos: Pos
+
+
+Stmt = Assign | Let | If
 
 
 @dataclass
@@ -142,7 +178,7 @@ class RuleDecl:
     event_pos: Pos
     ton: Param
     surface: Param
-    body: list[Assign]
+    body: list[Stmt]
     pos: Pos
 
 
@@ -151,7 +187,7 @@ class UpdateDecl:
     """``update(s: Surface) { ... }``"""
 
     surface: Param
-    body: list[Assign]
+    body: list[Stmt]
     pos: Pos
 
 

@@ -28,7 +28,10 @@ CONTEXT_VALUES = {
     "normal": (("transport", "update"), ("x", "y", "z")),
     "direction": (("transport",), ("x", "y", "z")),
 }
-FUNCTIONS = {"min": (2, None), "max": (2, None), "clamp": (3, 3)}  # name -> (min args, max args)
+#: Built-in functions: name -> (fewest, most arguments); all take and give numbers.
+FUNCTIONS = {"min": (2, None), "max": (2, None), "clamp": (3, 3), "mix": (3, 3),
+             "smoothstep": (3, 3), "abs": (1, 1), "sqrt": (1, 1), "exp": (1, 1), "log": (1, 1),
+             "pow": (2, 2), "floor": (1, 1), "fract": (1, 1)}
 RESERVED_PROPERTY_NAMES = {"x", "y", "z", "nx", "ny", "nz", "surface", "reflectance", "motion"}
 MAX_COUNT = 1e12  # gamma-tons per source and iteration
 REQUIRED = object()
@@ -125,11 +128,16 @@ class Scope:
     surf_param: str
     surface: Surface
 
-    def resolve(self, ref: A.Ref) -> Slot | str:
-        """A Slot, or an error message (only the checker ever sees those)."""
+    def resolve(self, ref: A.Ref, lets=()) -> Slot | str:
+        """A Slot, or an error message (only the checker ever sees those).
+        ``lets`` holds the names of the ``let`` bindings in scope."""
         parts = ref.parts
         head = parts[0]
         transport = self.kind == "transport"
+        if head in lets:
+            if len(parts) > 1:
+                return f"'{head}' is a local value and has no fields"
+            return Slot("let", 0, head, ())
         if head in CONTEXT_VALUES and head not in (self.ton_param, self.surf_param):
             kinds, components = CONTEXT_VALUES[head]
             if self.kind not in kinds:
@@ -207,7 +215,18 @@ class Kernel:
     @property
     def writes_surface(self) -> bool:
         return any(scope.resolve(st.target).space == "surf"
-                   for scope, body in self.bodies for st in body)
+                   for scope, body in self.bodies for st in assignments(body))
+
+
+def assignments(body: list) -> list[A.Assign]:
+    """Every assignment of a rule body, in nested blocks too."""
+    found = []
+    for st in body:
+        if isinstance(st, A.Assign):
+            found.append(st)
+        elif isinstance(st, A.If):
+            found += assignments(st.then) + assignments(st.otherwise)
+    return found
 
 
 @dataclass
@@ -569,15 +588,39 @@ class _Checker:
             kernels.setdefault(("update", surf.index), Kernel("update", None, surf)).bodies.append(
                 (scope, d.body))
 
-    def body(self, scope: Scope, body: list[A.Assign]) -> None:
+    def body(self, scope: Scope, body: list, lets: dict | None = None) -> None:
+        """Check statements; ``lets`` maps the let names in scope to their types."""
+        lets = dict(lets or {})
         for st in body:
-            slot = scope.resolve(st.target)
-            if isinstance(slot, str):
-                self.error(st.target.pos, slot)
-            elif st.op not in slot.writable_ops:
-                self.error(st.pos if slot.writable_ops else st.target.pos,
-                           self.write_error(scope, slot, st.op))
-            self.expr(scope, st.value)
+            if isinstance(st, A.Let):
+                kind = self.expr(scope, st.value, lets)
+                taken = (st.name in lets or st.name in (scope.ton_param, scope.surf_param)
+                         or st.name in CONTEXT_VALUES or st.name in FUNCTIONS)
+                if taken:
+                    self.error(st.pos, f"'{st.name}' is already a name here; choose another")
+                lets[st.name] = kind
+            elif isinstance(st, A.If):
+                self.want(scope, st.cond, lets, "bool")
+                self.body(scope, st.then, lets)
+                self.body(scope, st.otherwise, lets)
+            else:
+                slot = scope.resolve(st.target, lets)
+                if isinstance(slot, str):
+                    self.error(st.target.pos, slot)
+                elif slot.space == "let":
+                    self.error(st.target.pos, f"'{slot.name}' is a let value and cannot be changed")
+                elif st.op not in slot.writable_ops:
+                    self.error(st.pos if slot.writable_ops else st.target.pos,
+                               self.write_error(scope, slot, st.op))
+                self.want(scope, st.value, lets, "float")
+
+    def want(self, scope: Scope, e: A.Expr, lets: dict, kind: str) -> None:
+        got = self.expr(scope, e, lets)
+        if got is not None and got != kind:
+            if kind == "float":
+                self.error(e.pos, "expected a number here, but this is a truth value")
+            else:
+                self.error(e.pos, "expected a truth value (a comparison) here, but this is a number")
 
     @staticmethod
     def write_error(scope: Scope, slot: Slot, op: str) -> str:
@@ -590,23 +633,40 @@ class _Checker:
                     f"tracing are additive, use += or -=")
         return f"'{op}' is not allowed on '{slot.name}'"
 
-    def expr(self, scope: Scope, e: A.Expr) -> None:
+    def expr(self, scope: Scope, e: A.Expr, lets: dict) -> str | None:
+        """The type of ``e``: 'float', 'bool', or None after an error."""
+        if isinstance(e, A.Number):
+            return "float"
         if isinstance(e, A.Ref):
-            slot = scope.resolve(e)
+            slot = scope.resolve(e, lets)
             if isinstance(slot, str):
                 self.error(e.pos, slot)
-        elif isinstance(e, A.Unary):
-            self.expr(scope, e.operand)
-        elif isinstance(e, A.Binary):
-            self.expr(scope, e.left)
-            self.expr(scope, e.right)
-        elif isinstance(e, A.Vector):
+                return None
+            return lets[slot.name] if slot.space == "let" else "float"
+        if isinstance(e, A.Unary):
+            self.want(scope, e.operand, lets, "float")
+            return "float"
+        if isinstance(e, A.Binary):
+            self.want(scope, e.left, lets, "float")
+            self.want(scope, e.right, lets, "float")
+            return "float"
+        if isinstance(e, A.Compare):
+            self.want(scope, e.left, lets, "float")
+            self.want(scope, e.right, lets, "float")
+            return "bool"
+        if isinstance(e, A.Logic):
+            self.want(scope, e.left, lets, "bool")
+            if e.right is not None:
+                self.want(scope, e.right, lets, "bool")
+            return "bool"
+        if isinstance(e, A.Vector):
             self.error(e.pos, "a vector is not a value in a rule; use its components")
-        elif isinstance(e, A.Call):
+            return None
+        if isinstance(e, A.Call):
             if e.name == "relative":
                 self.error(e.pos, "relative() describes a place or length in the scene; "
                            "it is not a value in a rule")
-                return
+                return None
             if e.name not in FUNCTIONS:
                 self.error(e.pos, f"unknown function '{e.name}'{did_you_mean(e.name, FUNCTIONS)}")
             else:
@@ -614,9 +674,12 @@ class _Checker:
                 n = len(e.args)
                 if n < lo or (hi is not None and n > hi):
                     want = f"{lo}" if lo == hi else f"at least {lo}"
-                    self.error(e.pos, f"{e.name}() takes {want} arguments, not {n}")
+                    plural = "s" if (hi or lo) != 1 else ""
+                    self.error(e.pos, f"{e.name}() takes {want} argument{plural}, not {n}")
             for a in e.args:
-                self.expr(scope, a)
+                self.want(scope, a, lets, "float")
+            return "float"
+        raise AssertionError(f"unknown expression {e!r}")
 
 
 def check(module: A.Module) -> Effect:

@@ -51,14 +51,23 @@ class _KernelBuilder:
         self.b = ir.IRBuilder(fn.append_basic_block("entry"))
         self.scope: Scope | None = None
 
-    def _intrinsic(self, name: str):
-        return self.module.declare_intrinsic(name, [F32], ir.FunctionType(F32, [F32, F32]))
+    def _intrinsic(self, name: str, arity: int = 2):
+        return self.module.declare_intrinsic(name, [F32], ir.FunctionType(F32, [F32] * arity))
+
+    def _libm(self, name: str, arity: int):
+        """A C library function (expf, logf, powf): the interpreter calls the same one."""
+        try:
+            return self.module.get_global(name)
+        except KeyError:
+            return ir.Function(self.module, ir.FunctionType(F32, [F32] * arity), name)
 
     def slot_ptr(self, base, index: int):
         return self.b.gep(base, [ir.Constant(I32, index)], inbounds=True, source_etype=F32)
 
-    def load_ref(self, ref: A.Ref):
-        slot = self.scope.resolve(ref)
+    def load_ref(self, ref: A.Ref, lets: dict):
+        slot = self.scope.resolve(ref, lets)
+        if slot.space == "let":
+            return lets[slot.name]
         if slot.space == "ctx":
             index = _CONTEXT_INDEX[slot.name]
             _, ctype, count = abi.CONTEXT_FIELDS[index]
@@ -71,33 +80,78 @@ class _KernelBuilder:
         base = self.ton if slot.space == "ton" else self.surf
         return self.b.load(self.slot_ptr(base, slot.index), typ=F32)
 
-    def expr(self, e: A.Expr):
+    def arith(self, op: str, left, right):
+        """One float operation, folded when both operands are constants
+        (in float32, exactly as the machine would compute it)."""
+        if isinstance(left, ir.Constant) and isinstance(right, ir.Constant):
+            import numpy as np
+
+            a, b = np.float32(left.constant), np.float32(right.constant)
+            with np.errstate(all="ignore"):
+                value = {"+": a + b, "-": a - b, "*": a * b, "/": a / b}[op]
+            return ir.Constant(F32, float(np.float32(value)))
+        b = self.b
+        return {"+": b.fadd, "-": b.fsub, "*": b.fmul, "/": b.fdiv}[op](left, right)
+
+    def call(self, name: str, args: list):
+        b = self.b
+        if name in ("min", "max"):
+            fn = self._intrinsic(f"llvm.{name}num")
+            acc = args[0]
+            for a in args[1:]:
+                acc = b.call(fn, [acc, a])
+            return acc
+        if name == "clamp":
+            low = b.call(self._intrinsic("llvm.maxnum"), [args[0], args[1]])
+            return b.call(self._intrinsic("llvm.minnum"), [low, args[2]])
+        if name == "mix":              # a + (b - a) * t
+            a, b_, t = args
+            return self.arith("+", a, self.arith("*", self.arith("-", b_, a), t))
+        if name == "smoothstep":       # t = clamp((x - e0) / (e1 - e0), 0, 1); t * t * (3 - 2 * t)
+            e0, e1, x = args
+            t = self.call("clamp", [self.arith("/", self.arith("-", x, e0), self.arith("-", e1, e0)),
+                                    ir.Constant(F32, 0.0), ir.Constant(F32, 1.0)])
+            return self.arith("*", self.arith("*", t, t),
+                              self.arith("-", ir.Constant(F32, 3.0), self.arith("*", ir.Constant(F32, 2.0), t)))
+        if name in ("abs", "sqrt", "floor"):
+            intrinsic = {"abs": "llvm.fabs", "sqrt": "llvm.sqrt", "floor": "llvm.floor"}[name]
+            return b.call(self._intrinsic(intrinsic, 1), args)
+        if name == "fract":            # x - floor(x)
+            return self.arith("-", args[0], self.call("floor", args))
+        if name in ("exp", "log", "pow"):
+            return b.call(self._libm(name + "f", len(args)), args)
+        raise AssertionError(f"unchecked function {name}")
+
+    def expr(self, e: A.Expr, lets: dict):
         b = self.b
         if isinstance(e, A.Number):
             return ir.Constant(F32, _f32(e.value))
         if isinstance(e, A.Ref):
-            return self.load_ref(e)
+            return self.load_ref(e, lets)
         if isinstance(e, A.Unary):
-            return b.fneg(self.expr(e.operand))
+            operand = self.expr(e.operand, lets)
+            if isinstance(operand, ir.Constant):
+                return ir.Constant(F32, -operand.constant)
+            return b.fneg(operand)
         if isinstance(e, A.Binary):
-            left, right = self.expr(e.left), self.expr(e.right)
-            return {"+": b.fadd, "-": b.fsub, "*": b.fmul, "/": b.fdiv}[e.op](left, right)
+            return self.arith(e.op, self.expr(e.left, lets), self.expr(e.right, lets))
+        if isinstance(e, A.Compare):
+            # ordered comparisons are false on NaN; != is true on NaN (IEEE, as in C)
+            compare = b.fcmp_unordered if e.op == "!=" else b.fcmp_ordered
+            return compare(e.op, self.expr(e.left, lets), self.expr(e.right, lets))
+        if isinstance(e, A.Logic):     # both sides are evaluated (no short circuit)
+            left = self.expr(e.left, lets)
+            if e.op == "not":
+                return b.not_(left)
+            right = self.expr(e.right, lets)
+            return b.and_(left, right) if e.op == "and" else b.or_(left, right)
         if isinstance(e, A.Call):
-            args = [self.expr(a) for a in e.args]
-            if e.name in ("min", "max"):
-                fn = self._intrinsic(f"llvm.{e.name}num")
-                acc = args[0]
-                for a in args[1:]:
-                    acc = b.call(fn, [acc, a])
-                return acc
-            if e.name == "clamp":
-                lo = b.call(self._intrinsic("llvm.maxnum"), [args[0], args[1]])
-                return b.call(self._intrinsic("llvm.minnum"), [lo, args[2]])
+            return self.call(e.name, [self.expr(a, lets) for a in e.args])
         raise AssertionError(f"unchecked expression {e!r}")
 
-    def assign(self, st: A.Assign) -> None:
-        slot = self.scope.resolve(st.target)
-        value = self.expr(st.value)
+    def assign(self, st: A.Assign, lets: dict) -> None:
+        slot = self.scope.resolve(st.target, lets)
+        value = self.expr(st.value, lets)
         b = self.b
         if slot.space == "surf" and self.delta is not None:
             ptr = self.slot_ptr(self.delta, slot.index)  # transport: accumulate a delta
@@ -110,13 +164,27 @@ class _KernelBuilder:
             new = {"+=": b.fadd, "-=": b.fsub, "*=": b.fmul}[st.op](old, value)
         b.store(new, ptr)
 
+    def statements(self, body: list, lets: dict) -> None:
+        lets = dict(lets)
+        for st in body:
+            if isinstance(st, A.Let):
+                lets[st.name] = self.expr(st.value, lets)
+            elif isinstance(st, A.If):
+                cond = self.expr(st.cond, lets)
+                with self.b.if_else(cond) as (then, otherwise):
+                    with then:
+                        self.statements(st.then, lets)
+                    with otherwise:
+                        self.statements(st.otherwise, lets)
+            else:
+                self.b.comment(f"{st.target.pos.line}:{st.target.pos.col}: "
+                               f"{'.'.join(st.target.parts)} {st.op} ...")
+                self.assign(st, lets)
+
     def build(self) -> None:
         for scope, body in self.kernel.bodies:
             self.scope = scope
-            for st in body:
-                self.b.comment(f"{st.target.pos.line}:{st.target.pos.col}: "
-                               f"{'.'.join(st.target.parts)} {st.op} ...")
-                self.assign(st)
+            self.statements(body, {})
         self.b.ret_void()
 
 

@@ -30,59 +30,109 @@ class Context:
         self.direction = np.asarray(direction, np.float32)
 
 
-def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context):
+def _libm():
+    """The C library's expf/logf/powf: the compiled kernels call the same ones
+    (numpy's own float32 exp/log differ from libm in the last bit)."""
+    import ctypes
+    import ctypes.util
+
+    lib = ctypes.CDLL(ctypes.util.find_library("m"))
+    fns = {}
+    for name, arity in (("expf", 1), ("logf", 1), ("powf", 2)):
+        fn = getattr(lib, name)
+        fn.restype = ctypes.c_float
+        fn.argtypes = [ctypes.c_float] * arity
+        fns[name] = fn
+    return fns
+
+
+_LIBM = _libm()
+
+
+def _call(name: str, args: list):
+    if name in ("min", "max"):
+        acc = args[0]
+        for a in args[1:]:
+            acc = (np.fmin if name == "min" else np.fmax)(acc, a)
+        return f32(acc)
+    if name == "clamp":
+        return f32(np.fmin(np.fmax(args[0], args[1]), args[2]))
+    if name == "mix":
+        a, b, t = args
+        return f32(a + f32(f32(b - a) * t))
+    if name == "smoothstep":
+        e0, e1, x = args
+        t = _call("clamp", [f32(f32(x - e0) / f32(e1 - e0)), f32(0), f32(1)])
+        return f32(f32(t * t) * f32(f32(3) - f32(f32(2) * t)))
+    if name == "abs":
+        return f32(np.abs(args[0]))
+    if name == "sqrt":
+        return f32(np.sqrt(args[0]))
+    if name == "floor":
+        return f32(np.floor(args[0]))
+    if name == "fract":
+        return f32(args[0] - np.floor(args[0]))
+    if name in ("exp", "log", "pow"):
+        return f32(_LIBM[name + "f"](*[float(a) for a in args]))
+    raise AssertionError(f"unchecked function {name}")
+
+
+_COMPARE = {"<": np.less, "<=": np.less_equal, ">": np.greater, ">=": np.greater_equal,
+            "==": np.equal, "!=": np.not_equal}
+
+
+def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context, lets: dict):
     if isinstance(e, A.Number):
         return f32(e.value)
     if isinstance(e, A.Ref):
-        slot = scope.resolve(e)
+        slot = scope.resolve(e, lets)
+        if slot.space == "let":
+            return lets[slot.name]
         if slot.space == "ctx":
             value = getattr(ctx, slot.name)
             return f32(value[slot.index] if np.ndim(value) else value)
         return (ton if slot.space == "ton" else surf)[slot.index]
     if isinstance(e, A.Unary):
-        return -_eval(e.operand, scope, ton, surf, ctx)
+        return -_eval(e.operand, scope, ton, surf, ctx, lets)
     if isinstance(e, A.Binary):
-        a = _eval(e.left, scope, ton, surf, ctx)
-        b = _eval(e.right, scope, ton, surf, ctx)
-        if e.op == "+":
-            return f32(a + b)
-        if e.op == "-":
-            return f32(a - b)
-        if e.op == "*":
-            return f32(a * b)
-        return f32(a / b)
+        a = _eval(e.left, scope, ton, surf, ctx, lets)
+        b = _eval(e.right, scope, ton, surf, ctx, lets)
+        return f32({"+": np.add, "-": np.subtract, "*": np.multiply, "/": np.divide}[e.op](a, b))
+    if isinstance(e, A.Compare):
+        a = _eval(e.left, scope, ton, surf, ctx, lets)
+        b = _eval(e.right, scope, ton, surf, ctx, lets)
+        return bool(_COMPARE[e.op](a, b))
+    if isinstance(e, A.Logic):  # both sides evaluated, like the compiled code
+        a = _eval(e.left, scope, ton, surf, ctx, lets)
+        if e.op == "not":
+            return not a
+        b = _eval(e.right, scope, ton, surf, ctx, lets)
+        return (a and b) if e.op == "and" else (a or b)
     if isinstance(e, A.Call):
-        args = [_eval(a, scope, ton, surf, ctx) for a in e.args]
-        if e.name == "min":
-            acc = args[0]
-            for a in args[1:]:
-                acc = np.fmin(acc, a)
-            return f32(acc)
-        if e.name == "max":
-            acc = args[0]
-            for a in args[1:]:
-                acc = np.fmax(acc, a)
-            return f32(acc)
-        if e.name == "clamp":
-            return f32(np.fmin(np.fmax(args[0], args[1]), args[2]))
+        return _call(e.name, [_eval(a, scope, ton, surf, ctx, lets) for a in e.args])
     raise AssertionError(f"unchecked expression {e!r}")
+
+
+def _run(body: list, scope: Scope, ton, surf, delta, ctx: Context, lets: dict, transport: bool):
+    lets = dict(lets)
+    for st in body:
+        if isinstance(st, A.Let):
+            lets[st.name] = _eval(st.value, scope, ton, surf, ctx, lets)
+        elif isinstance(st, A.If):
+            branch = st.then if _eval(st.cond, scope, ton, surf, ctx, lets) else st.otherwise
+            _run(branch, scope, ton, surf, delta, ctx, lets, transport)
+        else:
+            slot = scope.resolve(st.target, lets)
+            value = _eval(st.value, scope, ton, surf, ctx, lets)
+            dest = ton if slot.space == "ton" else (delta if transport else surf)
+            old = dest[slot.index]
+            dest[slot.index] = {"=": value, "+=": f32(old + value), "-=": f32(old - value),
+                                "*=": f32(old * value)}[st.op]
 
 
 def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context) -> None:
     """Run in place, like the compiled kernel: ``ton`` and ``delta`` (transport)
     or ``surf`` (update) are float32 arrays that get modified."""
-    transport = kernel.ton is not None
     with np.errstate(all="ignore"):
         for scope, body in kernel.bodies:
-            for st in body:
-                slot = scope.resolve(st.target)
-                value = _eval(st.value, scope, ton, surf, ctx)
-                if slot.space == "ton":
-                    dest = ton
-                elif transport:
-                    dest = delta
-                else:
-                    dest = surf
-                old = dest[slot.index]
-                dest[slot.index] = {"=": value, "+=": f32(old + value), "-=": f32(old - value),
-                                    "*=": f32(old * value)}[st.op]
+            _run(body, scope, ton, surf, delta, ctx, {}, kernel.ton is not None)

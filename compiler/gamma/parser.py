@@ -67,6 +67,30 @@ class _ToAst(Transformer):
     def vector(self, meta, c):
         return A.Vector(list(c), _meta_pos(meta))
 
+    def compare(self, meta, c):
+        return A.Compare(str(c[1]), c[0], c[2], _meta_pos(meta))
+
+    def and_(self, meta, c):
+        return A.Logic("and", c[0], c[1], _meta_pos(meta))
+
+    def or_(self, meta, c):
+        return A.Logic("or", c[0], c[1], _meta_pos(meta))
+
+    def not_(self, meta, c):
+        return A.Logic("not", c[0], None, _meta_pos(meta))
+
+    def let_stmt(self, meta, c):
+        return A.Let(str(c[0]), c[1], _pos(c[0]))
+
+    def if_stmt(self, meta, c):
+        cond, then = c[0], c[1]
+        other = c[2] if len(c) > 2 and c[2] is not None else []
+        if isinstance(other, A.If):
+            other = [other]
+        return A.If(cond, then, other, _meta_pos(meta))
+
+    if_chain = if_stmt
+
     def neg(self, meta, c):
         return A.Unary("-", c[0], _meta_pos(meta))
 
