@@ -93,17 +93,24 @@ class _KernelBuilder:
         b = self.b
         return {"+": b.fadd, "-": b.fsub, "*": b.fmul, "/": b.fdiv}[op](left, right)
 
+    def pick(self, name: str, a, b):
+        """min/max, defined exactly (and so in the interpreter): b if b is
+        strictly smaller (larger) than a or a is NaN, else a.  A NaN operand is
+        ignored and ties, +0 against -0 included, keep the first operand."""
+        bld = self.b
+        better = bld.fcmp_ordered("<" if name == "min" else ">", b, a)
+        a_is_nan = bld.fcmp_unordered("uno", a, a)
+        return bld.select(bld.or_(better, a_is_nan), b, a)
+
     def call(self, name: str, args: list):
         b = self.b
         if name in ("min", "max"):
-            fn = self._intrinsic(f"llvm.{name}num")
             acc = args[0]
             for a in args[1:]:
-                acc = b.call(fn, [acc, a])
+                acc = self.pick(name, acc, a)
             return acc
         if name == "clamp":
-            low = b.call(self._intrinsic("llvm.maxnum"), [args[0], args[1]])
-            return b.call(self._intrinsic("llvm.minnum"), [low, args[2]])
+            return self.pick("min", self.pick("max", args[0], args[1]), args[2])
         if name == "mix":              # a + (b - a) * t
             a, b_, t = args
             return self.arith("+", a, self.arith("*", self.arith("-", b_, a), t))

@@ -49,14 +49,20 @@ def _libm():
 _LIBM = _libm()
 
 
+def _pick(name: str, a, b):
+    """b if b is strictly smaller (min) / larger (max) than a, or a is NaN; else a."""
+    better = b < a if name == "min" else b > a
+    return f32(b if better or np.isnan(a) else a)
+
+
 def _call(name: str, args: list):
     if name in ("min", "max"):
         acc = args[0]
         for a in args[1:]:
-            acc = (np.fmin if name == "min" else np.fmax)(acc, a)
-        return f32(acc)
+            acc = _pick(name, acc, a)
+        return acc
     if name == "clamp":
-        return f32(np.fmin(np.fmax(args[0], args[1]), args[2]))
+        return _pick("min", _pick("max", args[0], args[1]), args[2])
     if name == "mix":
         a, b, t = args
         return f32(a + f32(f32(b - a) * t))
