@@ -54,7 +54,7 @@ def main() -> None:
     for threads in (1, 2):
         opts = RunOptions(scene=str(SCENE), out="", surfels=args.surfels, tons=args.tons,
                           threads=threads)
-        cfg = build_config(rt, effect, kernels, opts)
+        cfg = build_config(rt, effect, kernels, opts, mesh.bounds, (0.0, -1.0, 0.0))
         t0 = time.perf_counter()
         sim = rt.Simulation(mesh, cfg)
         setup = time.perf_counter() - t0

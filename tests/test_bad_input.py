@@ -105,7 +105,8 @@ def test_unknown_surface_assignment(tmp_path, box_obj):
 
 def test_unassigned_parts(tmp_path, box_obj):
     two = ("ton T { motion straight = 1 carry a = 1 }\nsurface A { property p = 0 }\n"
-           "surface B { property q = 0 }\nsource s = environment(sphere) emits T count 10\n")
+           "surface B { property q = 0 }\nsource s = environment(sphere) emits T count 10\n"
+           "on hit(t: T, s: A) { s.p += 1 }\non hit(t: T, s: B) { s.q += 1 }\n")
     (tmp_path / "two.gamma").write_text(two)
     r = run_gammac("run", tmp_path / "two.gamma", "--scene", box_obj, "--out", tmp_path / "o")
     assert_one_line_error(r, "no surface for", "--assign")

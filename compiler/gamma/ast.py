@@ -191,7 +191,25 @@ class UpdateDecl:
     pos: Pos
 
 
-Decl = TonDecl | SurfaceDecl | SourceDecl | RuleDecl | UpdateDecl
+@dataclass
+class ParamDecl:
+    """``param rate = 0.015``: a constant an importer or the command line may override."""
+
+    name: str
+    value: Expr
+    pos: Pos
+
+
+@dataclass
+class ImportDecl:
+    """``import "rust.gamma" (rate = 0.03)``"""
+
+    path: str
+    pos: Pos
+    args: list[Init]
+
+
+Decl = TonDecl | SurfaceDecl | SourceDecl | RuleDecl | UpdateDecl | ParamDecl | ImportDecl
 
 
 @dataclass

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from . import abi
 from . import ast as A
@@ -127,6 +128,7 @@ class Scope:
     ton: TonType | None
     surf_param: str
     surface: Surface
+    params: dict = field(default_factory=dict)   # parameters of the rule's file
 
     def resolve(self, ref: A.Ref, lets=()) -> Slot | str:
         """A Slot, or an error message (only the checker ever sees those).
@@ -138,6 +140,10 @@ class Scope:
             if len(parts) > 1:
                 return f"'{head}' is a local value and has no fields"
             return Slot("let", 0, head, ())
+        if head in self.params and head not in (self.ton_param, self.surf_param):
+            if len(parts) > 1:
+                return f"'{head}' is a parameter and has no fields"
+            return Slot("param", 0, head, ())
         if head in CONTEXT_VALUES and head not in (self.ton_param, self.surf_param):
             kinds, components = CONTEXT_VALUES[head]
             if self.kind not in kinds:
@@ -238,6 +244,8 @@ class Effect:
     sources: list[Source]
     kernels: list[Kernel]
     row_width: int
+    warnings: list = field(default_factory=list)
+    params: dict = field(default_factory=dict)
 
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]
@@ -253,37 +261,157 @@ class NotConstant(Exception):
         self.pos = pos
 
 
-def const_value(expr: A.Expr) -> float:
-    """Fold a constant expression (numbers and arithmetic only)."""
+def const_value(expr: A.Expr, params: dict | None = None, used: set | None = None) -> float:
+    """Fold a constant expression: numbers, parameters and arithmetic, in float32."""
     import numpy as np
 
     f32 = np.float32
     if isinstance(expr, A.Number):
         return float(f32(expr.value))
+    if isinstance(expr, A.Ref) and len(expr.parts) == 1 and params and expr.parts[0] in params:
+        if used is not None:
+            used.add(expr.parts[0])
+        return params[expr.parts[0]]
     if isinstance(expr, A.Unary):
-        return float(-f32(const_value(expr.operand)))
+        return float(-f32(const_value(expr.operand, params, used)))
     if isinstance(expr, A.Binary):
-        a, b = f32(const_value(expr.left)), f32(const_value(expr.right))
+        a = f32(const_value(expr.left, params, used))
+        b = f32(const_value(expr.right, params, used))
         with np.errstate(all="ignore"):
             return float({"+": a + b, "-": a - b, "*": a * b, "/": a / b}[expr.op])
     raise NotConstant(expr.pos)
 
 
+@dataclass
+class Unit:
+    """One file of the program: its text, its parameters' values and which were read."""
+
+    path: str
+    source: str
+    module: A.Module
+    main: bool
+    params: dict[str, float] = field(default_factory=dict)
+    param_pos: dict[str, A.Pos] = field(default_factory=dict)
+    used: set[str] = field(default_factory=set)
+
+    @property
+    def file(self):
+        from .diagnostics import SourceFile
+
+        return None if self.main else SourceFile(self.path, self.source)
+
+
+def stdlib_dir() -> Path:
+    here = Path(__file__).resolve().parent
+    for candidate in (here / "stdlib", here.parent.parent / "stdlib"):
+        if candidate.is_dir():
+            return candidate
+    return here / "stdlib"
+
+
 # ---- the checker ---------------------------------------------------------------------
 
 class _Checker:
-    def __init__(self, module: A.Module):
+    def __init__(self, module: A.Module, overrides: dict[str, float]):
         self.module = module
+        self.overrides = overrides
         self.diags: list[Diagnostic] = []
+        self.warnings: list[Diagnostic] = []
+        self.unit = Unit(module.path, module.source, module, main=True)
 
     def error(self, pos: A.Pos, message: str) -> None:
-        diag = Diagnostic(pos, message)
+        diag = Diagnostic(pos, message, file=self.unit.file)
         if diag not in self.diags:  # a wildcard rule is checked once per expansion
             self.diags.append(diag)
 
+    def warn(self, unit: Unit, pos: A.Pos, message: str) -> None:
+        diag = Diagnostic(pos, message, "warning", unit.file)
+        if diag not in self.warnings:
+            self.warnings.append(diag)
+
+    # -- files, imports and parameters --
+
+    def load_units(self, unit: Unit, overrides: dict, chain: tuple, units: list) -> None:
+        """Imported files first (depth first, in import order), then ``unit``."""
+        from .parser import parse
+
+        self.unit = unit
+        for d in unit.module.decls:
+            if not isinstance(d, A.ImportDecl):
+                continue
+            self.unit = unit
+            found = self.resolve_import(unit, d)
+            if found is None:
+                continue
+            if str(found) in chain:
+                self.error(d.pos, f"'{d.path}' imports itself (through {' -> '.join(Path(c).name for c in chain)})")
+                continue
+            if any(u.path == str(found) for u in units):
+                self.error(d.pos, f"'{d.path}' is imported twice")
+                continue
+            args = {}
+            for init in d.args:
+                value = self.constant(init.value, f"the value of parameter '{init.name}'")
+                if init.name in args:
+                    self.error(init.pos, f"parameter '{init.name}' is given twice")
+                elif value is not None:
+                    args[init.name] = (value, init.pos)
+            try:
+                text = found.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as err:
+                self.error(d.pos, f"cannot read '{d.path}': {err}")
+                continue
+            try:
+                module = parse(text, str(found))
+            except GammaError as err:
+                from .diagnostics import SourceFile
+
+                self.diags += [Diagnostic(x.pos, x.message, x.severity, SourceFile(str(found), text))
+                               for x in err.diagnostics]
+                continue
+            child = Unit(str(found), text, module, main=False)
+            self.load_units(child, args, chain + (str(found),), units)
+            self.unit = unit
+        self.unit = unit
+        self.evaluate_params(unit, overrides)
+        units.append(unit)
+
+    def resolve_import(self, unit: Unit, d: A.ImportDecl) -> Path | None:
+        for base in (Path(unit.path).resolve().parent, stdlib_dir()):
+            candidate = (base / d.path).resolve()
+            if candidate.is_file():
+                return candidate
+        self.error(d.pos, f"cannot find '{d.path}' next to {Path(unit.path).name} or in the "
+                   "standard library")
+        return None
+
+    def evaluate_params(self, unit: Unit, overrides: dict) -> None:
+        for d in unit.module.decls:
+            if not isinstance(d, A.ParamDecl):
+                continue
+            if d.name in unit.params:
+                self.error(d.pos, f"parameter '{d.name}' is already declared at line "
+                           f"{unit.param_pos[d.name].line}")
+                continue
+            value = self.constant(d.value, f"the value of parameter '{d.name}'")
+            if d.name in overrides:
+                value = overrides[d.name][0]
+            if value is not None:
+                unit.params[d.name] = value
+                unit.param_pos[d.name] = d.pos
+        for name, (_, pos) in overrides.items():
+            if name not in unit.params:
+                where = Path(unit.path).name
+                if unit.main:
+                    self.error(A.Pos(1, 1), f"--param {name}: {where} has no parameter '{name}'"
+                               f"{did_you_mean(name, unit.params)}")
+                else:
+                    self.diags.append(Diagnostic(pos, f"{where} has no parameter '{name}'"
+                                                 f"{did_you_mean(name, unit.params)}"))
+
     def constant(self, expr: A.Expr, what: str) -> float | None:
         try:
-            value = const_value(expr)
+            value = const_value(expr, self.unit.params, self.unit.used)
         except NotConstant as nc:
             self.error(nc.pos, f"{what} must be a constant number")
             return None
@@ -312,40 +440,79 @@ class _Checker:
         return seen
 
     def run(self) -> Effect:
-        decls = self.module.decls
-        names: dict[str, A.Pos] = {}
+        units: list[Unit] = []
+        main = self.unit
+        self.load_units(main, {n: (v, A.Pos(1, 1)) for n, v in self.overrides.items()},
+                        (str(Path(main.path).resolve()),), units)
+        decls = [(u, d) for u in units for d in u.module.decls]
+        names: dict[str, tuple[A.Pos, Unit]] = {}
         tons: dict[str, TonType] = {}
         surfaces: dict[str, Surface] = {}
 
         def declare(name: str, pos: A.Pos, what: str) -> bool:
             if name in names:
-                self.error(pos, f"{what} '{name}' is already declared at line {names[name].line}")
+                where, unit = names[name]
+                other = "" if unit is self.unit else f" of {Path(unit.path).name}"
+                self.error(pos, f"{what} '{name}' is already declared at line {where.line}{other}")
                 return False
-            names[name] = pos
+            names[name] = (pos, self.unit)
             return True
 
-        for d in decls:
+        for unit, d in decls:
+            self.unit = unit
             if isinstance(d, A.TonDecl) and declare(d.name, d.pos, "ton"):
                 tons[d.name] = self.ton(d, len(tons))
             elif isinstance(d, A.SurfaceDecl) and declare(d.name, d.pos, "surface"):
                 surfaces[d.name] = self.surface(d, len(surfaces))
         sources = []
-        for d in decls:
+        for unit, d in decls:
+            self.unit = unit
             if isinstance(d, A.SourceDecl) and declare(d.name, d.pos, "source"):
                 src = self.source(d, tons, surfaces)
                 if src is not None:
                     sources.append(src)
         kernels: dict[tuple, Kernel] = {}
-        for d in decls:
+        for unit, d in decls:
+            self.unit = unit
             if isinstance(d, A.RuleDecl):
                 self.rule(d, tons, surfaces, kernels)
             elif isinstance(d, A.UpdateDecl):
                 self.update(d, surfaces, tons, kernels)
+        self.unit = main
         width = abi.ROW_HEADER + max((len(s.properties) for s in surfaces.values()), default=0)
         if self.diags:
             raise GammaError(self.module.path, self.module.source, self.diags)
-        return Effect(self.module.path, self.module.source, tons, surfaces, sources,
-                      list(kernels.values()), width)
+        effect = Effect(self.module.path, self.module.source, tons, surfaces, sources,
+                        list(kernels.values()), width)
+        self.collect_warnings(effect, units)
+        effect.warnings = self.warnings
+        effect.params = dict(main.params)
+        return effect
+
+    def collect_warnings(self, effect: Effect, units: list[Unit]) -> None:
+        by_decl = {id(d): u for u in units for d in u.module.decls}
+        emitted = {s.ton for s in effect.sources}
+        for kernel in effect.transport_kernels():
+            if kernel.ton.index not in emitted:
+                for scope, body in kernel.bodies:
+                    rule = next(d for u in units for d in u.module.decls if isinstance(d, A.RuleDecl)
+                                and d.body is body)
+                    self.warn(by_decl[id(rule)], rule.event_pos,
+                              f"this rule never fires for ton {kernel.ton.name}: no source emits it")
+        written = {(k.surface.index, scope.resolve(st.target).index)
+                   for k in effect.kernels for scope, body in k.bodies for st in assignments(body)
+                   if scope.resolve(st.target).space == "surf"}
+        for surface in effect.surfaces.values():
+            unit = by_decl[id(surface.decl)]
+            for init in surface.decl.properties:
+                slot = surface.properties.get(init.name)
+                if slot is not None and (surface.index, slot) not in written:
+                    self.warn(unit, init.pos, f"property '{init.name}' of {surface.name} is never "
+                              "changed by any rule")
+        for unit in units:
+            for name, pos in unit.param_pos.items():
+                if name not in unit.used:
+                    self.warn(unit, pos, f"parameter '{name}' is never used")
 
     def ton(self, d: A.TonDecl, index: int) -> TonType:
         motion = self.inits(d.motion, "motion probability", MOTION_NAMES, unit=True)
@@ -576,14 +743,14 @@ class _Checker:
             return
         for ton in ton_types:
             for surf in surfs:
-                scope = Scope("transport", d.ton.name, ton, d.surface.name, surf)
+                scope = Scope("transport", d.ton.name, ton, d.surface.name, surf, self.unit.params)
                 self.body(scope, d.body)
                 key = (d.event, ton.index, surf.index)
                 kernels.setdefault(key, Kernel(d.event, ton, surf)).bodies.append((scope, d.body))
 
     def update(self, d: A.UpdateDecl, surfaces, tons, kernels) -> None:
         for surf in self.param(d.surface, surfaces, tons, "surface", "ton type"):
-            scope = Scope("update", None, None, d.surface.name, surf)
+            scope = Scope("update", None, None, d.surface.name, surf, self.unit.params)
             self.body(scope, d.body)
             kernels.setdefault(("update", surf.index), Kernel("update", None, surf)).bodies.append(
                 (scope, d.body))
@@ -595,7 +762,8 @@ class _Checker:
             if isinstance(st, A.Let):
                 kind = self.expr(scope, st.value, lets)
                 taken = (st.name in lets or st.name in (scope.ton_param, scope.surf_param)
-                         or st.name in CONTEXT_VALUES or st.name in FUNCTIONS)
+                         or st.name in CONTEXT_VALUES or st.name in FUNCTIONS
+                         or st.name in scope.params)
                 if taken:
                     self.error(st.pos, f"'{st.name}' is already a name here; choose another")
                 lets[st.name] = kind
@@ -607,8 +775,9 @@ class _Checker:
                 slot = scope.resolve(st.target, lets)
                 if isinstance(slot, str):
                     self.error(st.target.pos, slot)
-                elif slot.space == "let":
-                    self.error(st.target.pos, f"'{slot.name}' is a let value and cannot be changed")
+                elif slot.space in ("let", "param"):
+                    what = "a let value" if slot.space == "let" else "a parameter"
+                    self.error(st.target.pos, f"'{slot.name}' is {what} and cannot be changed")
                 elif st.op not in slot.writable_ops:
                     self.error(st.pos if slot.writable_ops else st.target.pos,
                                self.write_error(scope, slot, st.op))
@@ -642,6 +811,8 @@ class _Checker:
             if isinstance(slot, str):
                 self.error(e.pos, slot)
                 return None
+            if slot.space == "param":
+                self.unit.used.add(slot.name)
             return lets[slot.name] if slot.space == "let" else "float"
         if isinstance(e, A.Unary):
             self.want(scope, e.operand, lets, "float")
@@ -682,19 +853,21 @@ class _Checker:
         raise AssertionError(f"unknown expression {e!r}")
 
 
-def check(module: A.Module) -> Effect:
+def check(module: A.Module, overrides: dict[str, float] | None = None) -> Effect:
+    """Check a parsed file and everything it imports; ``overrides`` replaces the
+    values of the file's own parameters (``gammac run --param``)."""
     from .parser import too_deep
 
     try:
-        return _Checker(module).run()
+        return _Checker(module, overrides or {}).run()
     except RecursionError:
         raise too_deep(module.path, module.source) from None
 
 
-def load(path: str) -> Effect:
+def load(path: str, overrides: dict[str, float] | None = None) -> Effect:
     """Read, parse and check a file (OSError for an unreadable file)."""
     from .parser import parse
 
     with open(path, encoding="utf-8") as f:
         source = f.read()
-    return check(parse(source, path))
+    return check(parse(source, path), overrides)

@@ -37,11 +37,26 @@ def _vector3(text: str) -> tuple[float, float, float]:
     return values
 
 
+def _param(text: str) -> tuple[str, float]:
+    import math
+
+    name, sep, value = text.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not sep or not name.isidentifier() or not math.isfinite(number):
+        raise argparse.ArgumentTypeError(f"'{text}' is not NAME=NUMBER")
+    return name, number
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="gammac", description="Compile and run .gamma weathering effects.")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     c = sub.add_parser("check", help="parse and check an effect; report every error")
     c.add_argument("file")
+    c.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
+                   help="override a parameter of the effect")
     e = sub.add_parser("emit", help="print the compiled form of an effect")
     e.add_argument("file")
     what = e.add_mutually_exclusive_group(required=True)
@@ -50,6 +65,8 @@ def _parser() -> argparse.ArgumentParser:
     what.add_argument("--asm", action="store_const", dest="what", const="asm", help="native assembly")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
+    r.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
+                   help="override a parameter of the effect (repeatable)")
     r.add_argument("--scene", required=True, help="OBJ or PLY mesh, or a JSON scene file")
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--assign", action="append", default=[], metavar="[PATTERN=]SURFACE",
@@ -68,11 +85,20 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load(path: str):
+def _load(path: str, params=()):
     from .checker import load
+    from .diagnostics import render
 
+    overrides = {}
+    for name, value in params:
+        if name in overrides:
+            raise _Fail(f"--param {name} is given twice")
+        overrides[name] = value
     try:
-        return load(path)
+        effect = load(path, overrides)
+        if effect.warnings:
+            print(render(effect.warnings, effect.path, effect.source), file=sys.stderr)
+        return effect
     except FileNotFoundError:
         raise _Fail(f"cannot read '{path}': file not found") from None
     except UnicodeDecodeError:
@@ -88,7 +114,7 @@ class _Fail(Exception):
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
-        effect = _load(args.file)
+        effect = _load(args.file, getattr(args, "param", ()))
         if args.command == "check":
             return EXIT_OK
         if args.command == "emit":

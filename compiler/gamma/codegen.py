@@ -68,6 +68,8 @@ class _KernelBuilder:
         slot = self.scope.resolve(ref, lets)
         if slot.space == "let":
             return lets[slot.name]
+        if slot.space == "param":
+            return ir.Constant(F32, _f32(self.scope.params[slot.name]))
         if slot.space == "ctx":
             index = _CONTEXT_INDEX[slot.name]
             _, ctype, count = abi.CONTEXT_FIELDS[index]

@@ -16,10 +16,17 @@ from .ast import Pos
 
 
 @dataclass(frozen=True)
+class SourceFile:
+    path: str
+    text: str
+
+
+@dataclass(frozen=True)
 class Diagnostic:
     pos: Pos
     message: str
-    severity: str = "error"  # or "warning"
+    severity: str = "error"            # or "warning"
+    file: SourceFile | None = None     # None: the file the GammaError is about
 
     def format(self, path: str, source: str) -> str:
         lines = source.splitlines()
@@ -36,17 +43,27 @@ class Diagnostic:
         return f"{head}\n    {text}\n    {caret}"
 
 
+def render(diagnostics: list[Diagnostic], path: str, source: str) -> str:
+    """Diagnostics of the main file first, then of imported files, by position."""
+    def key(d):
+        f = d.file.path if d.file else path
+        return (f != path, f, d.pos.line, d.pos.col)
+
+    return "\n".join(d.format(d.file.path if d.file else path, d.file.text if d.file else source)
+                     for d in sorted(diagnostics, key=key))
+
+
 class GammaError(Exception):
-    """Raised with every error found in one file."""
+    """Raised with every error found in a file (and the files it imports)."""
 
     def __init__(self, path: str, source: str, diagnostics: list[Diagnostic]):
         self.path = path
         self.source = source
-        self.diagnostics = sorted(diagnostics, key=lambda d: (d.pos.line, d.pos.col))
+        self.diagnostics = diagnostics
         super().__init__(self.render())
 
     def render(self) -> str:
-        return "\n".join(d.format(self.path, self.source) for d in self.diagnostics)
+        return render(self.diagnostics, self.path, self.source)
 
 
 def did_you_mean(name: str, candidates) -> str:

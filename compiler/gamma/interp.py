@@ -94,6 +94,8 @@ def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context, lets: dict):
         slot = scope.resolve(e, lets)
         if slot.space == "let":
             return lets[slot.name]
+        if slot.space == "param":
+            return f32(scope.params[slot.name])
         if slot.space == "ctx":
             value = getattr(ctx, slot.name)
             return f32(value[slot.index] if np.ndim(value) else value)

@@ -18,7 +18,7 @@ from lark import Token, Transformer, v_args
 from . import ast as A
 from .diagnostics import Diagnostic, GammaError
 
-_DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update)\b", re.MULTILINE)
+_DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update|param|import)\b", re.MULTILINE)
 
 
 def grammar_path() -> Path:
@@ -134,6 +134,14 @@ class _ToAst(Transformer):
 
     def property(self, meta, c):
         return ("properties", c[0])
+
+    def param_decl(self, meta, c):
+        return A.ParamDecl(str(c[0]), c[1], _pos(c[0]))
+
+    def import_decl(self, meta, c):
+        path = c[0]
+        args = [a for a in c[1:] if a is not None]
+        return A.ImportDecl(str(path)[1:-1], _pos(path), args)
 
     def ton_decl(self, meta, c):
         decl = A.TonDecl(str(c[0]), _pos(c[0]))

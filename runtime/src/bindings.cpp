@@ -5,11 +5,14 @@
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
+#include <embree3/rtcore.h>
+
 #include <cstring>
 
 #include "gamma/config.h"
 #include "gamma/error.h"
 #include "gamma/mesh.h"
+#include "gamma/sampling.h"
 #include "gamma/simulation.h"
 #include "gamma_abi.h"
 
@@ -43,7 +46,15 @@ NB_MODULE(_runtime, m) {
     m.doc() = "gamma weathering runtime (gamma-ton tracing)";
     m.attr("ABI_VERSION") = GAMMA_ABI_VERSION;
     m.attr("CHUNK_SIZE") = gammart::kChunkSize;
+    m.attr("RUNTIME_VERSION") = GAMMA_RUNTIME_VERSION;
+    m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
+    m.attr("PARABOLA_EPSILON_FRACTION") = gammart::kParabolaEpsilonFraction;
+    m.attr("MAX_FLIGHT_SEGMENTS") = gammart::kMaxFlightSegments;
 
+    // gammart::Error (bad input or config) -> ValueError with its one-line
+    // message.  Anything else is internal; std::runtime_error reaches Python
+    // as RuntimeError through nanobind's default translation ("internal
+    // error: ..." messages, one line).
     nb::register_exception_translator([](const std::exception_ptr& p, void*) {
         try {
             std::rethrow_exception(p);
@@ -51,6 +62,17 @@ NB_MODULE(_runtime, m) {
             PyErr_SetString(PyExc_ValueError, e.what());
         }
     });
+
+    m.def(
+        "parabola_landing",
+        [](std::array<float, 3> p0, std::array<float, 3> d, float D, std::array<float, 3> down, float floor_height) {
+            std::array<float, 3> traced{}, analytic{};
+            gammart::parabola_landing(p0, d, D, down, floor_height, traced, analytic);
+            return nb::make_tuple(nb::make_tuple(traced[0], traced[1], traced[2]),
+                                 nb::make_tuple(analytic[0], analytic[1], analytic[2]));
+        },
+        "p0"_a, "d"_a, "D"_a, "down"_a, "floor_height"_a,
+        "Landing on the plane dot(x, up) = floor_height: (piecewise-linear as traced, analytic).");
 
     nb::class_<gammart::Mesh>(m, "Mesh")
         .def_static("load", [](const std::string& path) { return gammart::Mesh::load(path); }, "path"_a)
@@ -74,6 +96,15 @@ NB_MODULE(_runtime, m) {
                                                nb::make_tuple(me.hi[0], me.hi[1], me.hi[2]));
                      })
         .def("vertices", [](const gammart::Mesh& me) { return to_numpy<float>(me.vertices, {me.num_vertices(), 3}); })
+        .def("part_names", [](const gammart::Mesh& me) { return me.part_names; })
+        .def("triangle_labels",
+             [](const gammart::Mesh& me) {
+                 const size_t m = me.num_triangles();
+                 auto col = [&](const std::vector<int32_t>& v) {
+                     return to_numpy<int32_t>(v.size() == m ? v : std::vector<int32_t>(m, -1), {m});
+                 };
+                 return nb::make_tuple(col(me.object_id), col(me.group_id), col(me.material_id));
+             })
         .def("triangles",
              [](const gammart::Mesh& me) { return to_numpy<int32_t>(me.triangles, {me.num_triangles(), 3}); });
 
@@ -96,10 +127,37 @@ NB_MODULE(_runtime, m) {
                 I32 a = as_i32(obj);
                 if (a.ndim() != 1) throw Error("config: triangle_surface must be one-dimensional");
                 c.triangle_surface.assign(a.data(), a.data() + a.shape(0));
-            })
-        .def("add_ton_type", &gammart::Config::add_ton_type, "ks"_a, "kp"_a, "kf"_a, "initial_carry"_a)
-        .def("add_source", &gammart::Config::add_source, "kind"_a, "ton_type"_a, "count"_a,
-             "position"_a = std::array<float, 3>{0, 0, 0})
+            },
+            nb::for_setter(nb::arg("value").none()))
+        .def_prop_rw(
+            "down", [](const gammart::Config& c) { return c.down; },
+            [](gammart::Config& c, std::array<float, 3> d) { c.down = d; })
+        .def("add_ton_type", &gammart::Config::add_ton_type, "ks"_a, "kp"_a, "kf"_a, "initial_carry"_a,
+             "bounce_distance"_a, "flow_step"_a)
+        .def(
+            "add_source",
+            [](gammart::Config& c, std::string kind, int ton_type, int64_t count, std::array<float, 3> position,
+               std::array<float, 3> direction, float angle_deg, float falloff, std::array<float, 2> size,
+               float radius, std::string emission, int first_iteration, int last_iteration) {
+                gammart::Source s;
+                s.kind = std::move(kind);
+                s.ton_type = ton_type;
+                s.count = count;
+                s.position = position;
+                s.direction = direction;
+                s.angle_deg = angle_deg;
+                s.falloff = falloff;
+                s.size = size;
+                s.radius = radius;
+                s.emission = std::move(emission);
+                s.first_iteration = first_iteration;
+                s.last_iteration = last_iteration;
+                return c.add_source(std::move(s));
+            },
+            "kind"_a, "ton_type"_a, "count"_a, "position"_a = std::array<float, 3>{0, 0, 0},
+            "direction"_a = std::array<float, 3>{0, -1, 0}, "angle_deg"_a = 0.0f, "falloff"_a = 0.0f,
+            "size"_a = std::array<float, 2>{0, 0}, "radius"_a = 0.0f, "emission"_a = "parallel",
+            "first_iteration"_a = 1, "last_iteration"_a = 0)
         .def("set_transport", &gammart::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
              "writes_surface"_a)
         .def("set_update", &gammart::Config::set_update, "surface"_a, "address"_a)
@@ -148,9 +206,12 @@ NB_MODULE(_runtime, m) {
                  d["settled"] = st.settled;
                  d["escaped"] = st.escaped;
                  d["capped"] = st.capped;
-                 d["untraced"] = st.untraced;
                  d["interactions"] = st.interactions;
                  d["rays"] = st.rays;
+                 d["flow_steps"] = st.flow_steps;
+                 d["bounces"] = st.bounces;
+                 d["drips"] = st.drips;
+                 d["segments"] = st.segments;
                  d["trace_seconds"] = st.trace_seconds;
                  return d;
              },

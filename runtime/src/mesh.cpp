@@ -1,23 +1,26 @@
 #include "gamma/mesh.h"
 
 #include <OpenMesh/Core/IO/MeshIO.hh>
-#include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
+#include <OpenMesh/Core/Mesh/PolyMesh_ArrayKernelT.hh>
 #include <OpenMesh/Core/System/omstream.hh>
 
+#include <algorithm>
 #include <cctype>
 #include <cfloat>
 #include <cmath>
 #include <cstdlib>
-#include <fstream>
 #include <filesystem>
+#include <fstream>
 #include <mutex>
+#include <sstream>
+#include <unordered_map>
 
 #include "gamma/error.h"
 
 namespace gammart {
 
 namespace {
-using OMesh = OpenMesh::TriMesh_ArrayKernelT<>;
+using OMesh = OpenMesh::PolyMesh_ArrayKernelT<>;
 
 std::string q(const std::string& s) { return "'" + s + "'"; }
 
@@ -30,15 +33,24 @@ void silence_openmesh() {
     });
 }
 
-Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::string& name) {
+std::string non_finite_vertex(const std::string& name, size_t v) {
+    return "mesh " + q(name) + ": vertex " + std::to_string(v) + " has a non-finite coordinate";
+}
+
+// Per input triangle labels (indices into names); empty = no labels.
+struct Labels {
+    std::vector<std::string> names;
+    std::vector<int32_t> object, group, material;
+};
+
+Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::string& name,
+           const Labels* labels = nullptr) {
     Mesh mesh;
     mesh.name = name;
     const size_t n = verts.size() / 3;
     if (m == 0) throw Error("mesh " + q(name) + " has no triangles");
     for (size_t i = 0; i < verts.size(); ++i)
-        if (!std::isfinite(verts[i]))
-            throw Error("mesh " + q(name) + ": vertex " + std::to_string(i / 3) +
-                        " has a non-finite coordinate");
+        if (!std::isfinite(verts[i])) throw Error(non_finite_vertex(name, i / 3));
     for (size_t t = 0; t < m; ++t)
         for (int k = 0; k < 3; ++k) {
             int64_t v = tris[3 * t + k];
@@ -47,7 +59,8 @@ Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::s
                             " has vertex index " + std::to_string(v) + " out of range (" +
                             std::to_string(n) + " vertices)");
         }
-    // Bounds over vertices used by triangles.
+    // Bounds over vertices used by triangles; the diagonal in double (a float
+    // sum of squares overflows for coordinates beyond ~1e19).
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t t = 0; t < 3 * m; ++t)
         for (int k = 0; k < 3; ++k) {
@@ -57,6 +70,10 @@ Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::s
         }
     double diag2 = 0;
     for (int k = 0; k < 3; ++k) diag2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    const double diag = std::sqrt(diag2);
+    // The tracer works in float with points up to 4 diagonals from the centre.
+    if (!std::isfinite(diag) || !(diag > 0) || 4.0 * diag > double(FLT_MAX))
+        throw Error("mesh " + q(name) + " has a non-finite or zero extent");
     const double min_area = 1e-12 * diag2;
     mesh.triangles.reserve(3 * m);
     mesh.original_triangle.reserve(m);
@@ -72,49 +89,113 @@ Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::s
         if (!(area >= min_area) || area == 0.0) { mesh.degenerate_dropped++; continue; }
         for (int k = 0; k < 3; ++k) mesh.triangles.push_back(tris[3 * t + k]);
         mesh.original_triangle.push_back(int32_t(t));
+        if (labels) {
+            mesh.object_id.push_back(labels->object[t]);
+            mesh.group_id.push_back(labels->group[t]);
+            mesh.material_id.push_back(labels->material[t]);
+        }
     }
     mesh.input_triangles = m;
     if (mesh.triangles.empty()) throw Error("mesh " + q(name) + " has only degenerate triangles");
     for (int k = 0; k < 3; ++k) { mesh.lo[k] = float(lo[k]); mesh.hi[k] = float(hi[k]); }
+    mesh.diag = diag;
+    if (labels) mesh.part_names = labels->names;
     mesh.vertices = std::move(verts);
     return mesh;
 }
-// OpenMesh's OBJ reader silently drops vertices it cannot parse as finite
-// numbers (nan, inf, 1e999), which would surface as a confusing "no
-// triangles" error; scan the 'v' lines ourselves first.
-void check_obj_coordinates(const std::string& path) {
+
+std::string lower_ext(const std::string& path) {
     std::string ext = std::filesystem::path(path).extension().string();
     for (auto& ch : ext) ch = char(std::tolower(static_cast<unsigned char>(ch)));
-    if (ext != ".obj") return;
-    std::ifstream in(path);
+    return ext;
+}
+
+// ---- PLY header (OpenMesh reads the body) -------------------------------------
+
+struct PlyHeader {
+    bool ok = false, ascii = false;
+    int64_t vertices = -1, faces = -1;
+    std::vector<std::string> vertex_props;  // scalar property names; "" for a list
+    size_t header_lines = 0;
+};
+
+PlyHeader read_ply_header(const std::string& path) {
+    PlyHeader h;
+    std::ifstream in(path, std::ios::binary);
     std::string line;
-    size_t vertex = 0;
+    if (!std::getline(in, line) || line.compare(0, 3, "ply") != 0) return h;
+    h.header_lines = 1;
+    std::string current;
     while (std::getline(in, line)) {
-        size_t a = line.find_first_not_of(" \t");
-        if (a == std::string::npos || line.compare(a, 2, "v ") != 0) {
-            if (a == std::string::npos || line.compare(a, 2, "v\t") != 0) continue;
+        ++h.header_lines;
+        if (!line.empty() && line.back() == '\r') line.pop_back();
+        std::istringstream ls(line);
+        std::string kw;
+        ls >> kw;
+        if (kw == "format") {
+            std::string f;
+            ls >> f;
+            h.ascii = (f == "ascii");
+        } else if (kw == "element") {
+            int64_t count = -1;
+            ls >> current >> count;
+            if (current == "vertex") h.vertices = count;
+            if (current == "face") h.faces = count;
+        } else if (kw == "property" && current == "vertex") {
+            std::string type, pname;
+            ls >> type;
+            if (type == "list") { h.vertex_props.push_back(""); continue; }
+            ls >> pname;
+            h.vertex_props.push_back(pname);
+        } else if (kw == "end_header") {
+            h.ok = true;
+            return h;
         }
-        const char* p = line.c_str() + a + 2;
-        for (int k = 0; k < 3; ++k) {
+    }
+    return h;
+}
+
+// OpenMesh's ASCII reader stops at numbers it cannot parse (nan, inf,
+// 1e999); report them as non-finite coordinates instead.
+void check_ascii_ply_coordinates(const std::string& path, const PlyHeader& h) {
+    if (!h.ok || !h.ascii || h.vertices <= 0) return;
+    int cols[3] = {-1, -1, -1};
+    for (size_t i = 0; i < h.vertex_props.size(); ++i) {
+        if (h.vertex_props[i].empty()) return;  // list property on vertices: leave to OpenMesh
+        if (h.vertex_props[i] == "x") cols[0] = int(i);
+        if (h.vertex_props[i] == "y") cols[1] = int(i);
+        if (h.vertex_props[i] == "z") cols[2] = int(i);
+    }
+    if (cols[0] < 0 || cols[1] < 0 || cols[2] < 0) return;
+    std::ifstream in(path, std::ios::binary);
+    std::string line;
+    for (size_t i = 0; i < h.header_lines && std::getline(in, line); ++i) {}
+    for (int64_t v = 0; v < h.vertices && std::getline(in, line); ++v) {
+        const char* p = line.c_str();
+        for (int col = 0; col <= std::max({cols[0], cols[1], cols[2]}); ++col) {
             char* endp = nullptr;
             double c = std::strtod(p, &endp);
-            if (endp == p) break;  // malformed: leave it to OpenMesh
-            if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
-                throw Error("mesh " + q(path) + ": vertex " + std::to_string(vertex) +
-                            " has a non-finite coordinate");
+            if (endp == p) return;  // malformed: leave it to OpenMesh
+            if ((col == cols[0] || col == cols[1] || col == cols[2]) &&
+                (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX)))
+                throw Error(non_finite_vertex(path, size_t(v)));
             p = endp;
         }
-        ++vertex;
     }
 }
 
-}  // namespace
+// ---- OBJ -------------------------------------------------------------------
 
-float Mesh::diagonal() const {
-    float d2 = 0;
-    for (int k = 0; k < 3; ++k) d2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
-    return std::sqrt(d2);
+inline bool is_space(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
+
+std::string trim(const std::string& s, size_t a = 0) {
+    while (a < s.size() && is_space(s[a])) ++a;
+    size_t b = s.size();
+    while (b > a && is_space(s[b - 1])) --b;
+    return s.substr(a, b - a);
 }
+
+}  // namespace
 
 double Mesh::area() const {
     double total = 0;
@@ -131,14 +212,130 @@ double Mesh::area() const {
     return total;
 }
 
+Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
+    std::vector<float> verts;
+    std::vector<int32_t> tris;
+    Labels labels;
+    std::unordered_map<std::string, int32_t> name_id;
+    auto intern = [&](const std::string& s) -> int32_t {
+        if (s.empty()) return -1;
+        auto it = name_id.find(s);
+        if (it != name_id.end()) return it->second;
+        int32_t id = int32_t(labels.names.size());
+        labels.names.push_back(s);
+        name_id.emplace(s, id);
+        return id;
+    };
+    int32_t cur_object = -1, cur_group = -1, cur_material = -1;
+    // Positive indices may refer to vertices defined later; they are checked
+    // once the file is read.  (line, written index) of every face corner.
+    struct Pending { size_t line; int64_t written; };
+    std::vector<Pending> corner_src;
+    std::vector<int64_t> face;
+    std::vector<Pending> face_src;
+    size_t line_no = 0, pos = 0;
+    const std::string where = "mesh " + q(name) + ": ";
+    while (pos < text.size()) {
+        size_t eol = text.find('\n', pos);
+        if (eol == std::string::npos) eol = text.size();
+        std::string line = text.substr(pos, eol - pos);
+        pos = eol + 1;
+        ++line_no;
+        size_t hash = line.find('#');
+        if (hash != std::string::npos) line.resize(hash);
+        size_t a = 0;
+        while (a < line.size() && is_space(line[a])) ++a;
+        size_t b = a;
+        while (b < line.size() && !is_space(line[b])) ++b;
+        const std::string kw = line.substr(a, b - a);
+        if (kw == "v") {
+            const char* p = line.c_str() + b;
+            float xyz[3];
+            for (int k = 0; k < 3; ++k) {
+                char* endp = nullptr;
+                double c = std::strtod(p, &endp);
+                if (endp == p)
+                    throw Error(where + "line " + std::to_string(line_no) + ": cannot read vertex coordinates");
+                if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
+                    throw Error(non_finite_vertex(name, verts.size() / 3));
+                xyz[k] = float(c);
+                p = endp;
+            }
+            verts.insert(verts.end(), xyz, xyz + 3);
+        } else if (kw == "f") {
+            face.clear();
+            face_src.clear();
+            std::istringstream ls(line.substr(b));
+            std::string tok;
+            while (ls >> tok) {
+                const std::string first = tok.substr(0, tok.find('/'));
+                char* endp = nullptr;
+                long long idx = std::strtoll(first.c_str(), &endp, 10);
+                if (first.empty() || *endp != '\0')
+                    throw Error(where + "face on line " + std::to_string(line_no) + ": cannot read '" + tok + "'");
+                const int64_t nv = int64_t(verts.size() / 3);
+                int64_t zero_based;
+                if (idx < 0) {
+                    zero_based = nv + idx;
+                    if (zero_based < 0)
+                        throw Error(where + "face on line " + std::to_string(line_no) + " has vertex index " +
+                                    std::to_string(idx) + " out of range (" + std::to_string(nv) + " vertices)");
+                } else {
+                    zero_based = idx - 1;  // 0 -> -1, reported below
+                }
+                face.push_back(zero_based);
+                face_src.push_back({line_no, idx});
+            }
+            if (face.size() < 3)
+                throw Error(where + "face on line " + std::to_string(line_no) + " has fewer than 3 vertices");
+            for (size_t k = 1; k + 1 < face.size(); ++k) {
+                const size_t corner[3] = {0, k, k + 1};
+                for (size_t c : corner) {
+                    tris.push_back(int32_t(std::min<int64_t>(face[c], INT32_MAX)));
+                    corner_src.push_back(face_src[c]);
+                }
+                labels.object.push_back(cur_object);
+                labels.group.push_back(cur_group);
+                labels.material.push_back(cur_material);
+            }
+        } else if (kw == "o") {
+            cur_object = intern(trim(line, b));
+        } else if (kw == "g") {
+            cur_group = intern(trim(line, b));
+        } else if (kw == "usemtl") {
+            cur_material = intern(trim(line, b));
+        }
+        // Everything else (vt, vn, s, mtllib, l, p, ...) is ignored.
+    }
+    const int64_t nv = int64_t(verts.size() / 3);
+    for (size_t i = 0; i < tris.size(); ++i)
+        if (tris[i] < 0 || tris[i] >= nv)
+            throw Error(where + "face on line " + std::to_string(corner_src[i].line) + " has vertex index " +
+                        std::to_string(corner_src[i].written) + " out of range (" + std::to_string(nv) +
+                        " vertices)");
+    return build(std::move(verts), tris.data(), tris.size() / 3, name, &labels);
+}
+
 Mesh Mesh::load(const std::string& path) {
-    silence_openmesh();
     std::error_code ec;
     if (!std::filesystem::exists(path, ec))
         throw Error("cannot read mesh " + q(path) + ": file not found");
     if (std::filesystem::is_directory(path, ec))
         throw Error("cannot read mesh " + q(path) + ": is a directory");
-    check_obj_coordinates(path);
+    const std::string ext = lower_ext(path);
+    if (ext == ".obj") {
+        std::ifstream in(path, std::ios::binary);
+        if (!in) throw Error("cannot read mesh " + q(path) + ": cannot open file");
+        std::ostringstream ss;
+        ss << in.rdbuf();
+        return parse_obj(ss.str(), path);
+    }
+    silence_openmesh();
+    PlyHeader ply;
+    if (ext == ".ply") {
+        ply = read_ply_header(path);
+        check_ascii_ply_coordinates(path, ply);
+    }
     OMesh om;
     OpenMesh::IO::Options opt;
     bool ok = false;
@@ -151,19 +348,25 @@ Mesh Mesh::load(const std::string& path) {
     std::vector<float> verts(3 * om.n_vertices());
     for (auto vh : om.vertices()) {
         const auto& p = om.point(vh);
-        for (int k = 0; k < 3; ++k) verts[3 * size_t(vh.idx()) + k] = p[k];
+        for (int k = 0; k < 3; ++k) {
+            if (!std::isfinite(p[k])) throw Error(non_finite_vertex(path, size_t(vh.idx())));
+            verts[3 * size_t(vh.idx()) + k] = p[k];
+        }
     }
+    if (ply.ok && ply.faces >= 0 && int64_t(om.n_faces()) < ply.faces)
+        throw Error("mesh " + q(path) + ": " + std::to_string(ply.faces - int64_t(om.n_faces())) +
+                    " faces could not be read");
     std::vector<int32_t> tris;
     tris.reserve(3 * om.n_faces());
+    std::vector<int32_t> poly;
     for (auto fh : om.faces()) {
-        int cnt = 0;
-        int32_t idx[3] = {0, 0, 0};
-        for (auto vh : om.fv_range(fh)) {
-            if (cnt < 3) idx[cnt] = vh.idx();
-            ++cnt;
+        poly.clear();
+        for (auto vh : om.fv_range(fh)) poly.push_back(vh.idx());
+        for (size_t k = 1; k + 1 < poly.size(); ++k) {
+            tris.push_back(poly[0]);
+            tris.push_back(poly[k]);
+            tris.push_back(poly[k + 1]);
         }
-        if (cnt != 3) continue;
-        tris.insert(tris.end(), idx, idx + 3);
     }
     return build(std::move(verts), tris.data(), tris.size() / 3, path);
 }

@@ -3,6 +3,7 @@
 #include <embree3/rtcore.h>
 #include <nanoflann.hpp>
 #include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
 #include <tbb/info.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -10,18 +11,18 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 
 #include "gamma/error.h"
 #include "gamma/philox.h"
+#include "gamma/sampling.h"
 #include "gamma/vec.h"
 
 namespace gammart {
 
 namespace {
-
-constexpr float kTwoPi = 6.28318530717958647692f;
 
 struct Cloud {
     const float* p = nullptr;
@@ -34,71 +35,125 @@ struct Cloud {
 using KDTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Cloud>,
                                                    Cloud, 3, uint32_t>;
 
-enum class SourceKind { Point, Sphere, Hemisphere };
+// kd-tree over the surfels of one surface; `index` maps to global surfel ids.
+struct SurfaceTree {
+    std::vector<float> pos;
+    std::vector<uint32_t> index;
+    Cloud cloud;
+    std::unique_ptr<KDTree> kd;
+};
+
+enum class SourceKind { Point, Spot, Rect, Disk, Directional, Sphere, Hemisphere };
+enum class Emission { Parallel, Uniform, Cosine };
+
+// Source with everything precomputed in scene units.
+struct SourceRt {
+    SourceKind kind = SourceKind::Point;
+    Emission emission = Emission::Parallel;
+    V3 pos, dir, u, v;          // dir normalised; u, v in-plane axes (plane_axes(dir))
+    float cos_a = -1, falloff = 0, w = 0, h = 0, radius = 0;
+    float u0 = 0, du = 0, v0 = 0, dv = 0;  // directional: projected bbox rectangle
+};
 
 struct TransportSlot {
     GammaTransportKernel fn = nullptr;
     bool writes = false;
 };
 
-// Per-chunk log of surface deltas and counters; buffers are reused between
-// iterations (cleared, capacity kept).
+// Per-chunk log of surface deltas (property columns only) and counters;
+// buffers are reused between iterations (cleared, capacity kept).
 struct ChunkLog {
     std::vector<uint32_t> surfel;
-    std::vector<float> delta;  // W floats per record
+    std::vector<float> delta;  // W-3 floats per record
     TraceStats st;
 };
-
-inline V3 uniform_sphere(float u, float v) {
-    float z = 1.0f - 2.0f * u;
-    float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
-    float phi = kTwoPi * v;
-    return {r * std::cos(phi), r * std::sin(phi), z};
-}
-
-// Cosine-weighted direction about unit n.
-inline V3 cosine_hemisphere(V3 n, float u, float v) {
-    float r = std::sqrt(u);
-    float phi = kTwoPi * v;
-    float z = std::sqrt(std::max(0.0f, 1.0f - u));
-    V3 t, b;
-    onb(n, t, b);
-    return normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * z);
-}
-
-// Uniform direction over the hemisphere about unit n.
-inline V3 uniform_hemisphere(V3 n, float u, float v) {
-    float z = u;
-    float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
-    float phi = kTwoPi * v;
-    V3 t, b;
-    onb(n, t, b);
-    return normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * z);
-}
 
 double seconds_since(std::chrono::steady_clock::time_point t0) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
+V3 to_v3(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
+
+bool finite3(const std::array<float, 3>& a) {
+    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
+}
+
+// Unit vector of a in double (a must be finite and non-zero).
+V3 unit(const std::array<float, 3>& a) {
+    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
+    return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
+}
+
+bool nonzero3(const std::array<float, 3>& a) {
+    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
+    return std::isfinite(l) && l > 0;
+}
+
 }  // namespace
+
+int resolve_threads(int threads) {
+    if (threads <= 0) return std::max(1, tbb::info::default_concurrency());
+    return std::min(threads, kMaxThreads);
+}
+
+void run_with_threads(int threads, const std::function<void()>& f) {
+    const int n = resolve_threads(threads);
+    tbb::global_control gc(tbb::global_control::max_allowed_parallelism, size_t(n));
+    tbb::task_arena arena(n);
+    arena.execute(f);
+}
+
+void parabola_landing(std::array<float, 3> p0a, std::array<float, 3> da, float D, std::array<float, 3> downa,
+                      float floor_height, std::array<float, 3>& traced, std::array<float, 3>& analytic) {
+    if (!finite3(p0a) || !nonzero3(da) || !nonzero3(downa) || !std::isfinite(floor_height))
+        throw Error("parabola_landing: arguments must be finite, d and down non-zero");
+    if (!(D > 0) || !std::isfinite(D)) throw Error("parabola_landing: D must be positive");
+    const V3 p0 = to_v3(p0a), d = unit(da), down = unit(downa), up = down * -1.0f;
+    const double h0 = double(dot(p0, up)) - floor_height;
+    if (h0 < 0) throw Error("parabola_landing: p0 is below the floor");
+    const double v = launch_speed(D);
+    const V3 vel = d * float(v);
+    // Analytic: h(t) = h0 + v*du*t - t^2/2 = 0.
+    const double vu = v * double(dot(d, up));
+    const double t_star = vu + std::sqrt(vu * vu + 2.0 * h0);
+    const V3 a_pt = flight_point(p0, vel, down, t_star);
+    analytic = {a_pt.x, a_pt.y, a_pt.z};
+    V3 hit{};
+    int64_t segments = 0;
+    FlightEnd end = fly(
+        p0, vel, down, flight_dt(D), segments,
+        [&](V3 a, V3 b) {
+            const double ha = double(dot(a, up)) - floor_height, hb = double(dot(b, up)) - floor_height;
+            if (!(hb <= 0)) return false;
+            const double s = ha > hb ? ha / (ha - hb) : 0.0;
+            hit = a + (b - a) * float(s);
+            return true;
+        },
+        [](V3, double) { return false; });
+    if (end != FlightEnd::Landed) throw Error("parabola_landing: the flight never reaches the floor");
+    traced = {hit.x, hit.y, hit.z};
+}
 
 struct Simulation::Impl {
     RTCDevice device = nullptr;
     RTCScene scene = nullptr;
     Cloud cloud;
-    std::unique_ptr<KDTree> kd;
-    V3 centre;
-    float radius = 1;   // environment source sphere radius
+    std::unique_ptr<KDTree> kd;                 // all surfels (render, fallback)
+    std::vector<SurfaceTree> trees;             // per surface id
+    std::vector<int32_t> tri_surface;           // per kept triangle
+    V3 centre, down, up;
+    float radius = 1;   // environment source sphere radius (1.05 x half diagonal)
+    float diag = 1;
     float eps = 1e-5f;  // ray offset
     float sigma = 1;    // render kernel width (mean surfel spacing)
+    float min_up = 0;   // min over vertices of dot(v, up)
     int n_types = 0, n_surfaces = 0;
     std::vector<TransportSlot> transport;        // [event][type][surface]
     std::vector<GammaUpdateKernel> update;       // [surface]
-    std::vector<SourceKind> kinds;
-    std::vector<int64_t> source_start;           // prefix sums of counts
+    std::vector<SourceRt> sources;
     size_t max_carry = 1;
     std::vector<ChunkLog> logs;
-    std::vector<float> delta;                    // N*W merge buffer
+    std::vector<float> delta;                    // N*(W-3) merge buffer
 
     const TransportSlot& slot(int event, int type, int surface) const {
         return transport[(size_t(event) * n_types + type) * n_surfaces + surface];
@@ -109,11 +164,12 @@ struct Simulation::Impl {
         if (device) rtcReleaseDevice(device);
     }
 
-    void cast(RTCRayHit& rh, V3 org, V3 dir, float tnear) const {
+    void cast(RTCRayHit& rh, V3 org, V3 dir, float tnear,
+              float tfar = std::numeric_limits<float>::infinity()) const {
         rh.ray.org_x = org.x; rh.ray.org_y = org.y; rh.ray.org_z = org.z;
         rh.ray.dir_x = dir.x; rh.ray.dir_y = dir.y; rh.ray.dir_z = dir.z;
         rh.ray.tnear = tnear;
-        rh.ray.tfar = std::numeric_limits<float>::infinity();
+        rh.ray.tfar = tfar;
         rh.ray.time = 0;
         rh.ray.mask = 0xFFFFFFFFu;
         rh.ray.id = 0;
@@ -126,45 +182,107 @@ struct Simulation::Impl {
     }
 
     // Environment-sphere emission (origin on the bounding sphere, cosine about
-    // the inward normal); `upper` restricts origins to y >= centre.y.
+    // the inward normal); `upper` reflects origins into the half dot(o, up) >= 0.
     void emit_env(PhiloxStream& rng, bool upper, V3& org, V3& dir) const {
         float u = rng.next(), v = rng.next();
         V3 o = uniform_sphere(u, v);
-        if (upper) o.y = std::fabs(o.y);
+        if (upper) {
+            const float ou = dot(o, up);
+            if (ou < 0) o = o - up * (2.0f * ou);
+        }
         org = centre + o * radius;
         float a = rng.next(), b = rng.next();
         dir = cosine_hemisphere(o * -1.0f, a, b);
     }
 
-    uint32_t nearest(const float p[3]) const {
+    V3 emit_dir(const SourceRt& s, PhiloxStream& rng) const {
+        switch (s.emission) {
+            case Emission::Parallel: return s.dir;
+            case Emission::Uniform: { float a = rng.next(), b = rng.next(); return uniform_hemisphere(s.dir, a, b); }
+            case Emission::Cosine: { float a = rng.next(), b = rng.next(); return cosine_hemisphere(s.dir, a, b); }
+        }
+        return s.dir;
+    }
+
+    void emit(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir) const {
+        switch (s.kind) {
+            case SourceKind::Point: {
+                org = s.pos;
+                float a = rng.next(), b = rng.next();
+                dir = uniform_sphere(a, b);
+                return;
+            }
+            case SourceKind::Spot: {
+                org = s.pos;
+                if (s.falloff > 0) {
+                    const float inv = 1.0f / (s.falloff + 1.0f);
+                    for (int k = 0; k < kSpotMaxRedraws; ++k) {
+                        float a = rng.next(), b = rng.next();
+                        const float z = std::pow(1.0f - a, inv);  // in (0, 1]
+                        if (z >= s.cos_a) { dir = around(s.dir, z, b); return; }
+                    }
+                }
+                float a = rng.next(), b = rng.next();
+                dir = uniform_cone(s.dir, s.cos_a, a, b);
+                return;
+            }
+            case SourceKind::Rect: {
+                float a = rng.next(), b = rng.next();
+                org = s.pos + s.u * ((a - 0.5f) * s.w) + s.v * ((b - 0.5f) * s.h);
+                dir = emit_dir(s, rng);
+                return;
+            }
+            case SourceKind::Disk: {
+                float a = rng.next(), b = rng.next();
+                const float r = s.radius * std::sqrt(a), phi = kTwoPi * b;
+                org = s.pos + s.u * (r * std::cos(phi)) + s.v * (r * std::sin(phi));
+                dir = emit_dir(s, rng);
+                return;
+            }
+            case SourceKind::Directional: {
+                float a = rng.next(), b = rng.next();
+                org = s.pos + s.u * (s.u0 + a * s.du) + s.v * (s.v0 + b * s.dv);
+                dir = s.dir;
+                return;
+            }
+            case SourceKind::Sphere: emit_env(rng, false, org, dir); return;
+            case SourceKind::Hemisphere: emit_env(rng, true, org, dir); return;
+        }
+    }
+
+    static uint32_t query(const KDTree& kd, const float p[3]) {
         uint32_t idx = 0;
         float d2 = 0;
         nanoflann::KNNResultSet<float, uint32_t> rs(1);
         rs.init(&idx, &d2);
-        kd->findNeighbors(rs, p, nanoflann::SearchParams());
+        kd.findNeighbors(rs, p, nanoflann::SearchParams());
         return idx;
     }
+    uint32_t nearest(const float p[3]) const { return query(*kd, p); }
+    uint32_t nearest_of(int surface, const float p[3]) const {
+        const SurfaceTree& t = trees[size_t(surface)];
+        if (!t.kd) return nearest(p);
+        return t.index[query(*t.kd, p)];
+    }
 };
-
-int Simulation::threads_for(int requested) const {
-    // <= 0: all hardware threads; more than the hardware offers is clamped
-    // (results never depend on the thread count).
-    const int hw = std::max(1, tbb::info::default_concurrency());
-    if (requested <= 0) return hw;
-    return std::min(requested, hw);
-}
 
 Simulation::Simulation(const Mesh& mesh, const Config& config)
     : impl_(std::make_unique<Impl>()), mesh_(mesh), cfg_(config) {
     const Config& c = cfg_;
+    Impl& I = *impl_;
     auto fail = [](const std::string& m) { throw Error(m); };
     if (c.surfels < 1) fail("config: surfels must be at least 1 (got " + std::to_string(c.surfels) + ")");
     if (c.surfels > 400000000) fail("config: surfels too large (" + std::to_string(c.surfels) + ")");
     if (c.max_interactions < 1)
         fail("config: max_interactions must be at least 1 (got " + std::to_string(c.max_interactions) + ")");
+    if (c.threads > kMaxThreads)
+        fail("config: threads must be at most " + std::to_string(kMaxThreads) + " (got " +
+             std::to_string(c.threads) + ")");
     if (c.row_width < GAMMA_ROW_HEADER)
         fail("config: row_width must be at least " + std::to_string(GAMMA_ROW_HEADER) + " (got " +
              std::to_string(c.row_width) + ")");
+    if (!finite3(c.down)) fail("config: down has a non-finite component");
+    if (!nonzero3(c.down)) fail("config: down is the zero vector");
     if (c.surface_rows.empty()) fail("config: no surfaces (surface_rows is empty)");
     const int W = c.row_width;
     const int nsurf = int(c.surface_rows.size());
@@ -172,10 +290,13 @@ Simulation::Simulation(const Mesh& mesh, const Config& config)
         if (int(c.surface_rows[s].size()) != W)
             fail("config: surface_rows[" + std::to_string(s) + "] has " +
                  std::to_string(c.surface_rows[s].size()) + " floats, row_width is " + std::to_string(W));
+        for (float x : c.surface_rows[s])
+            if (!std::isfinite(x)) fail("config: surface_rows[" + std::to_string(s) + "] has a non-finite value");
     }
     // Per-triangle surface ids (accept post- or pre-degenerate-removal length).
     const size_t m = mesh_.num_triangles();
-    std::vector<int32_t> tri_surface(m, 0);
+    std::vector<int32_t>& tri_surface = I.tri_surface;
+    tri_surface.assign(m, 0);
     if (!c.triangle_surface.empty()) {
         if (c.triangle_surface.size() == m) {
             tri_surface = c.triangle_surface;
@@ -193,49 +314,133 @@ Simulation::Simulation(const Mesh& mesh, const Config& config)
     const int ntypes = int(c.ton_types.size());
     for (int t = 0; t < ntypes; ++t) {
         const TonType& tt = c.ton_types[t];
+        const std::string at = "config: ton type " + std::to_string(t) + ": ";
         if (!(std::isfinite(tt.ks) && std::isfinite(tt.kp) && std::isfinite(tt.kf)) || tt.ks < 0 ||
             tt.kp < 0 || tt.kf < 0)
-            fail("config: ton type " + std::to_string(t) + " has invalid motion probabilities");
-        impl_->max_carry = std::max(impl_->max_carry, tt.initial_carry.size());
+            fail(at + "motion probabilities must be finite and non-negative");
+        for (float x : tt.initial_carry)
+            if (!std::isfinite(x)) fail(at + "initial_carry has a non-finite value");
+        if (!std::isfinite(tt.bounce_distance) || !(tt.bounce_distance > 0))
+            fail(at + "bounce_distance must be positive and finite");
+        if (!std::isfinite(tt.flow_step) || !(tt.flow_step > 0))
+            fail(at + "flow_step must be positive and finite");
+        I.max_carry = std::max(I.max_carry, tt.initial_carry.size());
     }
-    impl_->source_start.push_back(0);
+
+    // Geometry constants.
+    const float diag = mesh_.diagonal();
+    I.diag = diag;
+    I.centre = {0.5f * (mesh_.lo[0] + mesh_.hi[0]), 0.5f * (mesh_.lo[1] + mesh_.hi[1]),
+                0.5f * (mesh_.lo[2] + mesh_.hi[2])};
+    I.radius = 1.05f * 0.5f * diag;
+    I.eps = 1e-5f * diag;
+    I.down = unit(c.down);
+    I.up = I.down * -1.0f;
+    {
+        double mu = INFINITY;
+        for (size_t i = 0; i < 3 * m; ++i) {
+            const float* v = &mesh_.vertices[3 * size_t(mesh_.triangles[i])];
+            mu = std::min(mu, double(v[0]) * I.up.x + double(v[1]) * I.up.y + double(v[2]) * I.up.z);
+        }
+        I.min_up = float(mu);
+    }
+
     for (size_t i = 0; i < c.sources.size(); ++i) {
         const Source& s = c.sources[i];
         const std::string at = "config: source " + std::to_string(i) + ": ";
-        if (s.kind == "point") impl_->kinds.push_back(SourceKind::Point);
-        else if (s.kind == "sphere") impl_->kinds.push_back(SourceKind::Sphere);
-        else if (s.kind == "hemisphere") impl_->kinds.push_back(SourceKind::Hemisphere);
-        else fail(at + "unknown source kind '" + s.kind + "' (expected point, sphere or hemisphere)");
+        SourceRt r;
+        if (s.kind == "point") r.kind = SourceKind::Point;
+        else if (s.kind == "spot") r.kind = SourceKind::Spot;
+        else if (s.kind == "rect") r.kind = SourceKind::Rect;
+        else if (s.kind == "disk") r.kind = SourceKind::Disk;
+        else if (s.kind == "directional") r.kind = SourceKind::Directional;
+        else if (s.kind == "sphere") r.kind = SourceKind::Sphere;
+        else if (s.kind == "hemisphere") r.kind = SourceKind::Hemisphere;
+        else fail(at + "unknown source kind '" + s.kind +
+                  "' (expected point, spot, rect, disk, directional, sphere or hemisphere)");
+        if (s.emission == "parallel") r.emission = Emission::Parallel;
+        else if (s.emission == "uniform") r.emission = Emission::Uniform;
+        else if (s.emission == "cosine") r.emission = Emission::Cosine;
+        else fail(at + "unknown emission '" + s.emission + "' (expected parallel, uniform or cosine)");
         if (s.ton_type < 0 || s.ton_type >= ntypes)
             fail(at + "ton type index " + std::to_string(s.ton_type) + " out of range (" +
                  std::to_string(ntypes) + " ton types)");
         if (s.count < 0) fail(at + "negative count");
-        for (float p : s.position)
-            if (!std::isfinite(p)) fail(at + "non-finite position");
-        impl_->source_start.push_back(impl_->source_start.back() + s.count);
+        if (!finite3(s.position)) fail(at + "non-finite position");
+        if (!finite3(s.direction)) fail(at + "non-finite direction");
+        if (!std::isfinite(s.angle_deg) || !std::isfinite(s.falloff) || !std::isfinite(s.size[0]) ||
+            !std::isfinite(s.size[1]) || !std::isfinite(s.radius))
+            fail(at + "non-finite angle, falloff, size or radius");
+        if (s.first_iteration < 1) fail(at + "first_iteration must be at least 1");
+        if (s.last_iteration < 0) fail(at + "last_iteration must be 0 (no end) or at least 1");
+        if (s.last_iteration != 0 && s.last_iteration < s.first_iteration)
+            fail(at + "last_iteration " + std::to_string(s.last_iteration) + " is before first_iteration " +
+                 std::to_string(s.first_iteration));
+        const bool directed = r.kind == SourceKind::Spot || r.kind == SourceKind::Rect ||
+                              r.kind == SourceKind::Disk || r.kind == SourceKind::Directional;
+        if (directed && !nonzero3(s.direction)) fail(at + "direction is the zero vector");
+        r.pos = to_v3(s.position);
+        r.dir = directed ? unit(s.direction) : V3{0, -1, 0};
+        plane_axes(r.dir, r.u, r.v);
+        if (r.kind == SourceKind::Spot) {
+            if (!(s.angle_deg > 0 && s.angle_deg <= 180))
+                {
+                char buf[64];
+                std::snprintf(buf, sizeof buf, "%g", double(s.angle_deg));
+                fail(at + "angle_deg must be in (0, 180] (got " + buf + ")");
+            }
+            if (s.falloff < 0) fail(at + "falloff must be non-negative");
+            r.cos_a = s.angle_deg >= 180 ? -1.0f : float(std::cos(double(s.angle_deg) * M_PI / 180.0));
+            r.falloff = s.falloff;
+        }
+        if (r.kind == SourceKind::Rect) {
+            if (!(s.size[0] > 0 && s.size[1] > 0)) fail(at + "size must be positive");
+            r.w = s.size[0];
+            r.h = s.size[1];
+        }
+        if (r.kind == SourceKind::Disk) {
+            if (!(s.radius > 0)) fail(at + "radius must be positive");
+            r.radius = s.radius;
+        }
+        if (r.kind == SourceKind::Directional) {
+            float umin = INFINITY, umax = -INFINITY, vmin = INFINITY, vmax = -INFINITY;
+            for (int k = 0; k < 8; ++k) {
+                const V3 corner{(k & 1) ? mesh_.hi[0] : mesh_.lo[0], (k & 2) ? mesh_.hi[1] : mesh_.lo[1],
+                                (k & 4) ? mesh_.hi[2] : mesh_.lo[2]};
+                const float pu = dot(corner - I.centre, r.u), pv = dot(corner - I.centre, r.v);
+                umin = std::min(umin, pu); umax = std::max(umax, pu);
+                vmin = std::min(vmin, pv); vmax = std::max(vmax, pv);
+            }
+            r.pos = I.centre - r.dir * I.radius;
+            r.u0 = umin; r.du = umax - umin;
+            r.v0 = vmin; r.dv = vmax - vmin;
+        }
+        I.sources.push_back(r);
     }
-    impl_->n_types = std::max(ntypes, 1);
-    impl_->n_surfaces = nsurf;
-    impl_->transport.assign(size_t(GAMMA_EVENT_COUNT) * impl_->n_types * nsurf, TransportSlot{});
+    I.n_types = std::max(ntypes, 1);
+    I.n_surfaces = nsurf;
+    I.transport.assign(size_t(GAMMA_EVENT_COUNT) * I.n_types * nsurf, TransportSlot{});
     for (const TransportEntry& e : c.transports) {
         if (e.event < 0 || e.event >= GAMMA_EVENT_COUNT)
-            fail("config: transport event " + std::to_string(e.event) + " out of range");
+            fail("config: transport event " + std::to_string(e.event) + " out of range (0.." +
+                 std::to_string(GAMMA_EVENT_COUNT - 1) + ")");
         if (e.ton_type < 0 || e.ton_type >= ntypes)
             fail("config: transport ton type index " + std::to_string(e.ton_type) + " out of range (" +
                  std::to_string(ntypes) + " ton types)");
         if (e.surface < 0 || e.surface >= nsurf)
             fail("config: transport surface index " + std::to_string(e.surface) + " out of range (" +
                  std::to_string(nsurf) + " surfaces)");
-        TransportSlot& sl = impl_->transport[(size_t(e.event) * impl_->n_types + e.ton_type) * nsurf + e.surface];
+        TransportSlot& sl = I.transport[(size_t(e.event) * I.n_types + e.ton_type) * nsurf + e.surface];
         sl.fn = reinterpret_cast<GammaTransportKernel>(static_cast<uintptr_t>(e.address));
-        sl.writes = e.writes_surface && sl.fn;
+        // Only property columns are logged; with none there is nothing to log.
+        sl.writes = e.writes_surface && sl.fn && W > GAMMA_ROW_HEADER;
     }
-    impl_->update.assign(nsurf, nullptr);
+    I.update.assign(nsurf, nullptr);
     for (const UpdateEntry& u : c.updates) {
         if (u.surface < 0 || u.surface >= nsurf)
             fail("config: update surface index " + std::to_string(u.surface) + " out of range (" +
                  std::to_string(nsurf) + " surfaces)");
-        impl_->update[u.surface] = reinterpret_cast<GammaUpdateKernel>(static_cast<uintptr_t>(u.address));
+        I.update[u.surface] = reinterpret_cast<GammaUpdateKernel>(static_cast<uintptr_t>(u.address));
     }
 
     // Surfels.
@@ -244,43 +449,45 @@ Simulation::Simulation(const Mesh& mesh, const Config& config)
     w_ = W;
     surfel_surface_.resize(n_);
     rows_.resize(n_ * size_t(W));
+    I.trees.resize(size_t(nsurf));
     for (size_t i = 0; i < n_; ++i) {
         int s = tri_surface[size_t(surf_.triangle[i])];
         surfel_surface_[i] = s;
         std::memcpy(&rows_[i * W], c.surface_rows[s].data(), sizeof(float) * W);
+        SurfaceTree& t = I.trees[size_t(s)];
+        t.index.push_back(uint32_t(i));
+        t.pos.insert(t.pos.end(), &surf_.position[3 * i], &surf_.position[3 * i] + 3);
     }
-    impl_->cloud = {surf_.position.data(), n_};
-    impl_->kd = std::make_unique<KDTree>(3, impl_->cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
-
-    // Geometry constants.
-    const float diag = mesh_.diagonal();
-    impl_->centre = {0.5f * (mesh_.lo[0] + mesh_.hi[0]), 0.5f * (mesh_.lo[1] + mesh_.hi[1]),
-                     0.5f * (mesh_.lo[2] + mesh_.hi[2])};
-    impl_->radius = 1.05f * 0.5f * diag;
-    impl_->eps = 1e-5f * diag;
-    impl_->sigma = float(std::sqrt(mesh_.area() / double(n_)));
+    I.cloud = {surf_.position.data(), n_};
+    I.kd = std::make_unique<KDTree>(3, I.cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+    for (SurfaceTree& t : I.trees) {
+        if (t.index.empty()) continue;
+        t.cloud = {t.pos.data(), t.index.size()};
+        t.kd = std::make_unique<KDTree>(3, t.cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+    }
+    I.sigma = float(std::sqrt(mesh_.area() / double(n_)));
 
     // Embree scene.
-    impl_->device = rtcNewDevice(nullptr);
-    if (!impl_->device) throw std::runtime_error("embree: cannot create device");
-    impl_->scene = rtcNewScene(impl_->device);
-    rtcSetSceneFlags(impl_->scene, RTC_SCENE_FLAG_ROBUST);
-    rtcSetSceneBuildQuality(impl_->scene, RTC_BUILD_QUALITY_HIGH);
-    RTCGeometry geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    I.device = rtcNewDevice(nullptr);
+    if (!I.device) throw std::runtime_error("internal error: embree cannot create a device");
+    I.scene = rtcNewScene(I.device);
+    rtcSetSceneFlags(I.scene, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(I.scene, RTC_BUILD_QUALITY_HIGH);
+    RTCGeometry geom = rtcNewGeometry(I.device, RTC_GEOMETRY_TYPE_TRIANGLE);
     rtcSetGeometryBuildQuality(geom, RTC_BUILD_QUALITY_HIGH);
     float* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                                             3 * sizeof(float), mesh_.num_vertices()));
     uint32_t* ib = static_cast<uint32_t*>(
         rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t), m));
-    if (!vb || !ib) throw std::runtime_error("embree: cannot allocate geometry buffers");
+    if (!vb || !ib) throw std::runtime_error("internal error: embree cannot allocate geometry buffers");
     std::memcpy(vb, mesh_.vertices.data(), sizeof(float) * mesh_.vertices.size());
     for (size_t i = 0; i < 3 * m; ++i) ib[i] = uint32_t(mesh_.triangles[i]);
     rtcCommitGeometry(geom);
-    rtcAttachGeometry(impl_->scene, geom);
+    rtcAttachGeometry(I.scene, geom);
     rtcReleaseGeometry(geom);
-    rtcCommitScene(impl_->scene);
-    if (rtcGetDeviceError(impl_->device) != RTC_ERROR_NONE)
-        throw std::runtime_error("embree: scene build failed");
+    rtcCommitScene(I.scene);
+    if (rtcGetDeviceError(I.device) != RTC_ERROR_NONE)
+        throw std::runtime_error("internal error: embree scene build failed");
 }
 
 Simulation::~Simulation() = default;
@@ -288,20 +495,37 @@ Simulation::~Simulation() = default;
 void Simulation::set_rows(const float* data) { std::memcpy(rows_.data(), data, sizeof(float) * rows_.size()); }
 
 uint32_t Simulation::nearest_surfel(const float p[3]) const { return impl_->nearest(p); }
+uint32_t Simulation::nearest_surfel_of(int surface, const float p[3]) const {
+    if (surface < 0 || surface >= impl_->n_surfaces) return impl_->nearest(p);
+    return impl_->nearest_of(surface, p);
+}
 
 TraceStats Simulation::trace(int iteration) {
     const auto t0 = std::chrono::steady_clock::now();
     Impl& I = *impl_;
     const Config& c = cfg_;
     const int W = w_;
-    const int64_t total = I.source_start.back();
+    const int P = W - GAMMA_ROW_HEADER;  // property columns
+    // Active sources of this iteration, in declaration order.
+    std::vector<size_t> active;
+    std::vector<int64_t> start{0};
+    for (size_t i = 0; i < c.sources.size(); ++i) {
+        const Source& s = c.sources[i];
+        if (iteration < s.first_iteration || (s.last_iteration != 0 && iteration > s.last_iteration)) continue;
+        active.push_back(i);
+        start.push_back(start.back() + s.count);
+    }
+    const int64_t total = start.back();
     const int64_t nchunks = (total + kChunkSize - 1) / kChunkSize;
     if (I.logs.size() < size_t(nchunks)) I.logs.resize(size_t(nchunks));
     const float* rows = rows_.data();
     const int32_t* surf_of = surfel_surface_.data();
+    const int32_t* tri_surf = I.tri_surface.data();
     const int max_inter = c.max_interactions;
     const uint64_t seed = c.seed;
     const uint32_t iter_u = uint32_t(iteration);
+    const V3 down = I.down, up = I.up;
+    const float eps = I.eps;
 
     auto run_chunk = [&](int64_t ci) {
         ChunkLog& log = I.logs[size_t(ci)];
@@ -309,101 +533,161 @@ TraceStats Simulation::trace(int iteration) {
         log.delta.clear();
         TraceStats st;
         std::vector<float> carry(I.max_carry, 0.0f);
-        std::vector<float> delta(size_t(W), 0.0f);
+        std::vector<float> delta(size_t(W), 0.0f), scratch(size_t(W), 0.0f);
         const int64_t begin = ci * kChunkSize, end = std::min(total, begin + kChunkSize);
-        size_t src = size_t(std::upper_bound(I.source_start.begin(), I.source_start.end(), begin) -
-                            I.source_start.begin()) - 1;
+        size_t a = size_t(std::upper_bound(start.begin(), start.end(), begin) - start.begin()) - 1;
         auto call = [&](const TransportSlot& sl, uint32_t s, const GammaContext& ctx) {
-            std::fill(delta.begin(), delta.end(), 0.0f);
-            sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
-            if (sl.writes) {
-                log.surfel.push_back(s);
-                log.delta.insert(log.delta.end(), delta.begin(), delta.end());
+            if (!sl.writes) {
+                sl.fn(carry.data(), rows + size_t(s) * W, scratch.data(), &ctx);
+                return;
             }
+            std::fill(delta.begin() + GAMMA_ROW_HEADER, delta.end(), 0.0f);
+            sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
+            log.surfel.push_back(s);
+            log.delta.insert(log.delta.end(), delta.begin() + GAMMA_ROW_HEADER, delta.end());
         };
+        // Current interaction point.
+        V3 p, n, dir;
+        uint32_t prim = 0;
+        RTCRayHit rh;
+        auto take_hit = [&](V3 org, V3 d) {
+            p = org + d * rh.ray.tfar;
+            n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+            if (dot(n, d) > 0) n = n * -1.0f;
+            dir = d;
+            prim = rh.hit.primID;
+        };
+        // Straight ray; true if it hit (interaction point updated).
+        auto straight = [&](V3 org, V3 d, float tnear, float tfar) {
+            I.cast(rh, org, d, tnear, tfar);
+            ++st.rays;
+            if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+            take_hit(org, d);
+            return true;
+        };
+        // Parabolic flight from p0 with velocity vel.  A zero launch speed (a
+        // drip) is a straight fall along `down`: one ray, no discretisation.
+        auto flight = [&](V3 p0, V3 vel, double dt) -> FlightEnd {
+            if (vel.x == 0 && vel.y == 0 && vel.z == 0) {
+                ++st.segments;
+                return straight(p0, down, 0.0f, std::numeric_limits<float>::infinity()) ? FlightEnd::Landed
+                                                                                          : FlightEnd::Escaped;
+            }
+            return fly(
+                p0, vel, down, dt, st.segments,
+                [&](V3 sa, V3 sb) {
+                    const V3 ch = sb - sa;
+                    const float len = length(ch);
+                    if (!(len > 0)) return false;
+                    return straight(sa, ch * (1.0f / len), 0.0f, len);
+                },
+                [&](V3 sb, double t) {
+                    // Below the lowest point of the scene and descending: nothing
+                    // can be hit any more.  Or far away (4 diagonals) from it.
+                    return (dot(sb, up) < I.min_up - eps && double(dot(vel, up)) - t < 0) ||
+                           length(sb - I.centre) > 4.0f * I.diag;
+                });
+        };
+
         for (int64_t g = begin; g < end; ++g) {
-            while (g >= I.source_start[src + 1]) ++src;
+            while (g >= start[a + 1]) ++a;
+            const size_t src = active[a];
             const Source& so = c.sources[src];
-            const TonType& tt = c.ton_types[size_t(so.ton_type)];
+            const int type = so.ton_type;
+            const TonType& tt = c.ton_types[size_t(type)];
             PhiloxStream rng(seed, iter_u, uint64_t(g));
             float ks = tt.ks, kp = tt.kp, kf = tt.kf;
             std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
-            V3 org, dir;
-            switch (I.kinds[src]) {
-                case SourceKind::Point: {
-                    org = {so.position[0], so.position[1], so.position[2]};
-                    float u = rng.next(), v = rng.next();
-                    dir = uniform_sphere(u, v);
-                    break;
-                }
-                case SourceKind::Sphere: I.emit_env(rng, false, org, dir); break;
-                case SourceKind::Hemisphere: I.emit_env(rng, true, org, dir); break;
-            }
-            float tnear = 0.0f;
+            V3 org, d0;
+            I.emit(I.sources[src], rng, org, d0);
             int inter = 0;
             ++st.emitted;
+            if (!straight(org, d0, 0.0f, std::numeric_limits<float>::infinity())) {
+                ++st.escaped;
+                continue;
+            }
             for (;;) {
-                RTCRayHit rh;
-                I.cast(rh, org, dir, tnear);
-                ++st.rays;
-                if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) { ++st.escaped; break; }
                 ++inter;
-                const float t = rh.ray.tfar;
-                V3 p = org + dir * t;
-                V3 ng = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
-                if (dot(ng, dir) > 0) ng = ng * -1.0f;
                 const float pa[3] = {p.x, p.y, p.z};
-                const uint32_t s = I.nearest(pa);
+                const uint32_t s = I.nearest_of(tri_surf[prim], pa);
                 const int surface = surf_of[s];
                 GammaContext ctx;
                 ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
-                ctx.normal[0] = ng.x; ctx.normal[1] = ng.y; ctx.normal[2] = ng.z;
+                ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
                 ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
+                ctx.height = dot(p, up) - I.min_up;
                 ctx.iteration = iteration;
                 ctx.interactions = inter;
                 const float xi = rng.next();
                 const float c1 = std::min(ks, 1.0f);
                 const float c2 = std::min(c1 + kp, 1.0f);
                 const float c3 = std::min(c2 + kf, 1.0f);
-                const TransportSlot& hit = I.slot(GAMMA_EVENT_HIT, so.ton_type, surface);
+                const int event = xi < c1 ? GAMMA_EVENT_REFLECT
+                                : xi < c2 ? GAMMA_EVENT_BOUNCE
+                                : xi < c3 ? GAMMA_EVENT_FLOW
+                                          : GAMMA_EVENT_SETTLE;
+                const TransportSlot& hit = I.slot(GAMMA_EVENT_HIT, type, surface);
                 if (hit.fn) call(hit, s, ctx);
-                if (!(xi < c1)) {
-                    // Bounce and flow are not traced in this version: such a gamma-ton
-                    // ends uncounted as settled and deposits nothing (the runner stops
-                    // the run with an error rather than publish maps without them).
-                    if (xi < c3) { ++st.untraced; break; }
-                    const TransportSlot& se = I.slot(GAMMA_EVENT_SETTLE, so.ton_type, surface);
-                    if (se.fn) call(se, s, ctx);
-                    ++st.settled;
-                    break;
-                }
+                const TransportSlot& ev = I.slot(event, type, surface);
+                if (ev.fn) call(ev, s, ctx);
+                if (event == GAMMA_EVENT_SETTLE) { ++st.settled; break; }
                 if (inter >= max_inter) { ++st.capped; break; }
                 const float* row = rows + size_t(s) * W;
-                const float ds = row[GAMMA_ROW_DELTA_STRAIGHT], dp = row[GAMMA_ROW_DELTA_PARABOLIC],
-                            df = row[GAMMA_ROW_DELTA_FLOW];
+                const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
+                            df = row[GAMMA_ROW_REFLECTANCE_FLOW];
                 const float kp_left = std::max(kp - dp, 0.0f);
                 ks = std::max(ks - ds, 0.0f);
                 kf = std::max(kf + kp_left - df, 0.0f);
                 kp = kp_left;
-                const float u = rng.next(), v = rng.next();
-                dir = uniform_hemisphere(ng, u, v);
-                org = p + ng * I.eps;
-                tnear = I.eps;
+                FlightEnd fe = FlightEnd::Landed;
+                if (event == GAMMA_EVENT_REFLECT) {
+                    const float u = rng.next(), v = rng.next();
+                    const V3 nd = uniform_hemisphere(n, u, v);
+                    if (!straight(p + n * eps, nd, eps, std::numeric_limits<float>::infinity()))
+                        fe = FlightEnd::Escaped;
+                } else if (event == GAMMA_EVENT_BOUNCE) {
+                    ++st.bounces;
+                    const float u = rng.next(), v = rng.next();
+                    const V3 ld = uniform_hemisphere(n, u, v);
+                    const double D = tt.bounce_distance;
+                    fe = flight(p + n * eps, ld * float(launch_speed(D)), flight_dt(D));
+                } else {  // flow
+                    ++st.flow_steps;
+                    const float step = tt.flow_step;
+                    const V3 gt = down - n * dot(down, n);
+                    if (dot(n, up) < 0) {
+                        ++st.drips;  // overhang: gravity pulls it off
+                        fe = flight(p + n * eps, V3{0, 0, 0}, flight_dt(tt.bounce_distance));
+                    } else if (length(gt) < 1e-3f) {
+                        dir = V3{0, 0, 0};  // horizontal: no drift, interact again here
+                    } else {
+                        const V3 t = normalize(gt);
+                        const V3 q = p + t * step;
+                        const V3 pn = n;
+                        if (straight(p + pn * eps, t, 0.0f, step)) {
+                            // concave corner: the gamma-ton is where the ray hit
+                        } else if (straight(q + pn * (0.5f * step), pn * -1.0f, 0.0f, step)) {
+                            dir = t;  // re-attached (flat or convex bend)
+                        } else {
+                            ++st.drips;  // the surface fell away: an edge
+                            fe = flight(q, V3{0, 0, 0}, flight_dt(tt.bounce_distance));
+                        }
+                    }
+                }
+                if (fe == FlightEnd::Escaped) { ++st.escaped; break; }
+                if (fe == FlightEnd::Capped) { ++st.capped; break; }
             }
             st.interactions += inter;
         }
         log.st = st;
     };
 
-    const int threads = threads_for(c.threads);
-    tbb::task_arena arena(threads);
-    arena.execute([&] {
+    run_with_threads(c.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int64_t>(0, nchunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
             for (int64_t ci = r.begin(); ci < r.end(); ++ci) run_chunk(ci);
         });
     });
 
-    // Serial merge in chunk order (deterministic float sums).
     TraceStats total_st;
     bool any = false;
     for (int64_t ci = 0; ci < nchunks; ++ci) {
@@ -412,23 +696,44 @@ TraceStats Simulation::trace(int iteration) {
         total_st.settled += log.st.settled;
         total_st.escaped += log.st.escaped;
         total_st.capped += log.st.capped;
-        total_st.untraced += log.st.untraced;
         total_st.interactions += log.st.interactions;
         total_st.rays += log.st.rays;
+        total_st.flow_steps += log.st.flow_steps;
+        total_st.bounces += log.st.bounces;
+        total_st.drips += log.st.drips;
+        total_st.segments += log.st.segments;
         if (!log.surfel.empty()) any = true;
     }
-    if (any) {
-        I.delta.assign(rows_.size(), 0.0f);
+    if (any && P > 0) {
+        // Parallel merge over surfel ranges: every task scans the chunk logs in
+        // chunk order and applies only the records of its own surfels, so each
+        // surfel's sum has the same order for any partition (bit-identical).
+        const size_t nranges = size_t(resolve_threads(c.threads));
+        const size_t per = (n_ + nranges - 1) / nranges;
+        I.delta.resize(n_ * size_t(P));
         float* D = I.delta.data();
-        for (int64_t ci = 0; ci < nchunks; ++ci) {
-            const ChunkLog& log = I.logs[size_t(ci)];
-            const float* rec = log.delta.data();
-            for (size_t k = 0; k < log.surfel.size(); ++k, rec += W) {
-                float* d = D + size_t(log.surfel[k]) * W;
-                for (int j = 0; j < W; ++j) d[j] += rec[j];
-            }
-        }
-        for (size_t i = 0; i < rows_.size(); ++i) rows_[i] += D[i];
+        float* R = rows_.data();
+        run_with_threads(c.threads, [&] {
+            tbb::parallel_for(size_t(0), nranges, [&](size_t ri) {
+                const uint32_t lo = uint32_t(std::min(n_, ri * per)), hi = uint32_t(std::min(n_, (ri + 1) * per));
+                if (lo >= hi) return;
+                std::fill(D + size_t(lo) * P, D + size_t(hi) * P, 0.0f);
+                for (int64_t ci = 0; ci < nchunks; ++ci) {
+                    const ChunkLog& log = I.logs[size_t(ci)];
+                    const uint32_t* sv = log.surfel.data();
+                    const size_t nrec = log.surfel.size();
+                    for (size_t k = 0; k < nrec; ++k) {
+                        const uint32_t s = sv[k];
+                        if (s < lo || s >= hi) continue;
+                        const float* rec = log.delta.data() + k * size_t(P);
+                        float* d = D + size_t(s) * P;
+                        for (int j = 0; j < P; ++j) d[j] += rec[j];
+                    }
+                }
+                for (size_t s = lo; s < hi; ++s)
+                    for (int j = 0; j < P; ++j) R[s * W + GAMMA_ROW_HEADER + j] += D[s * P + j];
+            });
+        });
     }
     total_st.trace_seconds = seconds_since(t0);
     return total_st;
@@ -442,8 +747,7 @@ double Simulation::update(int iteration) {
     if (!any) return seconds_since(t0);
     const int W = w_;
     float* rows = rows_.data();
-    tbb::task_arena arena(threads_for(cfg_.threads));
-    arena.execute([&] {
+    run_with_threads(cfg_.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, n_, 4096), [&](const tbb::blocked_range<size_t>& r) {
             GammaContext ctx;
             for (size_t i = r.begin(); i < r.end(); ++i) {
@@ -454,6 +758,7 @@ double Simulation::update(int iteration) {
                     ctx.normal[k] = surf_.normal[3 * i + k];
                     ctx.direction[k] = 0.0f;
                 }
+                ctx.height = dot(V3{ctx.position[0], ctx.position[1], ctx.position[2]}, I.up) - I.min_up;
                 ctx.iteration = iteration;
                 ctx.interactions = 0;
                 fn(rows + i * W, &ctx);
@@ -468,8 +773,7 @@ RaycastStats Simulation::raw_raycast(int64_t n_rays, int threads, uint64_t seed)
     const Impl& I = *impl_;
     const int64_t nchunks = (n_rays + kChunkSize - 1) / kChunkSize;
     std::vector<int64_t> hits(size_t(std::max<int64_t>(nchunks, 0)), 0);
-    tbb::task_arena arena(threads_for(threads));
-    arena.execute([&] {
+    run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int64_t>(0, nchunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
             for (int64_t ci = r.begin(); ci < r.end(); ++ci) {
                 int64_t h = 0;
@@ -492,7 +796,6 @@ RaycastStats Simulation::raw_raycast(int64_t n_rays, int threads, uint64_t seed)
     st.seconds = seconds_since(t0);
     return st;
 }
-
 void Simulation::render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
                         std::array<float, 3> up, float fov_deg, int width, int height, int threads,
                         float* out_value, float* out_shade) const {
@@ -512,8 +815,7 @@ void Simulation::render(const float* values, std::array<float, 3> eye, std::arra
     const float inv2s2 = 1.0f / (2.0f * I.sigma * I.sigma);
     const float nan = std::numeric_limits<float>::quiet_NaN();
     constexpr size_t K = 8;
-    tbb::task_arena arena(threads_for(threads));
-    arena.execute([&] {
+    run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
             for (int y = r.begin(); y < r.end(); ++y)
                 for (int x = 0; x < width; ++x) {

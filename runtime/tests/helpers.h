@@ -56,4 +56,33 @@ inline gammart::Mesh unit_square() {
     return gammart::Mesh::from_arrays(v.data(), 5, t.data(), 3, "square");
 }
 
+// Simple mesh builder: quads (fan-split into two triangles) and triangles.
+struct Builder {
+    std::vector<float> v;
+    std::vector<int32_t> t;
+    int32_t vert(std::array<float, 3> p) {
+        v.insert(v.end(), p.begin(), p.end());
+        return int32_t(v.size() / 3 - 1);
+    }
+    void quad(std::array<float, 3> a, std::array<float, 3> b, std::array<float, 3> c, std::array<float, 3> d) {
+        int32_t i = vert(a), j = vert(b), k = vert(c), l = vert(d);
+        t.insert(t.end(), {i, j, k, i, k, l});
+    }
+    void add(const gammart::Mesh& m, std::array<float, 3> offset = {0, 0, 0}) {
+        const int32_t base = int32_t(v.size() / 3);
+        for (size_t i = 0; i < m.num_vertices(); ++i)
+            for (int k = 0; k < 3; ++k) v.push_back(m.vertices[3 * i + k] + offset[k]);
+        for (int32_t x : m.triangles) t.push_back(base + x);
+    }
+    size_t num_triangles() const { return t.size() / 3; }
+    gammart::Mesh mesh(const char* name = "built") const {
+        return gammart::Mesh::from_arrays(v.data(), v.size() / 3, t.data(), t.size() / 3, name);
+    }
+};
+
+// Horizontal square [x0,x1] x [z0,z1] at height y (normal +y).
+inline void floor_quad(Builder& b, float x0, float x1, float z0, float z1, float y = 0) {
+    b.quad({x0, y, z0}, {x0, y, z1}, {x1, y, z1}, {x1, y, z0});
+}
+
 }  // namespace gamma_test

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <functional>
 #include <limits>
 
 #include "gamma/error.h"
@@ -132,5 +133,88 @@ TEST(Mesh, ObjNonFiniteCoordinate) {
     { std::ofstream f(path); f << "# c\nv 0 0 0\nv 1 0 0\nv 0 1e39 0\nf 1 2 3\n"; }
     std::string msg = expect_error([&] { Mesh::load(path); });
     EXPECT_EQ(msg, "mesh 'gamma_test_nan.obj': vertex 2 has a non-finite coordinate");
+    std::remove(path);
+}
+
+TEST(Mesh, ObjParts) {
+    const std::string text =
+        "# parts\n"
+        "mtllib x.mtl\n"
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+        "vt 0 0\nvn 0 0 1\n"
+        "o chain\n"
+        "usemtl Iron\n"
+        "f 1/1/1 2/1/1 3/1/1 4/1/1\n"   // quad -> 2 triangles
+        "o stairs\ng step1\n"
+        "usemtl Cement\n"
+        "f -4//1 -3//1 -2//1\n"          // negative indices
+        "g\n"
+        "s off\n"
+        "f 1 3 4 # trailing comment\n";
+    Mesh m = Mesh::parse_obj(text, "parts.obj");
+    ASSERT_EQ(m.num_triangles(), 4u);
+    const std::vector<std::string> names = {"chain", "Iron", "stairs", "step1", "Cement"};
+    EXPECT_EQ(m.part_names, names);
+    EXPECT_EQ(m.object_id, (std::vector<int32_t>{0, 0, 2, 2}));
+    EXPECT_EQ(m.group_id, (std::vector<int32_t>{-1, -1, 3, -1}));
+    EXPECT_EQ(m.material_id, (std::vector<int32_t>{1, 1, 4, 4}));
+    EXPECT_EQ(m.triangles, (std::vector<int32_t>{0, 1, 2, 0, 2, 3, 0, 1, 2, 0, 2, 3}));
+}
+
+TEST(Mesh, ObjIndexOutOfRange) {
+    std::string msg = expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf 1 2 7\n", "p.obj"); });
+    EXPECT_EQ(msg, "mesh 'p.obj': face on line 5 has vertex index 7 out of range (3 vertices)");
+    msg = expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "p.obj"); });
+    EXPECT_EQ(msg, "mesh 'p.obj': face on line 4 has vertex index -4 out of range (3 vertices)");
+    msg = expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "p.obj"); });
+    EXPECT_EQ(msg, "mesh 'p.obj': face on line 4 has vertex index 0 out of range (3 vertices)");
+    msg = expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "p.obj"); });
+    EXPECT_EQ(msg.find('\n'), std::string::npos);
+    EXPECT_NE(msg.find("line 4"), std::string::npos) << msg;
+}
+
+TEST(Mesh, ExtentErrors) {
+    std::vector<float> huge = {0, 0, 0, 3e38f, 0, 0, 0, 3e38f, 0};
+    std::vector<int32_t> t = {0, 1, 2};
+    std::string msg = expect_error([&] { Mesh::from_arrays(huge.data(), 3, t.data(), 1, "P"); });
+    EXPECT_EQ(msg, "mesh 'P' has a non-finite or zero extent");
+    std::vector<float> point = {1, 2, 3, 1, 2, 3, 1, 2, 3};
+    msg = expect_error([&] { Mesh::from_arrays(point.data(), 3, t.data(), 1, "P"); });
+    EXPECT_EQ(msg, "mesh 'P' has a non-finite or zero extent");
+    // Large but representable: the diagonal (computed in double) is fine.
+    std::vector<float> big = {0, 0, 0, 1e25f, 0, 0, 0, 1e25f, 0};
+    Mesh m = Mesh::from_arrays(big.data(), 3, t.data(), 1, "P");
+    EXPECT_NEAR(m.diag / 1e25, std::sqrt(2.0), 1e-6);
+}
+
+TEST(Mesh, PlyDroppedFacesAndNonFinite) {
+    const char* path = "gamma_test_nm.ply";
+    // A face with an out-of-range vertex index: OpenMesh drops it silently.
+    // (Non-manifold faces are kept: OpenMesh duplicates their vertices.)
+    {
+        std::ofstream f(path);
+        f << "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
+             "element face 3\nproperty list uchar int vertex_indices\nend_header\n"
+             "0 0 0\n1 0 0\n0 1 0\n0 -1 0\n0 0 1\n3 0 1 2\n3 1 0 3\n3 0 1 9\n";
+    }
+    std::string msg = expect_error([&] { Mesh::load(path); });
+    EXPECT_EQ(msg, "mesh 'gamma_test_nm.ply': 1 faces could not be read");
+    {
+        std::ofstream f(path);
+        f << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+             "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+             "0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n";
+    }
+    msg = expect_error([&] { Mesh::load(path); });
+    EXPECT_EQ(msg, "mesh 'gamma_test_nm.ply': vertex 1 has a non-finite coordinate");
+    {
+        std::ofstream f(path);
+        f << "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+             "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+             "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n";
+    }
+    Mesh m = Mesh::load(path);
+    EXPECT_EQ(m.num_triangles(), 2u);
+    EXPECT_TRUE(m.part_names.empty());
     std::remove(path);
 }

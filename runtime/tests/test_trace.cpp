@@ -2,6 +2,13 @@
 
 #include <cmath>
 #include <cstring>
+#include <atomic>
+#include <chrono>
+#include <mutex>
+#include <set>
+#include <thread>
+
+#include <tbb/parallel_for.h>
 
 #include "gamma/error.h"
 #include "gamma/simulation.h"
@@ -34,7 +41,7 @@ Config base_config(int W, float ds) {
     c.threads = 1;
     c.row_width = W;
     std::vector<float> row(size_t(W), 0.0f);
-    row[GAMMA_ROW_DELTA_STRAIGHT] = ds;
+    row[GAMMA_ROW_REFLECTANCE_STRAIGHT] = ds;
     c.surface_rows = {row};
     return c;
 }
@@ -48,11 +55,10 @@ TEST(Trace, PatinaMeanInteractions) {
     int t = c.add_ton_type(1, 0, 0, {});
     c.add_source("point", t, 100000, {0, 0, 0});
     Simulation sim(m, c);
-    TraceStats st = sim.trace(0);
+    TraceStats st = sim.trace(1);
     EXPECT_EQ(st.emitted, 100000);
     EXPECT_EQ(st.escaped, 0);
     EXPECT_EQ(st.capped, 0);
-    EXPECT_EQ(st.untraced, 0);
     EXPECT_EQ(st.settled, 100000);
     EXPECT_EQ(st.rays, st.interactions);
     const double mean = double(st.interactions) / double(st.emitted);
@@ -66,25 +72,12 @@ TEST(Trace, CappedAtMaxInteractions) {
     int t = c.add_ton_type(1, 0, 0, {});
     c.add_source("point", t, 5000, {0.1f, 0.2f, -0.1f});
     Simulation sim(m, c);
-    TraceStats st = sim.trace(0);
+    TraceStats st = sim.trace(1);
     EXPECT_EQ(st.capped, 5000);
     EXPECT_EQ(st.escaped, 0);
     EXPECT_EQ(st.settled, 0);
     EXPECT_EQ(st.interactions, 25 * 5000);
     EXPECT_EQ(st.rays, 25 * 5000);
-}
-
-TEST(Trace, BounceAndFlowCountedUntraced) {
-    Mesh m = gamma_test::icosphere(2);
-    Config c = base_config(3, 0.0f);
-    int a = c.add_ton_type(0, 1, 0, {});
-    int b = c.add_ton_type(0, 0, 1, {});
-    c.add_source("point", a, 1000, {0, 0, 0});
-    c.add_source("point", b, 1000, {0, 0, 0});
-    Simulation sim(m, c);
-    TraceStats st = sim.trace(0);
-    EXPECT_EQ(st.untraced, 2000);
-    EXPECT_EQ(st.interactions, 2000);
 }
 
 TEST(Trace, EnvironmentSourcesOutsideSphere) {
@@ -94,7 +87,7 @@ TEST(Trace, EnvironmentSourcesOutsideSphere) {
     c.add_source("sphere", t, 20000);
     c.add_source("hemisphere", t, 20000);
     Simulation sim(m, c);
-    TraceStats st = sim.trace(0);
+    TraceStats st = sim.trace(1);
     EXPECT_EQ(st.emitted, 40000);
     EXPECT_EQ(st.settled + st.escaped, 40000);
     // Cosine-weighted inward from R = 1.05 * half diagonal (= 1.05*sqrt(3)):
@@ -126,8 +119,8 @@ static std::vector<float> run_threads(int threads) {
     c.set_update(0, addr(reinterpret_cast<void*>(&k_update)));
     Simulation sim(m, c);
     for (int it = 0; it < 3; ++it) {
-        sim.trace(it);
-        sim.update(it);
+        sim.trace(it + 1);
+        sim.update(it + 1);
     }
     return sim.rows();
 }
@@ -203,4 +196,27 @@ TEST(Render, BackgroundIsNaN) {
     EXPECT_NEAR(centre, 2.0f, 1e-5);
     EXPECT_GE(shade[(H / 2) * W + W / 2], 0.25f);
     EXPECT_LE(shade[(H / 2) * W + W / 2], 1.0f);
+}
+
+// threads = n runs n threads even above the core count (no clamping).
+TEST(Threads, ExactlyRequested) {
+    for (int n : {1, 2, 4}) {
+        std::atomic<int> arrived{0};
+        std::mutex mu;
+        std::set<std::thread::id> ids;
+        gammart::run_with_threads(n, [&] {
+            tbb::parallel_for(0, n, 1, [&](int) {
+                {
+                    std::lock_guard<std::mutex> lk(mu);
+                    ids.insert(std::this_thread::get_id());
+                }
+                arrived++;
+                const auto t0 = std::chrono::steady_clock::now();
+                while (arrived.load() < n && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5))
+                    std::this_thread::yield();
+            });
+        });
+        EXPECT_EQ(int(ids.size()), n);
+        EXPECT_EQ(arrived.load(), n);
+    }
 }

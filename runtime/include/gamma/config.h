@@ -11,13 +11,23 @@ namespace gammart {
 struct TonType {
     float ks = 0, kp = 0, kf = 0;
     std::vector<float> initial_carry;
+    float bounce_distance = 1;  // scene units: range of a 45-degree launch on flat ground
+    float flow_step = 1;        // scene units: length of one flow step
 };
 
 struct Source {
-    std::string kind;  // "point" | "sphere" | "hemisphere"
+    std::string kind;  // point | spot | rect | disk | directional | sphere | hemisphere
     int ton_type = 0;
     int64_t count = 0;
     std::array<float, 3> position{0, 0, 0};
+    std::array<float, 3> direction{0, -1, 0};
+    float angle_deg = 0;              // spot: cone half-angle, (0, 180]
+    float falloff = 0;                // spot: cos^n exponent, >= 0
+    std::array<float, 2> size{0, 0};  // rect: width (along u), height (along v)
+    float radius = 0;                 // disk
+    std::string emission = "parallel";  // rect/disk: parallel | uniform | cosine
+    int first_iteration = 1;          // active in first..last (inclusive)
+    int last_iteration = 0;           // 0 = no end
 };
 
 struct TransportEntry {
@@ -37,6 +47,7 @@ struct Config {
     int threads = 1;             // <= 0: all hardware threads
     int max_interactions = 100;
     int row_width = GAMMA_ROW_HEADER;
+    std::array<float, 3> down{0, -1, 0};           // gravity; normalised by the runtime
     std::vector<std::vector<float>> surface_rows;  // initial row per surface id
     std::vector<int32_t> triangle_surface;         // per triangle; empty -> all 0
     std::vector<TonType> ton_types;
@@ -44,12 +55,23 @@ struct Config {
     std::vector<TransportEntry> transports;
     std::vector<UpdateEntry> updates;
 
-    int add_ton_type(float ks, float kp, float kf, std::vector<float> carry) {
-        ton_types.push_back({ks, kp, kf, std::move(carry)});
+    int add_ton_type(float ks, float kp, float kf, std::vector<float> carry, float bounce_distance = 1.0f,
+                     float flow_step = 1.0f) {
+        ton_types.push_back({ks, kp, kf, std::move(carry), bounce_distance, flow_step});
         return int(ton_types.size()) - 1;
     }
-    void add_source(std::string kind, int ton_type, int64_t count, std::array<float, 3> pos = {0, 0, 0}) {
-        sources.push_back({std::move(kind), ton_type, count, pos});
+    int add_source(Source s) {
+        sources.push_back(std::move(s));
+        return int(sources.size()) - 1;
+    }
+    // Short form used by tests: kind, ton type, count, position.
+    int add_source(std::string kind, int ton_type, int64_t count, std::array<float, 3> pos = {0, 0, 0}) {
+        Source s;
+        s.kind = std::move(kind);
+        s.ton_type = ton_type;
+        s.count = count;
+        s.position = pos;
+        return add_source(std::move(s));
     }
     void set_transport(int event, int ton_type, int surface, uint64_t address, bool writes) {
         transports.push_back({event, ton_type, surface, address, writes});

@@ -15,14 +15,23 @@ struct Mesh {
     size_t input_triangles = 0;                // m + degenerate_dropped
     size_t degenerate_dropped = 0;
     std::array<float, 3> lo{}, hi{};
+    double diag = 0;                           // bbox diagonal, computed in double
+
+    // OBJ part labels per kept triangle: indices into part_names, -1 = none.
+    // Empty vectors when the mesh has no labels (PLY, from_arrays).
+    std::vector<std::string> part_names;       // distinct non-empty names, first-seen order
+    std::vector<int32_t> object_id, group_id, material_id;
 
     size_t num_vertices() const { return vertices.size() / 3; }
     size_t num_triangles() const { return triangles.size() / 3; }
-    float diagonal() const;
+    float diagonal() const { return float(diag); }
     double area() const;  // total area of kept triangles
 
-    // Loads OBJ/PLY (anything OpenMesh reads).  Throws gammart::Error.
+    // OBJ: own reader (objects, groups, materials kept); other formats
+    // (PLY, ...): OpenMesh.  Throws gammart::Error.
     static Mesh load(const std::string& path);
+    // Parses OBJ text; `name` is used in messages (exposed for tests).
+    static Mesh parse_obj(const std::string& text, const std::string& name);
     // Validates and builds from raw arrays.  Throws gammart::Error.
     static Mesh from_arrays(const float* verts, size_t n, const int32_t* tris, size_t m,
                             const std::string& name = "<arrays>");

@@ -1,6 +1,7 @@
 #pragma once
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -12,8 +13,9 @@
 namespace gammart {
 
 struct TraceStats {
-    int64_t emitted = 0, settled = 0, escaped = 0, capped = 0, untraced = 0;
+    int64_t emitted = 0, settled = 0, escaped = 0, capped = 0;
     int64_t interactions = 0, rays = 0;
+    int64_t flow_steps = 0, bounces = 0, drips = 0, segments = 0;
     double trace_seconds = 0;
 };
 
@@ -24,11 +26,25 @@ struct RaycastStats {
 
 // Number of gamma-tons per parallel work item.  Never depends on thread count.
 constexpr int64_t kChunkSize = 1024;
+// Largest accepted thread count.
+constexpr int kMaxThreads = 1024;
+
+// Runs f inside a task arena of exactly `threads` threads (<= 0: all hardware
+// threads); a global_control lifts TBB's default cap at the core count.
+void run_with_threads(int threads, const std::function<void()>& f);
+int resolve_threads(int threads);
+
+// Landing of a parabolic flight (g = 1, launch speed sqrt(D) along unit d) on
+// the plane dot(x, up) = floor_height, up = -normalize(down): `traced` as the
+// tracer's piecewise-linear chords meet the plane, `analytic` the exact
+// parabola.  Throws gammart::Error if the flight never reaches the plane.
+void parabola_landing(std::array<float, 3> p0, std::array<float, 3> d, float D, std::array<float, 3> down,
+                      float floor_height, std::array<float, 3>& traced, std::array<float, 3>& analytic);
 
 class Simulation {
 public:
     // Validates config (throws gammart::Error), resamples surfels, builds the
-    // Embree scene and the surfel kd-tree.
+    // Embree scene and the surfel kd-trees.
     Simulation(const Mesh& mesh, const Config& config);
     ~Simulation();
     Simulation(const Simulation&) = delete;
@@ -49,8 +65,11 @@ public:
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads,
                 float* out_value, float* out_shade) const;
 
-    // Index of the surfel nearest to p.
+    // Index of the surfel nearest to p (any surface).
     uint32_t nearest_surfel(const float p[3]) const;
+    // Index of the surfel of `surface` nearest to p (any surfel if the
+    // surface received none).
+    uint32_t nearest_surfel_of(int surface, const float p[3]) const;
 
     struct Impl;
 
@@ -63,7 +82,6 @@ private:
     SurfelSet surf_;
     std::vector<int32_t> surfel_surface_;
     std::vector<float> rows_;
-    int threads_for(int requested) const;
 };
 
 }  // namespace gammart
