@@ -53,7 +53,8 @@ demo: install
 stain: install
 	$(PY) examples/scenes/make_staircase.py examples/scenes/staircase.obj
 	$(VENV)/bin/gammac run examples/stain-bleeding.gamma --scene examples/scenes/staircase.obj \
-	  --assign chain=Iron --assign '*=Cement' --show rust --iterations 30 --out out/stain-bleeding
+	  --assign chain=Iron --assign '*=Cement' --show rust --view 1,0.7,0.9 \
+	  --iterations 30 --out out/stain-bleeding
 	@echo "Rust bleeding from the chain onto the steps: $(abspath out/stain-bleeding)/renders/"
 
 # Runtime unit tests, built separately with AddressSanitizer + UBSan.

@@ -73,6 +73,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="bind the parts whose object, group, material or file name matches "
                         "PATTERN (default *) to SURFACE; repeatable, first match wins")
     r.add_argument("--down", type=_vector3, metavar="X,Y,Z", help="gravity direction (default 0,-1,0)")
+    r.add_argument("--view", type=_vector3, metavar="X,Y,Z",
+                   help="direction from the scene's centre toward the camera (default -0.6,0.35,1)")
     r.add_argument("--iterations", type=_bounded_int, default=10)
     r.add_argument("--surfels", type=_bounded_int, default=100_000)
     r.add_argument("--tons", type=_bounded_int, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
@@ -132,7 +134,7 @@ def main(argv=None) -> int:
             return EXIT_OK
         from .runner import RunError, RunOptions, run
 
-        opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down,
+        opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down, view=args.view,
                           iterations=args.iterations, surfels=args.surfels, tons=args.tons,
                           seed=args.seed, threads=args.threads,
                           max_interactions=args.max_interactions, show=args.show,

@@ -34,6 +34,7 @@ class RunOptions:
     out: str
     assign: list[str] = field(default_factory=list)   # PATTERN=SURFACE or SURFACE
     down: tuple[float, float, float] | None = None    # None: the scene file's, else -y
+    view: tuple[float, float, float] | None = None    # camera direction from the scene's centre
     iterations: int = 10
     surfels: int = 100_000
     tons: int | None = None
@@ -144,15 +145,22 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
     return cfg
 
 
-def auto_camera(bounds, fov_deg: float = 30.0):
-    """Eye, target and up framing the scene's bounding box from front-left-above (+z front, +y up)."""
+DEFAULT_VIEW = (-0.6, 0.35, 1.0)   # front-left-above for a +z-facing, y-up model
+
+
+def auto_camera(bounds, view=DEFAULT_VIEW, down=(0.0, -1.0, 0.0), fov_deg: float = 30.0):
+    """Eye, target and up framing the scene's bounding box; ``view`` points from
+    the scene's centre toward the camera, "up" is against gravity."""
     lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
     centre = (lo + hi) / 2
     radius = np.linalg.norm(hi - lo) / 2
-    direction = np.array([-0.6, 0.35, 1.0])
+    direction = np.asarray(view, float)
     direction /= np.linalg.norm(direction)
+    up = -np.asarray(down, float) / np.linalg.norm(down)
+    if abs(float(np.dot(up, direction))) > 0.999:   # looking straight along gravity
+        up = np.array([0.0, 0.0, -1.0]) if abs(up[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
     distance = radius / math.sin(math.radians(fov_deg) / 2) * 1.02
-    return tuple(centre + direction * distance), tuple(centre), (0.0, 1.0, 0.0), fov_deg
+    return tuple(centre + direction * distance), tuple(centre), tuple(up), fov_deg
 
 
 class Progress:
@@ -285,7 +293,8 @@ def run(effect: Effect, opts: RunOptions) -> dict:
             progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
                                 f"{rate / 1e3:.0f}k γ-tons/s")
         if shown is not None:
-            render_history(sim, history, shown, out, opts, threads, scene.bounds)
+            camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down)
+            render_history(sim, history, shown, out, opts, threads, camera)
     except OSError as err:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
     summary["rendered"] = shown
@@ -298,7 +307,7 @@ def llvm_version():
     return llvmlite.binding.llvm_version_info
 
 
-def render_history(sim, history, shown, out: Path, opts: RunOptions, threads: int, bounds) -> None:
+def render_history(sim, history, shown, out: Path, opts: RunOptions, threads: int, camera) -> None:
     """One false-colour PNG per iteration, all on the same colour scale
     (non-finite values, which a rule can produce, are left out of the scale)."""
     finite = [h[np.isfinite(h)] for h in history]
@@ -306,7 +315,7 @@ def render_history(sim, history, shown, out: Path, opts: RunOptions, threads: in
     vmin = min(0.0, min((float(f.min()) for f in finite if f.size), default=0.0))
     if vmax <= vmin:
         vmax = vmin + 1.0
-    eye, target, up, fov = auto_camera(bounds)
+    eye, target, up, fov = camera
     for it, values in enumerate(history, start=1):
         values = np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin).astype(np.float32)
         value, shade = sim.render(np.ascontiguousarray(values), eye, target, up,
