@@ -256,6 +256,10 @@ class Effect:
 
 # ---- constant evaluation ----------------------------------------------------------
 
+class UsageError(Exception):
+    """A mistake on the command line rather than in the file (exit status 2)."""
+
+
 class NotConstant(Exception):
     def __init__(self, pos: A.Pos):
         self.pos = pos
@@ -301,6 +305,17 @@ class Unit:
         return None if self.main else SourceFile(self.path, self.source)
 
 
+def _display_path(path: Path) -> str:
+    """A path as a user would write it: relative to the working folder when inside it."""
+    import os
+
+    try:
+        rel = os.path.relpath(path)
+    except ValueError:
+        return str(path)
+    return str(path) if rel.startswith("..") else rel
+
+
 def stdlib_dir() -> Path:
     here = Path(__file__).resolve().parent
     for candidate in (here / "stdlib", here.parent.parent / "stdlib"):
@@ -318,6 +333,7 @@ class _Checker:
         self.diags: list[Diagnostic] = []
         self.warnings: list[Diagnostic] = []
         self.unit = Unit(module.path, module.source, module, main=True)
+        self.unknown_overrides: list[str] = []
 
     def error(self, pos: A.Pos, message: str) -> None:
         diag = Diagnostic(pos, message, file=self.unit.file)
@@ -336,6 +352,7 @@ class _Checker:
         from .parser import parse
 
         self.unit = unit
+        self.evaluate_params(unit, overrides)   # first: import arguments may use them
         for d in unit.module.decls:
             if not isinstance(d, A.ImportDecl):
                 continue
@@ -346,7 +363,7 @@ class _Checker:
             if str(found) in chain:
                 self.error(d.pos, f"'{d.path}' imports itself (through {' -> '.join(Path(c).name for c in chain)})")
                 continue
-            if any(u.path == str(found) for u in units):
+            if any(u.path == _display_path(found) for u in units):
                 self.error(d.pos, f"'{d.path}' is imported twice")
                 continue
             args = {}
@@ -362,18 +379,17 @@ class _Checker:
                 self.error(d.pos, f"cannot read '{d.path}': {err}")
                 continue
             try:
-                module = parse(text, str(found))
+                module = parse(text, _display_path(found))
             except GammaError as err:
                 from .diagnostics import SourceFile
 
-                self.diags += [Diagnostic(x.pos, x.message, x.severity, SourceFile(str(found), text))
+                self.diags += [Diagnostic(x.pos, x.message, x.severity, SourceFile(_display_path(found), text))
                                for x in err.diagnostics]
                 continue
-            child = Unit(str(found), text, module, main=False)
+            child = Unit(_display_path(found), text, module, main=False)
             self.load_units(child, args, chain + (str(found),), units)
             self.unit = unit
         self.unit = unit
-        self.evaluate_params(unit, overrides)
         units.append(unit)
 
     def resolve_import(self, unit: Unit, d: A.ImportDecl) -> Path | None:
@@ -393,6 +409,9 @@ class _Checker:
                 self.error(d.pos, f"parameter '{d.name}' is already declared at line "
                            f"{unit.param_pos[d.name].line}")
                 continue
+            if d.name in CONTEXT_VALUES or d.name in FUNCTIONS or d.name in ("down", "up"):
+                self.error(d.pos, f"'{d.name}' is a built-in name; a parameter needs another")
+                continue
             value = self.constant(d.value, f"the value of parameter '{d.name}'")
             if d.name in overrides:
                 value = overrides[d.name][0]
@@ -403,8 +422,8 @@ class _Checker:
             if name not in unit.params:
                 where = Path(unit.path).name
                 if unit.main:
-                    self.error(A.Pos(1, 1), f"--param {name}: {where} has no parameter '{name}'"
-                               f"{did_you_mean(name, unit.params)}")
+                    self.unknown_overrides.append(f"--param {name}: {where} has no parameter "
+                                                  f"'{name}'{did_you_mean(name, unit.params)}")
                 else:
                     self.diags.append(Diagnostic(pos, f"{where} has no parameter '{name}'"
                                                  f"{did_you_mean(name, unit.params)}"))
@@ -479,6 +498,8 @@ class _Checker:
             elif isinstance(d, A.UpdateDecl):
                 self.update(d, surfaces, tons, kernels)
         self.unit = main
+        if self.unknown_overrides:
+            raise UsageError(self.unknown_overrides[0])
         width = abi.ROW_HEADER + max((len(s.properties) for s in surfaces.values()), default=0)
         if self.diags:
             raise GammaError(self.module.path, self.module.source, self.diags)
@@ -638,7 +659,8 @@ class _Checker:
                     ok = False
                     continue
                 if i >= len(spec):
-                    self.error(arg.pos, f"{d.kind}() takes at most {len(spec)} arguments")
+                    self.error(arg.pos, f"{d.kind}() takes at most {len(spec)} "
+                               f"argument{'s' if len(spec) > 1 else ''}")
                     ok = False
                     continue
                 name = names[i]

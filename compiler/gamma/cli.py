@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .checker import UsageError
 from .diagnostics import GammaError
 
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
@@ -59,6 +60,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a parameter of the effect")
     e = sub.add_parser("emit", help="print the compiled form of an effect")
     e.add_argument("file")
+    e.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
+                   help="override a parameter of the effect")
     what = e.add_mutually_exclusive_group(required=True)
     what.add_argument("--ir", action="store_const", dest="what", const="ir", help="LLVM IR as generated")
     what.add_argument("--ir-opt", action="store_const", dest="what", const="ir-opt", help="LLVM IR after optimisation")
@@ -154,6 +157,9 @@ def main(argv=None) -> int:
     except _Fail as err:
         print(f"gammac: error: {err}", file=sys.stderr)
         return EXIT_INPUT
+    except UsageError as err:
+        print(f"gammac: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
         print("gammac: interrupted", file=sys.stderr)
         return 130

@@ -264,6 +264,7 @@ def run(effect: Effect, opts: RunOptions) -> dict:
                      "llvm": ".".join(map(str, llvm_version())),
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
+        "rendered": shown,
         "iterations": [],
     }
     history = []
@@ -297,7 +298,6 @@ def run(effect: Effect, opts: RunOptions) -> dict:
             render_history(sim, history, shown, out, opts, threads, camera)
     except OSError as err:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
-    summary["rendered"] = shown
     return summary
 
 
