@@ -10,13 +10,13 @@ surface Copper { reflectance straight = 0.5  property patina = 0.0, grime = 0.5 
 source air = environment(sphere) emits Weather count 30000
 source drip = point(0, 1, 0) emits Weather count 10000
 on hit(t: Weather, s: Copper) {
-    t.grime += 0.1 * s.grime
+    t.grime += 0.1 * s.grime * random()
     s.grime -= 0.01 * s.grime
 }
 on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina + 0.01 * t.grime }
 update(s: Copper) {
     s.reflectance.straight = clamp(0.5 + s.patina, 0, 1)
-    s.grime = max(s.grime, 0)
+    s.grime = max(s.grime, 0) + 0.001 * random()
 }
 """
 

@@ -7,8 +7,8 @@ from conftest import ROOT, run_gammac
 PATINA = ROOT / "examples" / "patina.gamma"
 
 
-@pytest.mark.parametrize("flag,needle", [("--ir", "define external void @\"gamma.settle.Weather.Copper\""),
-                                         ("--ir-opt", "define void @gamma.settle.Weather.Copper("),
+@pytest.mark.parametrize("flag,needle", [("--ir", "define external i32 @\"gamma.settle.Weather.Copper\""),
+                                         ("--ir-opt", "i32 @gamma.settle.Weather.Copper("),
                                          ("--asm", "gamma.settle.Weather.Copper:")])
 def test_emit(flag, needle):
     r = run_gammac("emit", flag, PATINA)
@@ -20,3 +20,9 @@ def test_ir_points_back_to_the_source():
     r = run_gammac("emit", "--ir", PATINA)
     line = next(i for i, l in enumerate(PATINA.read_text().splitlines(), 1) if "s.patina +=" in l)
     assert f"; {line}:5: s.patina += ..." in r.stdout
+
+
+def test_emit_ast_shows_positions():
+    r = run_gammac("emit", "--ast", PATINA)
+    assert r.returncode == 0, r.stderr
+    assert "TonDecl @" in r.stdout and "RuleDecl @" in r.stdout and "event: 'settle'" in r.stdout

@@ -19,15 +19,22 @@ from gamma.interp import Context, run_kernel
 from gamma.parser import parse
 
 
+_CTYPE = {"float": ctypes.c_float, "int32_t": ctypes.c_int32, "uint32_t": ctypes.c_uint32}
+
+
 class GammaContext(ctypes.Structure):
-    _fields_ = [(name, (ctypes.c_float if t == "float" else ctypes.c_int32) * n if n > 1
-                 else (ctypes.c_float if t == "float" else ctypes.c_int32))
-                for name, t, n in abi.CONTEXT_FIELDS]
+    """Built from abi.CONTEXT_FIELDS, like the C header and the LLVM type."""
+
+    _fields_ = [(name, _CTYPE[t] * n if n > 1 else _CTYPE[t]) for name, t, n in abi.CONTEXT_FIELDS]
+
+
+def set_key(ctx, key: int) -> None:
+    ctx.random_key[0], ctx.random_key[1] = key & 0xFFFFFFFF, key >> 32
 
 
 FLOAT_P = ctypes.POINTER(ctypes.c_float)
-TRANSPORT = ctypes.CFUNCTYPE(None, FLOAT_P, FLOAT_P, FLOAT_P, ctypes.POINTER(GammaContext))
-UPDATE = ctypes.CFUNCTYPE(None, FLOAT_P, ctypes.POINTER(GammaContext))
+TRANSPORT = ctypes.CFUNCTYPE(ctypes.c_int32, FLOAT_P, FLOAT_P, FLOAT_P, ctypes.POINTER(GammaContext))
+UPDATE = ctypes.CFUNCTYPE(ctypes.c_int32, FLOAT_P, ctypes.POINTER(GammaContext))
 
 HEADER = """
 ton T { motion straight = 0.5 carry a = 1, b = 2 }
@@ -47,7 +54,9 @@ def random_expr(rng, names, depth=0):
         return f"({random_expr(rng, names, depth + 1)} {op} {random_expr(rng, names, depth + 1)})"
     if pick < 0.85:
         return f"-{random_expr(rng, names, depth + 1)}"
-    fn = rng.choice(["min", "max", "clamp"])
+    fn = rng.choice(["min", "max", "clamp", "random"])
+    if fn == "random":
+        return "random()"
     n = 3 if fn == "clamp" else rng.choice([2, 3])
     return f"{fn}({', '.join(random_expr(rng, names, depth + 1) for _ in range(n))})"
 
@@ -94,22 +103,25 @@ def test_compiled_matches_interpreter(seed):
         surf = (data.standard_normal(effect.row_width) * scale).astype(np.float32)
         it, n = int(data.integers(1, 50)), int(data.integers(1, 10))
         vec = data.standard_normal((4, 3)).astype(np.float32)
+        key = int(data.integers(0, 2**63)) * 2 + 1
         ctx = GammaContext(iteration=it, interactions=n, height=float(vec[3, 0]),
                            position=(ctypes.c_float * 3)(*vec[0]), normal=(ctypes.c_float * 3)(*vec[1]),
                            direction=(ctypes.c_float * 3)(*vec[2]))
+        set_key(ctx, key)
         ictx = Context(iteration=it, interactions=n, height=vec[3, 0], position=vec[0],
-                       normal=vec[1], direction=vec[2])
+                       normal=vec[1], direction=vec[2], random_key=key)
 
         ton_c, delta_c = ton.copy(), np.zeros_like(surf)
-        hit_fn(ptr(ton_c), ptr(surf), ptr(delta_c), ctypes.byref(ctx))
+        bad_c = hit_fn(ptr(ton_c), ptr(surf), ptr(delta_c), ctypes.byref(ctx))
         ton_i, delta_i = ton.copy(), np.zeros_like(surf)
-        run_kernel(hit, ton_i, surf.copy(), delta_i, ictx)
+        bad_i = run_kernel(hit, ton_i, surf.copy(), delta_i, ictx)
         assert same(ton_c, ton_i) and same(delta_c, delta_i), (text, trial, ton, surf)
+        assert bad_c == bad_i, (text, bad_c, bad_i)
 
         surf_c, surf_i = surf.copy(), surf.copy()
-        upd_fn(ptr(surf_c), ctypes.byref(ctx))
-        run_kernel(upd, None, surf_i, None, ictx)
-        assert same(surf_c, surf_i), (text, trial, surf)
+        bad_c = upd_fn(ptr(surf_c), ctypes.byref(ctx))
+        bad_i = run_kernel(upd, None, surf_i, None, ictx)
+        assert same(surf_c, surf_i) and bad_c == bad_i, (text, trial, surf)
 
 
 def test_transport_never_writes_its_read_only_row():
@@ -123,3 +135,31 @@ def test_transport_never_writes_its_read_only_row():
     assert list(surf) == [0.25, 0, 0, 5, 1]          # start-of-iteration state untouched
     assert list(delta) == [0, 0, 0, 1, 0]             # the write became a delta
     assert ton[0] == 5                                # reads see the start-of-iteration value
+
+
+def test_random_is_a_function_of_key_and_site():
+    effect = check(parse(HEADER + "on hit(t: T, s: S) { t.a = random()  t.b = random() }", "r.gamma"))
+    jit = JitKernels(effect)          # keeps the code alive while fn is used
+    fn = TRANSPORT(jit.address[effect.kernels[0].symbol])
+    values = []
+    for key in (1, 1, 2):
+        ctx, ton = GammaContext(), np.zeros(2, np.float32)
+        set_key(ctx, key)
+        fn(ptr(ton), ptr(np.zeros(4, np.float32)), ptr(np.zeros(4, np.float32)), ctypes.byref(ctx))
+        values.append(tuple(ton))
+        assert tuple(ton) == (np.float32(abi.random_value(key, 0)), np.float32(abi.random_value(key, 1)))
+    assert values[0] == values[1] and values[0] != values[2] and values[0][0] != values[0][1]
+    assert all(0 <= v < 1 for v in values[0] + values[2])
+
+
+def test_non_finite_results_are_not_stored_and_reported():
+    effect = check(parse(HEADER + "on hit(t: T, s: S) { t.a = 1\n t.b = t.a / 0\n s.p += 0 * t.b\n t.a = 2 }",
+                         "n.gamma"))
+    kernel = effect.kernels[0]
+    jit = JitKernels(effect)
+    fn = TRANSPORT(jit.address[kernel.symbol])
+    ton, delta = np.array([5, 7], np.float32), np.zeros(4, np.float32)
+    bad = fn(ptr(ton), ptr(np.zeros(4, np.float32)), ptr(delta), ctypes.byref(GammaContext()))
+    assert bad == 2                                   # the first statement giving inf
+    assert list(ton) == [2, 7]                        # t.b kept its value; later statements ran
+    assert kernel.statement_at(bad)[1].target.parts == ["t", "b"]

@@ -15,7 +15,7 @@ from gamma.backend import JitKernels
 from gamma.checker import FUNCTIONS, check
 from gamma.interp import Context, run_kernel
 from gamma.parser import parse
-from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, ptr, same
+from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, ptr, same, set_key
 
 READS = ["t.a", "t.b", "s.p", "s.q", "s.reflectance.straight", "iteration", "interactions",
          "height", "position.y", "normal.x", "direction.z"]
@@ -31,9 +31,9 @@ def floats(names):
     leaf = st.one_of(numbers(), st.sampled_from(names))
 
     def grow(inner):
+        most = lambda name: 3 if FUNCTIONS[name][1] is None else FUNCTIONS[name][1]
         fn = st.sampled_from(sorted(FUNCTIONS)).flatmap(
-            lambda name: st.lists(inner, min_size=FUNCTIONS[name][0],
-                                  max_size=FUNCTIONS[name][1] or 3).map(
+            lambda name: st.lists(inner, min_size=FUNCTIONS[name][0], max_size=most(name)).map(
                 lambda args: f"{name}({', '.join(args)})"))
         binary = st.tuples(inner, st.sampled_from("+-*/"), inner).map(lambda t: f"({t[0]} {t[1]} {t[2]})")
         return st.one_of(binary, inner.map(lambda x: f"-{x}"), fn)
@@ -97,14 +97,16 @@ def test_random_bodies_agree(hit, upd, seed):
         ctx = GammaContext(iteration=it, interactions=n, height=float(vec[9]),
                            position=(ctypes.c_float * 3)(*vec[0:3]), normal=(ctypes.c_float * 3)(*vec[3:6]),
                            direction=(ctypes.c_float * 3)(*vec[6:9]))
+        key = int(rng.integers(0, 2**63))
+        set_key(ctx, key)
         ictx = Context(iteration=it, interactions=n, height=vec[9], position=vec[0:3],
-                       normal=vec[3:6], direction=vec[6:9])
+                       normal=vec[3:6], direction=vec[6:9], random_key=key)
         ton_c, delta_c = ton.copy(), np.zeros_like(surf)
-        hit_fn(ptr(ton_c), ptr(surf), ptr(delta_c), ctypes.byref(ctx))
+        bad_c = hit_fn(ptr(ton_c), ptr(surf), ptr(delta_c), ctypes.byref(ctx))
         ton_i, delta_i = ton.copy(), np.zeros_like(surf)
-        run_kernel(hit_k, ton_i, surf.copy(), delta_i, ictx)
-        assert same(ton_c, ton_i) and same(delta_c, delta_i), (text, ton, surf)
+        bad_i = run_kernel(hit_k, ton_i, surf.copy(), delta_i, ictx)
+        assert same(ton_c, ton_i) and same(delta_c, delta_i) and bad_c == bad_i, (text, ton, surf)
         surf_c, surf_i = surf.copy(), surf.copy()
-        upd_fn(ptr(surf_c), ctypes.byref(ctx))
-        run_kernel(upd_k, None, surf_i, None, ictx)
-        assert same(surf_c, surf_i), (text, surf)
+        bad_c = upd_fn(ptr(surf_c), ctypes.byref(ctx))
+        bad_i = run_kernel(upd_k, None, surf_i, None, ictx)
+        assert same(surf_c, surf_i) and bad_c == bad_i, (text, surf)

@@ -76,3 +76,22 @@ def test_no_temporary_files_left(patina_run):
 def test_progress_is_shown(patina_run):
     _, r = patina_run
     assert "3/3" in r.stderr and "γ-tons/s" in r.stderr
+
+
+def test_non_finite_results_are_reported_once_and_kept_out_of_the_maps(tmp_path, bumpy_obj):
+    (tmp_path / "nan.gamma").write_text(
+        "ton T { motion straight = 0.5 carry a = 1 }\nsurface S { property p = 0, q = 0 }\n"
+        "source s = environment(sphere) emits T count 5000\n"
+        "on settle(t: T, s: S) {\n    s.p += t.a\n    s.q += t.a / (s.p - s.p)\n}\n")
+    r = run_gammac("run", tmp_path / "nan.gamma", "--scene", bumpy_obj, "--surfels", 500,
+                   "--iterations", 2, "--size", 32, "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    warnings = [line for line in r.stderr.splitlines() if "NaN or infinity" in line]
+    assert len(warnings) == 1 and "nan.gamma:6:5" in warnings[0]
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    settled = sum(it["settled"] for it in summary["iterations"])
+    assert summary["nonfinite"] == [{"where": str(tmp_path / "nan.gamma") + ":6:5",
+                                     "rule": "on settle(T, S)", "count": settled,
+                                     "first_iteration": 1}]
+    cols = read_ply(tmp_path / "o" / "maps" / "iter_0002.ply")
+    assert np.all(np.isfinite(cols["q"])) and np.all(cols["q"] == 0) and cols["p"].sum() > 0

@@ -15,7 +15,7 @@ import sys
 
 #: Bumped whenever anything below changes; ``runner.runtime_module`` refuses a
 #: runtime built for another version.
-ABI_VERSION = 2
+ABI_VERSION = 3
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -37,9 +37,10 @@ CONTEXT_FIELDS = (
     ("height", "float", 1),         # height of position above the scene's lowest point, along "up"
     ("iteration", "int32_t", 1),    # 1-based iteration number (iter_0001 is the first)
     ("interactions", "int32_t", 1), # interactions of this gamma-ton so far, this one included
+    ("random_key", "uint32_t", 2),  # low, high word of the key of random() for this call
 )
 
-_C_SIZE = {"float": 4, "int32_t": 4}
+_C_SIZE = {"float": 4, "int32_t": 4, "uint32_t": 4}
 
 
 def context_offsets() -> dict[str, int]:
@@ -57,12 +58,34 @@ CONTEXT_SIZE = sum(_C_SIZE[t] * n for _, t, n in CONTEXT_FIELDS)
 #: (read/write), the surfel's row as it was at the start of the iteration
 #: (read-only) and a zeroed delta row the runtime adds to the surfel after the
 #: tracing pass.  Update kernels get the surfel's row in place.
+#: Both return 0, or the 1-based number of the first statement (in the
+#: kernel's order, see ``Kernel.statements``) whose result was NaN or
+#: infinite: that store was skipped, and the runtime counts the event.
 TRANSPORT_SIGNATURE = (
-    "void",
+    "int32_t",
     (("float*", "ton"), ("const float*", "surf"), ("float*", "surf_delta"),
      ("const GammaContext*", "ctx")),
 )
-UPDATE_SIGNATURE = ("void", (("float*", "surf"), ("const GammaContext*", "ctx")))
+UPDATE_SIGNATURE = ("int32_t", (("float*", "surf"), ("const GammaContext*", "ctx")))
+
+#: random(): the key in the context, mixed with the call site's number
+#: (0, 1, ... in source order within the kernel), gives 24 random bits.
+RANDOM_GOLDEN = 0x9E3779B97F4A7C15
+RANDOM_MIX = (0xBF58476D1CE4E5B9, 0x94D049BB133111EB)  # splitmix64 finaliser
+
+
+def mix64(z: int) -> int:
+    """splitmix64's finaliser; the C++ runtime and the generated code use the same."""
+    m = 0xFFFFFFFFFFFFFFFF
+    z = (z + RANDOM_GOLDEN) & m
+    z = ((z ^ (z >> 30)) * RANDOM_MIX[0]) & m
+    z = ((z ^ (z >> 27)) * RANDOM_MIX[1]) & m
+    return z ^ (z >> 31)
+
+
+def random_value(key: int, site: int) -> float:
+    """The value of the ``site``-th random() call for a context key, in [0, 1)."""
+    return (mix64(key ^ (site * RANDOM_GOLDEN & 0xFFFFFFFFFFFFFFFF)) >> 40) * 2.0 ** -24
 
 
 def c_header() -> str:
@@ -84,6 +107,9 @@ def c_header() -> str:
     for name, ctype, count in CONTEXT_FIELDS:
         lines.append(f"    {ctype} {name}{f'[{count}]' if count > 1 else ''};")
     lines.append("} GammaContext;")
+    lines.append(f"#define GAMMA_RANDOM_GOLDEN {RANDOM_GOLDEN:#x}ULL")
+    lines.append(f"#define GAMMA_RANDOM_MIX0 {RANDOM_MIX[0]:#x}ULL")
+    lines.append(f"#define GAMMA_RANDOM_MIX1 {RANDOM_MIX[1]:#x}ULL")
     for name, off in context_offsets().items():
         lines.append(f"static_assert(offsetof(GammaContext, {name}) == {off}, \"GammaContext layout\");")
     lines.append(f"static_assert(sizeof(GammaContext) == {CONTEXT_SIZE}, \"GammaContext size\");")

@@ -217,3 +217,32 @@ class Module:
     path: str
     source: str
     decls: list[Decl]
+
+
+def dump(node, indent: int = 0) -> str:
+    """A readable tree of the AST (``gammac emit --ast``), positions as line:col."""
+    import dataclasses
+
+    pad = "  " * indent
+    if isinstance(node, list):
+        if not node:
+            return "[]"
+        return "\n".join(f"{pad}- {dump(item, indent + 1).lstrip()}" for item in node)
+    if not dataclasses.is_dataclass(node) or isinstance(node, Pos):
+        return repr(node)
+    pos = getattr(node, "pos", None)
+    head = type(node).__name__ + (f" @{pos.line}:{pos.col}" if isinstance(pos, Pos) else "")
+    lines = [pad + head]
+    for f in dataclasses.fields(node):
+        if f.name in ("pos", "source") or f.name.endswith("_pos"):
+            continue
+        value = getattr(node, f.name)
+        if isinstance(value, list) and value and dataclasses.is_dataclass(value[0]):
+            lines.append(f"{pad}  {f.name}:")
+            lines.append(dump(value, indent + 2))
+        elif dataclasses.is_dataclass(value):
+            lines.append(f"{pad}  {f.name}:")
+            lines.append(dump(value, indent + 2))
+        else:
+            lines.append(f"{pad}  {f.name}: {value!r}")
+    return "\n".join(lines)

@@ -32,7 +32,7 @@ CONTEXT_VALUES = {
 #: Built-in functions: name -> (fewest, most arguments); all take and give numbers.
 FUNCTIONS = {"min": (2, None), "max": (2, None), "clamp": (3, 3), "mix": (3, 3),
              "smoothstep": (3, 3), "abs": (1, 1), "sqrt": (1, 1), "exp": (1, 1), "log": (1, 1),
-             "pow": (2, 2), "floor": (1, 1), "fract": (1, 1)}
+             "pow": (2, 2), "floor": (1, 1), "fract": (1, 1), "random": (0, 0)}
 RESERVED_PROPERTY_NAMES = {"x", "y", "z", "nx", "ny", "nz", "surface", "reflectance", "motion"}
 MAX_COUNT = 1e12  # gamma-tons per source and iteration
 REQUIRED = object()
@@ -129,6 +129,7 @@ class Scope:
     surf_param: str
     surface: Surface
     params: dict = field(default_factory=dict)   # parameters of the rule's file
+    origin: str = ""                             # path of the rule's file
 
     def resolve(self, ref: A.Ref, lets=()) -> Slot | str:
         """A Slot, or an error message (only the checker ever sees those).
@@ -218,10 +219,61 @@ class Kernel:
             return f"gamma.update.{self.surface.name}"
         return f"gamma.{self.event}.{self.ton.name}.{self.surface.name}"
 
+    def statement_numbers(self) -> dict[int, int]:
+        """id(Assign) -> its 1-based number, the one a kernel returns when the
+        statement's result is NaN or infinite.  A body shared by several
+        kernels (a wildcard rule) is numbered per kernel, in the same order."""
+        return {id(st): n for n, st in enumerate(
+            (st for _, body in self.bodies for st in assignments(body)), start=1)}
+
+    def statement_at(self, number: int) -> tuple[Scope, A.Assign]:
+        found = [(scope, st) for scope, body in self.bodies for st in assignments(body)]
+        return found[number - 1]
+
+    def random_sites(self) -> dict[int, int]:
+        """id(Call random()) -> its site number (0, 1, ...) in source order."""
+        sites: dict[int, int] = {}
+
+        def walk(node):
+            if isinstance(node, A.Call) and node.name == "random":
+                sites[id(node)] = len(sites)
+            for child in _children(node):
+                walk(child)
+
+        for _, body in self.bodies:
+            walk_statements(body, walk)
+        return sites
+
     @property
     def writes_surface(self) -> bool:
         return any(scope.resolve(st.target).space == "surf"
                    for scope, body in self.bodies for st in assignments(body))
+
+
+def _children(node) -> list:
+    if isinstance(node, (A.Unary,)):
+        return [node.operand]
+    if isinstance(node, (A.Binary, A.Compare)):
+        return [node.left, node.right]
+    if isinstance(node, A.Logic):
+        return [node.left] + ([node.right] if node.right is not None else [])
+    if isinstance(node, A.Call):
+        return list(node.args)
+    return []
+
+
+def walk_statements(body: list, visit) -> None:
+    """Call ``visit`` on every top-level expression of the body, in execution order
+    (a condition, then its branches; a statement's value before its target)."""
+    for st in body:
+        if isinstance(st, A.Let):
+            visit(st.value)
+        elif isinstance(st, A.If):
+            visit(st.cond)
+            walk_statements(st.then, visit)
+            walk_statements(st.otherwise, visit)
+        else:
+            visit(st.value)
 
 
 def assignments(body: list) -> list[A.Assign]:
@@ -765,14 +817,15 @@ class _Checker:
             return
         for ton in ton_types:
             for surf in surfs:
-                scope = Scope("transport", d.ton.name, ton, d.surface.name, surf, self.unit.params)
+                scope = Scope("transport", d.ton.name, ton, d.surface.name, surf, self.unit.params,
+                              self.unit.path)
                 self.body(scope, d.body)
                 key = (d.event, ton.index, surf.index)
                 kernels.setdefault(key, Kernel(d.event, ton, surf)).bodies.append((scope, d.body))
 
     def update(self, d: A.UpdateDecl, surfaces, tons, kernels) -> None:
         for surf in self.param(d.surface, surfaces, tons, "surface", "ton type"):
-            scope = Scope("update", None, None, d.surface.name, surf, self.unit.params)
+            scope = Scope("update", None, None, d.surface.name, surf, self.unit.params, self.unit.path)
             self.body(scope, d.body)
             kernels.setdefault(("update", surf.index), Kernel("update", None, surf)).bodies.append(
                 (scope, d.body))

@@ -63,9 +63,15 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                    help="override a parameter of the effect")
     what = e.add_mutually_exclusive_group(required=True)
+    what.add_argument("--ast", action="store_const", dest="what", const="ast", help="the syntax tree")
     what.add_argument("--ir", action="store_const", dest="what", const="ir", help="LLVM IR as generated")
     what.add_argument("--ir-opt", action="store_const", dest="what", const="ir-opt", help="LLVM IR after optimisation")
     what.add_argument("--asm", action="store_const", dest="what", const="asm", help="native assembly")
+    f = sub.add_parser("fmt", help="print an effect in canonical layout (comments kept)")
+    f.add_argument("file")
+    how = f.add_mutually_exclusive_group()
+    how.add_argument("--write", "-w", action="store_true", help="rewrite the file in place")
+    how.add_argument("--check", action="store_true", help="exit 1 if the file is not formatted")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
     r.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
@@ -116,9 +122,39 @@ class _Fail(Exception):
     pass
 
 
+def _fmt(args) -> int:
+    from pathlib import Path
+
+    from .fmt import format_source
+    from .outputs import atomic_write
+
+    try:
+        text = Path(args.file).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise _Fail(f"cannot read '{args.file}': file not found") from None
+    except UnicodeDecodeError:
+        raise _Fail(f"cannot read '{args.file}': it is not UTF-8 text") from None
+    except OSError as err:
+        raise _Fail(f"cannot read '{args.file}': {err.strerror or err}") from None
+    formatted = format_source(text, args.file)
+    if args.check:
+        if formatted != text:
+            print(f"{args.file}: not in canonical layout (gammac fmt --write {args.file})", file=sys.stderr)
+            return EXIT_INPUT
+        return EXIT_OK
+    if args.write:
+        if formatted != text:
+            atomic_write(Path(args.file), formatted.encode("utf-8"))
+        return EXIT_OK
+    sys.stdout.write(formatted)
+    return EXIT_OK
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
+        if args.command == "fmt":
+            return _fmt(args)
         effect = _load(args.file, getattr(args, "param", ()))
         if args.command == "check":
             return EXIT_OK
@@ -126,6 +162,12 @@ def main(argv=None) -> int:
             from .backend import assembly, compile_ir
             from .codegen import generate
 
+            if args.what == "ast":
+                from .ast import dump
+                from .parser import parse
+
+                sys.stdout.write(dump(parse(effect.source, effect.path).decls) + "\n")
+                return EXIT_OK
             module = generate(effect)
             if args.what == "ir":
                 text = str(module)

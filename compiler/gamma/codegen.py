@@ -22,13 +22,14 @@ F32 = ir.FloatType()
 I32 = ir.IntType(32)
 PTR = ir.PointerType()
 
-_CTYPES = {"float": F32, "int32_t": I32}
+_CTYPES = {"float": F32, "int32_t": I32, "uint32_t": I32}
 CONTEXT_TYPE = ir.LiteralStructType(
     [ir.ArrayType(_CTYPES[t], n) if n > 1 else _CTYPES[t] for _, t, n in abi.CONTEXT_FIELDS])
 _CONTEXT_INDEX = {name: i for i, (name, _, _) in enumerate(abi.CONTEXT_FIELDS)}
 
-TRANSPORT_FNTY = ir.FunctionType(ir.VoidType(), [PTR, PTR, PTR, PTR])
-UPDATE_FNTY = ir.FunctionType(ir.VoidType(), [PTR, PTR])
+I64 = ir.IntType(64)
+TRANSPORT_FNTY = ir.FunctionType(I32, [PTR, PTR, PTR, PTR])
+UPDATE_FNTY = ir.FunctionType(I32, [PTR, PTR])
 
 
 class _KernelBuilder:
@@ -50,6 +51,11 @@ class _KernelBuilder:
             arg.add_attribute("noalias")
         self.b = ir.IRBuilder(fn.append_basic_block("entry"))
         self.scope: Scope | None = None
+        self.numbers = kernel.statement_numbers()
+        self.sites = kernel.random_sites()
+        self.first_bad = self.b.alloca(I32, name="first_bad")  # see abi.TRANSPORT_SIGNATURE
+        self.b.store(ir.Constant(I32, 0), self.first_bad)
+        self.random_key = None
 
     def _intrinsic(self, name: str, arity: int = 2):
         return self.module.declare_intrinsic(name, [F32], ir.FunctionType(F32, [F32] * arity))
@@ -131,6 +137,33 @@ class _KernelBuilder:
             return b.call(self._libm(name + "f", len(args)), args)
         raise AssertionError(f"unchecked function {name}")
 
+    def key(self):
+        """The context's 64-bit random() key, loaded once per kernel call."""
+        if self.random_key is None:
+            # in the entry block (before its terminator, if any): dominates every use
+            with self.b.goto_block(self.b.function.entry_basic_block):
+                index = _CONTEXT_INDEX["random_key"]
+                words = []
+                for k in range(2):
+                    ptr = self.b.gep(self.ctx, [ir.Constant(I32, 0), ir.Constant(I32, index),
+                                                ir.Constant(I32, k)], inbounds=True, source_etype=CONTEXT_TYPE)
+                    words.append(self.b.zext(self.b.load(ptr, typ=I32), I64))
+                high = self.b.shl(words[1], ir.Constant(I64, 32))
+                self.random_key = self.b.or_(high, words[0])
+        return self.random_key
+
+    def random(self, site: int):
+        """abi.random_value(key, site): splitmix64 of key ^ site * golden, top 24 bits."""
+        b = self.b
+        c = lambda v: ir.Constant(I64, v & 0xFFFFFFFFFFFFFFFF)
+        z = b.xor(self.key(), c(site * abi.RANDOM_GOLDEN))
+        z = b.add(z, c(abi.RANDOM_GOLDEN))
+        z = b.mul(b.xor(z, b.lshr(z, c(30))), c(abi.RANDOM_MIX[0]))
+        z = b.mul(b.xor(z, b.lshr(z, c(27))), c(abi.RANDOM_MIX[1]))
+        z = b.xor(z, b.lshr(z, c(31)))
+        bits = b.trunc(b.lshr(z, c(40)), I32)
+        return b.fmul(b.uitofp(bits, F32), ir.Constant(F32, 2.0 ** -24))
+
     def expr(self, e: A.Expr, lets: dict):
         b = self.b
         if isinstance(e, A.Number):
@@ -155,6 +188,8 @@ class _KernelBuilder:
             right = self.expr(e.right, lets)
             return b.and_(left, right) if e.op == "and" else b.or_(left, right)
         if isinstance(e, A.Call):
+            if e.name == "random":
+                return self.random(self.sites[id(e)])
             return self.call(e.name, [self.expr(a, lets) for a in e.args])
         raise AssertionError(f"unchecked expression {e!r}")
 
@@ -171,7 +206,16 @@ class _KernelBuilder:
         else:
             old = b.load(ptr, typ=F32)
             new = {"+=": b.fadd, "-=": b.fsub, "*=": b.fmul}[st.op](old, value)
-        b.store(new, ptr)
+        # A NaN or infinite result is not stored; the first such statement is returned.
+        finite = b.fcmp_ordered("!=", b.call(self._intrinsic("llvm.fabs", 1), [new]),
+                                ir.Constant(F32, float("inf")))
+        with b.if_else(finite) as (store, skip):
+            with store:
+                b.store(new, ptr)
+            with skip:
+                seen = b.load(self.first_bad, typ=I32)
+                first = b.icmp_signed("==", seen, ir.Constant(I32, 0))
+                b.store(b.select(first, ir.Constant(I32, self.numbers[id(st)]), seen), self.first_bad)
 
     def statements(self, body: list, lets: dict) -> None:
         lets = dict(lets)
@@ -194,7 +238,7 @@ class _KernelBuilder:
         for scope, body in self.kernel.bodies:
             self.scope = scope
             self.statements(body, {})
-        self.b.ret_void()
+        self.b.ret(self.b.load(self.first_bad, typ=I32))
 
 
 def _f32(value: float) -> float:

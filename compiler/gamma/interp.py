@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import ast as A
+from .abi import random_value
 from .checker import Kernel, Scope
 
 f32 = np.float32
@@ -21,7 +22,9 @@ class Context:
     """Values of the read-only context (fields of ``abi.CONTEXT_FIELDS``)."""
 
     def __init__(self, iteration: int = 0, interactions: int = 0, height: float = 0.0,
-                 position=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 0.0)):
+                 position=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 0.0),
+                 random_key: int = 0):
+        self.random_key = random_key
         self.iteration = iteration
         self.interactions = interactions
         self.height = f32(height)
@@ -117,6 +120,8 @@ def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context, lets: dict):
         b = _eval(e.right, scope, ton, surf, ctx, lets)
         return (a and b) if e.op == "and" else (a or b)
     if isinstance(e, A.Call):
+        if e.name == "random":
+            return f32(random_value(ctx.random_key, _STATE.sites[id(e)]))
         return _call(e.name, [_eval(a, scope, ton, surf, ctx, lets) for a in e.args])
     raise AssertionError(f"unchecked expression {e!r}")
 
@@ -134,13 +139,32 @@ def _run(body: list, scope: Scope, ton, surf, delta, ctx: Context, lets: dict, t
             value = _eval(st.value, scope, ton, surf, ctx, lets)
             dest = ton if slot.space == "ton" else (delta if transport else surf)
             old = dest[slot.index]
-            dest[slot.index] = {"=": value, "+=": f32(old + value), "-=": f32(old - value),
-                                "*=": f32(old * value)}[st.op]
+            new = {"=": value, "+=": f32(old + value), "-=": f32(old - value),
+                   "*=": f32(old * value)}[st.op]
+            if np.isfinite(new):
+                dest[slot.index] = new
+            elif not _STATE.first_bad:          # not stored; the first such statement is reported
+                _STATE.first_bad = _STATE.numbers[id(st)]
 
 
-def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context) -> None:
+class _State:
+    """Per-call bookkeeping shared by the helpers above (statement and random()
+    site numbers of the running kernel, the first non-finite statement)."""
+
+    numbers: dict = {}
+    sites: dict = {}
+    first_bad = 0
+
+
+_STATE = _State()
+
+
+def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context) -> int:
     """Run in place, like the compiled kernel: ``ton`` and ``delta`` (transport)
-    or ``surf`` (update) are float32 arrays that get modified."""
+    or ``surf`` (update) are float32 arrays that get modified.  Returns 0 or the
+    number of the first statement whose result was NaN or infinite."""
+    _STATE.numbers, _STATE.sites, _STATE.first_bad = kernel.statement_numbers(), kernel.random_sites(), 0
     with np.errstate(all="ignore"):
         for scope, body in kernel.bodies:
             _run(body, scope, ton, surf, delta, ctx, {}, kernel.ton is not None)
+    return _STATE.first_bad

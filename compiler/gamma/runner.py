@@ -268,19 +268,22 @@ def run(effect: Effect, opts: RunOptions) -> dict:
         "iterations": [],
     }
     history = []
+    report = NonFiniteReport(effect, opts.progress)
+    summary["nonfinite"] = report.entries
     progress = Progress(opts.iterations, opts.progress)
     comments = [f"gamma {__version__}", f"effect {Path(effect.path).name}"]
     try:
         for it in range(1, opts.iterations + 1):
             stats = sim.trace(it)
-            update_seconds = sim.update(it)
+            updated = sim.update(it)
+            report.add(it, stats["nonfinite"], updated["nonfinite"])
             rows = sim.rows()
             props = property_columns(effect, rows, surfel_surface)
             record = {k: stats[k] for k in STAT_KEYS if k in stats}
             record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
                                        for name, col in props.items()}
             record["trace_seconds"] = stats["trace_seconds"]
-            record["update_seconds"] = update_seconds
+            record["update_seconds"] = updated["seconds"]
             summary["iterations"].append(record)
             columns = dict(static, **props)
             for j, name in enumerate(abi.REFLECTANCE_SLOTS):
@@ -299,6 +302,36 @@ def run(effect: Effect, opts: RunOptions) -> dict:
     except OSError as err:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
     return summary
+
+
+class NonFiniteReport:
+    """Statements whose result was NaN or infinite (the kernels skip such
+    stores): each is reported once, on first sight, and counted in summary.json."""
+
+    def __init__(self, effect: Effect, show: bool):
+        self.effect, self.show = effect, show
+        self.entries: list[dict] = []
+        self.by_key: dict = {}
+        self.kernels = {(abi.EVENTS[k.event], k.ton.index, k.surface.index): k
+                        for k in effect.transport_kernels()}
+        self.kernels.update({(-1, 0, k.surface.index): k for k in effect.update_kernels()})
+
+    def add(self, iteration: int, *lists) -> None:
+        for items in lists:
+            for event, ton, surface, statement, count in items:
+                kernel = self.kernels[(event, ton if event >= 0 else 0, surface)]
+                scope, st = kernel.statement_at(statement)
+                where = f"{scope.origin}:{st.target.pos.line}:{st.target.pos.col}"
+                key = (where, kernel.label)
+                if key not in self.by_key:
+                    entry = {"where": where, "rule": kernel.label, "count": 0, "first_iteration": iteration}
+                    self.by_key[key] = entry
+                    self.entries.append(entry)
+                    print(f"\ngammac: warning: {where}: in {kernel.label}, "
+                          f"'{'.'.join(st.target.parts)} {st.op} ...' gave NaN or infinity "
+                          f"{count} times in iteration {iteration}; those results were not stored",
+                          file=sys.stderr)
+                self.by_key[key]["count"] += count
 
 
 def llvm_version():

@@ -42,6 +42,15 @@ I32 as_i32(nb::handle obj) { return nb::cast<I32>(numpy_asarray(obj, "int32")); 
 
 }  // namespace
 
+namespace {
+nb::list nonfinite_list(const std::vector<gammart::NonFinite>& items) {
+    nb::list out;
+    for (const auto& nf : items)
+        out.append(nb::make_tuple(nf.event, nf.ton_type, nf.surface, nf.statement, nf.count));
+    return out;
+}
+}  // namespace
+
 NB_MODULE(_runtime, m) {
     m.doc() = "gamma weathering runtime (gamma-ton tracing)";
     m.attr("ABI_VERSION") = GAMMA_ABI_VERSION;
@@ -213,15 +222,26 @@ NB_MODULE(_runtime, m) {
                  d["drips"] = st.drips;
                  d["segments"] = st.segments;
                  d["trace_seconds"] = st.trace_seconds;
+                 d["nonfinite"] = nonfinite_list(st.nonfinite);
                  return d;
              },
-             "iteration"_a)
+             "iteration"_a,
+             "Trace one iteration; a dict of counters, timings and `nonfinite`: a list of "
+             "(event, ton_type, surface, statement, count).")
         .def("update",
              [](gammart::Simulation& s, int iteration) {
-                 nb::gil_scoped_release nogil;
-                 return s.update(iteration);
+                 gammart::UpdateStats st;
+                 {
+                     nb::gil_scoped_release nogil;
+                     st = s.update(iteration);
+                 }
+                 nb::dict d;
+                 d["seconds"] = st.seconds;
+                 d["nonfinite"] = nonfinite_list(st.nonfinite);
+                 return d;
              },
-             "iteration"_a)
+             "iteration"_a,
+             "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
         .def("raw_raycast",
              [](gammart::Simulation& s, int64_t n_rays, int threads, uint64_t seed) {
                  gammart::RaycastStats st;

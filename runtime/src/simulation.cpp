@@ -1,5 +1,6 @@
 #include "gamma/simulation.h"
 
+#include <mutex>
 #include <embree3/rtcore.h>
 #include <nanoflann.hpp>
 #include <tbb/blocked_range.h>
@@ -58,7 +59,22 @@ struct SourceRt {
 struct TransportSlot {
     GammaTransportKernel fn = nullptr;
     bool writes = false;
+    int event = 0, ton_type = 0, surface = 0;
 };
+
+// splitmix64's finaliser, with the constants of the generated header (the
+// compiled random() uses the same function).
+inline uint64_t mix64(uint64_t z) {
+    z += GAMMA_RANDOM_GOLDEN;
+    z = (z ^ (z >> 30)) * GAMMA_RANDOM_MIX0;
+    z = (z ^ (z >> 27)) * GAMMA_RANDOM_MIX1;
+    return z ^ (z >> 31);
+}
+
+inline void set_random_key(GammaContext& ctx, uint64_t key) {
+    ctx.random_key[0] = uint32_t(key);
+    ctx.random_key[1] = uint32_t(key >> 32);
+}
 
 // Per-chunk log of surface deltas (property columns only) and counters;
 // buffers are reused between iterations (cleared, capacity kept).
@@ -67,6 +83,20 @@ struct ChunkLog {
     std::vector<float> delta;  // W-3 floats per record
     TraceStats st;
 };
+
+}  // namespace
+
+void count_nonfinite(std::vector<NonFinite>& list, int event, int ton_type, int surface,
+                     int statement, int64_t count) {
+    auto key = [](const NonFinite& n) { return std::make_tuple(n.event, n.ton_type, n.surface, n.statement); };
+    NonFinite item{event, ton_type, surface, statement, count};
+    auto at = std::lower_bound(list.begin(), list.end(), item,
+                               [&](const NonFinite& a, const NonFinite& b) { return key(a) < key(b); });
+    if (at != list.end() && key(*at) == key(item)) at->count += count;
+    else list.insert(at, item);
+}
+
+namespace {
 
 double seconds_since(std::chrono::steady_clock::time_point t0) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -434,6 +464,9 @@ Simulation::Simulation(const Mesh& mesh, const Config& config)
         sl.fn = reinterpret_cast<GammaTransportKernel>(static_cast<uintptr_t>(e.address));
         // Only property columns are logged; with none there is nothing to log.
         sl.writes = e.writes_surface && sl.fn && W > GAMMA_ROW_HEADER;
+        sl.event = e.event;
+        sl.ton_type = e.ton_type;
+        sl.surface = e.surface;
     }
     I.update.assign(nsurf, nullptr);
     for (const UpdateEntry& u : c.updates) {
@@ -536,15 +569,20 @@ TraceStats Simulation::trace(int iteration) {
         std::vector<float> delta(size_t(W), 0.0f), scratch(size_t(W), 0.0f);
         const int64_t begin = ci * kChunkSize, end = std::min(total, begin + kChunkSize);
         size_t a = size_t(std::upper_bound(start.begin(), start.end(), begin) - start.begin()) - 1;
-        auto call = [&](const TransportSlot& sl, uint32_t s, const GammaContext& ctx) {
+        // interaction_key: mixed from (seed, iteration, gamma-ton, interaction);
+        // each event's kernel gets its own random() key from it.
+        auto call = [&](const TransportSlot& sl, uint32_t s, GammaContext& ctx, uint64_t interaction_key) {
+            set_random_key(ctx, mix64(interaction_key ^ uint64_t(sl.event)));
+            int32_t bad;
             if (!sl.writes) {
-                sl.fn(carry.data(), rows + size_t(s) * W, scratch.data(), &ctx);
-                return;
+                bad = sl.fn(carry.data(), rows + size_t(s) * W, scratch.data(), &ctx);
+            } else {
+                std::fill(delta.begin() + GAMMA_ROW_HEADER, delta.end(), 0.0f);
+                bad = sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
+                log.surfel.push_back(s);
+                log.delta.insert(log.delta.end(), delta.begin() + GAMMA_ROW_HEADER, delta.end());
             }
-            std::fill(delta.begin() + GAMMA_ROW_HEADER, delta.end(), 0.0f);
-            sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
-            log.surfel.push_back(s);
-            log.delta.insert(log.delta.end(), delta.begin() + GAMMA_ROW_HEADER, delta.end());
+            if (bad) count_nonfinite(st.nonfinite, sl.event, sl.ton_type, sl.surface, bad);
         };
         // Current interaction point.
         V3 p, n, dir;
@@ -627,9 +665,12 @@ TraceStats Simulation::trace(int iteration) {
                                 : xi < c3 ? GAMMA_EVENT_FLOW
                                           : GAMMA_EVENT_SETTLE;
                 const TransportSlot& hit = I.slot(GAMMA_EVENT_HIT, type, surface);
-                if (hit.fn) call(hit, s, ctx);
                 const TransportSlot& ev = I.slot(event, type, surface);
-                if (ev.fn) call(ev, s, ctx);
+                if (hit.fn || ev.fn) {
+                    const uint64_t key = mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(inter));
+                    if (hit.fn) call(hit, s, ctx, key);
+                    if (ev.fn) call(ev, s, ctx, key);
+                }
                 if (event == GAMMA_EVENT_SETTLE) { ++st.settled; break; }
                 if (inter >= max_inter) { ++st.capped; break; }
                 const float* row = rows + size_t(s) * W;
@@ -702,6 +743,8 @@ TraceStats Simulation::trace(int iteration) {
         total_st.bounces += log.st.bounces;
         total_st.drips += log.st.drips;
         total_st.segments += log.st.segments;
+        for (const NonFinite& nf : log.st.nonfinite)
+            count_nonfinite(total_st.nonfinite, nf.event, nf.ton_type, nf.surface, nf.statement, nf.count);
         if (!log.surfel.empty()) any = true;
     }
     if (any && P > 0) {
@@ -739,16 +782,23 @@ TraceStats Simulation::trace(int iteration) {
     return total_st;
 }
 
-double Simulation::update(int iteration) {
+UpdateStats Simulation::update(int iteration) {
     const auto t0 = std::chrono::steady_clock::now();
     const Impl& I = *impl_;
+    UpdateStats result;
     bool any = false;
     for (auto fn : I.update) any = any || fn;
-    if (!any) return seconds_since(t0);
+    if (!any) {
+        result.seconds = seconds_since(t0);
+        return result;
+    }
     const int W = w_;
     float* rows = rows_.data();
+    const uint64_t iteration_key = mix64(mix64(cfg_.seed ^ 0xA5A5A5A5A5A5A5A5ULL) ^ uint64_t(uint32_t(iteration)));
+    std::mutex nonfinite_lock;
     run_with_threads(cfg_.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, n_, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            std::vector<NonFinite> local;
             GammaContext ctx;
             for (size_t i = r.begin(); i < r.end(); ++i) {
                 GammaUpdateKernel fn = I.update[size_t(surfel_surface_[i])];
@@ -761,11 +811,19 @@ double Simulation::update(int iteration) {
                 ctx.height = dot(V3{ctx.position[0], ctx.position[1], ctx.position[2]}, I.up) - I.min_up;
                 ctx.iteration = iteration;
                 ctx.interactions = 0;
-                fn(rows + i * W, &ctx);
+                set_random_key(ctx, mix64(iteration_key ^ uint64_t(i)));
+                if (int32_t bad = fn(rows + i * W, &ctx))
+                    count_nonfinite(local, -1, 0, surfel_surface_[i], bad);
+            }
+            if (!local.empty()) {  // integer counts: the order of merging does not matter
+                std::lock_guard<std::mutex> hold(nonfinite_lock);
+                for (const NonFinite& nf : local)
+                    count_nonfinite(result.nonfinite, nf.event, nf.ton_type, nf.surface, nf.statement, nf.count);
             }
         });
     });
-    return seconds_since(t0);
+    result.seconds = seconds_since(t0);
+    return result;
 }
 
 RaycastStats Simulation::raw_raycast(int64_t n_rays, int threads, uint64_t seed) {

@@ -37,11 +37,11 @@ void record(int ev, const float* ton, const GammaContext* c) {
 void clear_recs() {
     for (auto& v : g_recs) v.clear();
 }
-extern "C" void rec_hit(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_HIT, t, c); }
-extern "C" void rec_reflect(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_REFLECT, t, c); }
-extern "C" void rec_bounce(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_BOUNCE, t, c); }
-extern "C" void rec_flow(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_FLOW, t, c); }
-extern "C" void rec_settle(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_SETTLE, t, c); }
+extern "C" int32_t rec_hit(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_HIT, t, c); return 0; }
+extern "C" int32_t rec_reflect(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_REFLECT, t, c); return 0; }
+extern "C" int32_t rec_bounce(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_BOUNCE, t, c); return 0; }
+extern "C" int32_t rec_flow(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_FLOW, t, c); return 0; }
+extern "C" int32_t rec_settle(float* t, const float*, float*, const GammaContext* c) { record(GAMMA_EVENT_SETTLE, t, c); return 0; }
 
 uint64_t addr(GammaTransportKernel f) { return uint64_t(reinterpret_cast<uintptr_t>(f)); }
 
@@ -362,14 +362,16 @@ TEST(Flow, OverhangDrips) {
 }
 
 // 6. Bit-identical rows and counters at 1, 2 and 4 threads for every source and motion kind.
-extern "C" void k_any(float* ton, const float* surf, float* delta, const GammaContext* ctx) {
+extern "C" int32_t k_any(float* ton, const float* surf, float* delta, const GammaContext* ctx) {
     delta[3] = ton[0] * 0.25f + surf[3] * 0.01f + ctx->height * 1e-3f;
     delta[4] = ctx->position[0] * 1e-3f + ctx->direction[1] * 1e-4f + float(ctx->interactions) * 1e-5f;
     ton[0] = ton[0] * 0.9f + surf[4] * 0.05f;
+    return 0;
 }
-extern "C" void k_up(float* surf, const GammaContext* ctx) {
+extern "C" int32_t k_up(float* surf, const GammaContext* ctx) {
     surf[0] = std::min(1.0f, surf[0] * 0.5f + surf[3] * 1e-3f);
     surf[4] = surf[4] * 0.5f + ctx->height * 1e-3f;
+    return 0;
 }
 
 static std::pair<std::vector<float>, std::vector<int64_t>> run_all_kinds(int threads) {
@@ -444,10 +446,10 @@ void pair_kernel(float* ton, const float* surf, float*, const GammaContext* ctx)
     const bool side_ok = S == 0 ? ctx->position[0] <= 1e-6f : ctx->position[0] >= -1e-6f;
     if (ton[0] != float(100 + T) || surf[3] != float(10 + S) || !side_ok) g_bad++;
 }
-extern "C" void k00(float* a, const float* b, float* c, const GammaContext* d) { pair_kernel<0, 0>(a, b, c, d); }
-extern "C" void k01(float* a, const float* b, float* c, const GammaContext* d) { pair_kernel<0, 1>(a, b, c, d); }
-extern "C" void k10(float* a, const float* b, float* c, const GammaContext* d) { pair_kernel<1, 0>(a, b, c, d); }
-extern "C" void k11(float* a, const float* b, float* c, const GammaContext* d) { pair_kernel<1, 1>(a, b, c, d); }
+extern "C" int32_t k00(float* a, const float* b, float* c, const GammaContext* d) { pair_kernel<0, 0>(a, b, c, d); return 0; }
+extern "C" int32_t k01(float* a, const float* b, float* c, const GammaContext* d) { pair_kernel<0, 1>(a, b, c, d); return 0; }
+extern "C" int32_t k10(float* a, const float* b, float* c, const GammaContext* d) { pair_kernel<1, 0>(a, b, c, d); return 0; }
+extern "C" int32_t k11(float* a, const float* b, float* c, const GammaContext* d) { pair_kernel<1, 1>(a, b, c, d); return 0; }
 
 TEST(Trace, RulesOnlyForTheirPair) {
     Builder b;

@@ -19,17 +19,20 @@ using namespace gammart;
 namespace {
 
 // Hand-written transport kernels (stand-ins for JIT'd ones).
-extern "C" void k_hit(float* ton, const float* surf, float* delta, const GammaContext* ctx) {
+extern "C" int32_t k_hit(float* ton, const float* surf, float* delta, const GammaContext* ctx) {
     delta[3] = ton[0] * 0.1f + surf[4] * 0.01f;
     delta[4] = ctx->position[0] * 1e-3f + float(ctx->interactions) * 1e-4f;
     ton[0] = ton[0] * 0.9f + surf[3] * 0.05f;
+    return 0;
 }
-extern "C" void k_settle(float* ton, const float*, float* delta, const GammaContext* ctx) {
+extern "C" int32_t k_settle(float* ton, const float*, float* delta, const GammaContext* ctx) {
     delta[3] += ton[0] * 0.33f;
     delta[4] += ctx->normal[1] * 1e-3f;
+    return 0;
 }
-extern "C" void k_update(float* surf, const GammaContext* ctx) {
+extern "C" int32_t k_update(float* surf, const GammaContext* ctx) {
     surf[4] = surf[4] * 0.5f + surf[3] * 0.25f + ctx->position[2] * 1e-3f;
+    return 0;
 }
 
 uint64_t addr(void* f) { return uint64_t(reinterpret_cast<uintptr_t>(f)); }
@@ -219,4 +222,38 @@ TEST(Threads, ExactlyRequested) {
         EXPECT_EQ(int(ids.size()), n);
         EXPECT_EQ(arrived.load(), n);
     }
+}
+
+namespace {
+extern "C" int32_t k_always_bad(float*, const float*, float*, const GammaContext*) { return 2; }
+extern "C" int32_t k_update_bad(float*, const GammaContext* ctx) { return ctx->random_key[0] & 1 ? 1 : 0; }
+}
+
+// A kernel's non-finite report (its return value) is counted per statement,
+// identically at any thread count; update kernels get distinct random keys.
+TEST(Trace, NonFiniteStatementsAreCounted) {
+    Mesh m = gamma_test::icosphere(2);
+    std::vector<std::pair<int64_t, int64_t>> seen;
+    for (int threads : {1, 2}) {
+        Config c = base_config(3, 0.5f);
+        c.threads = threads;
+        const int t = c.add_ton_type(1, 0, 0, {1.0f});
+        c.add_source("point", t, 3000, {0, 0, 0});
+        c.set_transport(GAMMA_EVENT_SETTLE, t, 0, addr(reinterpret_cast<void*>(&k_always_bad)), false);
+        c.set_update(0, addr(reinterpret_cast<void*>(&k_update_bad)));
+        Simulation sim(m, c);
+        const TraceStats st = sim.trace(1);
+        ASSERT_EQ(st.nonfinite.size(), 1u);
+        EXPECT_EQ(st.nonfinite[0].event, GAMMA_EVENT_SETTLE);
+        EXPECT_EQ(st.nonfinite[0].statement, 2);
+        EXPECT_EQ(st.nonfinite[0].count, st.settled);
+        const UpdateStats up = sim.update(1);
+        ASSERT_EQ(up.nonfinite.size(), 1u);
+        EXPECT_EQ(up.nonfinite[0].event, -1);
+        // about half the surfels have an odd key
+        EXPECT_GT(up.nonfinite[0].count, int64_t(sim.num_surfels() / 3));
+        EXPECT_LT(up.nonfinite[0].count, int64_t(2 * sim.num_surfels() / 3));
+        seen.push_back({st.nonfinite[0].count, up.nonfinite[0].count});
+    }
+    EXPECT_EQ(seen[0], seen[1]);
 }

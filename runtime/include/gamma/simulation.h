@@ -12,11 +12,28 @@
 
 namespace gammart {
 
+// How often a kernel's statement produced NaN or infinity (the store was
+// skipped).  event is GAMMA_EVENT_* for transport kernels, -1 for update.
+struct NonFinite {
+    int event = 0, ton_type = 0, surface = 0, statement = 0;
+    int64_t count = 0;
+};
+
+// Adds one occurrence, keeping the list sorted (so merges are order-free).
+void count_nonfinite(std::vector<NonFinite>& list, int event, int ton_type, int surface,
+                     int statement, int64_t count = 1);
+
 struct TraceStats {
     int64_t emitted = 0, settled = 0, escaped = 0, capped = 0;
     int64_t interactions = 0, rays = 0;
     int64_t flow_steps = 0, bounces = 0, drips = 0, segments = 0;
+    std::vector<NonFinite> nonfinite;
     double trace_seconds = 0;
+};
+
+struct UpdateStats {
+    std::vector<NonFinite> nonfinite;
+    double seconds = 0;
 };
 
 struct RaycastStats {
@@ -58,7 +75,7 @@ public:
     void set_rows(const float* data);  // N*W floats
 
     TraceStats trace(int iteration);
-    double update(int iteration);
+    UpdateStats update(int iteration);
     RaycastStats raw_raycast(int64_t n_rays, int threads, uint64_t seed);
     // Out arrays are height*width.
     void render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
