@@ -8,6 +8,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+# The suite never touches the user's kernel cache (~/.cache/gamma).
+os.environ.setdefault("GAMMA_CACHE_DIR", __import__("tempfile").mkdtemp(prefix="gamma-test-cache-"))
 
 
 def run_gammac(*args, cwd=None, timeout=600):

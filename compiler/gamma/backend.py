@@ -2,12 +2,16 @@
 
 The one place where llvmlite's binding layer is used.  ``JitKernels`` owns the
 execution engine; it must outlive every use of the addresses it hands out
-(the runtime calls them from its worker threads).
+(the runtime calls them from its worker threads).  Machine code is cached on
+disk, keyed by a hash of everything it depends on.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
 from functools import lru_cache
+from pathlib import Path
 
 import llvmlite.binding as llvm
 from llvmlite import ir
@@ -50,13 +54,62 @@ def assembly(module: ir.Module) -> str:
     return _target_machine().emit_assembly(compile_ir(module))
 
 
-class JitKernels:
-    """The effect's kernels compiled in this process; ``address[symbol]``."""
+def cache_dir() -> Path | None:
+    """Where compiled kernels are kept: $GAMMA_CACHE_DIR, else ~/.cache/gamma
+    ($XDG_CACHE_HOME respected); GAMMA_CACHE_DIR=off disables the cache."""
+    configured = os.environ.get("GAMMA_CACHE_DIR")
+    if configured == "off":
+        return None
+    if configured:
+        return Path(configured)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "gamma"
 
-    def __init__(self, effect: Effect):
+
+def cache_key(ir_text: str) -> str:
+    """Everything the machine code depends on: compiler, ABI, LLVM, host CPU, IR."""
+    from . import __version__, abi
+
+    _initialise()
+    parts = [__version__, str(abi.ABI_VERSION), ".".join(map(str, llvm.llvm_version_info)),
+             llvm.get_process_triple(), llvm.get_host_cpu_name(), ir_text]
+    return hashlib.sha256("\0".join(parts).encode("utf-8")).hexdigest()
+
+
+class JitKernels:
+    """The effect's kernels compiled in this process; ``address[symbol]``.
+
+    The machine code is cached on disk (``cache_dir()``), keyed by
+    ``cache_key``: a later run of the same effect on the same machine skips
+    LLVM's optimisation and code generation (``from_cache`` says which)."""
+
+    def __init__(self, effect: Effect, cache: Path | None | str = "default"):
         self.ir = generate(effect)
-        self.module = compile_ir(self.ir)
+        folder = cache_dir() if cache == "default" else cache
+        text = str(self.ir)
+        path = folder / f"{cache_key(text)}.o" if folder is not None else None
+        cached = None
+        if path is not None and path.is_file():
+            try:
+                cached = path.read_bytes()
+            except OSError:
+                cached = None
+        self.from_cache = cached is not None
+        # With cached machine code the IR is only parsed (MCJIT takes the object).
+        self.module = compile_ir(self.ir, optimise=cached is None)
         self.engine = llvm.create_mcjit_compiler(self.module, _target_machine())
+
+        def store(module, data: bytes) -> None:
+            if path is None or cached is not None:
+                return
+            try:
+                from .outputs import atomic_write
+
+                atomic_write(path, bytes(data))
+            except OSError:
+                pass  # an unwritable cache only costs time
+
+        self.engine.set_object_cache(store, lambda module: cached)
         self.engine.finalize_object()
         self.address = {k.symbol: self.engine.get_function_address(k.symbol)
                         for k in effect.kernels}
