@@ -27,3 +27,22 @@ def test_syntax_error_is_a_diagnostic(tmp_path):
     bad.write_text("ton T { motion = }\n")
     r = run_gammac("fmt", bad)
     assert r.returncode == 1 and "error:" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_every_declaration_kind_formats(tmp_path):
+    """One of each top-level declaration of the grammar, so a new one cannot be forgotten."""
+    import re
+
+    grammar = (ROOT / "language" / "gamma.lark").read_text()
+    kinds = set(re.findall(r"^\s*\|?\s*(\w+_decl)\s*$", grammar.split("?decl:")[1].split("\n\n")[0], re.M))
+    text = ('param k = 1\nimport "patina.gamma"\nassign "chain*" = Copper\nton T {\n    carry a = k\n}\n'
+            'source s = point(0, 0, 0) emits T count 1\non hit(t: T, s: Copper) {\n    s.patina += t.a\n}\n'
+            'update(s: Copper) {\n    s.patina *= 0.5\n}\n')
+    covered = {"param_decl", "import_decl", "assign_decl", "ton_decl", "surface_decl", "source_decl",
+               "rule_decl", "update_decl"}
+    assert kinds <= covered, kinds - covered
+    path = tmp_path / "all.gamma"
+    path.write_text(text)
+    r = run_gammac("fmt", path)
+    assert r.returncode == 0, r.stderr
+    assert 'assign "chain*" = Copper' in r.stdout

@@ -112,3 +112,18 @@ def test_stain_bleeding_puts_rust_below_the_chain(stain_run):
     weights = rust[stained]
     centre = (xz * weights[:, None]).sum(0) / weights.sum()
     assert abs(centre[0] + 0.3) < 0.25 and abs(centre[1] - 0.75) < 0.35
+
+
+def test_assign_declarations_in_the_effect_come_last(tmp_path):
+    scene = two_part_obj(tmp_path / "scene.obj")
+    (tmp_path / "two.gamma").write_text(TWO_SURFACES + 'assign "ball" = Metal\nassign "*" = Stone\n')
+    out = tmp_path / "out"
+    r = run_gammac("run", tmp_path / "two.gamma", "--scene", scene, "--surfels", 2000, "--iterations", 1,
+                   "--quiet", "--size", 32, "--out", out)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["surfaces"]["Metal"]["triangles"] == 320
+    # the command line wins over the file
+    r = run_gammac("run", tmp_path / "two.gamma", "--scene", scene, "--surfels", 2000, "--iterations", 1,
+                   "--quiet", "--size", 32, "--out", out, "--assign", "Stone")
+    assert json.loads((out / "summary.json").read_text())["surfaces"]["Metal"]["triangles"] == 0

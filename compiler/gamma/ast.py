@@ -209,7 +209,17 @@ class ImportDecl:
     args: list[Init]
 
 
-Decl = TonDecl | SurfaceDecl | SourceDecl | RuleDecl | UpdateDecl | ParamDecl | ImportDecl
+@dataclass
+class AssignDecl:
+    """``assign "chain*" = Iron``: scene parts matching the pattern are Iron."""
+
+    pattern: str
+    surface: str
+    pos: Pos
+    surface_pos: Pos
+
+
+Decl = TonDecl | SurfaceDecl | SourceDecl | RuleDecl | UpdateDecl | ParamDecl | ImportDecl | AssignDecl
 
 
 @dataclass

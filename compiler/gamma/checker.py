@@ -298,6 +298,7 @@ class Effect:
     row_width: int
     warnings: list = field(default_factory=list)
     params: dict = field(default_factory=dict)
+    assign: list = field(default_factory=list)   # (pattern, surface) from `assign` declarations
 
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]
@@ -542,6 +543,16 @@ class _Checker:
                 src = self.source(d, tons, surfaces)
                 if src is not None:
                     sources.append(src)
+        assign = []
+        for unit, d in decls:
+            self.unit = unit
+            if isinstance(d, A.AssignDecl):
+                if d.surface in surfaces:
+                    assign.append((d.pattern, d.surface))
+                elif d.surface in tons:
+                    self.error(d.surface_pos, f"'{d.surface}' is a ton type; assign binds parts to a surface")
+                else:
+                    self.error(d.surface_pos, f"unknown surface '{d.surface}'{did_you_mean(d.surface, surfaces)}")
         kernels: dict[tuple, Kernel] = {}
         for unit, d in decls:
             self.unit = unit
@@ -560,6 +571,7 @@ class _Checker:
         self.collect_warnings(effect, units)
         effect.warnings = self.warnings
         effect.params = dict(main.params)
+        effect.assign = assign
         return effect
 
     def collect_warnings(self, effect: Effect, units: list[Unit]) -> None:

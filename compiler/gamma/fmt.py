@@ -150,6 +150,8 @@ class _Layout:
             args = _args(c[1:])
             tail = f" ({_inits(args)})" if args else ""
             self.line(0, f"import {c[0]}{tail}", start, end, top=True)
+        elif kind == "assign_decl":
+            self.line(0, f"assign {c[0]} = {c[1]}", start, end, top=True)
         elif kind == "source_decl":
             self.line(0, self.source(c), start, end, top=True)
         elif kind in ("ton_decl", "surface_decl"):

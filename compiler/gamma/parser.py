@@ -18,7 +18,7 @@ from lark import Token, Transformer, v_args
 from . import ast as A
 from .diagnostics import Diagnostic, GammaError
 
-_DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update|param|import)\b", re.MULTILINE)
+_DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update|param|import|assign)\b", re.MULTILINE)
 
 
 def grammar_path() -> Path:
@@ -142,6 +142,9 @@ class _ToAst(Transformer):
         path = c[0]
         args = [a for a in c[1:] if a is not None]
         return A.ImportDecl(str(path)[1:-1], _pos(path), args)
+
+    def assign_decl(self, meta, c):
+        return A.AssignDecl(str(c[0])[1:-1], str(c[1]), _pos(c[0]), _pos(c[1]))
 
     def ton_decl(self, meta, c):
         decl = A.TonDecl(str(c[0]), _pos(c[0]))

@@ -7,9 +7,9 @@ bound to surfaces by assignment rules ``PATTERN=SURFACE``: a pattern (shell
 wildcards) matches a triangle when it matches its OBJ object, group or
 material name or its mesh's file name without extension.  Rules from the
 command line (``--assign``) come first, in the order given, then the rules of
-the scene file's mesh entry; the first rule that matches wins.  ``--assign
-SURFACE`` alone means ``*=SURFACE``.  An effect with a single surface needs no
-rule at all.
+the scene file's mesh entry, then the effect's own ``assign`` declarations;
+the first rule that matches wins.  ``--assign SURFACE`` alone means
+``*=SURFACE``.  An effect with a single surface needs no rule at all.
 """
 
 from __future__ import annotations
@@ -161,8 +161,9 @@ def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect) -> np.ndarr
 
 def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> Scene:
     cli_rules = parse_assign(assign, effect)
-    if not cli_rules and len(effect.surfaces) == 1:
-        cli_rules = [("*", next(iter(effect.surfaces)))]
+    file_rules = list(effect.assign)       # the effect's own `assign` declarations come last
+    if not cli_rules and not file_rules and len(effect.surfaces) == 1:
+        file_rules = [("*", next(iter(effect.surfaces)))]
     scene_path = Path(path)
     if scene_path.suffix.lower() == ".json":
         parts, file_down = _read_scene_file(rt, scene_path, effect)
@@ -171,7 +172,7 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> S
     down = tuple(down) if down is not None else file_down or (0.0, -1.0, 0.0)
     if not any(down):
         raise SceneError("the down direction must not be the zero vector")
-    surface_of = [_bind(p, cli_rules + p.rules, effect) for p in parts]
+    surface_of = [_bind(p, cli_rules + p.rules + file_rules, effect) for p in parts]
     if len(parts) == 1 and parts[0].vertices is None:
         mesh = parts[0].mesh
     else:
