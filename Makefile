@@ -73,6 +73,7 @@ test: runtime-tests pytest
 bench: install
 	$(PY) bench/bench_patina.py
 	$(PY) bench/bench_stain.py
+	$(PY) bench/bench_compile.py
 
 clean:
 	rm -rf build build-tests out $(VENV)
