@@ -96,26 +96,33 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _read(path: str) -> str:
+    """The text of a user's file, or a one-line error."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read()
+    except FileNotFoundError:
+        raise _Fail(f"cannot read '{path}': file not found") from None
+    except UnicodeDecodeError:
+        raise _Fail(f"cannot read '{path}': it is not UTF-8 text") from None
+    except OSError as err:
+        raise _Fail(f"cannot read '{path}': {err.strerror or err}") from None
+
+
 def _load(path: str, params=()):
-    from .checker import load
+    from .checker import check
     from .diagnostics import render
+    from .parser import parse
 
     overrides = {}
     for name, value in params:
         if name in overrides:
             raise _Fail(f"--param {name} is given twice")
         overrides[name] = value
-    try:
-        effect = load(path, overrides)
-        if effect.warnings:
-            print(render(effect.warnings, effect.path, effect.source), file=sys.stderr)
-        return effect
-    except FileNotFoundError:
-        raise _Fail(f"cannot read '{path}': file not found") from None
-    except UnicodeDecodeError:
-        raise _Fail(f"cannot read '{path}': it is not UTF-8 text") from None
-    except OSError as err:
-        raise _Fail(f"cannot read '{path}': {getattr(err, 'strerror', None) or err}") from None
+    effect = check(parse(_read(path), path), overrides)
+    if effect.warnings:
+        print(render(effect.warnings, effect.path, effect.source), file=sys.stderr)
+    return effect
 
 
 class _Fail(Exception):
@@ -128,14 +135,7 @@ def _fmt(args) -> int:
     from .fmt import format_source
     from .outputs import atomic_write
 
-    try:
-        text = Path(args.file).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise _Fail(f"cannot read '{args.file}': file not found") from None
-    except UnicodeDecodeError:
-        raise _Fail(f"cannot read '{args.file}': it is not UTF-8 text") from None
-    except OSError as err:
-        raise _Fail(f"cannot read '{args.file}': {err.strerror or err}") from None
+    text = _read(args.file)
     formatted = format_source(text, args.file)
     if args.check:
         if formatted != text:
