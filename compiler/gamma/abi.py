@@ -15,7 +15,7 @@ import sys
 
 #: Bumped whenever anything below changes; ``runner.runtime_module`` refuses a
 #: runtime built for another version.
-ABI_VERSION = 3
+ABI_VERSION = 4
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -38,6 +38,7 @@ CONTEXT_FIELDS = (
     ("iteration", "int32_t", 1),    # 1-based iteration number (iter_0001 is the first)
     ("interactions", "int32_t", 1), # interactions of this gamma-ton so far, this one included
     ("random_key", "uint32_t", 2),  # low, high word of the key of random() for this call
+    ("uv", "float", 2),             # texture coordinates of the point (appearance; 0 elsewhere)
 )
 
 _C_SIZE = {"float": 4, "int32_t": 4, "uint32_t": 4}
@@ -67,6 +68,15 @@ TRANSPORT_SIGNATURE = (
      ("const GammaContext*", "ctx")),
 )
 UPDATE_SIGNATURE = ("int32_t", (("float*", "surf"), ("const GammaContext*", "ctx")))
+#: Appearance kernels turn a point's (interpolated) surfel row into a colour.
+#: ``textures`` holds 3 floats (r, g, b in [0, 1]) per texture of the effect
+#: (``Effect.textures`` order), sampled by the renderer at ``ctx.uv``; the
+#: kernel writes ``rgb`` (3 floats).  Return value as for the other kernels.
+APPEARANCE_SIGNATURE = (
+    "int32_t",
+    (("const float*", "surf"), ("const float*", "textures"), ("float*", "rgb"),
+     ("const GammaContext*", "ctx")),
+)
 
 #: random(): the key in the context, mixed with the call site's number
 #: (0, 1, ... in source order within the kernel), gives 24 random bits.
@@ -114,7 +124,8 @@ def c_header() -> str:
         lines.append(f"static_assert(offsetof(GammaContext, {name}) == {off}, \"GammaContext layout\");")
     lines.append(f"static_assert(sizeof(GammaContext) == {CONTEXT_SIZE}, \"GammaContext size\");")
     for tname, (ret, params) in (("GammaTransportKernel", TRANSPORT_SIGNATURE),
-                                 ("GammaUpdateKernel", UPDATE_SIGNATURE)):
+                                 ("GammaUpdateKernel", UPDATE_SIGNATURE),
+                                 ("GammaAppearanceKernel", APPEARANCE_SIGNATURE)):
         args = ", ".join(f"{t} {n}" for t, n in params)
         lines.append(f"typedef {ret} (*{tname})({args});")
     return "\n".join(lines) + "\n"
