@@ -37,9 +37,10 @@ def test_every_declaration_kind_formats(tmp_path):
     kinds = set(re.findall(r"^\s*\|?\s*(\w+_decl)\s*$", grammar.split("?decl:")[1].split("\n\n")[0], re.M))
     text = ('param k = 1\nimport "patina.gamma"\nassign "chain*" = Copper\nton T {\n    carry a = k\n}\n'
             'source s = point(0, 0, 0) emits T count 1\non hit(t: T, s: Copper) {\n    s.patina += t.a\n}\n'
-            'update(s: Copper) {\n    s.patina *= 0.5\n}\n')
+            'update(s: Copper) {\n    s.patina *= 0.5\n}\n'
+            'appearance(s: Copper) {\n    color = rgb(0.2, 0.6, 0.5) * s.patina\n}\n')
     covered = {"param_decl", "import_decl", "assign_decl", "ton_decl", "surface_decl", "source_decl",
-               "rule_decl", "update_decl"}
+               "rule_decl", "update_decl", "appearance_decl"}
     assert kinds <= covered, kinds - covered
     path = tmp_path / "all.gamma"
     path.write_text(text)

@@ -163,3 +163,55 @@ def test_non_finite_results_are_not_stored_and_reported():
     assert bad == 2                                   # the first statement giving inf
     assert list(ton) == [2, 7]                        # t.b kept its value; later statements ran
     assert kernel.statement_at(bad)[1].target.parts == ["t", "b"]
+
+
+APPEARANCE = ctypes.CFUNCTYPE(ctypes.c_int32, FLOAT_P, FLOAT_P, FLOAT_P, ctypes.POINTER(GammaContext))
+
+
+def random_color(rng, depth=0):
+    pick = rng.random()
+    if depth > 2 or pick < 0.3:
+        return rng.choice(['texture("a.png")', 'texture("b.png")', "rgb(s.p, 0.5, uv.u)",
+                           "rgb(0.1, s.q, normal.y)", "color"])
+    if pick < 0.5:
+        return f"mix({random_color(rng, depth + 1)}, {random_color(rng, depth + 1)}, {random_expr(rng, ['s.p', 'uv.v', 'height'])})"
+    if pick < 0.7:
+        return f"({random_color(rng, depth + 1)} {rng.choice('+-')} {random_color(rng, depth + 1)})"
+    if pick < 0.85:
+        return f"({random_color(rng, depth + 1)} * {random_expr(rng, ['s.p', 'uv.u', 'position.x'])})"
+    return f"-{random_color(rng, depth + 1)}"
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_appearance_matches_interpreter(tmp_path, seed):
+    from PIL import Image
+
+    from gamma.interp import run_appearance
+
+    for name in ("a.png", "b.png"):
+        Image.new("RGB", (2, 2)).save(tmp_path / name)
+    rng = random.Random(seed)
+    body = "\n  ".join(f"color = {random_color(rng)}" if rng.random() < 0.7 else
+                       f"if s.p < {rng.uniform(-1, 1):.2f} {{ color = {random_color(rng)} }}"
+                       for _ in range(rng.randint(1, 3)))
+    path = tmp_path / "look.gamma"
+    path.write_text(HEADER + f"appearance(s: S) {{\n  {body}\n}}\n")
+    from gamma.checker import load
+
+    effect = load(str(path))
+    kernel = effect.appearance_kernels()[0]
+    jit = JitKernels(effect)
+    fn = APPEARANCE(jit.address[kernel.symbol])
+    data = np.random.default_rng(seed)
+    for _ in range(50):
+        surf = (data.standard_normal(effect.row_width) * 2).astype(np.float32)
+        textures = data.random(3 * len(effect.textures)).astype(np.float32)
+        vec = data.standard_normal(9).astype(np.float32)
+        ctx = GammaContext(height=float(vec[0]), position=(ctypes.c_float * 3)(*vec[1:4]),
+                           normal=(ctypes.c_float * 3)(*vec[4:7]), uv=(ctypes.c_float * 2)(*vec[7:9]))
+        ictx = Context(height=vec[0], position=vec[1:4], normal=vec[4:7])
+        ictx.uv = vec[7:9]
+        rgb = np.zeros(3, np.float32)
+        bad_c = fn(ptr(surf), ptr(textures), ptr(rgb), ctypes.byref(ctx))
+        want, bad_i = run_appearance(kernel, surf.copy(), textures, ictx)
+        assert same(rgb, want) and bad_c == bad_i, (body, rgb, want)

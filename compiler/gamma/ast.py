@@ -66,6 +66,14 @@ class Vector:
 
 
 @dataclass
+class String:
+    """A string literal: only the argument of ``texture("file.png")``."""
+
+    value: str
+    pos: Pos
+
+
+@dataclass
 class Compare:
     op: str  # '<', '<=', '>', '>=', '==', '!='
     left: "Expr"
@@ -81,7 +89,7 @@ class Logic:
     pos: Pos
 
 
-Expr = Number | Ref | Unary | Binary | Call | Vector | Compare | Logic
+Expr = Number | Ref | Unary | Binary | Call | Vector | Compare | Logic | String
 
 
 # ---- statements and declarations -------------------------------------------
@@ -192,6 +200,15 @@ class UpdateDecl:
 
 
 @dataclass
+class AppearanceDecl:
+    """``appearance(s: Surface) { color = ... }``: how a surface looks."""
+
+    surface: Param
+    body: list[Stmt]
+    pos: Pos
+
+
+@dataclass
 class ParamDecl:
     """``param rate = 0.015``: a constant an importer or the command line may override."""
 
@@ -219,7 +236,8 @@ class AssignDecl:
     surface_pos: Pos
 
 
-Decl = TonDecl | SurfaceDecl | SourceDecl | RuleDecl | UpdateDecl | ParamDecl | ImportDecl | AssignDecl
+Decl = (TonDecl | SurfaceDecl | SourceDecl | RuleDecl | UpdateDecl | ParamDecl | ImportDecl
+        | AssignDecl | AppearanceDecl)
 
 
 @dataclass

@@ -22,17 +22,21 @@ MOTION_NAMES = abi.REFLECTANCE_SLOTS  # straight, parabolic, flow
 EVENTS = tuple(abi.EVENTS)             # hit, reflect, bounce, flow, settle
 #: Read-only context values: name -> (rules that may read it, components).
 CONTEXT_VALUES = {
-    "iteration": (("transport", "update"), ()),
+    "iteration": (("transport", "update", "appearance"), ()),
     "interactions": (("transport",), ()),
-    "height": (("transport", "update"), ()),
-    "position": (("transport", "update"), ("x", "y", "z")),
-    "normal": (("transport", "update"), ("x", "y", "z")),
+    "height": (("transport", "update", "appearance"), ()),
+    "position": (("transport", "update", "appearance"), ("x", "y", "z")),
+    "normal": (("transport", "update", "appearance"), ("x", "y", "z")),
     "direction": (("transport",), ("x", "y", "z")),
+    "uv": (("appearance",), ("u", "v")),
 }
 #: Built-in functions: name -> (fewest, most arguments); all take and give numbers.
 FUNCTIONS = {"min": (2, None), "max": (2, None), "clamp": (3, 3), "mix": (3, 3),
              "smoothstep": (3, 3), "abs": (1, 1), "sqrt": (1, 1), "exp": (1, 1), "log": (1, 1),
-             "pow": (2, 2), "floor": (1, 1), "fract": (1, 1), "random": (0, 0)}
+             "pow": (2, 2), "floor": (1, 1), "fract": (1, 1), "random": (0, 0),
+             "rgb": (3, 3), "texture": (1, 1)}
+#: Functions that are only meaningful in appearance blocks (they give colours).
+COLOR_FUNCTIONS = ("rgb", "texture")
 RESERVED_PROPERTY_NAMES = {"x", "y", "z", "nx", "ny", "nz", "surface", "reflectance", "motion"}
 MAX_COUNT = 1e12  # gamma-tons per source and iteration
 REQUIRED = object()
@@ -141,6 +145,10 @@ class Scope:
             if len(parts) > 1:
                 return f"'{head}' is a local value and has no fields"
             return Slot("let", 0, head, ())
+        if head == "color" and self.kind == "appearance" and head not in self.params:
+            if len(parts) > 1:
+                return "'color' has no fields"
+            return Slot("color", 0, "color", ("=",))
         if head in self.params and head not in (self.ton_param, self.surf_param):
             if len(parts) > 1:
                 return f"'{head}' is a parameter and has no fields"
@@ -181,10 +189,10 @@ class Scope:
                 if len(parts) != 3 or parts[2] not in MOTION_NAMES:
                     return ("reflectance has the components " + ", ".join(MOTION_NAMES)
                             + "; write " + f"{head}.reflectance.straight")
-                ops = () if transport else ("=", "+=", "-=", "*=")
+                ops = ("=", "+=", "-=", "*=") if self.kind == "update" else ()
                 return Slot("surf", MOTION_NAMES.index(parts[2]), ".".join(parts), ops)
             if len(parts) == 2 and attr in self.surface.properties:
-                ops = ("+=", "-=") if transport else ("=", "+=", "-=", "*=")
+                ops = {"transport": ("+=", "-="), "update": ("=", "+=", "-=", "*=")}.get(self.kind, ())
                 return Slot("surf", self.surface.properties[attr], f"{head}.{attr}", ops)
             if len(parts) == 2 and self.ton is not None and attr in self.ton.carry:
                 return (f"surface {self.surface.name} has no property '{attr}'; '{attr}' is carried "
@@ -201,22 +209,23 @@ class Scope:
 class Kernel:
     """All rule bodies that run for one (event, ton type, surface), in file order."""
 
-    event: str                     # 'hit' | 'settle' | 'update'
+    event: str                     # an event of abi.EVENTS, 'update' or 'appearance'
     ton: TonType | None
     surface: Surface
     bodies: list[tuple[Scope, list[A.Assign]]] = field(default_factory=list)
+    textures: dict = field(default_factory=dict)  # id(texture() call) -> index in Effect.textures
 
     @property
     def label(self) -> str:
         if self.ton is None:
-            return f"update({self.surface.name})"
+            return f"{self.event}({self.surface.name})"
         return f"on {self.event}({self.ton.name}, {self.surface.name})"
 
     @property
     def symbol(self) -> str:
         # '.' cannot occur in a name, so symbols never collide
         if self.ton is None:
-            return f"gamma.update.{self.surface.name}"
+            return f"gamma.{self.event}.{self.surface.name}"
         return f"gamma.{self.event}.{self.ton.name}.{self.surface.name}"
 
     def statement_numbers(self) -> dict[int, int]:
@@ -299,12 +308,16 @@ class Effect:
     warnings: list = field(default_factory=list)
     params: dict = field(default_factory=dict)
     assign: list = field(default_factory=list)   # (pattern, surface) from `assign` declarations
+    textures: list = field(default_factory=list) # image files read by texture(), in index order
 
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]
 
     def update_kernels(self) -> list[Kernel]:
-        return [k for k in self.kernels if k.ton is None]
+        return [k for k in self.kernels if k.event == "update"]
+
+    def appearance_kernels(self) -> list[Kernel]:
+        return [k for k in self.kernels if k.event == "appearance"]
 
 
 # ---- constant evaluation ----------------------------------------------------------
@@ -387,6 +400,8 @@ class _Checker:
         self.warnings: list[Diagnostic] = []
         self.unit = Unit(module.path, module.source, module, main=True)
         self.unknown_overrides: list[str] = []
+        self.textures: dict[str, int] = {}      # resolved path -> index
+        self.kernel: Kernel | None = None       # the kernel whose body is being checked
 
     def error(self, pos: A.Pos, message: str) -> None:
         diag = Diagnostic(pos, message, file=self.unit.file)
@@ -560,6 +575,8 @@ class _Checker:
                 self.rule(d, tons, surfaces, kernels)
             elif isinstance(d, A.UpdateDecl):
                 self.update(d, surfaces, tons, kernels)
+            elif isinstance(d, A.AppearanceDecl):
+                self.appearance(d, surfaces, tons, kernels)
         self.unit = main
         if self.unknown_overrides:
             raise UsageError(self.unknown_overrides[0])
@@ -572,6 +589,7 @@ class _Checker:
         effect.warnings = self.warnings
         effect.params = dict(main.params)
         effect.assign = assign
+        effect.textures = list(self.textures)
         return effect
 
     def collect_warnings(self, effect: Effect, units: list[Unit]) -> None:
@@ -835,6 +853,28 @@ class _Checker:
                 key = (d.event, ton.index, surf.index)
                 kernels.setdefault(key, Kernel(d.event, ton, surf)).bodies.append((scope, d.body))
 
+    def appearance(self, d: A.AppearanceDecl, surfaces, tons, kernels) -> None:
+        for surf in self.param(d.surface, surfaces, tons, "surface", "ton type"):
+            scope = Scope("appearance", None, None, d.surface.name, surf, self.unit.params, self.unit.path)
+            kernel = kernels.setdefault(("appearance", surf.index), Kernel("appearance", None, surf))
+            self.kernel = kernel
+            self.body(scope, d.body)
+            self.kernel = None
+            kernel.bodies.append((scope, d.body))
+
+    def texture(self, call: A.Call) -> None:
+        arg = call.args[0] if call.args else None
+        if not isinstance(arg, A.String):
+            self.error(call.pos, 'texture() takes a file name in quotes: texture("rust.png")')
+            return
+        path = (Path(self.unit.path).resolve().parent / arg.value).resolve()
+        if not path.is_file():
+            self.error(arg.pos, f"cannot find texture '{arg.value}' next to {Path(self.unit.path).name}")
+            return
+        index = self.textures.setdefault(str(path), len(self.textures))
+        if self.kernel is not None:
+            self.kernel.textures[id(call)] = index
+
     def update(self, d: A.UpdateDecl, surfaces, tons, kernels) -> None:
         for surf in self.param(d.surface, surfaces, tons, "surface", "ton type"):
             scope = Scope("update", None, None, d.surface.name, surf, self.unit.params, self.unit.path)
@@ -868,22 +908,26 @@ class _Checker:
                 elif st.op not in slot.writable_ops:
                     self.error(st.pos if slot.writable_ops else st.target.pos,
                                self.write_error(scope, slot, st.op))
-                self.want(scope, st.value, lets, "float")
+                target = slot if not isinstance(slot, str) else None
+                self.want(scope, st.value, lets,
+                          "color" if target is not None and target.space == "color" else "float")
 
-    def want(self, scope: Scope, e: A.Expr, lets: dict, kind: str) -> None:
+    KIND_NAMES = {"float": "a number", "bool": "a truth value (a comparison)", "color": "a colour"}
+
+    def want(self, scope: Scope, e: A.Expr, lets: dict, kind: str) -> str | None:
         got = self.expr(scope, e, lets)
         if got is not None and got != kind:
-            if kind == "float":
-                self.error(e.pos, "expected a number here, but this is a truth value")
-            else:
-                self.error(e.pos, "expected a truth value (a comparison) here, but this is a number")
+            self.error(e.pos, f"expected {self.KIND_NAMES[kind]} here, but this is "
+                       f"{self.KIND_NAMES[got].split(' (')[0]}")
+        return got
 
     @staticmethod
     def write_error(scope: Scope, slot: Slot, op: str) -> str:
         if slot.space == "ctx":
             return f"'{slot.name}' is read-only"
         if not slot.writable_ops:
-            return f"'{slot.name}' is read-only in transport rules; change it in an update rule"
+            where = "appearance blocks" if scope.kind == "appearance" else "transport rules"
+            return f"'{slot.name}' is read-only in {where}; change it in an update rule"
         if slot.space == "surf":
             return (f"'{op}' on a surface property in a transport rule: surface writes during "
                     f"tracing are additive, use += or -=")
@@ -900,14 +944,31 @@ class _Checker:
                 return None
             if slot.space == "param":
                 self.unit.used.add(slot.name)
+            if slot.space == "color":
+                return "color"
             return lets[slot.name] if slot.space == "let" else "float"
+        if isinstance(e, A.String):
+            self.error(e.pos, 'a string is only the file name of texture("...")')
+            return None
         if isinstance(e, A.Unary):
-            self.want(scope, e.operand, lets, "float")
-            return "float"
+            got = self.expr(scope, e.operand, lets)
+            if got == "bool":
+                self.error(e.operand.pos, "expected a number here, but this is a truth value")
+            return got if got in ("float", "color") else None
         if isinstance(e, A.Binary):
-            self.want(scope, e.left, lets, "float")
-            self.want(scope, e.right, lets, "float")
-            return "float"
+            left, right = self.expr(scope, e.left, lets), self.expr(scope, e.right, lets)
+            if left is None or right is None:
+                return None
+            if left == right == "float":
+                return "float"
+            # colours: colour +- colour, colour * number, number * colour, colour / number
+            if (left, right) == ("color", "color") and e.op in "+-" \
+                    or (left, right) == ("color", "float") and e.op in "*/" \
+                    or (left, right) == ("float", "color") and e.op == "*":
+                return "color"
+            self.error(e.pos, f"'{e.op}' cannot combine {self.KIND_NAMES[left].split(' (')[0]} and "
+                       f"{self.KIND_NAMES[right].split(' (')[0]}")
+            return None
         if isinstance(e, A.Compare):
             self.want(scope, e.left, lets, "float")
             self.want(scope, e.right, lets, "float")
@@ -927,16 +988,36 @@ class _Checker:
                 return None
             if e.name not in FUNCTIONS:
                 self.error(e.pos, f"unknown function '{e.name}'{did_you_mean(e.name, FUNCTIONS)}")
-            else:
-                lo, hi = FUNCTIONS[e.name]
-                n = len(e.args)
-                if n < lo or (hi is not None and n > hi):
-                    want = f"{lo}" if lo == hi else f"at least {lo}"
-                    plural = "s" if (hi or lo) != 1 else ""
-                    self.error(e.pos, f"{e.name}() takes {want} argument{plural}, not {n}")
+                for a in e.args:
+                    self.expr(scope, a, lets)
+                return None
+            lo, hi = FUNCTIONS[e.name]
+            n = len(e.args)
+            if n < lo or (hi is not None and n > hi):
+                want = f"{lo}" if lo == hi else f"at least {lo}"
+                plural = "s" if (hi or lo) != 1 else ""
+                self.error(e.pos, f"{e.name}() takes {want} argument{plural}, not {n}")
+                return None
+            if e.name in COLOR_FUNCTIONS and scope.kind != "appearance":
+                self.error(e.pos, f"{e.name}() gives a colour: it belongs in appearance blocks")
+                return None
+            if e.name == "texture":
+                self.texture(e)
+                return "color"
+            if e.name == "mix" and len(e.args) == 3:
+                first = self.expr(scope, e.args[0], lets)
+                if first == "color":
+                    self.want(scope, e.args[1], lets, "color")
+                    self.want(scope, e.args[2], lets, "float")
+                    return "color"
+                if first == "bool":
+                    self.error(e.args[0].pos, "expected a number here, but this is a truth value")
+                self.want(scope, e.args[1], lets, "float")
+                self.want(scope, e.args[2], lets, "float")
+                return "float"
             for a in e.args:
                 self.want(scope, a, lets, "float")
-            return "float"
+            return "color" if e.name == "rgb" else "float"
         raise AssertionError(f"unknown expression {e!r}")
 
 

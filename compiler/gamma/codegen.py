@@ -30,6 +30,9 @@ _CONTEXT_INDEX = {name: i for i, (name, _, _) in enumerate(abi.CONTEXT_FIELDS)}
 I64 = ir.IntType(64)
 TRANSPORT_FNTY = ir.FunctionType(I32, [PTR, PTR, PTR, PTR])
 UPDATE_FNTY = ir.FunctionType(I32, [PTR, PTR])
+APPEARANCE_FNTY = ir.FunctionType(I32, [PTR, PTR, PTR, PTR])
+#: The colour of a surface whose appearance block never sets `color`.
+DEFAULT_ALBEDO = 0.7
 
 
 class _KernelBuilder:
@@ -37,18 +40,25 @@ class _KernelBuilder:
         self.module = module
         self.kernel = kernel
         transport = kernel.ton is not None
-        fn = ir.Function(module, TRANSPORT_FNTY if transport else UPDATE_FNTY, kernel.symbol)
+        appearance = kernel.event == "appearance"
+        fnty = TRANSPORT_FNTY if transport else APPEARANCE_FNTY if appearance else UPDATE_FNTY
+        fn = ir.Function(module, fnty, kernel.symbol)
         fn.linkage = "external"
+        self.ton = self.delta = self.textures = self.rgb = None
         if transport:
             self.ton, self.surf, self.delta, self.ctx = fn.args
-            for arg, name in zip(fn.args, ("ton", "surf", "surf_delta", "ctx")):
-                arg.name = name
+            names = ("ton", "surf", "surf_delta", "ctx")
+        elif appearance:
+            self.surf, self.textures, self.rgb, self.ctx = fn.args
+            names = ("surf", "textures", "rgb", "ctx")
         else:
             self.surf, self.ctx = fn.args
-            self.ton = self.delta = None
-            self.surf.name, self.ctx.name = "surf", "ctx"
+            names = ("surf", "ctx")
+        for arg, name in zip(fn.args, names):
+            arg.name = name
         for arg in fn.args:
             arg.add_attribute("noalias")
+        self.kernel = kernel
         self.b = ir.IRBuilder(fn.append_basic_block("entry"))
         self.scope: Scope | None = None
         self.numbers = kernel.statement_numbers()
@@ -56,6 +66,9 @@ class _KernelBuilder:
         self.first_bad = self.b.alloca(I32, name="first_bad")  # see abi.TRANSPORT_SIGNATURE
         self.b.store(ir.Constant(I32, 0), self.first_bad)
         self.random_key = None
+        if appearance:
+            for c in range(3):
+                self.b.store(ir.Constant(F32, DEFAULT_ALBEDO), self.slot_ptr(self.rgb, c))
 
     def _intrinsic(self, name: str, arity: int = 2):
         return self.module.declare_intrinsic(name, [F32], ir.FunctionType(F32, [F32] * arity))
@@ -74,6 +87,8 @@ class _KernelBuilder:
         slot = self.scope.resolve(ref, lets)
         if slot.space == "let":
             return lets[slot.name]
+        if slot.space == "color":
+            return tuple(self.b.load(self.slot_ptr(self.rgb, c), typ=F32) for c in range(3))
         if slot.space == "param":
             return ir.Constant(F32, _f32(self.scope.params[slot.name]))
         if slot.space == "ctx":
@@ -90,7 +105,12 @@ class _KernelBuilder:
 
     def arith(self, op: str, left, right):
         """One float operation, folded when both operands are constants
-        (in float32, exactly as the machine would compute it)."""
+        (in float32, exactly as the machine would compute it).  Colours
+        (3-tuples) combine component by component; a number applies to each."""
+        if isinstance(left, tuple) or isinstance(right, tuple):
+            lefts = left if isinstance(left, tuple) else (left,) * 3
+            rights = right if isinstance(right, tuple) else (right,) * 3
+            return tuple(self.arith(op, a, b) for a, b in zip(lefts, rights))
         if isinstance(left, ir.Constant) and isinstance(right, ir.Constant):
             import numpy as np
 
@@ -119,6 +139,8 @@ class _KernelBuilder:
             return acc
         if name == "clamp":
             return self.pick("min", self.pick("max", args[0], args[1]), args[2])
+        if name == "rgb":
+            return tuple(args)
         if name == "mix":              # a + (b - a) * t
             a, b_, t = args
             return self.arith("+", a, self.arith("*", self.arith("-", b_, a), t))
@@ -172,6 +194,9 @@ class _KernelBuilder:
             return self.load_ref(e, lets)
         if isinstance(e, A.Unary):
             operand = self.expr(e.operand, lets)
+            if isinstance(operand, tuple):
+                return tuple(b.fneg(c) if not isinstance(c, ir.Constant) else ir.Constant(F32, -c.constant)
+                             for c in operand)
             if isinstance(operand, ir.Constant):
                 return ir.Constant(F32, -operand.constant)
             return b.fneg(operand)
@@ -190,13 +215,33 @@ class _KernelBuilder:
         if isinstance(e, A.Call):
             if e.name == "random":
                 return self.random(self.sites[id(e)])
+            if e.name == "texture":
+                base = 3 * self.kernel.textures[id(e)]
+                return tuple(b.load(self.slot_ptr(self.textures, base + c), typ=F32) for c in range(3))
             return self.call(e.name, [self.expr(a, lets) for a in e.args])
         raise AssertionError(f"unchecked expression {e!r}")
+
+    def store_finite(self, new, ptr, number: int) -> None:
+        """Store unless NaN or infinite; else remember the first such statement."""
+        b = self.b
+        finite = b.fcmp_ordered("!=", b.call(self._intrinsic("llvm.fabs", 1), [new]),
+                                ir.Constant(F32, float("inf")))
+        with b.if_else(finite) as (store, skip):
+            with store:
+                b.store(new, ptr)
+            with skip:
+                seen = b.load(self.first_bad, typ=I32)
+                first = b.icmp_signed("==", seen, ir.Constant(I32, 0))
+                b.store(b.select(first, ir.Constant(I32, number), seen), self.first_bad)
 
     def assign(self, st: A.Assign, lets: dict) -> None:
         slot = self.scope.resolve(st.target, lets)
         value = self.expr(st.value, lets)
         b = self.b
+        if slot.space == "color":
+            for c in range(3):
+                self.store_finite(value[c], self.slot_ptr(self.rgb, c), self.numbers[id(st)])
+            return
         if slot.space == "surf" and self.delta is not None:
             ptr = self.slot_ptr(self.delta, slot.index)  # transport: accumulate a delta
         else:
@@ -207,15 +252,7 @@ class _KernelBuilder:
             old = b.load(ptr, typ=F32)
             new = {"+=": b.fadd, "-=": b.fsub, "*=": b.fmul}[st.op](old, value)
         # A NaN or infinite result is not stored; the first such statement is returned.
-        finite = b.fcmp_ordered("!=", b.call(self._intrinsic("llvm.fabs", 1), [new]),
-                                ir.Constant(F32, float("inf")))
-        with b.if_else(finite) as (store, skip):
-            with store:
-                b.store(new, ptr)
-            with skip:
-                seen = b.load(self.first_bad, typ=I32)
-                first = b.icmp_signed("==", seen, ir.Constant(I32, 0))
-                b.store(b.select(first, ir.Constant(I32, self.numbers[id(st)]), seen), self.first_bad)
+        self.store_finite(new, ptr, self.numbers[id(st)])
 
     def statements(self, body: list, lets: dict) -> None:
         lets = dict(lets)

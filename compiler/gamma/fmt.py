@@ -70,7 +70,7 @@ def _args(children) -> list:
 def _expr_prec(node) -> tuple[str, int]:
     kind = node.data
     c = node.children
-    if kind == "number":
+    if kind in ("number", "string"):
         return str(c[0]), _ATOM
     if kind == "ref":
         return ".".join(str(t) for t in c), _ATOM
@@ -166,9 +166,10 @@ class _Layout:
             self.line(0, f"on {event}({_param(ton)}, {_param(surface)}) {{",
                       start, block.meta.start_pos + 1, opens=True, top=True)
             self.block_rest(block, 0)
-        elif kind == "update_decl":
+        elif kind in ("update_decl", "appearance_decl"):
             surface, block = c
-            self.line(0, f"update({_param(surface)}) {{", start, block.meta.start_pos + 1,
+            word = "update" if kind == "update_decl" else "appearance"
+            self.line(0, f"{word}({_param(surface)}) {{", start, block.meta.start_pos + 1,
                       opens=True, top=True)
             self.block_rest(block, 0)
         else:  # pragma: no cover - the grammar has no other declaration

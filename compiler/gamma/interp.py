@@ -31,6 +31,7 @@ class Context:
         self.position = np.asarray(position, np.float32)
         self.normal = np.asarray(normal, np.float32)
         self.direction = np.asarray(direction, np.float32)
+        self.uv = np.zeros(2, np.float32)
 
 
 def _libm():
@@ -52,6 +53,15 @@ def _libm():
 _LIBM = _libm()
 
 
+def _arith(op: str, a, b):
+    """A float32 operation; colours (3-tuples) component by component."""
+    if isinstance(a, tuple) or isinstance(b, tuple):
+        a = a if isinstance(a, tuple) else (a,) * 3
+        b = b if isinstance(b, tuple) else (b,) * 3
+        return tuple(_arith(op, x, y) for x, y in zip(a, b))
+    return f32({"+": np.add, "-": np.subtract, "*": np.multiply, "/": np.divide}[op](a, b))
+
+
 def _pick(name: str, a, b):
     """b if b is strictly smaller (min) / larger (max) than a, or a is NaN; else a."""
     better = b < a if name == "min" else b > a
@@ -66,9 +76,11 @@ def _call(name: str, args: list):
         return acc
     if name == "clamp":
         return _pick("min", _pick("max", args[0], args[1]), args[2])
+    if name == "rgb":
+        return tuple(args)
     if name == "mix":
         a, b, t = args
-        return f32(a + f32(f32(b - a) * t))
+        return _arith("+", a, _arith("*", _arith("-", b, a), t))
     if name == "smoothstep":
         e0, e1, x = args
         t = _call("clamp", [f32(f32(x - e0) / f32(e1 - e0)), f32(0), f32(1)])
@@ -97,6 +109,8 @@ def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context, lets: dict):
         slot = scope.resolve(e, lets)
         if slot.space == "let":
             return lets[slot.name]
+        if slot.space == "color":
+            return tuple(f32(c) for c in _STATE.rgb)
         if slot.space == "param":
             return f32(scope.params[slot.name])
         if slot.space == "ctx":
@@ -104,11 +118,12 @@ def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context, lets: dict):
             return f32(value[slot.index] if np.ndim(value) else value)
         return (ton if slot.space == "ton" else surf)[slot.index]
     if isinstance(e, A.Unary):
-        return -_eval(e.operand, scope, ton, surf, ctx, lets)
+        value = _eval(e.operand, scope, ton, surf, ctx, lets)
+        return tuple(-c for c in value) if isinstance(value, tuple) else -value
     if isinstance(e, A.Binary):
         a = _eval(e.left, scope, ton, surf, ctx, lets)
         b = _eval(e.right, scope, ton, surf, ctx, lets)
-        return f32({"+": np.add, "-": np.subtract, "*": np.multiply, "/": np.divide}[e.op](a, b))
+        return _arith(e.op, a, b)
     if isinstance(e, A.Compare):
         a = _eval(e.left, scope, ton, surf, ctx, lets)
         b = _eval(e.right, scope, ton, surf, ctx, lets)
@@ -122,6 +137,9 @@ def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context, lets: dict):
     if isinstance(e, A.Call):
         if e.name == "random":
             return f32(random_value(ctx.random_key, _STATE.sites[id(e)]))
+        if e.name == "texture":
+            base = 3 * _STATE.kernel.textures[id(e)]
+            return tuple(f32(_STATE.textures[base + c]) for c in range(3))
         return _call(e.name, [_eval(a, scope, ton, surf, ctx, lets) for a in e.args])
     raise AssertionError(f"unchecked expression {e!r}")
 
@@ -137,6 +155,13 @@ def _run(body: list, scope: Scope, ton, surf, delta, ctx: Context, lets: dict, t
         else:
             slot = scope.resolve(st.target, lets)
             value = _eval(st.value, scope, ton, surf, ctx, lets)
+            if slot.space == "color":
+                for c in range(3):
+                    if np.isfinite(value[c]):
+                        _STATE.rgb[c] = value[c]
+                    elif not _STATE.first_bad:
+                        _STATE.first_bad = _STATE.numbers[id(st)]
+                continue
             dest = ton if slot.space == "ton" else (delta if transport else surf)
             old = dest[slot.index]
             new = {"=": value, "+=": f32(old + value), "-=": f32(old - value),
@@ -154,6 +179,9 @@ class _State:
     numbers: dict = {}
     sites: dict = {}
     first_bad = 0
+    kernel = None
+    textures = None
+    rgb = None
 
 
 _STATE = _State()
@@ -164,7 +192,18 @@ def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context) -> int:
     or ``surf`` (update) are float32 arrays that get modified.  Returns 0 or the
     number of the first statement whose result was NaN or infinite."""
     _STATE.numbers, _STATE.sites, _STATE.first_bad = kernel.statement_numbers(), kernel.random_sites(), 0
+    _STATE.kernel = kernel
     with np.errstate(all="ignore"):
         for scope, body in kernel.bodies:
             _run(body, scope, ton, surf, delta, ctx, {}, kernel.ton is not None)
     return _STATE.first_bad
+
+
+def run_appearance(kernel: Kernel, surf, textures, ctx: Context):
+    """The colour an appearance kernel gives: (rgb float32[3], first non-finite statement)."""
+    from .codegen import DEFAULT_ALBEDO
+
+    _STATE.textures = np.asarray(textures, np.float32).reshape(-1)
+    _STATE.rgb = np.full(3, DEFAULT_ALBEDO, np.float32)
+    bad = run_kernel(kernel, None, surf, None, ctx)
+    return _STATE.rgb.copy(), bad

@@ -18,7 +18,7 @@ from lark import Token, Transformer, v_args
 from . import ast as A
 from .diagnostics import Diagnostic, GammaError
 
-_DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update|param|import|assign)\b", re.MULTILINE)
+_DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update|param|import|assign|appearance)\b", re.MULTILINE)
 
 
 def grammar_path() -> Path:
@@ -195,6 +195,13 @@ class _ToAst(Transformer):
     def rule_decl(self, meta, c):
         event, ton, surf, body = c
         return A.RuleDecl(str(event), _pos(event), ton, surf, body, _meta_pos(meta))
+
+    def appearance_decl(self, meta, c):
+        surf, body = c
+        return A.AppearanceDecl(surf, body, _meta_pos(meta))
+
+    def string(self, meta, c):
+        return A.String(str(c[0])[1:-1], _pos(c[0]))
 
     def update_decl(self, meta, c):
         surf, body = c
