@@ -221,13 +221,13 @@ def _syntax_diagnostic(err: lark.exceptions.LarkError) -> Diagnostic:
     if isinstance(err, lark.exceptions.UnexpectedToken):
         tok = err.token
         expected = sorted(err.accepts or err.expected)
-        names = {"NAME": "a name", "NUMBER": "a number", "ASSIGN_OP": "'=' or '+='",
+        names = {"NAME": "a name", "NUMBER": "a number", "STRING": "a string", "ASSIGN_OP": "'=' or '+='",
                  "RBRACE": "'}'", "LBRACE": "'{'", "LPAR": "'('", "RPAR": "')'",
                  "COMMA": "','", "COLON": "':'", "EQUAL": "'='", "SEMICOLON": "';'",
                  "MINUS": "'-'", "PLUS": "'+'", "STAR": "'*'", "SLASH": "'/'", "DOT": "'.'"}
         shown = [names.get(e, f"'{e.lower()}'")
                  for e in expected if not e.startswith("__")]
-        hint = f"; expected {', '.join(sorted(set(shown))[:6])}" if shown else ""
+        hint = f"; expected {', '.join(sorted(set(shown))[:8])}" if shown else ""
         if tok.type == "$END":
             return Diagnostic(A.Pos(err.line if err.line > 0 else 1, max(1, err.column)),
                               f"unexpected end of file{hint}")
