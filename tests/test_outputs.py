@@ -64,7 +64,7 @@ def test_a_rerun_replaces_the_earlier_run(tmp_path, bumpy_obj):
                        "--out", tmp_path)
         assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in (tmp_path / "maps").iterdir()) == ["iter_0001.ply"]
-    assert sorted(p.name for p in (tmp_path / "renders").iterdir()) == ["iter_0001.png"]
+    assert sorted(p.name for p in (tmp_path / "renders").iterdir() if p.is_file()) == ["iter_0001.png"]
 
 
 def test_no_temporary_files_left(patina_run):

@@ -92,6 +92,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--max-interactions", type=_bounded_int, default=100, help="bound on interactions per gamma-ton")
     r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
     r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
+    r.add_argument("--samples", type=_bounded_int, default=4,
+                   help="camera rays per pixel of appearance renders (anti-aliasing)")
+    r.add_argument("--ao", type=_bounded_int, default=8, dest="ao_samples",
+                   help="ambient-occlusion rays per pixel sample (0: none)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -183,7 +187,8 @@ def main(argv=None) -> int:
                           iterations=args.iterations, surfels=args.surfels, tons=args.tons,
                           seed=args.seed, threads=args.threads,
                           max_interactions=args.max_interactions, show=args.show,
-                          width=args.size, height=args.size, progress=not args.quiet)
+                          width=args.size, height=args.size, progress=not args.quiet,
+                          samples=args.samples, ao_samples=args.ao_samples)
         try:
             summary = run(effect, opts)
         except RunError as err:

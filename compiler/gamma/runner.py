@@ -8,6 +8,7 @@ into the runtime's ``Config`` and the run's outputs.
 
 from __future__ import annotations
 
+import io
 import math
 import sys
 import time
@@ -44,6 +45,8 @@ class RunOptions:
     show: str | None = None       # property rendered in false colour
     width: int = 512
     height: int = 512
+    samples: int = 4            # camera rays per pixel (appearance renders)
+    ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
 
 
@@ -62,13 +65,14 @@ DEFAULT_STEP = Length(0.005, relative=True)
 #: Upper bounds on options, so a typo cannot ask for terabytes.
 LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
           "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
-          "--size": (16, 8192), "--seed": (0, 2**63 - 1)}
+          "--size": (16, 8192), "--seed": (0, 2**63 - 1), "--samples": (1, 64), "--ao": (0, 256)}
 
 
 def check_limits(opts: "RunOptions") -> None:
     values = {"--iterations": opts.iterations, "--surfels": opts.surfels, "--threads": opts.threads,
               "--tons": opts.tons or 0, "--max-interactions": opts.max_interactions,
-              "--size": min(opts.width, opts.height), "--seed": opts.seed}
+              "--size": min(opts.width, opts.height), "--seed": opts.seed,
+              "--samples": opts.samples, "--ao": opts.ao_samples}
     for name, value in values.items():
         low, high = LIMITS[name]
         if not low <= value <= high:
@@ -142,7 +146,33 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
                           kernels.address[k.symbol], k.writes_surface)
     for k in effect.update_kernels():
         cfg.set_update(k.surface.index, kernels.address[k.symbol])
+    for k in effect.appearance_kernels():
+        cfg.set_appearance(k.surface.index, kernels.address[k.symbol])
     return cfg
+
+
+def load_textures(effect: Effect) -> list[np.ndarray]:
+    """Every texture() image as float32 [H, W, 3] in [0, 1] (display values)."""
+    from PIL import Image, UnidentifiedImageError
+
+    images = []
+    for path in effect.textures:
+        try:
+            with Image.open(path) as image:
+                images.append(np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0)
+        except (OSError, UnidentifiedImageError) as err:
+            raise RunError(f"cannot read texture '{path}': {err}") from None
+    return images
+
+
+def sun_direction(camera) -> tuple[float, float, float]:
+    """Toward the sun: above the scene, over the camera's left shoulder."""
+    eye, target, up, _ = (np.asarray(v, float) if i < 3 else v for i, v in enumerate(camera))
+    view = eye - target
+    view /= np.linalg.norm(view)
+    left = np.cross(up, view)
+    sun = 1.0 * up + 0.45 * view + 0.5 * left
+    return tuple(sun / np.linalg.norm(sun))
 
 
 DEFAULT_VIEW = (-0.6, 0.35, 1.0)   # front-left-above for a +z-facing, y-up model
@@ -202,10 +232,12 @@ def prepare_output(out: Path) -> None:
     """Create the folders up front (fail before any work) and drop the
     iteration files of an earlier run, so the folder describes one run."""
     try:
-        for sub in ("maps", "renders"):
+        for sub in ("maps", "renders", "renders/false_colour"):
             (out / sub).mkdir(parents=True, exist_ok=True)
             for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9].*"):
                 stale.unlink()
+        for stale in ("sequence.gif", "strip.png"):
+            (out / "renders" / stale).unlink(missing_ok=True)
     except OSError as err:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
@@ -246,6 +278,11 @@ def run(effect: Effect, opts: RunOptions) -> dict:
     except (ValueError, TypeError, RuntimeError) as err:
         raise RunError(str(err).removeprefix("config: ")) from None
     setup_seconds = time.perf_counter() - t0
+    looks = bool(effect.appearance_kernels())
+    if looks:
+        sim.set_textures(load_textures(effect))
+    camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down)
+    frames = []
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     pos, nrm = sim.surfel_positions(), sim.surfel_normals()
@@ -265,6 +302,7 @@ def run(effect: Effect, opts: RunOptions) -> dict:
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
         "rendered": shown,
+        "appearance": bool(effect.appearance_kernels()),
         "iterations": [],
     }
     history = []
@@ -293,12 +331,16 @@ def run(effect: Effect, opts: RunOptions) -> dict:
             write_json(out / "summary.json", summary)
             if shown is not None:
                 history.append(props[shown].copy())
+            if looks:
+                frames.append(render_appearance(sim, out, opts, threads, camera, it))
             rate = stats["emitted"] / max(stats["trace_seconds"], 1e-9)
             progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
                                 f"{rate / 1e3:.0f}k γ-tons/s")
         if shown is not None:
-            camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down)
-            render_history(sim, history, shown, out, opts, threads, camera)
+            folder = out / "renders" / ("false_colour" if looks else "")
+            render_history(sim, history, shown, folder, opts, threads, camera)
+        if frames:
+            write_sequence(frames, out / "renders")
     except OSError as err:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
     return summary
@@ -340,6 +382,40 @@ def llvm_version():
     return llvmlite.binding.llvm_version_info
 
 
+def render_appearance(sim, out: Path, opts: RunOptions, threads: int, camera, iteration: int):
+    """The scene as its appearance blocks paint it (sun, sky, ambient occlusion)."""
+    from PIL import Image
+
+    eye, target, up, fov = camera
+    image = sim.render_appearance(eye, target, up, fov, opts.width, opts.height, threads,
+                                  opts.samples, sun_direction(camera), opts.ao_samples, iteration)
+    rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
+    picture = Image.fromarray((rgb * 255 + 0.5).astype(np.uint8))
+    buffer = io.BytesIO()
+    picture.save(buffer, format="PNG")
+    atomic_write(out / "renders" / f"iter_{iteration:04d}.png", buffer.getvalue())
+    return picture
+
+
+def write_sequence(frames: list, folder: Path) -> None:
+    """The iterations as an animated GIF and as a strip of (at most 5) of them."""
+    buffer = io.BytesIO()
+    frames[0].save(buffer, format="GIF", save_all=True, append_images=frames[1:], duration=400, loop=0)
+    atomic_write(folder / "sequence.gif", buffer.getvalue())
+    chosen = sorted({round(i * (len(frames) - 1) / 4) for i in range(5)}) if len(frames) > 1 else [0]
+    from PIL import Image, ImageDraw
+
+    w, h = frames[0].size
+    strip = Image.new("RGB", (w * len(chosen), h), (255, 255, 255))
+    draw = ImageDraw.Draw(strip)
+    for slot, index in enumerate(chosen):
+        strip.paste(frames[index], (slot * w, 0))
+        draw.text((slot * w + 8, 8), f"iteration {index + 1}", fill=(0, 0, 0))
+    buffer = io.BytesIO()
+    strip.save(buffer, format="PNG")
+    atomic_write(folder / "strip.png", buffer.getvalue())
+
+
 def render_history(sim, history, shown, out: Path, opts: RunOptions, threads: int, camera) -> None:
     """One false-colour PNG per iteration, all on the same colour scale
     (non-finite values, which a rule can produce, are left out of the scale)."""
@@ -354,7 +430,7 @@ def render_history(sim, history, shown, out: Path, opts: RunOptions, threads: in
         value, shade = sim.render(np.ascontiguousarray(values), eye, target, up,
                                   fov, opts.width, opts.height, threads)
         png = false_colour_png(value, shade, vmin, vmax, shown, f"{shown}, iteration {it}")
-        atomic_write(out / "renders" / f"iter_{it:04d}.png", png)
+        atomic_write(out / f"iter_{it:04d}.png", png)
 
 
 def _cpu_count() -> int:

@@ -181,9 +181,12 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> S
             verts.append(p.vertices)
             tris.append(np.asarray(p.mesh.triangles(), np.int64) + base)
             base += len(p.vertices)
+        # texture coordinates survive only if every part has them
+        uvs = (np.concatenate([np.asarray(p.mesh.triangle_uvs(), np.float32) for p in parts])
+               if all(p.mesh.has_uvs for p in parts) else None)
         try:
             mesh = rt.Mesh.from_arrays(np.concatenate(verts).astype(np.float32),
-                                       np.concatenate(tris).astype(np.int32))
+                                       np.concatenate(tris).astype(np.int32), uvs)
         except (ValueError, RuntimeError) as err:
             raise SceneError(f"scene '{path}': {err}") from None
     surface = np.concatenate(surface_of).astype(np.int32)

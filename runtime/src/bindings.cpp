@@ -87,14 +87,19 @@ NB_MODULE(_runtime, m) {
         .def_static("load", [](const std::string& path) { return gammart::Mesh::load(path); }, "path"_a)
         .def_static(
             "from_arrays",
-            [](nb::handle verts, nb::handle tris) {
+            [](nb::handle verts, nb::handle tris, nb::handle uvs) {
                 F32 v = as_f32(verts);
                 I32 t = as_i32(tris);
                 if (v.ndim() != 2 || v.shape(1) != 3) throw Error("from_arrays: vertices must have shape (n, 3)");
                 if (t.ndim() != 2 || t.shape(1) != 3) throw Error("from_arrays: triangles must have shape (m, 3)");
-                return gammart::Mesh::from_arrays(v.data(), v.shape(0), t.data(), t.shape(0));
+                if (uvs.is_none()) return gammart::Mesh::from_arrays(v.data(), v.shape(0), t.data(), t.shape(0));
+                F32 uv = as_f32(uvs);
+                if (uv.ndim() != 3 || uv.shape(0) != t.shape(0) || uv.shape(1) != 3 || uv.shape(2) != 2)
+                    throw Error("from_arrays: uvs must have shape (" + std::to_string(t.shape(0)) + ", 3, 2)");
+                return gammart::Mesh::from_arrays(v.data(), v.shape(0), t.data(), t.shape(0), "<arrays>",
+                                                  uv.data());
             },
-            "vertices"_a, "triangles"_a)
+            "vertices"_a, "triangles"_a, "uvs"_a.none() = nb::none())
         .def_prop_ro("num_vertices", &gammart::Mesh::num_vertices)
         .def_prop_ro("num_triangles", &gammart::Mesh::num_triangles)
         .def_prop_ro("degenerate_dropped", [](const gammart::Mesh& me) { return me.degenerate_dropped; })
@@ -105,6 +110,13 @@ NB_MODULE(_runtime, m) {
                                                nb::make_tuple(me.hi[0], me.hi[1], me.hi[2]));
                      })
         .def("vertices", [](const gammart::Mesh& me) { return to_numpy<float>(me.vertices, {me.num_vertices(), 3}); })
+        .def_prop_ro("has_uvs", &gammart::Mesh::has_uvs)
+        .def("triangle_uvs",
+             [](const gammart::Mesh& me) {
+                 const size_t m = me.num_triangles();
+                 return to_numpy<float>(me.has_uvs() ? me.uvs : std::vector<float>(6 * m, 0.0f), {m, 3, 2});
+             },
+             "Texture coordinates per kept triangle corner, float32[m, 3, 2] (zeros without UVs).")
         .def("part_names", [](const gammart::Mesh& me) { return me.part_names; })
         .def("triangle_labels",
              [](const gammart::Mesh& me) {
@@ -170,6 +182,7 @@ NB_MODULE(_runtime, m) {
         .def("set_transport", &gammart::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
              "writes_surface"_a)
         .def("set_update", &gammart::Config::set_update, "surface"_a, "address"_a)
+        .def("set_appearance", &gammart::Config::set_appearance, "surface"_a, "address"_a)
         .def_prop_ro("num_ton_types", [](const gammart::Config& c) { return c.ton_types.size(); })
         .def_prop_ro("num_sources", [](const gammart::Config& c) { return c.sources.size(); });
 
@@ -273,5 +286,67 @@ NB_MODULE(_runtime, m) {
                  return nb::make_tuple(to_numpy<float>(std::move(val), {size_t(height), size_t(width)}),
                                        to_numpy<float>(std::move(shade), {size_t(height), size_t(width)}));
              },
-             "values"_a, "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a);
+             "values"_a, "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a)
+        .def("set_textures",
+             [](gammart::Simulation& s, nb::handle list) {
+                 std::vector<gammart::Texture> tex;
+                 size_t i = 0;
+                 for (nb::handle item : list) {
+                     F32 a = as_f32(item);
+                     if (a.ndim() != 3 || a.shape(2) != 3)
+                         throw Error("set_textures: texture " + std::to_string(i) + " must have shape (H, W, 3)");
+                     gammart::Texture t;
+                     t.height = int(a.shape(0));
+                     t.width = int(a.shape(1));
+                     t.rgb.assign(a.data(), a.data() + a.shape(0) * a.shape(1) * 3);
+                     tex.push_back(std::move(t));
+                     ++i;
+                 }
+                 s.set_textures(std::move(tex));
+             },
+             "textures"_a, "Textures (float32[H, W, 3], row 0 = top) for the appearance kernels, in order.")
+        .def_prop_ro("num_textures", [](const gammart::Simulation& s) { return s.textures().size(); })
+        .def("render_appearance",
+             [](gammart::Simulation& s, std::array<float, 3> eye, std::array<float, 3> target,
+                std::array<float, 3> up, float fov_deg, int width, int height, int threads, int samples,
+                std::array<float, 3> sun_direction, int ao_samples, int iteration) {
+                 gammart::AppearanceParams p;
+                 p.eye = eye;
+                 p.target = target;
+                 p.up = up;
+                 p.fov_deg = fov_deg;
+                 p.width = width;
+                 p.height = height;
+                 p.threads = threads;
+                 p.samples = samples;
+                 p.sun = sun_direction;
+                 p.ao_samples = ao_samples;
+                 p.iteration = iteration;
+                 if (width < 1 || height < 1) throw Error("render_appearance: width and height must be positive");
+                 std::vector<float> img;
+                 gammart::RenderStats st;
+                 {
+                     nb::gil_scoped_release nogil;
+                     img.resize(size_t(width) * size_t(height) * 4);
+                     st = s.render_appearance(p, img.data());
+                 }
+                 s.last_render = std::move(st);
+                 return to_numpy<float>(std::move(img), {size_t(height), size_t(width), 4});
+             },
+             "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a, "samples"_a = 4,
+             "sun_direction"_a = std::array<float, 3>{0, 0, 0}, "ao_samples"_a = 8, "iteration"_a = 0,
+             "Appearance preview: float32[H, W, 4] (display RGB in [0, 1], alpha = geometry coverage).")
+        .def("last_render_stats",
+             [](const gammart::Simulation& s) {
+                 nb::dict d;
+                 d["seconds"] = s.last_render.seconds;
+                 d["rays"] = s.last_render.rays;
+                 d["kernel_calls"] = s.last_render.kernel_calls;
+                 nb::list nf;
+                 for (const auto& x : s.last_render.nonfinite) nf.append(nb::make_tuple(x.surface, x.statement, x.count));
+                 d["nonfinite"] = nf;
+                 return d;
+             },
+             "Counters of the last render_appearance: {seconds, rays, kernel_calls, nonfinite: "
+             "[(surface, statement, count)]}.");
 }

@@ -43,8 +43,9 @@ struct Labels {
     std::vector<int32_t> object, group, material;
 };
 
+// `uvs`: m*6 floats (per input triangle corner) or nullptr.
 Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::string& name,
-           const Labels* labels = nullptr) {
+           const Labels* labels = nullptr, const float* uvs = nullptr) {
     Mesh mesh;
     mesh.name = name;
     const size_t n = verts.size() / 3;
@@ -59,6 +60,11 @@ Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::s
                             " has vertex index " + std::to_string(v) + " out of range (" +
                             std::to_string(n) + " vertices)");
         }
+    if (uvs)
+        for (size_t i = 0; i < 6 * m; ++i)
+            if (!std::isfinite(uvs[i]))
+                throw Error("mesh " + q(name) + ": triangle " + std::to_string(i / 6) +
+                            " has a non-finite texture coordinate");
     // Bounds over vertices used by triangles; the diagonal in double (a float
     // sum of squares overflows for coordinates beyond ~1e19).
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
@@ -89,6 +95,7 @@ Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::s
         if (!(area >= min_area) || area == 0.0) { mesh.degenerate_dropped++; continue; }
         for (int k = 0; k < 3; ++k) mesh.triangles.push_back(tris[3 * t + k]);
         mesh.original_triangle.push_back(int32_t(t));
+        if (uvs) mesh.uvs.insert(mesh.uvs.end(), uvs + 6 * t, uvs + 6 * t + 6);
         if (labels) {
             mesh.object_id.push_back(labels->object[t]);
             mesh.group_id.push_back(labels->group[t]);
@@ -233,6 +240,12 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
     std::vector<Pending> corner_src;
     std::vector<int64_t> face;
     std::vector<Pending> face_src;
+    // Texture coordinates: `vt` values (2 per entry) and, per triangle corner,
+    // the 0-based vt index (checked at the end like vertex indices).
+    std::vector<float> texcoords;
+    std::vector<int64_t> tri_vt, face_vt;
+    std::vector<Pending> vt_src, face_vt_src;
+    bool all_corners_have_vt = true;
     size_t line_no = 0, pos = 0;
     const std::string where = "mesh " + q(name) + ": ";
     while (pos < text.size()) {
@@ -262,12 +275,56 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
                 p = endp;
             }
             verts.insert(verts.end(), xyz, xyz + 3);
+        } else if (kw == "vt") {
+            // vt u [v [w]]: v defaults to 0, w is ignored.
+            const char* p = line.c_str() + b;
+            float uv[2] = {0.0f, 0.0f};
+            for (int k = 0; k < 2; ++k) {
+                char* endp = nullptr;
+                double c = std::strtod(p, &endp);
+                if (endp == p) {
+                    if (k == 1) break;
+                    throw Error(where + "line " + std::to_string(line_no) + ": cannot read texture coordinates");
+                }
+                if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
+                    throw Error(where + "line " + std::to_string(line_no) + ": texture coordinate is not finite");
+                uv[k] = float(c);
+                p = endp;
+            }
+            texcoords.insert(texcoords.end(), uv, uv + 2);
         } else if (kw == "f") {
             face.clear();
             face_src.clear();
+            face_vt.clear();
+            face_vt_src.clear();
             std::istringstream ls(line.substr(b));
             std::string tok;
             while (ls >> tok) {
+                // Texture index: between the first and the second '/'.
+                const size_t s1 = tok.find('/');
+                std::string tpart;
+                if (s1 != std::string::npos) {
+                    const size_t s2 = tok.find('/', s1 + 1);
+                    tpart = tok.substr(s1 + 1, s2 == std::string::npos ? std::string::npos : s2 - s1 - 1);
+                }
+                if (tpart.empty()) {
+                    all_corners_have_vt = false;
+                    face_vt.push_back(0);
+                    face_vt_src.push_back({line_no, 0});
+                } else {
+                    char* tend = nullptr;
+                    long long tidx = std::strtoll(tpart.c_str(), &tend, 10);
+                    if (*tend != '\0')
+                        throw Error(where + "face on line " + std::to_string(line_no) + ": cannot read '" + tok + "'");
+                    const int64_t nt = int64_t(texcoords.size() / 2);
+                    int64_t tz = tidx < 0 ? nt + tidx : tidx - 1;
+                    if (tidx < 0 && tz < 0)
+                        throw Error(where + "face on line " + std::to_string(line_no) + " has texture index " +
+                                    std::to_string(tidx) + " out of range (" + std::to_string(nt) +
+                                    " texture coordinates)");
+                    face_vt.push_back(tz);
+                    face_vt_src.push_back({line_no, tidx});
+                }
                 const std::string first = tok.substr(0, tok.find('/'));
                 char* endp = nullptr;
                 long long idx = std::strtoll(first.c_str(), &endp, 10);
@@ -293,6 +350,8 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
                 for (size_t c : corner) {
                     tris.push_back(int32_t(std::min<int64_t>(face[c], INT32_MAX)));
                     corner_src.push_back(face_src[c]);
+                    tri_vt.push_back(face_vt[c]);
+                    vt_src.push_back(face_vt_src[c]);
                 }
                 labels.object.push_back(cur_object);
                 labels.group.push_back(cur_group);
@@ -305,7 +364,7 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
         } else if (kw == "usemtl") {
             cur_material = intern(trim(line, b));
         }
-        // Everything else (vt, vn, s, mtllib, l, p, ...) is ignored.
+        // Everything else (vn, s, mtllib, l, p, ...) is ignored.
     }
     const int64_t nv = int64_t(verts.size() / 3);
     for (size_t i = 0; i < tris.size(); ++i)
@@ -313,7 +372,21 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
             throw Error(where + "face on line " + std::to_string(corner_src[i].line) + " has vertex index " +
                         std::to_string(corner_src[i].written) + " out of range (" + std::to_string(nv) +
                         " vertices)");
-    return build(std::move(verts), tris.data(), tris.size() / 3, name, &labels);
+    // UVs only if every corner of every face names a texture coordinate.
+    std::vector<float> uvs;
+    if (all_corners_have_vt && !tris.empty()) {
+        const int64_t nt = int64_t(texcoords.size() / 2);
+        uvs.resize(2 * tri_vt.size());
+        for (size_t i = 0; i < tri_vt.size(); ++i) {
+            if (tri_vt[i] < 0 || tri_vt[i] >= nt)
+                throw Error(where + "face on line " + std::to_string(vt_src[i].line) + " has texture index " +
+                            std::to_string(vt_src[i].written) + " out of range (" + std::to_string(nt) +
+                            " texture coordinates)");
+            uvs[2 * i] = texcoords[2 * size_t(tri_vt[i])];
+            uvs[2 * i + 1] = texcoords[2 * size_t(tri_vt[i]) + 1];
+        }
+    }
+    return build(std::move(verts), tris.data(), tris.size() / 3, name, &labels, uvs.empty() ? nullptr : uvs.data());
 }
 
 Mesh Mesh::load(const std::string& path) {
@@ -372,8 +445,8 @@ Mesh Mesh::load(const std::string& path) {
 }
 
 Mesh Mesh::from_arrays(const float* verts, size_t n, const int32_t* tris, size_t m,
-                       const std::string& name) {
-    return build(std::vector<float>(verts, verts + 3 * n), tris, m, name);
+                       const std::string& name, const float* uvs) {
+    return build(std::vector<float>(verts, verts + 3 * n), tris, m, name, nullptr, uvs);
 }
 
 }  // namespace gammart

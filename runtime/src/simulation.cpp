@@ -180,6 +180,8 @@ struct Simulation::Impl {
     int n_types = 0, n_surfaces = 0;
     std::vector<TransportSlot> transport;        // [event][type][surface]
     std::vector<GammaUpdateKernel> update;       // [surface]
+    std::vector<GammaAppearanceKernel> appearance;  // [surface]
+    size_t n_surfels = 0;
     std::vector<SourceRt> sources;
     size_t max_carry = 1;
     std::vector<ChunkLog> logs;
@@ -209,6 +211,57 @@ struct Simulation::Impl {
         RTCIntersectContext ictx;
         rtcInitIntersectContext(&ictx);
         rtcIntersect1(scene, &ictx, &rh);
+    }
+
+    // Shadow / AO ray: true if anything lies between tnear and tfar.
+    bool occluded(V3 org, V3 dir, float tnear, float tfar) const {
+        RTCRay ray;
+        ray.org_x = org.x; ray.org_y = org.y; ray.org_z = org.z;
+        ray.dir_x = dir.x; ray.dir_y = dir.y; ray.dir_z = dir.z;
+        ray.tnear = tnear;
+        ray.tfar = tfar;
+        ray.time = 0;
+        ray.mask = 0xFFFFFFFFu;
+        ray.id = 0;
+        ray.flags = 0;
+        RTCIntersectContext ictx;
+        rtcInitIntersectContext(&ictx);
+        rtcOccluded1(scene, &ictx, &ray);
+        return ray.tfar < 0;  // Embree sets tfar = -inf on a hit
+    }
+
+    // See Simulation::smoothing_weights.
+    size_t smooth(int surface, const float p[3], uint32_t* idx, double* w) const {
+        constexpr size_t K = kSmoothingNeighbours;
+        const KDTree* tree = kd.get();
+        const uint32_t* map = nullptr;
+        size_t count = n_surfels;
+        if (surface >= 0 && surface < n_surfaces && trees[size_t(surface)].kd) {
+            const SurfaceTree& t = trees[size_t(surface)];
+            tree = t.kd.get();
+            map = t.index.data();
+            count = t.index.size();
+        }
+        float d2[K];
+        nanoflann::KNNResultSet<float, uint32_t> rs(std::min(K, count));
+        rs.init(idx, d2);
+        tree->findNeighbors(rs, p, nanoflann::SearchParams());
+        size_t got = rs.size();
+        const double inv2s2 = 1.0 / (2.0 * double(sigma) * double(sigma));
+        double sw = 0;
+        for (size_t j = 0; j < got; ++j) {
+            w[j] = std::exp(-double(d2[j]) * inv2s2);
+            sw += w[j];
+        }
+        if (sw > 0) {
+            for (size_t j = 0; j < got; ++j) w[j] /= sw;
+        } else {  // every weight underflowed: the nearest surfel alone
+            got = 1;
+            w[0] = 1.0;
+        }
+        if (map)
+            for (size_t j = 0; j < got; ++j) idx[j] = map[idx[j]];
+        return got;
     }
 
     // Environment-sphere emission (origin on the bounding sphere, cosine about
@@ -475,10 +528,18 @@ Simulation::Simulation(const Mesh& mesh, const Config& config)
                  std::to_string(nsurf) + " surfaces)");
         I.update[u.surface] = reinterpret_cast<GammaUpdateKernel>(static_cast<uintptr_t>(u.address));
     }
+    I.appearance.assign(nsurf, nullptr);
+    for (const AppearanceEntry& a : c.appearances) {
+        if (a.surface < 0 || a.surface >= nsurf)
+            fail("config: appearance surface index " + std::to_string(a.surface) + " out of range (" +
+                 std::to_string(nsurf) + " surfaces)");
+        I.appearance[a.surface] = reinterpret_cast<GammaAppearanceKernel>(static_cast<uintptr_t>(a.address));
+    }
 
     // Surfels.
     surf_ = sample_surfels(mesh_, size_t(c.surfels), c.seed);
     n_ = surf_.triangle.size();
+    I.n_surfels = n_;
     w_ = W;
     surfel_surface_.resize(n_);
     rows_.resize(n_ * size_t(W));
@@ -854,60 +915,254 @@ RaycastStats Simulation::raw_raycast(int64_t n_rays, int threads, uint64_t seed)
     st.seconds = seconds_since(t0);
     return st;
 }
+namespace {
+
+// Pinhole camera, vertical field of view fov_deg, row 0 = top.  dir(px, py)
+// is the ray through image position (px, py) in pixels ((x + 0.5, y + 0.5) =
+// the centre of pixel (x, y)).
+struct Camera {
+    V3 eye, fwd, right, camup;
+    float th = 1, aspect = 1, w = 1, h = 1;
+    Camera(std::array<float, 3> e, std::array<float, 3> target, std::array<float, 3> up, float fov_deg, int width,
+           int height) {
+        eye = V3{e[0], e[1], e[2]};
+        fwd = normalize(V3{target[0], target[1], target[2]} - eye);
+        right = normalize(cross(fwd, V3{up[0], up[1], up[2]}));
+        if (!(length(right) > 0.5f)) {
+            V3 t, b;
+            onb(fwd, t, b);
+            right = t;
+        }
+        camup = cross(right, fwd);
+        th = std::tan(0.5f * fov_deg * 3.14159265358979f / 180.0f);
+        w = float(width);
+        h = float(std::max(height, 1));
+        aspect = float(width) / h;
+    }
+    V3 dir(float px, float py) const {
+        const float sx = (2.0f * px / w - 1.0f) * th * aspect;
+        const float sy = (1.0f - 2.0f * py / h) * th;
+        return normalize(fwd + right * sx + camup * sy);
+    }
+};
+
+// Fixed Philox key and stream of the appearance render (independent of the
+// simulation seed: the picture's noise does not change between runs).
+constexpr uint64_t kRenderKey = 0x47414D4D41524E44ULL;  // "GAMMARND"
+constexpr uint32_t kRenderStream = 0xFFFFFFFEu;         // sampling uses 0xFFFFFFFF
+
+inline float clamp01(float x) { return x > 0.0f ? (x < 1.0f ? x : 1.0f) : 0.0f; }  // NaN -> 0
+
+}  // namespace
+
 void Simulation::render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
                         std::array<float, 3> up, float fov_deg, int width, int height, int threads,
                         float* out_value, float* out_shade) const {
     const Impl& I = *impl_;
-    const V3 E{eye[0], eye[1], eye[2]};
-    const V3 fwd = normalize(V3{target[0], target[1], target[2]} - E);
-    V3 right = normalize(cross(fwd, V3{up[0], up[1], up[2]}));
-    if (!(length(right) > 0.5f)) {
-        V3 t, b;
-        onb(fwd, t, b);
-        right = t;
-    }
-    const V3 camup = cross(right, fwd);
-    const V3 light = normalize(fwd * -1.0f + camup * 0.35f - right * 0.35f);
-    const float th = std::tan(0.5f * fov_deg * 3.14159265358979f / 180.0f);
-    const float aspect = float(width) / float(std::max(height, 1));
-    const float inv2s2 = 1.0f / (2.0f * I.sigma * I.sigma);
+    const Camera cam(eye, target, up, fov_deg, width, height);
+    const V3 light = normalize(cam.fwd * -1.0f + cam.camup * 0.35f - cam.right * 0.35f);
     const float nan = std::numeric_limits<float>::quiet_NaN();
-    constexpr size_t K = 8;
+    constexpr size_t K = kSmoothingNeighbours;
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
             for (int y = r.begin(); y < r.end(); ++y)
                 for (int x = 0; x < width; ++x) {
-                    const float sx = (2.0f * (float(x) + 0.5f) / float(width) - 1.0f) * th * aspect;
-                    const float sy = (1.0f - 2.0f * (float(y) + 0.5f) / float(height)) * th;
-                    const V3 dir = normalize(fwd + right * sx + camup * sy);
+                    const V3 dir = cam.dir(float(x) + 0.5f, float(y) + 0.5f);
                     RTCRayHit rh;
-                    I.cast(rh, E, dir, 0.0f);
+                    I.cast(rh, cam.eye, dir, 0.0f);
                     const size_t px = size_t(y) * size_t(width) + size_t(x);
                     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
                         out_value[px] = nan;
                         out_shade[px] = nan;
                         continue;
                     }
-                    const V3 p = E + dir * rh.ray.tfar;
+                    const V3 p = cam.eye + dir * rh.ray.tfar;
                     const float q[3] = {p.x, p.y, p.z};
                     uint32_t idx[K];
-                    float d2[K];
-                    const size_t k = std::min(K, n_);
-                    nanoflann::KNNResultSet<float, uint32_t> rs(k);
-                    rs.init(idx, d2);
-                    I.kd->findNeighbors(rs, q, nanoflann::SearchParams());
-                    double sw = 0, sv = 0;
-                    for (size_t j = 0; j < rs.size(); ++j) {
-                        double wj = std::exp(-double(d2[j]) * inv2s2);
-                        sw += wj;
-                        sv += wj * values[idx[j]];
-                    }
-                    out_value[px] = sw > 0 ? float(sv / sw) : values[idx[0]];
+                    double w[K];
+                    const size_t k = I.smooth(I.tri_surface[rh.hit.primID], q, idx, w);
+                    double sv = 0;
+                    for (size_t j = 0; j < k; ++j) sv += w[j] * values[idx[j]];
+                    out_value[px] = float(sv);
                     const V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
                     out_shade[px] = 0.25f + 0.75f * std::fabs(dot(n, light));
                 }
         });
     });
+}
+
+size_t Simulation::smoothing_weights(int surface, const float p[3], uint32_t idx[kSmoothingNeighbours],
+                                     double w[kSmoothingNeighbours]) const {
+    return impl_->smooth(surface, p, idx, w);
+}
+
+void Simulation::interpolate_row(int surface, const float p[3], float* out) const {
+    uint32_t idx[kSmoothingNeighbours];
+    double w[kSmoothingNeighbours];
+    const size_t k = impl_->smooth(surface, p, idx, w);
+    const float* rows = rows_.data();
+    for (int c = 0; c < w_; ++c) {
+        double acc = 0;
+        for (size_t j = 0; j < k; ++j) acc += w[j] * rows[size_t(idx[j]) * size_t(w_) + size_t(c)];
+        out[c] = float(acc);
+    }
+}
+
+float Simulation::smoothing_sigma() const { return impl_->sigma; }
+
+void Simulation::set_textures(std::vector<Texture> textures) {
+    for (size_t i = 0; i < textures.size(); ++i) {
+        const Texture& t = textures[i];
+        const std::string at = "set_textures: texture " + std::to_string(i) + " ";
+        if (t.width < 1 || t.height < 1) throw Error(at + "must have a positive width and height");
+        if (t.rgb.size() != size_t(t.width) * size_t(t.height) * 3)
+            throw Error(at + "must have height*width*3 floats");
+        for (float x : t.rgb)
+            if (!std::isfinite(x)) throw Error(at + "has a non-finite value");
+    }
+    textures_ = std::move(textures);
+}
+
+RenderStats Simulation::render_appearance(const AppearanceParams& P, float* out) const {
+    const auto t0 = std::chrono::steady_clock::now();
+    const Impl& I = *impl_;
+    auto fail = [](const std::string& m) { throw Error("render_appearance: " + m); };
+    if (P.width < 1 || P.height < 1) fail("width and height must be positive");
+    if (int64_t(P.width) * int64_t(P.height) > (int64_t(1) << 28)) fail("image too large");
+    if (!(P.fov_deg > 0 && P.fov_deg < 180)) fail("fov_deg must be in (0, 180)");
+    if (!finite3(P.eye) || !finite3(P.target) || !finite3(P.up) || !finite3(P.sun))
+        fail("eye, target, up and sun_direction must be finite");
+    if (P.eye == P.target) fail("eye and target must differ");
+    if (P.samples < 1 || P.samples > kMaxRenderSamples)
+        fail("samples must be in 1.." + std::to_string(kMaxRenderSamples));
+    if (P.ao_samples < 0 || P.ao_samples > kMaxAoSamples)
+        fail("ao_samples must be in 0.." + std::to_string(kMaxAoSamples));
+    if (P.threads > kMaxThreads) fail("threads must be at most " + std::to_string(kMaxThreads));
+
+    const Camera cam(P.eye, P.target, P.up, P.fov_deg, P.width, P.height);
+    const bool sun_on = nonzero3(P.sun);
+    const V3 sun = sun_on ? unit(P.sun) : V3{0, 0, 0};
+    const float ambient = sun_on ? kAmbientWithSun : kAmbientWithoutSun;
+    const float ao_len = kAoLengthFraction * I.diag;
+    const float inv_gamma = 1.0f / kDisplayGamma;
+    const float eps = I.eps;
+    const V3 up = I.up;
+    const int S = P.samples, A = P.ao_samples;
+    int grid = 1;  // strata per axis: the smallest g with g*g >= S
+    while (grid * grid < S) ++grid;
+    const int W = w_;
+    const size_t T = textures_.size();
+    const bool has_uvs = mesh_.has_uvs();
+    const float* uvs = mesh_.uvs.data();
+    RenderStats stats;
+    std::mutex merge;
+
+    run_with_threads(P.threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int>(0, P.height, 1), [&](const tbb::blocked_range<int>& r) {
+            // Per-task buffers: nothing is allocated per pixel.
+            std::vector<float> row(size_t(W), 0.0f), tex(3 * T + 1, 0.0f);
+            std::vector<NonFinite> bad_local;
+            int64_t rays = 0, calls = 0;
+            for (int y = r.begin(); y < r.end(); ++y)
+                for (int x = 0; x < P.width; ++x) {
+                    const uint64_t pix = uint64_t(y) * uint64_t(P.width) + uint64_t(x);
+                    double acc[3] = {0, 0, 0};
+                    int hits = 0;
+                    for (int s = 0; s < S; ++s) {
+                        PhiloxStream rng(kRenderKey, kRenderStream, pix * uint64_t(S) + uint64_t(s));
+                        float jx = 0.5f, jy = 0.5f;
+                        if (S > 1) {
+                            const float a = rng.next(), b = rng.next();
+                            jx = (float(s % grid) + a) / float(grid);
+                            jy = (float(s / grid) + b) / float(grid);
+                        }
+                        const V3 dir = cam.dir(float(x) + jx, float(y) + jy);
+                        RTCRayHit rh;
+                        I.cast(rh, cam.eye, dir, 0.0f);
+                        ++rays;
+                        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
+                            const float t = 0.5f + 0.5f * dot(dir, up);
+                            for (int c = 0; c < 3; ++c)
+                                acc[c] += kSkyHorizon[c] + t * (kSkyZenith[c] - kSkyHorizon[c]);
+                            continue;
+                        }
+                        ++hits;
+                        const uint32_t prim = rh.hit.primID;
+                        const V3 p = cam.eye + dir * rh.ray.tfar;
+                        V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+                        if (dot(n, dir) > 0) n = n * -1.0f;
+                        const int surface = I.tri_surface[prim];
+                        // Albedo.
+                        float albedo[3] = {kNeutralAlbedo, kNeutralAlbedo, kNeutralAlbedo};
+                        if (GammaAppearanceKernel fn = I.appearance[size_t(surface)]) {
+                            const float q[3] = {p.x, p.y, p.z};
+                            uint32_t idx[kSmoothingNeighbours];
+                            double w[kSmoothingNeighbours];
+                            const size_t k = I.smooth(surface, q, idx, w);
+                            for (int c = 0; c < W; ++c) {
+                                double v = 0;
+                                for (size_t j = 0; j < k; ++j) v += w[j] * rows_[size_t(idx[j]) * size_t(W) + size_t(c)];
+                                row[size_t(c)] = float(v);
+                            }
+                            GammaContext ctx;
+                            ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
+                            ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
+                            ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
+                            ctx.height = dot(p, up) - I.min_up;
+                            ctx.iteration = P.iteration;
+                            ctx.interactions = 0;
+                            set_random_key(ctx, mix64(mix64(kRenderKey ^ pix) ^ uint64_t(s)));
+                            ctx.uv[0] = ctx.uv[1] = 0.0f;
+                            if (has_uvs) {
+                                const float bu = rh.hit.u, bv = rh.hit.v, bw = 1.0f - bu - bv;
+                                const float* c3 = uvs + 6 * size_t(prim);
+                                ctx.uv[0] = bw * c3[0] + bu * c3[2] + bv * c3[4];
+                                ctx.uv[1] = bw * c3[1] + bu * c3[3] + bv * c3[5];
+                            }
+                            for (size_t ti = 0; ti < T; ++ti)
+                                sample_texture(textures_[ti], ctx.uv[0], ctx.uv[1], tex.data() + 3 * ti);
+                            float rgb[3] = {0, 0, 0};
+                            ++calls;
+                            if (int32_t bad = fn(row.data(), tex.data(), rgb, &ctx))
+                                count_nonfinite(bad_local, kAppearanceEvent, 0, surface, bad);
+                            for (int c = 0; c < 3; ++c) albedo[c] = clamp01(rgb[c]);
+                        }
+                        // Lighting: sky ambient x (1 - occluded fraction) + sun.
+                        float light = ambient;
+                        if (A > 0) {
+                            int open = 0;
+                            const V3 o = p + n * eps;
+                            for (int a = 0; a < A; ++a) {
+                                const float u1 = rng.next(), u2 = rng.next();
+                                if (!I.occluded(o, cosine_hemisphere(n, u1, u2), eps, ao_len)) ++open;
+                            }
+                            rays += A;
+                            light = ambient * (float(open) / float(A));
+                        }
+                        if (sun_on) {
+                            const float cs = dot(n, sun);
+                            if (cs > 0) {
+                                ++rays;
+                                if (!I.occluded(p + n * eps, sun, eps, std::numeric_limits<float>::infinity()))
+                                    light += kSunIntensity * cs;
+                            }
+                        }
+                        const float enc = std::pow(light, inv_gamma);  // pow(1, x) == 1 exactly
+                        for (int c = 0; c < 3; ++c) acc[c] += clamp01(albedo[c] * enc);
+                    }
+                    float* o = out + 4 * size_t(pix);
+                    for (int c = 0; c < 3; ++c) o[c] = float(acc[c] / double(S));
+                    o[3] = float(double(hits) / double(S));
+                }
+            std::lock_guard<std::mutex> hold(merge);  // integer counts: order-free
+            stats.rays += rays;
+            stats.kernel_calls += calls;
+            for (const NonFinite& nf : bad_local)
+                count_nonfinite(stats.nonfinite, nf.event, nf.ton_type, nf.surface, nf.statement, nf.count);
+        });
+    });
+    stats.seconds = seconds_since(t0);
+    return stats;
 }
 
 }  // namespace gammart

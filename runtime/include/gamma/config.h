@@ -41,6 +41,11 @@ struct UpdateEntry {
     uint64_t address = 0;
 };
 
+struct AppearanceEntry {
+    int surface = 0;
+    uint64_t address = 0;  // GammaAppearanceKernel; 0 = none (neutral albedo)
+};
+
 struct Config {
     int64_t surfels = 100000;
     uint64_t seed = 1;
@@ -54,6 +59,7 @@ struct Config {
     std::vector<Source> sources;
     std::vector<TransportEntry> transports;
     std::vector<UpdateEntry> updates;
+    std::vector<AppearanceEntry> appearances;
 
     int add_ton_type(float ks, float kp, float kf, std::vector<float> carry, float bounce_distance = 1.0f,
                      float flow_step = 1.0f) {
@@ -77,6 +83,7 @@ struct Config {
         transports.push_back({event, ton_type, surface, address, writes});
     }
     void set_update(int surface, uint64_t address) { updates.push_back({surface, address}); }
+    void set_appearance(int surface, uint64_t address) { appearances.push_back({surface, address}); }
 };
 
 }  // namespace gammart

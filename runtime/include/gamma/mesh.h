@@ -22,6 +22,13 @@ struct Mesh {
     std::vector<std::string> part_names;       // distinct non-empty names, first-seen order
     std::vector<int32_t> object_id, group_id, material_id;
 
+    // Texture coordinates per kept triangle corner: m*6 floats (u0 v0 u1 v1
+    // u2 v2, corners in triangles() order).  Empty when the mesh has no UVs
+    // (an OBJ face corner without a `vt` index anywhere, PLY, or from_arrays
+    // without uvs).
+    std::vector<float> uvs;
+    bool has_uvs() const { return !uvs.empty(); }
+
     size_t num_vertices() const { return vertices.size() / 3; }
     size_t num_triangles() const { return triangles.size() / 3; }
     float diagonal() const { return float(diag); }
@@ -32,9 +39,11 @@ struct Mesh {
     static Mesh load(const std::string& path);
     // Parses OBJ text; `name` is used in messages (exposed for tests).
     static Mesh parse_obj(const std::string& text, const std::string& name);
-    // Validates and builds from raw arrays.  Throws gammart::Error.
+    // Validates and builds from raw arrays; `uvs` (optional) holds m*6 floats,
+    // the texture coordinates of each input triangle's 3 corners.  Throws
+    // gammart::Error.
     static Mesh from_arrays(const float* verts, size_t n, const int32_t* tris, size_t m,
-                            const std::string& name = "<arrays>");
+                            const std::string& name = "<arrays>", const float* uvs = nullptr);
 };
 
 }  // namespace gammart

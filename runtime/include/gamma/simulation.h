@@ -8,6 +8,7 @@
 
 #include "gamma/config.h"
 #include "gamma/mesh.h"
+#include "gamma/render.h"
 #include "gamma/surfels.h"
 
 namespace gammart {
@@ -32,6 +33,14 @@ struct TraceStats {
 };
 
 struct UpdateStats {
+    std::vector<NonFinite> nonfinite;
+    double seconds = 0;
+};
+
+// Counters of one render_appearance call.  nonfinite: event kAppearanceEvent,
+// ton_type 0, surface, statement, count (per camera sample that hit).
+struct RenderStats {
+    int64_t rays = 0, kernel_calls = 0;
     std::vector<NonFinite> nonfinite;
     double seconds = 0;
 };
@@ -82,6 +91,30 @@ public:
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads,
                 float* out_value, float* out_shade) const;
 
+    // Textures for the appearance kernels (kernel argument `textures`, 3
+    // floats per texture in this order).  Throws gammart::Error.
+    void set_textures(std::vector<Texture> textures);
+    const std::vector<Texture>& textures() const { return textures_; }
+    // Physically plausible preview: appearance kernels per camera sample,
+    // sky ambient x AO + sun with shadows.  out_rgba: height*width*4.
+    // Throws gammart::Error on bad parameters.
+    RenderStats render_appearance(const AppearanceParams& params, float* out_rgba) const;
+
+    // The property smoothing shared by both renders: the k = 8 nearest
+    // surfels of `surface` to p (all surfels if the surface has none; the
+    // nearest k of all if surface is out of range), Gaussian weights
+    // exp(-d^2 / (2 sigma^2)), sigma = sqrt(A/N), normalised to sum 1; if
+    // every weight underflows, the nearest surfel alone (weight 1).  Returns
+    // the number of neighbours written to idx / w (nearest first).
+    size_t smoothing_weights(int surface, const float p[3], uint32_t idx[kSmoothingNeighbours],
+                             double w[kSmoothingNeighbours]) const;
+    // The smoothed row (W floats): out[c] = float(sum_j w_j * row_j[c]).
+    void interpolate_row(int surface, const float p[3], float* out) const;
+    float smoothing_sigma() const;
+
+    // Filled by the Python binding after render_appearance (GIL held).
+    RenderStats last_render;
+
     // Index of the surfel nearest to p (any surface).
     uint32_t nearest_surfel(const float p[3]) const;
     // Index of the surfel of `surface` nearest to p (any surfel if the
@@ -99,6 +132,7 @@ private:
     SurfelSet surf_;
     std::vector<int32_t> surfel_surface_;
     std::vector<float> rows_;
+    std::vector<Texture> textures_;
 };
 
 }  // namespace gammart
