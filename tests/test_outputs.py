@@ -95,3 +95,34 @@ def test_non_finite_results_are_reported_once_and_kept_out_of_the_maps(tmp_path,
                                      "first_iteration": 1}]
     cols = read_ply(tmp_path / "o" / "maps" / "iter_0002.ply")
     assert np.all(np.isfinite(cols["q"])) and np.all(cols["q"] == 0) and cols["p"].sum() > 0
+
+
+def test_appearance_renders_sequence_and_false_colour(tmp_path):
+    """An effect with an appearance block: textured pictures per iteration,
+    an animated GIF, a strip, and the false colour beside them."""
+    from meshes import write_obj
+
+    verts = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1], [0, 1, 0]], float)
+    faces = [(0, 2, 1), (0, 3, 2), (0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4)]
+    lines = [f"v {x} {y} {z}" for x, y, z in verts] + ["vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1", "vt 0.5 0.5"]
+    lines += [f"f {a + 1}/{[1, 2, 3, 4, 5][a]} {b + 1}/{[1, 2, 3, 4, 5][b]} {c + 1}/{[1, 2, 3, 4, 5][c]}"
+              for a, b, c in faces]
+    (tmp_path / "pyramid.obj").write_text("\n".join(lines) + "\n")
+    Image.new("RGB", (4, 4), (200, 40, 40)).save(tmp_path / "red.png")
+    (tmp_path / "look.gamma").write_text(
+        "ton T { motion straight = 0.5 carry a = 1 }\nsurface S { property p = 0 }\n"
+        "source s = environment(sphere) emits T count 20000\non settle(t: T, s: S) { s.p += 0.01 * t.a }\n"
+        'appearance(s: S) {\n    color = mix(texture("red.png"), rgb(0, 0.5, 1), clamp(s.p, 0, 1))\n}\n')
+    out = tmp_path / "out"
+    r = run_gammac("run", tmp_path / "look.gamma", "--scene", tmp_path / "pyramid.obj", "--surfels", 2000,
+                   "--iterations", 3, "--size", 64, "--quiet", "--out", out)
+    assert r.returncode == 0, r.stderr
+    for i in (1, 2, 3):
+        assert Image.open(out / "renders" / f"iter_{i:04d}.png").size == (64, 64)
+        assert (out / "renders" / "false_colour" / f"iter_{i:04d}.png").is_file()
+    gif = Image.open(out / "renders" / "sequence.gif")
+    assert gif.n_frames == 3
+    assert Image.open(out / "renders" / "strip.png").size == (64 * 3, 64)
+    pixels = np.asarray(Image.open(out / "renders" / "iter_0001.png").convert("RGB")).reshape(-1, 3).astype(int)
+    assert np.any(pixels[:, 0] > pixels[:, 2] + 40)     # the red texture shows somewhere
+    assert json.loads((out / "summary.json").read_text())["appearance"] is True
