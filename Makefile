@@ -80,6 +80,7 @@ bench: install
 	$(PY) bench/bench_patina.py
 	$(PY) bench/bench_stain.py
 	$(PY) bench/bench_compile.py
+	$(PY) bench/bench_render.py
 
 clean:
 	rm -rf build build-tests out $(VENV)

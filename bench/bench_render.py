@@ -1,0 +1,70 @@
+"""Benchmark: a 512 x 512 appearance render of the Stanford bunny with
+100,000 surfels on 1 and 2 threads (goal, issue 5: under 1 s on 2 cores).
+
+    .venv/bin/python bench/bench_render.py [--record]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import time
+from pathlib import Path
+
+from bench_patina import SCENE, cpu_name
+from gamma.backend import JitKernels
+from gamma.checker import check
+from gamma.parser import parse
+from gamma.runner import RunOptions, auto_camera, build_config, runtime_module, sun_direction
+
+ROOT = Path(__file__).resolve().parent.parent
+EFFECT = """
+ton Weather { motion straight = 1.0  carry patina = 1.0 }
+surface Copper { reflectance straight = 0.5  property patina = 0.0 }
+source air = environment(sphere) emits Weather count 1000000
+on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina }
+appearance(s: Copper) {
+    color = mix(rgb(0.55, 0.35, 0.2), rgb(0.27, 0.58, 0.5), smoothstep(0, 0.5, s.patina))
+}
+"""
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--record", action="store_true")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    rt = runtime_module()
+    effect = check(parse(EFFECT, "bench.gamma"))
+    kernels = JitKernels(effect)
+    mesh = rt.Mesh.load(str(SCENE))
+    cfg = build_config(rt, effect, kernels, RunOptions(scene="", out="", threads=2), mesh.bounds,
+                       (0.0, -1.0, 0.0))
+    sim = rt.Simulation(mesh, cfg)
+    sim.trace(1)
+    camera = auto_camera(mesh.bounds)
+    eye, target, up, fov = camera
+    rows = []
+    for samples, ao in ((1, 4), (4, 8)):
+        for threads in (1, 2):
+            best = float("inf")
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                sim.render_appearance(eye, target, up, fov, 512, 512, threads, samples,
+                                      sun_direction(camera), ao, 1)
+                best = min(best, time.perf_counter() - t0)
+            rows.append(f"| {samples} | {ao} | {threads} | {best:.3f} |")
+    info = (f"bunny {mesh.num_triangles:,} triangles, {sim.num_surfels:,} surfels, 512x512, "
+            f"best of {args.repeats}, {cpu_name()}")
+    header = "| samples/pixel | AO rays/sample | threads | seconds |\n|---|---|---|---|"
+    print(info)
+    print(header)
+    print("\n".join(rows))
+    if args.record:
+        with open(ROOT / "bench" / "RESULTS.md", "a", encoding="utf-8") as out:
+            out.write(f"\n### {datetime.date.today()} — appearance render\n{info}; goal: under 1 s "
+                      f"on 2 cores.\n\n{header}\n" + "\n".join(rows) + "\n")
+
+
+if __name__ == "__main__":
+    main()
