@@ -46,7 +46,7 @@ SPOT_OUT ?= out/patina-spot
 demo: install
 	$(VENV)/bin/gammac run examples/patina.gamma --scene $(SCENES)/stanford-bunny.obj \
 	  --surfels 100000 --iterations 10 --out $(DEMO_OUT)
-	$(VENV)/bin/gammac run examples/patina-spot.gamma --scene $(SCENES)/spot.obj \
+	$(VENV)/bin/gammac run examples/patina-spot.gamma --scene examples/scenes/spot.obj \
 	  --surfels 100000 --iterations 10 --view 0.7,0.35,-1 --out $(SPOT_OUT)
 	@echo
 	@echo "Patina on the Stanford bunny (false colour), one picture per iteration:"
