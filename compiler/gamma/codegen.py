@@ -281,7 +281,8 @@ class _KernelBuilder:
 def _f32(value: float) -> float:
     import numpy as np
 
-    return float(np.float32(value))
+    with np.errstate(over="ignore"):
+        return float(np.float32(value))
 
 
 def generate(effect: Effect) -> ir.Module:
