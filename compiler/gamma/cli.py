@@ -92,6 +92,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--max-interactions", type=_bounded_int, default=100, help="bound on interactions per gamma-ton")
     r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
     r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
+    r.add_argument("--export", action="store_true",
+                   help="write DIR/export/iter_NNNN.glb and .obj (+ baked textures when the mesh has UVs)")
+    r.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
     r.add_argument("--samples", type=_bounded_int, default=4,
                    help="camera rays per pixel of appearance renders (anti-aliasing)")
     r.add_argument("--ao", type=_bounded_int, default=8, dest="ao_samples",
@@ -188,7 +191,8 @@ def main(argv=None) -> int:
                           seed=args.seed, threads=args.threads,
                           max_interactions=args.max_interactions, show=args.show,
                           width=args.size, height=args.size, progress=not args.quiet,
-                          samples=args.samples, ao_samples=args.ao_samples)
+                          samples=args.samples, ao_samples=args.ao_samples,
+                          export=args.export, bake_size=args.bake_size)
         try:
             summary = run(effect, opts)
         except RunError as err:

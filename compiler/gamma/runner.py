@@ -45,6 +45,8 @@ class RunOptions:
     show: str | None = None       # property rendered in false colour
     width: int = 512
     height: int = 512
+    export: bool = False        # glTF / OBJ (+ baked textures) per iteration
+    bake_size: int = 1024       # baked texture width and height
     samples: int = 4            # camera rays per pixel (appearance renders)
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
@@ -65,14 +67,15 @@ DEFAULT_STEP = Length(0.005, relative=True)
 #: Upper bounds on options, so a typo cannot ask for terabytes.
 LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
           "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
-          "--size": (16, 8192), "--seed": (0, 2**63 - 1), "--samples": (1, 64), "--ao": (0, 256)}
+          "--size": (16, 8192), "--seed": (0, 2**63 - 1), "--samples": (1, 64), "--ao": (0, 256),
+          "--bake-size": (8, 8192)}
 
 
 def check_limits(opts: "RunOptions") -> None:
     values = {"--iterations": opts.iterations, "--surfels": opts.surfels, "--threads": opts.threads,
               "--tons": opts.tons or 0, "--max-interactions": opts.max_interactions,
               "--size": min(opts.width, opts.height), "--seed": opts.seed,
-              "--samples": opts.samples, "--ao": opts.ao_samples}
+              "--samples": opts.samples, "--ao": opts.ao_samples, "--bake-size": opts.bake_size}
     for name, value in values.items():
         low, high = LIMITS[name]
         if not low <= value <= high:
@@ -232,7 +235,7 @@ def prepare_output(out: Path) -> None:
     """Create the folders up front (fail before any work) and drop the
     iteration files of an earlier run, so the folder describes one run."""
     try:
-        for sub in ("maps", "renders", "renders/false_colour"):
+        for sub in ("maps", "renders", "renders/false_colour", "export"):
             (out / sub).mkdir(parents=True, exist_ok=True)
             for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9].*"):
                 stale.unlink()
@@ -333,6 +336,8 @@ def run(effect: Effect, opts: RunOptions) -> dict:
                 history.append(props[shown].copy())
             if looks:
                 frames.append(render_appearance(sim, out, opts, threads, camera, it))
+            if opts.export:
+                export_iteration(sim, scene, effect, out / "export", it, threads, opts.bake_size)
             rate = stats["emitted"] / max(stats["trace_seconds"], 1e-9)
             progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
                                 f"{rate / 1e3:.0f}k γ-tons/s")
@@ -380,6 +385,37 @@ def llvm_version():
     import llvmlite.binding
 
     return llvmlite.binding.llvm_version_info
+
+
+def export_iteration(sim, scene, effect: Effect, folder: Path, it: int, threads: int, size: int) -> None:
+    """iter_NNNN.glb, .obj + .mtl and, for meshes with texture coordinates, the
+    baked colour (8-bit PNG) and every property (16-bit PNG)."""
+    from .export import bake, png16, png8, vertex_data, write_glb, write_obj
+
+    mesh = scene.mesh
+    positions, normals, uvs, tris, rows, rgb, owner = vertex_data(sim, mesh, it, threads)
+    surfaces = np.asarray(scene.triangle_surface)[owner]
+    attributes = property_columns(effect, rows, surfaces)
+    stem = f"iter_{it:04d}"
+    texture, extras = None, {"gamma": {"iteration": it, "properties": {}}}
+    if mesh.has_uvs:
+        colour, values, _ = bake(sim, mesh, size, it, threads)
+        texture = png8(colour)
+        atomic_write(folder / f"{stem}_color.png", texture)
+        for surface in effect.surfaces.values():
+            for name, slot in surface.properties.items():
+                if name in extras["gamma"]["properties"]:
+                    continue
+                data, low, high = png16(values[..., slot])
+                atomic_write(folder / f"{stem}_{name}.png", data)
+                extras["gamma"]["properties"][name] = {"texture": f"{stem}_{name}.png",
+                                                       "min": low, "max": high}
+        atomic_write(folder / f"{stem}.mtl",
+                     f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
+    atomic_write(folder / f"{stem}.glb",
+                 write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
+    atomic_write(folder / f"{stem}.obj",
+                 write_obj(positions, normals, uvs, tris, stem if mesh.has_uvs else None))
 
 
 def render_appearance(sim, out: Path, opts: RunOptions, threads: int, camera, iteration: int):

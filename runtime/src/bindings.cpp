@@ -306,6 +306,26 @@ NB_MODULE(_runtime, m) {
              },
              "textures"_a, "Textures (float32[H, W, 3], row 0 = top) for the appearance kernels, in order.")
         .def_prop_ro("num_textures", [](const gammart::Simulation& s) { return s.textures().size(); })
+        .def("bake_points",
+             [](const gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,
+                nb::handle uvs, int iteration, int threads) {
+                 F32 p = as_f32(positions), n = as_f32(normals), uv = as_f32(uvs);
+                 I32 t = as_i32(triangles);
+                 const size_t k = t.ndim() == 1 ? t.shape(0) : 0;
+                 if (t.ndim() != 1 || p.ndim() != 2 || p.shape(0) != k || p.shape(1) != 3 || n.ndim() != 2 ||
+                     n.shape(0) != k || n.shape(1) != 3 || uv.ndim() != 2 || uv.shape(0) != k || uv.shape(1) != 2)
+                     throw Error("bake_points: positions (k,3), normals (k,3), triangles (k,) and uvs (k,2) expected");
+                 const size_t W = size_t(s.row_width());
+                 std::vector<float> rows(k * W), rgb(k * 3);
+                 {
+                     nb::gil_scoped_release nogil;
+                     s.bake_points(k, p.data(), n.data(), t.data(), uv.data(), iteration, threads, rows.data(),
+                                   rgb.data());
+                 }
+                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}), to_numpy(std::move(rgb), {k, 3}));
+             },
+             "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "iteration"_a, "threads"_a,
+             "At surface points: (smoothed rows float32[k, W], appearance colours float32[k, 3]).")
         .def("render_appearance",
              [](gammart::Simulation& s, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads, int samples,

@@ -1010,6 +1010,59 @@ void Simulation::interpolate_row(int surface, const float p[3], float* out) cons
 
 float Simulation::smoothing_sigma() const { return impl_->sigma; }
 
+int32_t Simulation::albedo_at(uint32_t triangle, const float p[3], const float n[3], const float dir[3],
+                              const float uv[2], int iteration, uint64_t random_key, float* row,
+                              float* tex, float out_rgb[3]) const {
+    const Impl& I = *impl_;
+    const int surface = I.tri_surface[triangle];
+    GammaAppearanceKernel fn = I.appearance[size_t(surface)];
+    if (!fn) {
+        out_rgb[0] = out_rgb[1] = out_rgb[2] = kNeutralAlbedo;
+        return 0;
+    }
+    interpolate_row(surface, p, row);
+    GammaContext ctx;
+    for (int c = 0; c < 3; ++c) {
+        ctx.position[c] = p[c];
+        ctx.normal[c] = n[c];
+        ctx.direction[c] = dir[c];
+    }
+    ctx.height = dot(V3{p[0], p[1], p[2]}, I.up) - I.min_up;
+    ctx.iteration = iteration;
+    ctx.interactions = 0;
+    set_random_key(ctx, random_key);
+    ctx.uv[0] = uv[0];
+    ctx.uv[1] = uv[1];
+    for (size_t ti = 0; ti < textures_.size(); ++ti) sample_texture(textures_[ti], uv[0], uv[1], tex + 3 * ti);
+    float rgb[3] = {0, 0, 0};
+    const int32_t bad = fn(row, tex, rgb, &ctx);
+    for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(rgb[c]);
+    return bad;
+}
+
+void Simulation::bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
+                             const float* uvs, int iteration, int threads, float* rows_out, float* rgb_out) const {
+    const Impl& I = *impl_;
+    const int W = w_;
+    for (size_t i = 0; i < k; ++i)
+        if (triangles[i] < 0 || size_t(triangles[i]) >= I.tri_surface.size())
+            throw Error("bake_points: triangle " + std::to_string(triangles[i]) + " out of range");
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 1024), [&](const tbb::blocked_range<size_t>& r) {
+            std::vector<float> tex(3 * textures_.size() + 1, 0.0f), scratch(static_cast<size_t>(W), 0.0f);
+            const float none[3] = {0.0f, 0.0f, 0.0f};
+            for (size_t i = r.begin(); i < r.end(); ++i) {
+                const uint32_t tri = uint32_t(triangles[i]);
+                float* row = rows_out + i * size_t(W);
+                // The row as the surface holds it, whether or not it has an appearance.
+                interpolate_row(I.tri_surface[tri], positions + 3 * i, row);
+                albedo_at(tri, positions + 3 * i, normals + 3 * i, none, uvs + 2 * i, iteration,
+                          mix64(kRenderKey ^ uint64_t(i)), scratch.data(), tex.data(), rgb_out + 3 * i);
+            }
+        });
+    });
+}
+
 void Simulation::set_textures(std::vector<Texture> textures) {
     for (size_t i = 0; i < textures.size(); ++i) {
         const Texture& t = textures[i];
@@ -1093,39 +1146,22 @@ RenderStats Simulation::render_appearance(const AppearanceParams& P, float* out)
                         if (dot(n, dir) > 0) n = n * -1.0f;
                         const int surface = I.tri_surface[prim];
                         // Albedo.
-                        float albedo[3] = {kNeutralAlbedo, kNeutralAlbedo, kNeutralAlbedo};
-                        if (GammaAppearanceKernel fn = I.appearance[size_t(surface)]) {
-                            const float q[3] = {p.x, p.y, p.z};
-                            uint32_t idx[kSmoothingNeighbours];
-                            double w[kSmoothingNeighbours];
-                            const size_t k = I.smooth(surface, q, idx, w);
-                            for (int c = 0; c < W; ++c) {
-                                double v = 0;
-                                for (size_t j = 0; j < k; ++j) v += w[j] * rows_[size_t(idx[j]) * size_t(W) + size_t(c)];
-                                row[size_t(c)] = float(v);
-                            }
-                            GammaContext ctx;
-                            ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
-                            ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
-                            ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
-                            ctx.height = dot(p, up) - I.min_up;
-                            ctx.iteration = P.iteration;
-                            ctx.interactions = 0;
-                            set_random_key(ctx, mix64(mix64(kRenderKey ^ pix) ^ uint64_t(s)));
-                            ctx.uv[0] = ctx.uv[1] = 0.0f;
+                        float albedo[3];
+                        {
+                            float uv[2] = {0.0f, 0.0f};
                             if (has_uvs) {
                                 const float bu = rh.hit.u, bv = rh.hit.v, bw = 1.0f - bu - bv;
                                 const float* c3 = uvs + 6 * size_t(prim);
-                                ctx.uv[0] = bw * c3[0] + bu * c3[2] + bv * c3[4];
-                                ctx.uv[1] = bw * c3[1] + bu * c3[3] + bv * c3[5];
+                                uv[0] = bw * c3[0] + bu * c3[2] + bv * c3[4];
+                                uv[1] = bw * c3[1] + bu * c3[3] + bv * c3[5];
                             }
-                            for (size_t ti = 0; ti < T; ++ti)
-                                sample_texture(textures_[ti], ctx.uv[0], ctx.uv[1], tex.data() + 3 * ti);
-                            float rgb[3] = {0, 0, 0};
-                            ++calls;
-                            if (int32_t bad = fn(row.data(), tex.data(), rgb, &ctx))
+                            const float q[3] = {p.x, p.y, p.z}, nn[3] = {n.x, n.y, n.z};
+                            const float dd[3] = {dir.x, dir.y, dir.z};
+                            if (I.appearance[size_t(surface)]) ++calls;
+                            if (int32_t bad = albedo_at(prim, q, nn, dd, uv, P.iteration,
+                                                        mix64(mix64(kRenderKey ^ pix) ^ uint64_t(s)),
+                                                        row.data(), tex.data(), albedo))
                                 count_nonfinite(bad_local, kAppearanceEvent, 0, surface, bad);
-                            for (int c = 0; c < 3; ++c) albedo[c] = clamp01(rgb[c]);
                         }
                         // Lighting: sky ambient x (1 - occluded fraction) + sun.
                         float light = ambient;
