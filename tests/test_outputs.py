@@ -122,6 +122,10 @@ def test_appearance_renders_sequence_and_false_colour(tmp_path):
         assert (out / "renders" / "false_colour" / f"iter_{i:04d}.png").is_file()
     gif = Image.open(out / "renders" / "sequence.gif")
     assert gif.n_frames == 3
+    import imageio.v2 as imageio
+
+    video = imageio.get_reader(out / "renders" / "sequence.mp4")
+    assert video.count_frames() == 3 and video.get_data(0).shape == (64, 64, 3)
     assert Image.open(out / "renders" / "strip.png").size == (64 * 3, 64)
     pixels = np.asarray(Image.open(out / "renders" / "iter_0001.png").convert("RGB")).reshape(-1, 3).astype(int)
     assert np.any(pixels[:, 0] > pixels[:, 2] + 40)     # the red texture shows somewhere

@@ -239,7 +239,7 @@ def prepare_output(out: Path) -> None:
             (out / sub).mkdir(parents=True, exist_ok=True)
             for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9].*"):
                 stale.unlink()
-        for stale in ("sequence.gif", "strip.png"):
+        for stale in ("sequence.gif", "sequence.mp4", "strip.png"):
             (out / "renders" / stale).unlink(missing_ok=True)
     except OSError as err:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
@@ -286,6 +286,7 @@ def run(effect: Effect, opts: RunOptions) -> dict:
         sim.set_textures(load_textures(effect))
     camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down)
     frames = []
+    corner_uvs = None   # texture layout for --export, made on first use
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     pos, nrm = sim.surfel_positions(), sim.surfel_normals()
@@ -337,7 +338,12 @@ def run(effect: Effect, opts: RunOptions) -> dict:
             if looks:
                 frames.append(render_appearance(sim, out, opts, threads, camera, it))
             if opts.export:
-                export_iteration(sim, scene, effect, out / "export", it, threads, opts.bake_size)
+                if corner_uvs is None:
+                    from .export import atlas
+
+                    corner_uvs = atlas(scene.mesh)
+                export_iteration(sim, scene, effect, out / "export", it, threads, opts.bake_size,
+                                 corner_uvs)
             rate = stats["emitted"] / max(stats["trace_seconds"], 1e-9)
             progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
                                 f"{rate / 1e3:.0f}k γ-tons/s")
@@ -387,35 +393,31 @@ def llvm_version():
     return llvmlite.binding.llvm_version_info
 
 
-def export_iteration(sim, scene, effect: Effect, folder: Path, it: int, threads: int, size: int) -> None:
-    """iter_NNNN.glb, .obj + .mtl and, for meshes with texture coordinates, the
-    baked colour (8-bit PNG) and every property (16-bit PNG)."""
-    from .export import bake, png16, png8, vertex_data, write_glb, write_obj
+def export_iteration(sim, scene, effect: Effect, folder: Path, it: int, threads: int, size: int,
+                     corner_uvs) -> None:
+    """iter_NNNN.glb, .obj + .mtl, the baked colour (8-bit PNG) and every
+    property (16-bit PNG), laid out by ``corner_uvs`` (the mesh's or an atlas)."""
+    from .export import bake, png16, png8, texture_from_texels, vertex_data, write_glb, write_obj
 
     mesh = scene.mesh
-    positions, normals, uvs, tris, rows, rgb, owner = vertex_data(sim, mesh, it, threads)
+    positions, normals, uvs, tris, rows, rgb, owner = vertex_data(sim, mesh, corner_uvs, it, threads)
     surfaces = np.asarray(scene.triangle_surface)[owner]
     attributes = property_columns(effect, rows, surfaces)
     stem = f"iter_{it:04d}"
-    texture, extras = None, {"gamma": {"iteration": it, "properties": {}}}
-    if mesh.has_uvs:
-        colour, values, _ = bake(sim, mesh, size, it, threads)
-        texture = png8(colour)
-        atomic_write(folder / f"{stem}_color.png", texture)
-        for surface in effect.surfaces.values():
-            for name, slot in surface.properties.items():
-                if name in extras["gamma"]["properties"]:
-                    continue
-                data, low, high = png16(values[..., slot])
-                atomic_write(folder / f"{stem}_{name}.png", data)
-                extras["gamma"]["properties"][name] = {"texture": f"{stem}_{name}.png",
-                                                       "min": low, "max": high}
-        atomic_write(folder / f"{stem}.mtl",
-                     f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
+    extras = {"gamma": {"iteration": it, "properties": {}}}
+    colour, texels, texel_tris, texel_rows = bake(sim, mesh, corner_uvs, size, it, threads)
+    texture = png8(colour)
+    atomic_write(folder / f"{stem}_color.png", texture)
+    texel_surfaces = np.asarray(scene.triangle_surface)[texel_tris]
+    for name, column in property_columns(effect, texel_rows, texel_surfaces).items():
+        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0])
+        atomic_write(folder / f"{stem}_{name}.png", data)
+        extras["gamma"]["properties"][name] = {"texture": f"{stem}_{name}.png", "min": low, "max": high}
+    atomic_write(folder / f"{stem}.mtl",
+                 f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
     atomic_write(folder / f"{stem}.glb",
                  write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
-    atomic_write(folder / f"{stem}.obj",
-                 write_obj(positions, normals, uvs, tris, stem if mesh.has_uvs else None))
+    atomic_write(folder / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
 
 
 def render_appearance(sim, out: Path, opts: RunOptions, threads: int, camera, iteration: int):
@@ -434,10 +436,11 @@ def render_appearance(sim, out: Path, opts: RunOptions, threads: int, camera, it
 
 
 def write_sequence(frames: list, folder: Path) -> None:
-    """The iterations as an animated GIF and as a strip of (at most 5) of them."""
+    """The iterations as an animated GIF, an MP4 and a strip of (at most 5) of them."""
     buffer = io.BytesIO()
     frames[0].save(buffer, format="GIF", save_all=True, append_images=frames[1:], duration=400, loop=0)
     atomic_write(folder / "sequence.gif", buffer.getvalue())
+    write_mp4(frames, folder / "sequence.mp4")
     chosen = sorted({round(i * (len(frames) - 1) / 4) for i in range(5)}) if len(frames) > 1 else [0]
     from PIL import Image, ImageDraw
 
@@ -450,6 +453,31 @@ def write_sequence(frames: list, folder: Path) -> None:
     buffer = io.BytesIO()
     strip.save(buffer, format="PNG")
     atomic_write(folder / "strip.png", buffer.getvalue())
+
+
+def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
+    """H.264 video (imageio-ffmpeg), via a temporary file renamed into place."""
+    import os
+    import tempfile
+
+    import imageio.v2 as imageio
+
+    fd, tmp = tempfile.mkstemp(prefix=".sequence.", suffix=".mp4", dir=path.parent)
+    os.close(fd)
+    try:
+        # yuv420p needs even sizes: pad by one pixel where needed
+        w, h = frames[0].size
+        pad = ((0, h % 2), (0, w % 2), (0, 0))
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=1,
+                                ffmpeg_log_level="error", pixelformat="yuv420p") as writer:
+            for frame in frames:
+                writer.append_data(np.pad(np.asarray(frame.convert("RGB")), pad, mode="edge"))
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
 
 
 def render_history(sim, history, shown, out: Path, opts: RunOptions, threads: int, camera) -> None:
