@@ -110,3 +110,16 @@ def test_unassigned_parts(tmp_path, box_obj):
     (tmp_path / "two.gamma").write_text(two)
     r = run_gammac("run", tmp_path / "two.gamma", "--scene", box_obj, "--out", tmp_path / "o")
     assert_one_line_error(r, "no surface for", "--assign")
+
+
+def test_a_failing_run_keeps_the_earlier_results(tmp_path, box_obj):
+    out = tmp_path / "out"
+    ok = run_gammac("run", PATINA, "--scene", box_obj, "--surfels", 200, "--tons", 1000, "--iterations", 1,
+                    "--size", 32, "--quiet", "--out", out)
+    assert ok.returncode == 0, ok.stderr
+    before = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
+    for bad in (["--fov", "500"], ["--scene", tmp_path / "missing.obj"], ["--assign", "Nope"]):
+        args = ["run", PATINA, "--scene", box_obj, "--surfels", 200, "--quiet", "--out", out] + bad
+        r = run_gammac(*args)
+        assert r.returncode == 1, r.stderr
+        assert sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file()) == before

@@ -51,6 +51,18 @@ def _param(text: str) -> tuple[str, float]:
     return name, number
 
 
+def _point3(text: str) -> tuple[float, float, float]:
+    import math
+
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a point X,Y,Z")
+    return values
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="gammac", description="Compile and run .gamma weathering effects.")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -84,6 +96,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--down", type=_vector3, metavar="X,Y,Z", help="gravity direction (default 0,-1,0)")
     r.add_argument("--view", type=_vector3, metavar="X,Y,Z",
                    help="direction from the scene's centre toward the camera (default -0.6,0.35,1)")
+    r.add_argument("--eye", type=_point3, metavar="X,Y,Z",
+                   help="camera position in scene units (looks at the scene's centre; overrides --view)")
+    r.add_argument("--fov", type=float, default=30.0, help="vertical field of view in degrees")
     r.add_argument("--iterations", type=_bounded_int, default=10)
     r.add_argument("--surfels", type=_bounded_int, default=100_000)
     r.add_argument("--tons", type=_bounded_int, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
@@ -186,7 +201,7 @@ def main(argv=None) -> int:
             return EXIT_OK
         from .runner import RunError, RunOptions, run
 
-        opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down, view=args.view,
+        opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down, view=args.view, eye=args.eye, fov=args.fov,
                           iterations=args.iterations, surfels=args.surfels, tons=args.tons,
                           seed=args.seed, threads=args.threads,
                           max_interactions=args.max_interactions, show=args.show,

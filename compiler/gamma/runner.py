@@ -36,6 +36,8 @@ class RunOptions:
     assign: list[str] = field(default_factory=list)   # PATTERN=SURFACE or SURFACE
     down: tuple[float, float, float] | None = None    # None: the scene file's, else -y
     view: tuple[float, float, float] | None = None    # camera direction from the scene's centre
+    eye: tuple[float, float, float] | None = None     # camera position (overrides view)
+    fov: float = 30.0                                 # vertical field of view, degrees
     iterations: int = 10
     surfels: int = 100_000
     tons: int | None = None
@@ -190,6 +192,8 @@ def auto_camera(bounds, view=DEFAULT_VIEW, down=(0.0, -1.0, 0.0), fov_deg: float
     direction = np.asarray(view, float)
     direction /= np.linalg.norm(direction)
     up = -np.asarray(down, float) / np.linalg.norm(down)
+    if not 1.0 <= fov_deg <= 170.0:
+        raise RunError(f"--fov must be between 1 and 170 degrees, not {fov_deg:g}")
     if abs(float(np.dot(up, direction))) > 0.999:   # looking straight along gravity
         up = np.array([0.0, 0.0, -1.0]) if abs(up[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
     distance = radius / math.sin(math.radians(fov_deg) / 2) * 1.02
@@ -231,13 +235,25 @@ def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarra
     return columns
 
 
+OUTPUT_FOLDERS = ("maps", "renders", "renders/false_colour", "export")
+
+
 def prepare_output(out: Path) -> None:
-    """Create the folders up front (fail before any work) and drop the
-    iteration files of an earlier run, so the folder describes one run."""
+    """Create the folders up front, so an unwritable --out fails before any work."""
     try:
-        for sub in ("maps", "renders", "renders/false_colour", "export"):
+        for sub in OUTPUT_FOLDERS:
             (out / sub).mkdir(parents=True, exist_ok=True)
-            for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9].*"):
+    except OSError as err:
+        raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
+
+
+def clear_earlier_run(out: Path) -> None:
+    """Drop an earlier run's iteration files, so the folder describes one run.
+    Called only once this run has been set up without error: a run that fails
+    early leaves the earlier results alone."""
+    try:
+        for sub in OUTPUT_FOLDERS:
+            for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9]*"):
                 stale.unlink()
         for stale in ("sequence.gif", "sequence.mp4", "strip.png"):
             (out / "renders" / stale).unlink(missing_ok=True)
@@ -284,9 +300,15 @@ def run(effect: Effect, opts: RunOptions) -> dict:
     looks = bool(effect.appearance_kernels())
     if looks:
         sim.set_textures(load_textures(effect))
-    camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down)
+    camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
+    if opts.eye is not None:
+        _, target, up, fov = camera
+        if np.allclose(opts.eye, target):
+            raise RunError("--eye must not be the centre of the scene, which the camera looks at")
+        camera = (tuple(opts.eye), target, up, fov)
     frames = []
     corner_uvs = None   # texture layout for --export, made on first use
+    clear_earlier_run(out)
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     pos, nrm = sim.surfel_positions(), sim.surfel_normals()
