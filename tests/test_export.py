@@ -36,7 +36,7 @@ def accessor_array(gltf, index, blob):
 
 
 def test_gltf_round_trips_with_texture_and_attributes(exported):
-    path = exported / "export" / "iter_0002.glb"
+    path = exported / "export" / "spot" / "iter_0002.glb"
     gltf = pygltflib.GLTF2().load(str(path))
     blob = gltf.binary_blob()
     prim = gltf.meshes[0].primitives[0]
@@ -60,15 +60,16 @@ def test_gltf_round_trips_with_texture_and_attributes(exported):
     png = blob[image_view.byteOffset:image_view.byteOffset + image_view.byteLength]
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     props = gltf.extras["gamma"]["properties"]["patina"]
-    grey = Image.open(exported / "export" / props["texture"])
+    grey = Image.open(exported / "export" / "spot" / props["texture"])
     assert grey.mode == "I;16" and grey.size == (256, 256)
 
 
 def test_obj_and_mtl_reference_the_baked_colour(exported):
-    obj = (exported / "export" / "iter_0001.obj").read_text()
+    folder = exported / "export" / "spot"
+    obj = (folder / "iter_0001.obj").read_text()
     assert "mtllib iter_0001.mtl" in obj and "\nvt " in obj
-    assert "map_Kd iter_0001_color.png" in (exported / "export" / "iter_0001.mtl").read_text()
-    assert Image.open(exported / "export" / "iter_0001_color.png").size == (256, 256)
+    assert "map_Kd iter_0001_color.png" in (folder / "iter_0001.mtl").read_text()
+    assert Image.open(folder / "iter_0001_color.png").size == (256, 256)
 
 
 def test_baked_texels_hold_the_values_of_their_surface_points():
@@ -87,8 +88,12 @@ def test_baked_texels_hold_the_values_of_their_surface_points():
     from gamma.export import rasterise_uv
 
     size = 128
+    from gamma.export import Piece
+
     corner_uvs = np.asarray(mesh.triangle_uvs())
-    _, texels, _, rows = bake(sim, mesh, corner_uvs, size, 1, 2)
+    piece = Piece("spot", np.arange(mesh.num_triangles), np.asarray(mesh.vertices()),
+                  np.asarray(mesh.triangles(), np.int64), corner_uvs, corner_uvs)
+    _, texels, _, rows = bake(sim, piece, size, 1, 2)
     texels2, tris, bary = rasterise_uv(corner_uvs, size)
     assert np.array_equal(texels, texels2) and len(texels) > 0.3 * size * size
     verts = np.asarray(mesh.vertices(), np.float64)
@@ -105,9 +110,30 @@ def test_mesh_without_uvs_gets_an_atlas(tmp_path, bumpy_obj):
                    "--tons", 50000, "--iterations", 1, "--size", 32, "--bake-size", 128, "--export",
                    "--quiet", "--out", out)
     assert r.returncode == 0, r.stderr
-    gltf = pygltflib.GLTF2().load(str(out / "export" / "iter_0001.glb"))
+    gltf = pygltflib.GLTF2().load(str(out / "export" / "bumpy" / "iter_0001.glb"))
     prim = gltf.meshes[0].primitives[0]
     uvs = accessor_array(gltf, prim.attributes.TEXCOORD_0, gltf.binary_blob())
     assert uvs.min() >= 0 and uvs.max() <= 1 and len(gltf.images) == 1
-    patina = np.asarray(Image.open(out / "export" / "iter_0001_patina.png"), np.float64)
+    patina = np.asarray(Image.open(out / "export" / "bumpy" / "iter_0001_patina.png"), np.float64)
     assert patina.max() > 0                    # the baked map holds the deposit
+
+
+def test_each_object_is_exported_on_its_own(tmp_path):
+    from test_scenes import TWO_SURFACES, two_part_obj
+
+    scene = two_part_obj(tmp_path / "scene.obj")
+    (tmp_path / "two.gamma").write_text(TWO_SURFACES)
+    out = tmp_path / "out"
+    r = run_gammac("run", tmp_path / "two.gamma", "--scene", scene, "--assign", "ball=Metal",
+                   "--assign", "*=Stone", "--surfels", 2000, "--iterations", 1, "--size", 32,
+                   "--bake-size", 64, "--export", "--quiet", "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (out / "export").iterdir()) == ["ball", "slab"]
+    ball = pygltflib.GLTF2().load(str(out / "export" / "ball" / "iter_0001.glb"))
+    slab = pygltflib.GLTF2().load(str(out / "export" / "slab" / "iter_0001.glb"))
+    assert ball.accessors[ball.meshes[0].primitives[0].indices].count == 320 * 3
+    assert slab.accessors[slab.meshes[0].primitives[0].indices].count == 2 * 3
+    assert ball.extras["gamma"]["object"] == "ball"
+    rust = ball.accessors[ball.meshes[0].primitives[0].attributes._RUST]
+    assert rust.max[0] > 0                          # the ball is Metal and rusted
+    assert (out / "export" / "slab" / "iter_0001_damp.png").is_file()

@@ -255,6 +255,8 @@ def clear_earlier_run(out: Path) -> None:
         for sub in OUTPUT_FOLDERS:
             for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9]*"):
                 stale.unlink()
+        for stale in (out / "export").glob("*/iter_[0-9][0-9][0-9][0-9]*"):
+            stale.unlink()
         for stale in ("sequence.gif", "sequence.mp4", "strip.png"):
             (out / "renders" / stale).unlink(missing_ok=True)
     except OSError as err:
@@ -307,7 +309,7 @@ def run(effect: Effect, opts: RunOptions) -> dict:
             raise RunError("--eye must not be the centre of the scene, which the camera looks at")
         camera = (tuple(opts.eye), target, up, fov)
     frames = []
-    corner_uvs = None   # texture layout for --export, made on first use
+    pieces = None       # the scene's objects for --export, made on first use
     clear_earlier_run(out)
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
@@ -360,12 +362,11 @@ def run(effect: Effect, opts: RunOptions) -> dict:
             if looks:
                 frames.append(render_appearance(sim, out, opts, threads, camera, it))
             if opts.export:
-                if corner_uvs is None:
-                    from .export import atlas
+                if pieces is None:
+                    from .export import pieces as split
 
-                    corner_uvs = atlas(scene.mesh)
-                export_iteration(sim, scene, effect, out / "export", it, threads, opts.bake_size,
-                                 corner_uvs)
+                    pieces = split(scene)
+                export_iteration(sim, scene, effect, out / "export", it, threads, opts.bake_size, pieces)
             rate = stats["emitted"] / max(stats["trace_seconds"], 1e-9)
             progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
                                 f"{rate / 1e3:.0f}k γ-tons/s")
@@ -416,30 +417,38 @@ def llvm_version():
 
 
 def export_iteration(sim, scene, effect: Effect, folder: Path, it: int, threads: int, size: int,
-                     corner_uvs) -> None:
-    """iter_NNNN.glb, .obj + .mtl, the baked colour (8-bit PNG) and every
-    property (16-bit PNG), laid out by ``corner_uvs`` (the mesh's or an atlas)."""
+                     pieces) -> None:
+    """Per object, in folder/OBJECT/: iter_NNNN.glb, .obj + .mtl, the baked
+    colour (8-bit PNG) and every property (16-bit PNG)."""
     from .export import bake, png16, png8, texture_from_texels, vertex_data, write_glb, write_obj
 
-    mesh = scene.mesh
-    positions, normals, uvs, tris, rows, rgb, owner = vertex_data(sim, mesh, corner_uvs, it, threads)
-    surfaces = np.asarray(scene.triangle_surface)[owner]
-    attributes = property_columns(effect, rows, surfaces)
     stem = f"iter_{it:04d}"
-    extras = {"gamma": {"iteration": it, "properties": {}}}
-    colour, texels, texel_tris, texel_rows = bake(sim, mesh, corner_uvs, size, it, threads)
-    texture = png8(colour)
-    atomic_write(folder / f"{stem}_color.png", texture)
-    texel_surfaces = np.asarray(scene.triangle_surface)[texel_tris]
-    for name, column in property_columns(effect, texel_rows, texel_surfaces).items():
-        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0])
-        atomic_write(folder / f"{stem}_{name}.png", data)
-        extras["gamma"]["properties"][name] = {"texture": f"{stem}_{name}.png", "min": low, "max": high}
-    atomic_write(folder / f"{stem}.mtl",
-                 f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
-    atomic_write(folder / f"{stem}.glb",
-                 write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
-    atomic_write(folder / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
+    for piece in pieces:
+        where = folder / _safe_name(piece.name)
+        positions, normals, uvs, tris, rows, rgb, owner = vertex_data(sim, piece, it, threads)
+        surfaces = np.asarray(scene.triangle_surface)[owner]
+        attributes = property_columns(effect, rows, surfaces)
+        extras = {"gamma": {"iteration": it, "object": piece.name, "properties": {}}}
+        colour, texels, texel_tris, texel_rows = bake(sim, piece, size, it, threads)
+        texture = png8(colour)
+        atomic_write(where / f"{stem}_color.png", texture)
+        texel_surfaces = np.asarray(scene.triangle_surface)[texel_tris]
+        for name, column in property_columns(effect, texel_rows, texel_surfaces).items():
+            data, low, high = png16(texture_from_texels(column, texels, size)[..., 0])
+            atomic_write(where / f"{stem}_{name}.png", data)
+            extras["gamma"]["properties"][name] = {"texture": f"{stem}_{name}.png", "min": low, "max": high}
+        atomic_write(where / f"{stem}.mtl",
+                     f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
+        atomic_write(where / f"{stem}.glb",
+                     write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
+        atomic_write(where / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
+
+
+def _safe_name(name: str) -> str:
+    """An object name as a folder name."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "object"
 
 
 def render_appearance(sim, out: Path, opts: RunOptions, threads: int, camera, iteration: int):

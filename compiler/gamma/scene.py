@@ -36,6 +36,8 @@ class Scene:
     down: tuple[float, float, float]
     bounds: tuple[tuple[float, ...], tuple[float, ...]]
     triangles_per_surface: dict[str, int]
+    triangle_object: np.ndarray = None    # int32 index into object_names per triangle
+    object_names: list = None             # OBJ object, else group, else the mesh file's name
 
     @property
     def diagonal(self) -> float:
@@ -195,4 +197,29 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> S
         raise SceneError(f"scene '{path}': {len(surface) - mesh.num_triangles} triangles "
                          "became degenerate after scaling")
     counts = {name: int(np.sum(surface == s.index)) for name, s in effect.surfaces.items()}
-    return Scene(mesh, surface, down, mesh.bounds, counts)
+    objects, names = _objects(parts)
+    return Scene(mesh, surface, down, mesh.bounds, counts, objects, names)
+
+
+def _objects(parts: list[_Part]) -> tuple[np.ndarray, list[str]]:
+    """Which object each triangle belongs to: its OBJ object, else its group,
+    else its mesh file's name (prefixed by the file's name when several meshes)."""
+    names: list[str] = []
+    index: dict[str, int] = {}
+    out = []
+    for part in parts:
+        labels = list(part.mesh.part_names())
+        objs, groups, _ = (np.asarray(a, np.int64) for a in part.mesh.triangle_labels())
+        chosen = np.where(objs >= 0, objs, groups)
+        keys, inverse = np.unique(chosen, return_inverse=True)
+        lut = []
+        for key in keys:
+            name = part.stem if key < 0 else labels[key]
+            if len(parts) > 1 and key >= 0:
+                name = f"{part.stem}.{name}"
+            if name not in index:
+                index[name] = len(names)
+                names.append(name)
+            lut.append(index[name])
+        out.append(np.asarray(lut, np.int32)[inverse.reshape(-1)] if len(chosen) else np.zeros(0, np.int32))
+    return np.concatenate(out), names
