@@ -9,13 +9,14 @@ so nothing is cached in memory; the 'cold' runs use GAMMA_CACHE_DIR=off.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import os
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from report import report
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -78,14 +79,9 @@ def main() -> None:
     header = "| case | import s | check s | codegen+JIT s | check+JIT s |\n|---|---|---|---|---|"
     rows = [f"| {name} | {r['import']:.3f} | {r['check']:.3f} | {r['jit']:.3f} | {r['check'] + r['jit']:.3f} |"
             for name, r in (("cold (no cache)", cold), ("warm (cache hit)", warm))]
-    info = f"200-line effect, {cold['kernels']} kernels, best of {args.repeats} fresh processes"
-    print(info)
-    print(header)
-    print("\n".join(rows))
-    if args.record:
-        with open(ROOT / "bench" / "RESULTS.md", "a", encoding="utf-8") as out:
-            out.write(f"\n### {datetime.date.today()} — compiling a 200-line effect\n{info}; "
-                      f"goal: under 0.5 s cold.\n\n{header}\n" + "\n".join(rows) + "\n")
+    info = (f"200-line effect, {cold['kernels']} kernels, best of {args.repeats} fresh processes; "
+            "goal: under 0.5 s cold")
+    report("compiling a 200-line effect", info, header, rows, args.record)
 
 
 if __name__ == "__main__":

@@ -14,11 +14,11 @@ bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
-import platform
 import time
 from pathlib import Path
+
+from report import cpu_name, report
 
 from gamma.backend import JitKernels
 from gamma.checker import load
@@ -26,16 +26,6 @@ from gamma.runner import RunOptions, build_config, runtime_module
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT.parent / "shared" / "scenes" / "stanford-bunny.obj"
-
-
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def main() -> None:
@@ -76,13 +66,7 @@ def main() -> None:
     info = (f"bunny {mesh.num_triangles:,} triangles, {args.surfels:,} surfels, "
             f"{args.tons:,} γ-tons per trace (best of {args.repeats}), "
             f"{cpu_name()}, {os.cpu_count()} cores")
-    print(info)
-    print(header)
-    print(table)
-    if args.record:
-        with open(ROOT / "bench" / "RESULTS.md", "a", encoding="utf-8") as out:
-            out.write(f"\n### {datetime.date.today()} — patina on the bunny\n{info}\n\n"
-                      f"{header}\n{table}\n")
+    report("patina on the bunny", info, header, table.split("\n"), args.record)
 
 
 if __name__ == "__main__":

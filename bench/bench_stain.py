@@ -11,14 +11,13 @@ ray casts on the same scene, as many as the tracer cast, give the ceiling.
 from __future__ import annotations
 
 import argparse
-import datetime
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from bench_patina import cpu_name
+from report import cpu_name, report
 from gamma.backend import JitKernels
 from gamma.checker import load
 from gamma.runner import RunOptions, build_config, runtime_module
@@ -68,13 +67,7 @@ def main() -> None:
     row = (f"| {mean:.4f} | {max(per_iteration):.4f} | ~60 | ~{60 / mean:,.0f}× | "
            f"{rays / trace_total:,.0f} | {raw['rays'] / raw['seconds']:,.0f} | "
            f"{(rays / trace_total) / (raw['rays'] / raw['seconds']):.0%} | {setup:.2f} |")
-    print(info)
-    print(header)
-    print(row)
-    if args.record:
-        with open(ROOT / "bench" / "RESULTS.md", "a", encoding="utf-8") as out:
-            out.write(f"\n### {datetime.date.today()} — stain-bleeding at paper scale\n{info}\n\n"
-                      f"{header}\n{row}\n")
+    report("stain-bleeding at paper scale", info, header, [row], args.record)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,31 @@
+"""What every benchmark shares: the machine's name and how a table is
+printed and, with --record, appended to bench/RESULTS.md."""
+
+from __future__ import annotations
+
+import datetime
+import platform
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
+
+
+def cpu_name() -> str:
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def report(title: str, info: str, header: str, rows: list[str], record: bool) -> None:
+    """Print a markdown table; with ``record`` also append it to RESULTS.md."""
+    table = "\n".join(rows)
+    print(info)
+    print(header)
+    print(table)
+    if record:
+        with open(RESULTS, "a", encoding="utf-8") as out:
+            out.write(f"\n### {datetime.date.today()} — {title}\n{info}\n\n{header}\n{table}\n")
