@@ -1,12 +1,27 @@
 #pragma once
 #include <array>
 #include <cmath>
+#include <functional>
 #include <map>
+#include <string>
 #include <vector>
+
+#include <gtest/gtest.h>
 
 #include "gamma/mesh.h"
 
 namespace gamma_test {
+
+// The message of the gammart::Error that f throws (a test failure if none).
+inline std::string expect_error(const std::function<void()>& f) {
+    try {
+        f();
+    } catch (const gammart::Error& e) {
+        return e.what();
+    }
+    ADD_FAILURE() << "expected gammart::Error";
+    return "";
+}
 
 // Closed icosphere of radius r centred at the origin.
 inline gammart::Mesh icosphere(int subdiv, float r = 1.0f) {

@@ -18,15 +18,6 @@ using namespace gammart;
 
 namespace {
 
-std::string error_of(const std::function<void()>& f) {
-    try {
-        f();
-    } catch (const Error& e) {
-        return e.what();
-    }
-    ADD_FAILURE() << "expected gammart::Error";
-    return "";
-}
 
 uint64_t address(GammaAppearanceKernel fn) { return uint64_t(reinterpret_cast<uintptr_t>(fn)); }
 
@@ -134,15 +125,15 @@ TEST(Uv, MissingOrBadTextureIndices) {
     m = Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1 2/2 3/1\nvt 0.25 0.5\nvt 0.75\n", "c.obj");
     ASSERT_TRUE(m.has_uvs());
     EXPECT_EQ(m.uvs, (std::vector<float>{0.25f, 0.5f, 0.75f, 0.0f, 0.25f, 0.5f}));
-    EXPECT_EQ(error_of([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/5 3/1\n", "d.obj"); }),
+    EXPECT_EQ(gamma_test::expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/5 3/1\n", "d.obj"); }),
               "mesh 'd.obj': face on line 5 has texture index 5 out of range (1 texture coordinates)");
-    EXPECT_EQ(error_of([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/-2 2/1 3/1\n", "e.obj"); }),
+    EXPECT_EQ(gamma_test::expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/-2 2/1 3/1\n", "e.obj"); }),
               "mesh 'e.obj': face on line 5 has texture index -2 out of range (1 texture coordinates)");
-    EXPECT_EQ(error_of([] { Mesh::parse_obj("vt x y\n", "f.obj"); }),
+    EXPECT_EQ(gamma_test::expect_error([] { Mesh::parse_obj("vt x y\n", "f.obj"); }),
               "mesh 'f.obj': line 1: cannot read texture coordinates");
-    EXPECT_EQ(error_of([] { Mesh::parse_obj("vt nan 0\n", "g.obj"); }),
+    EXPECT_EQ(gamma_test::expect_error([] { Mesh::parse_obj("vt nan 0\n", "g.obj"); }),
               "mesh 'g.obj': line 1: texture coordinate is not finite");
-    EXPECT_EQ(error_of([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/a 2/1 3/1\n", "h.obj"); }),
+    EXPECT_EQ(gamma_test::expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/a 2/1 3/1\n", "h.obj"); }),
               "mesh 'h.obj': face on line 5: cannot read '1/a'");
 }
 
@@ -173,7 +164,7 @@ TEST(Uv, FromArrays) {
     const std::vector<float> v = {0, 0, 0, 1, 0, 0, 0, 1, 0};
     const std::vector<int32_t> t = {0, 1, 2};
     const std::vector<float> uv = {0, 0, 1, 0, 0, std::numeric_limits<float>::infinity()};
-    EXPECT_EQ(error_of([&] { Mesh::from_arrays(v.data(), 3, t.data(), 1, "x", uv.data()); }),
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::from_arrays(v.data(), 3, t.data(), 1, "x", uv.data()); }),
               "mesh 'x': triangle 0 has a non-finite texture coordinate");
 }
 
@@ -231,9 +222,9 @@ TEST(Texture, Validation) {
     t.width = 2;
     t.height = 1;
     t.rgb = {0, 0, 0, 1, 1};
-    EXPECT_EQ(error_of([&] { sim.set_textures({t}); }), "set_textures: texture 0 must have height*width*3 floats");
+    EXPECT_EQ(gamma_test::expect_error([&] { sim.set_textures({t}); }), "set_textures: texture 0 must have height*width*3 floats");
     t.rgb = {0, 0, 0, 1, 1, std::numeric_limits<float>::quiet_NaN()};
-    EXPECT_EQ(error_of([&] { sim.set_textures({block_texture(), t}); }),
+    EXPECT_EQ(gamma_test::expect_error([&] { sim.set_textures({block_texture(), t}); }),
               "set_textures: texture 1 has a non-finite value");
     sim.set_textures({block_texture()});
     EXPECT_EQ(sim.textures().size(), 1u);
@@ -479,7 +470,7 @@ TEST(AppearanceRender, NonFiniteCountedAndValidation) {
     auto bad = [&](std::function<void(AppearanceParams&)> edit) {
         AppearanceParams q = quad_view(4, 1);
         edit(q);
-        return error_of([&] { sim.render_appearance(q, img.data()); });
+        return gamma_test::expect_error([&] { sim.render_appearance(q, img.data()); });
     };
     EXPECT_EQ(bad([](AppearanceParams& q) { q.samples = 0; }), "render_appearance: samples must be in 1..4096");
     EXPECT_EQ(bad([](AppearanceParams& q) { q.ao_samples = -1; }),
@@ -490,6 +481,6 @@ TEST(AppearanceRender, NonFiniteCountedAndValidation) {
               "render_appearance: eye, target, up and sun_direction must be finite");
     Config wrong = one_surface({0, 0, 0}, 10);
     wrong.set_appearance(1, address(uv_kernel));
-    EXPECT_EQ(error_of([&] { Simulation s(uv_quad(), wrong); }),
+    EXPECT_EQ(gamma_test::expect_error([&] { Simulation s(uv_quad(), wrong); }),
               "config: appearance surface index 1 out of range (1 surfaces)");
 }

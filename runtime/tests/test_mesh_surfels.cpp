@@ -13,25 +13,16 @@
 
 using namespace gammart;
 
-static std::string expect_error(const std::function<void()>& f) {
-    try {
-        f();
-    } catch (const Error& e) {
-        return e.what();
-    }
-    ADD_FAILURE() << "expected gammart::Error";
-    return "";
-}
 
 TEST(Mesh, FileNotFound) {
-    std::string msg = expect_error([] { Mesh::load("/nonexistent/x.obj"); });
+    std::string msg = gamma_test::expect_error([] { Mesh::load("/nonexistent/x.obj"); });
     EXPECT_EQ(msg, "cannot read mesh '/nonexistent/x.obj': file not found");
 }
 
 TEST(Mesh, Garbage) {
     const char* path = "gamma_test_garbage.ply";
     { std::ofstream f(path); f << "this is not a mesh\x01\x02\n"; }
-    std::string msg = expect_error([&] { Mesh::load(path); });
+    std::string msg = gamma_test::expect_error([&] { Mesh::load(path); });
     EXPECT_EQ(msg.find('\n'), std::string::npos);
     EXPECT_NE(msg.find("gamma_test_garbage.ply"), std::string::npos) << msg;
     std::remove(path);
@@ -45,7 +36,7 @@ TEST(Mesh, ObjLoadAndNoTriangles) {
     EXPECT_EQ(m.num_triangles(), 2u);  // quad triangulated
     EXPECT_NEAR(m.area(), 1.0, 1e-6);
     { std::ofstream f(path); f << "v 0 0 0\nv 1 0 0\n"; }
-    std::string msg = expect_error([&] { Mesh::load(path); });
+    std::string msg = gamma_test::expect_error([&] { Mesh::load(path); });
     EXPECT_EQ(msg, "mesh 'gamma_test_tri.obj' has no triangles");
     std::remove(path);
 }
@@ -53,14 +44,14 @@ TEST(Mesh, ObjLoadAndNoTriangles) {
 TEST(Mesh, FromArraysValidation) {
     std::vector<float> v = {0, 0, 0, 1, 0, 0, 0, 1, 0};
     std::vector<int32_t> bad = {0, 1, 3};
-    std::string msg = expect_error([&] { Mesh::from_arrays(v.data(), 3, bad.data(), 1); });
+    std::string msg = gamma_test::expect_error([&] { Mesh::from_arrays(v.data(), 3, bad.data(), 1); });
     EXPECT_NE(msg.find("out of range"), std::string::npos) << msg;
     std::vector<float> nanv = {0, 0, 0, 1, 0, 0, 0, std::numeric_limits<float>::quiet_NaN(), 0};
     std::vector<int32_t> ok = {0, 1, 2};
-    msg = expect_error([&] { Mesh::from_arrays(nanv.data(), 3, ok.data(), 1, "x.obj"); });
+    msg = gamma_test::expect_error([&] { Mesh::from_arrays(nanv.data(), 3, ok.data(), 1, "x.obj"); });
     EXPECT_EQ(msg, "mesh 'x.obj': vertex 2 has a non-finite coordinate");
     std::vector<float> line = {0, 0, 0, 1, 0, 0, 2, 0, 0};
-    msg = expect_error([&] { Mesh::from_arrays(line.data(), 3, ok.data(), 1, "x.obj"); });
+    msg = gamma_test::expect_error([&] { Mesh::from_arrays(line.data(), 3, ok.data(), 1, "x.obj"); });
     EXPECT_EQ(msg, "mesh 'x.obj' has only degenerate triangles");
 }
 
@@ -131,7 +122,7 @@ TEST(Surfels, EliminationKeepsExactly) {
 TEST(Mesh, ObjNonFiniteCoordinate) {
     const char* path = "gamma_test_nan.obj";
     { std::ofstream f(path); f << "# c\nv 0 0 0\nv 1 0 0\nv 0 1e39 0\nf 1 2 3\n"; }
-    std::string msg = expect_error([&] { Mesh::load(path); });
+    std::string msg = gamma_test::expect_error([&] { Mesh::load(path); });
     EXPECT_EQ(msg, "mesh 'gamma_test_nan.obj': vertex 2 has a non-finite coordinate");
     std::remove(path);
 }
@@ -162,13 +153,13 @@ TEST(Mesh, ObjParts) {
 }
 
 TEST(Mesh, ObjIndexOutOfRange) {
-    std::string msg = expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf 1 2 7\n", "p.obj"); });
+    std::string msg = gamma_test::expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf 1 2 7\n", "p.obj"); });
     EXPECT_EQ(msg, "mesh 'p.obj': face on line 5 has vertex index 7 out of range (3 vertices)");
-    msg = expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "p.obj"); });
+    msg = gamma_test::expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", "p.obj"); });
     EXPECT_EQ(msg, "mesh 'p.obj': face on line 4 has vertex index -4 out of range (3 vertices)");
-    msg = expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "p.obj"); });
+    msg = gamma_test::expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "p.obj"); });
     EXPECT_EQ(msg, "mesh 'p.obj': face on line 4 has vertex index 0 out of range (3 vertices)");
-    msg = expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "p.obj"); });
+    msg = gamma_test::expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "p.obj"); });
     EXPECT_EQ(msg.find('\n'), std::string::npos);
     EXPECT_NE(msg.find("line 4"), std::string::npos) << msg;
 }
@@ -176,10 +167,10 @@ TEST(Mesh, ObjIndexOutOfRange) {
 TEST(Mesh, ExtentErrors) {
     std::vector<float> huge = {0, 0, 0, 3e38f, 0, 0, 0, 3e38f, 0};
     std::vector<int32_t> t = {0, 1, 2};
-    std::string msg = expect_error([&] { Mesh::from_arrays(huge.data(), 3, t.data(), 1, "P"); });
+    std::string msg = gamma_test::expect_error([&] { Mesh::from_arrays(huge.data(), 3, t.data(), 1, "P"); });
     EXPECT_EQ(msg, "mesh 'P' has a non-finite or zero extent");
     std::vector<float> point = {1, 2, 3, 1, 2, 3, 1, 2, 3};
-    msg = expect_error([&] { Mesh::from_arrays(point.data(), 3, t.data(), 1, "P"); });
+    msg = gamma_test::expect_error([&] { Mesh::from_arrays(point.data(), 3, t.data(), 1, "P"); });
     EXPECT_EQ(msg, "mesh 'P' has a non-finite or zero extent");
     // Large but representable: the diagonal (computed in double) is fine.
     std::vector<float> big = {0, 0, 0, 1e25f, 0, 0, 0, 1e25f, 0};
@@ -197,7 +188,7 @@ TEST(Mesh, PlyDroppedFacesAndNonFinite) {
              "element face 3\nproperty list uchar int vertex_indices\nend_header\n"
              "0 0 0\n1 0 0\n0 1 0\n0 -1 0\n0 0 1\n3 0 1 2\n3 1 0 3\n3 0 1 9\n";
     }
-    std::string msg = expect_error([&] { Mesh::load(path); });
+    std::string msg = gamma_test::expect_error([&] { Mesh::load(path); });
     EXPECT_EQ(msg, "mesh 'gamma_test_nm.ply': 1 faces could not be read");
     {
         std::ofstream f(path);
@@ -205,7 +196,7 @@ TEST(Mesh, PlyDroppedFacesAndNonFinite) {
              "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
              "0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n";
     }
-    msg = expect_error([&] { Mesh::load(path); });
+    msg = gamma_test::expect_error([&] { Mesh::load(path); });
     EXPECT_EQ(msg, "mesh 'gamma_test_nm.ply': vertex 1 has a non-finite coordinate");
     {
         std::ofstream f(path);
