@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include "gamma/error.h"
 #include "gamma/mesh.h"
 
 namespace gamma_test {
