@@ -25,7 +25,7 @@ from gamma.checker import load
 from gamma.runner import RunOptions, build_config, runtime_module
 
 ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT.parent / "shared" / "scenes" / "stanford-bunny.obj"
+SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
 
 def main() -> None:
