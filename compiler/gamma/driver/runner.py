@@ -220,7 +220,7 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
     from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
     from .writers import standard_writers
 
-    session = Run.start(effect, opts)
+    session = start(effect, opts)
     subscribers = standard_writers(session) + list(writers)
     try:
         with session.behind:   # leaving it waits for the writers' queued jobs
@@ -258,83 +258,6 @@ class Run:
     nonfinite: "NonFiniteReport"
     behind: object                 # events.WriteQueue: jobs run in order behind the loop
 
-    @classmethod
-    def start(cls, effect: Effect, opts: RunOptions) -> "Run":
-        """Check the options, load the scene, compile, build the simulation and
-        clear an earlier run's files; every user error is raised before any output."""
-        from .camera import DEFAULT_VIEW, CameraError, auto_camera
-        from .events import WriteQueue
-        from .scene import SceneError, load_scene
-
-        check_limits(opts)
-        if not effect.sources:
-            raise GammaError(effect.path, effect.source, [Diagnostic(
-                Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced")])
-        rt = runtime_module()
-        try:
-            scene = load_scene(rt, opts.scene, effect, opts.assign, opts.down)
-        except SceneError as err:
-            raise RunError(str(err)) from None
-        mesh = scene.mesh
-        if mesh.degenerate_dropped:
-            print(f"gammac: warning: {mesh.degenerate_dropped} degenerate triangles of "
-                  f"'{opts.scene}' ignored", file=sys.stderr)
-        present = [s for s in effect.surfaces.values() if scene.triangles_per_surface[s.name]]
-        shown = opts.show or next((n for s in present for n in s.properties), None)
-        if shown is not None and not any(shown in s.properties for s in present):
-            raise RunError(f"--show {shown}: no surface of the scene has that property "
-                           f"({', '.join(sorted({n for s in present for n in s.properties})) or 'none'})")
-        out = Path(opts.out)
-        prepare_output(out)
-        kernels = JitKernels(effect)
-        t0 = time.perf_counter()
-        try:
-            cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
-            cfg.triangle_surface = scene.triangle_surface
-            sim = rt.Simulation(mesh, cfg)
-        except (ValueError, TypeError, RuntimeError) as err:
-            raise RunError(str(err).removeprefix("config: ")) from None
-        setup_seconds = time.perf_counter() - t0
-        looks = bool(effect.appearance_kernels())
-        if looks:
-            sim.set_textures(load_textures(effect))
-        try:
-            camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
-        except CameraError as err:
-            raise RunError(str(err)) from None
-        if opts.eye is not None:
-            _, target, up, fov = camera
-            if np.allclose(opts.eye, target):
-                raise RunError("--eye must not be the centre of the scene, which the camera looks at")
-            camera = (tuple(opts.eye), target, up, fov)
-        clear_earlier_run(out)
-
-        surfel_surface = np.asarray(sim.surfel_surfaces())
-        pos, nrm = sim.surfel_positions(), sim.surfel_normals()
-        static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
-        static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
-        static["surface"] = surfel_surface.astype(np.float32)
-        threads = min(opts.threads or _cpu_count(), LIMITS["--threads"][1])
-        summary = {
-            "effect": str(effect.path), "scene": str(opts.scene),
-            "surfaces": {name: {"triangles": count, "surfels": int(np.sum(surfel_surface == s.index))}
-                         for (name, count), s in zip(scene.triangles_per_surface.items(),
-                                                     effect.surfaces.values())},
-            "surfels": sim.num_surfels, "triangles": mesh.num_triangles, "threads": threads,
-            "seed": opts.seed, "down": list(scene.down), "setup_seconds": setup_seconds,
-            "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
-                         "llvm": ".".join(map(str, llvm_version())),
-                         "runtime": getattr(rt, "RUNTIME_VERSION", None),
-                         "embree": getattr(rt, "EMBREE_VERSION", None)},
-            "rendered": shown,
-            "appearance": looks,
-            "iterations": [],
-        }
-        report = NonFiniteReport(effect, opts.progress)
-        summary["nonfinite"] = report.entries
-        return cls(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
-                   surfel_surface, static, summary, report, WriteQueue())
-
     def trace(self, it: int) -> dict:
         """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
         return self.sim.trace(it)
@@ -352,6 +275,83 @@ class Run:
         record["update_seconds"] = updated["seconds"]
         self.summary["iterations"].append(record)
         return rows, props, record
+
+
+def start(effect: Effect, opts: RunOptions) -> Run:
+    """Check the options, load the scene, compile, build the simulation and
+    clear an earlier run's files; every user error is raised before any output."""
+    from .camera import DEFAULT_VIEW, CameraError, auto_camera
+    from .events import WriteQueue
+    from .scene import SceneError, load_scene
+
+    check_limits(opts)
+    if not effect.sources:
+        raise GammaError(effect.path, effect.source, [Diagnostic(
+            Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced")])
+    rt = runtime_module()
+    try:
+        scene = load_scene(rt, opts.scene, effect, opts.assign, opts.down)
+    except SceneError as err:
+        raise RunError(str(err)) from None
+    mesh = scene.mesh
+    if mesh.degenerate_dropped:
+        print(f"gammac: warning: {mesh.degenerate_dropped} degenerate triangles of "
+              f"'{opts.scene}' ignored", file=sys.stderr)
+    present = [s for s in effect.surfaces.values() if scene.triangles_per_surface[s.name]]
+    shown = opts.show or next((n for s in present for n in s.properties), None)
+    if shown is not None and not any(shown in s.properties for s in present):
+        raise RunError(f"--show {shown}: no surface of the scene has that property "
+                       f"({', '.join(sorted({n for s in present for n in s.properties})) or 'none'})")
+    out = Path(opts.out)
+    prepare_output(out)
+    kernels = JitKernels(effect)
+    t0 = time.perf_counter()
+    try:
+        cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
+        cfg.triangle_surface = scene.triangle_surface
+        sim = rt.Simulation(mesh, cfg)
+    except (ValueError, TypeError, RuntimeError) as err:
+        raise RunError(str(err).removeprefix("config: ")) from None
+    setup_seconds = time.perf_counter() - t0
+    looks = bool(effect.appearance_kernels())
+    if looks:
+        sim.set_textures(load_textures(effect))
+    try:
+        camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
+    except CameraError as err:
+        raise RunError(str(err)) from None
+    if opts.eye is not None:
+        _, target, up, fov = camera
+        if np.allclose(opts.eye, target):
+            raise RunError("--eye must not be the centre of the scene, which the camera looks at")
+        camera = (tuple(opts.eye), target, up, fov)
+    clear_earlier_run(out)
+
+    surfel_surface = np.asarray(sim.surfel_surfaces())
+    pos, nrm = sim.surfel_positions(), sim.surfel_normals()
+    static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
+    static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
+    static["surface"] = surfel_surface.astype(np.float32)
+    threads = min(opts.threads or _cpu_count(), LIMITS["--threads"][1])
+    summary = {
+        "effect": str(effect.path), "scene": str(opts.scene),
+        "surfaces": {name: {"triangles": count, "surfels": int(np.sum(surfel_surface == s.index))}
+                     for (name, count), s in zip(scene.triangles_per_surface.items(),
+                                                 effect.surfaces.values())},
+        "surfels": sim.num_surfels, "triangles": mesh.num_triangles, "threads": threads,
+        "seed": opts.seed, "down": list(scene.down), "setup_seconds": setup_seconds,
+        "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
+                     "llvm": ".".join(map(str, llvm_version())),
+                     "runtime": getattr(rt, "RUNTIME_VERSION", None),
+                     "embree": getattr(rt, "EMBREE_VERSION", None)},
+        "rendered": shown,
+        "appearance": looks,
+        "iterations": [],
+    }
+    report = NonFiniteReport(effect, opts.progress)
+    summary["nonfinite"] = report.entries
+    return Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
+               surfel_surface, static, summary, report, WriteQueue())
 
 
 class NonFiniteReport:
