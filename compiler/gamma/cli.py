@@ -1,4 +1,8 @@
-"""The ``gammac`` command: ``check``, ``run`` and ``emit``.
+"""The ``gammac`` command: ``check``, ``emit``, ``fmt`` and ``run``.
+
+Only argument parsing and reporting live here: the front end checks, the
+back ends compile, the driver runs; this module turns their errors into
+diagnostics or one line and an exit status.
 
 Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
 2 a usage error.  A user mistake is reported as diagnostics or a one-line
