@@ -1,4 +1,8 @@
-"""The ``gammac`` command: ``check``, ``run`` and ``emit``.
+"""The ``gammac`` command: ``check``, ``emit``, ``fmt`` and ``run``.
+
+Only argument parsing and reporting live here: the front end checks, the
+back ends compile, the driver runs; this module turns their errors into
+diagnostics or one line and an exit status.
 
 Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
 2 a usage error.  A user mistake is reported as diagnostics or a one-line
@@ -10,8 +14,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .checker import UsageError
-from .diagnostics import GammaError
+from .frontend.checker import UsageError
+from .frontend.diagnostics import GammaError
 
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
@@ -76,6 +80,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a parameter of the effect")
     what = e.add_mutually_exclusive_group(required=True)
     what.add_argument("--ast", action="store_const", dest="what", const="ast", help="the syntax tree")
+    what.add_argument("--effect", action="store_const", dest="what", const="effect",
+                      help="the checked effect: declarations and typed, resolved rule bodies (the IR)")
     what.add_argument("--ir", action="store_const", dest="what", const="ir", help="LLVM IR as generated")
     what.add_argument("--ir-opt", action="store_const", dest="what", const="ir-opt", help="LLVM IR after optimisation")
     what.add_argument("--asm", action="store_const", dest="what", const="asm", help="native assembly")
@@ -153,9 +159,9 @@ def _read(path: str) -> str:
 
 
 def _load(path: str, params=()):
-    from .checker import check
-    from .diagnostics import render
-    from .parser import parse
+    from .frontend.checker import check
+    from .frontend.diagnostics import render
+    from .frontend.parser import parse
 
     overrides = {}
     for name, value in params:
@@ -175,8 +181,8 @@ class _Fail(Exception):
 def _fmt(args) -> int:
     from pathlib import Path
 
-    from .fmt import format_source
-    from .outputs import atomic_write
+    from .frontend.fmt import format_source
+    from .files import atomic_write
 
     text = _read(args.file)
     formatted = format_source(text, args.file)
@@ -267,14 +273,19 @@ def main(argv=None) -> int:
         if args.command == "check":
             return EXIT_OK
         if args.command == "emit":
-            from .backend import assembly, compile_ir
-            from .codegen import generate
+            from .backends.jit import assembly, compile_ir
+            from .backends.codegen import generate
 
             if args.what == "ast":
-                from .ast import dump
-                from .parser import parse
+                from .frontend.ast import dump
+                from .frontend.parser import parse
 
                 sys.stdout.write(dump(parse(effect.source, effect.path).decls) + "\n")
+                return EXIT_OK
+            if args.what == "effect":
+                from .ir.effect import dump
+
+                sys.stdout.write(dump(effect))
                 return EXIT_OK
             module = generate(effect)
             if args.what == "ir":
@@ -285,7 +296,7 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .runner import RunError, RunOptions, run
+        from .driver.runner import RunError, RunOptions, run
 
         opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down, view=args.view, eye=args.eye, fov=args.fov,
                           iterations=args.iterations, surfels=args.surfels, tons=args.tons,
