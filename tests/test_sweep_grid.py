@@ -6,7 +6,7 @@ import sys
 import pytest
 
 from gamma import cli
-from gamma.sweep import Axis, SweepError, check_overlap, parse_grid, plan_cells
+from gamma.driver.sweep import Axis, SweepError, check_overlap, parse_grid, plan_cells
 
 
 def test_grid_values_and_ranges():

@@ -230,8 +230,8 @@ def _run_options_text(args) -> list[str]:
 
 def _sweep(args) -> int:
     """``gammac sweep``: check the effect and every option here, then run the cells."""
-    from .cluster import RayUnavailable
-    from .sweep import RUN_OPTIONS, SweepError, parse_grid, sweep
+    from .driver.cluster import RayUnavailable
+    from .driver.sweep import RUN_OPTIONS, SweepError, parse_grid, sweep
 
     try:
         axes = [parse_grid(g) for g in args.grid]

@@ -31,7 +31,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .outputs import atomic_write
+from ..files import atomic_write
 
 #: Grid names that are options of ``gammac run`` (whole numbers) rather than
 #: parameters of the effect (``--param``).
@@ -151,7 +151,7 @@ def run_cell(argv: list[str], crash_marker: str | None = None) -> dict:
 
     ``crash_marker`` is for tests: the first attempt to see that path absent
     creates it and kills its own process, as a lost worker would."""
-    from . import cli
+    from .. import cli
 
     if crash_marker and not os.path.exists(crash_marker):
         Path(crash_marker).write_text(str(os.getpid()))
