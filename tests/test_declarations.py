@@ -124,3 +124,9 @@ def test_a_slot_bug_in_the_front_end_shows_as_a_difference():
     compiled, interpreted = both(broken)
     assert list(interpreted) == [0, 0, 0, 3, -2]      # the interpreter reads names, not slots
     assert list(compiled) == [0, 0, 0, -2, 3]         # the code generator followed the bad slots
+
+
+def test_spec_lists_the_abi_statistics_in_order():
+    summary = SPEC[SPEC.index("iterations: [ {"):SPEC.index("property_sums: {PROP")]
+    listed = re.findall(r"[a-z_]+", summary.removeprefix("iterations: [ {"))
+    assert tuple(listed) == abi.STATISTICS
