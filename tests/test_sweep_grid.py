@@ -1,5 +1,6 @@
-"""gammac sweep without Ray: grid syntax, cell names and commands, overlap
-with run options, and the message when the optional extra is missing."""
+"""gammac sweep and run --ray without Ray: grid syntax, cell names and
+commands, overlap with run options, and the message when the optional extra
+is missing."""
 
 import sys
 
@@ -92,3 +93,20 @@ def test_sweep_checks_the_effect_before_starting(tmp_path, capsys):
     assert code == 2
     assert "--grid speed: e.gamma has no parameter 'speed'" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_run_on_ray_without_ray_says_how_to_install_it(tmp_path, monkeypatch, capsys):
+    (tmp_path / "e.gamma").write_text("""
+        ton T { motion straight = 1.0  carry p = 1.0 }
+        surface S { property q = 0.0 }
+        source a = environment(sphere) emits T count 10
+        on settle(t: T, s: S) { s.q += t.p }
+    """)
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    monkeypatch.setitem(sys.modules, "ray", None)     # import ray fails as if not installed
+    code = cli.main(["run", str(tmp_path / "e.gamma"), "--scene", str(tmp_path / "m.obj"), "--surfels", "100",
+                     "--iterations", "1", "--ray", "--out", str(tmp_path / "out"), "--quiet"])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "Ray is not installed" in err and "pip install '.[ray]'" in err
+    assert not list((tmp_path / "out").rglob("iter_*"))

@@ -120,7 +120,7 @@ BINDING = {
                "set_appearance"),
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
-                   "render_appearance"),
+                   "render_appearance", "set_rows", "num_chunks", "trace_chunks", "merge_chunks"),
 }
 
 

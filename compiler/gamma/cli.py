@@ -94,6 +94,12 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("file")
     _add_run_options(r)
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    where = r.add_mutually_exclusive_group()
+    where.add_argument("--ray", action="store_true",
+                       help="trace each iteration's gamma-tons on Ray workers on this machine "
+                            "(same result; optional extra: pip install '.[ray]')")
+    where.add_argument("--ray-address", metavar="ADDRESS",
+                       help="trace each iteration's gamma-tons on the Ray cluster at ADDRESS")
     s = sub.add_parser("sweep", help="run every combination of a parameter grid (a Ray task each)",
                        description="Run the effect once per combination of the --grid values (each a "
                                    "'gammac run' with the other options, as a Ray task) into "
@@ -304,7 +310,8 @@ def main(argv=None) -> int:
                           max_interactions=args.max_interactions, show=args.show,
                           width=args.size, height=args.size, progress=not args.quiet,
                           samples=args.samples, ao_samples=args.ao_samples,
-                          export=args.export, bake_size=args.bake_size)
+                          export=args.export, bake_size=args.bake_size,
+                          ray=args.ray, ray_address=args.ray_address)
         try:
             summary = run(effect, opts)
         except RunError as err:

@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <string>
 
 #include "gamma/error.h"
 #include "gamma/motion.h"
@@ -20,8 +21,58 @@ namespace gammart {
 Tracer::Tracer(const Config& c, const KernelTable& kernels, const std::vector<SourceRt>& sources)
     : cfg_(c), kernels_(kernels), sources_(sources), max_carry_(max_carry(c)) {}
 
+int64_t Tracer::num_chunks(int iteration) const {
+    return (schedule(cfg_.sources, iteration).total() + kChunkSize - 1) / kChunkSize;
+}
+
 TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state) {
     const auto t0 = std::chrono::steady_clock::now();
+    const int64_t nchunks = num_chunks(iteration);
+    if (logs_.size() < size_t(nchunks)) logs_.resize(size_t(nchunks));
+    run_chunks(iteration, 0, nchunks, index, frame, state, logs_.data());
+    TraceStats total_st;
+    for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
+    apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, state.width - GAMMA_ROW_HEADER,
+                     state.rows.data(), merge_scratch_, cfg_.threads);
+    total_st.trace_seconds = seconds_since(t0);
+    return total_st;
+}
+
+std::vector<ChunkLog> Tracer::trace_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
+                                           const SceneFrame& frame, const SurfelState& state) const {
+    const int64_t nchunks = num_chunks(iteration);
+    if (first < 0 || last > nchunks || first > last)
+        throw Error("trace_chunks: chunks [" + std::to_string(first) + ", " + std::to_string(last) +
+                    ") are not within the " + std::to_string(nchunks) + " chunks of iteration " +
+                    std::to_string(iteration));
+    std::vector<ChunkLog> logs(size_t(last - first));
+    run_chunks(iteration, first, last, index, frame, state, logs.data());
+    return logs;
+}
+
+TraceStats Tracer::merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const int64_t nchunks = num_chunks(iteration);
+    const int P = state.width - GAMMA_ROW_HEADER;
+    if (int64_t(logs.size()) != nchunks)
+        throw Error("merge_chunks: iteration " + std::to_string(iteration) + " has " + std::to_string(nchunks) +
+                    " chunks, not " + std::to_string(logs.size()));
+    TraceStats total_st;
+    for (const ChunkLog& log : logs) {
+        if (log.delta.size() != log.surfel.size() * size_t(std::max(P, 0)))
+            throw Error("merge_chunks: a chunk's deltas do not match its surfels");
+        for (uint32_t s : log.surfel)
+            if (s >= state.size()) throw Error("merge_chunks: surfel " + std::to_string(s) + " out of range");
+        total_st.add(log.st);
+    }
+    apply_chunk_logs(logs, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_,
+                     cfg_.threads);
+    total_st.trace_seconds = seconds_since(t0);
+    return total_st;
+}
+
+void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
+                        const SceneFrame& frame, const SurfelState& state, ChunkLog* out) const {
     const Config& c = cfg_;
     const KernelTable& K = kernels_;
     const int W = state.width;
@@ -29,8 +80,6 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     const EmissionSchedule sched = schedule(c.sources, iteration);
     const std::vector<int64_t>& start = sched.start;
     const int64_t total = sched.total();
-    const int64_t nchunks = (total + kChunkSize - 1) / kChunkSize;
-    if (logs_.size() < size_t(nchunks)) logs_.resize(size_t(nchunks));
     const float* rows = state.rows.data();
     const int32_t* surf_of = state.surface.data();
     const int32_t* tri_surf = index.tri_surface().data();
@@ -40,7 +89,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     const V3 up = frame.up;
 
     auto run_chunk = [&](int64_t ci) {
-        ChunkLog& log = logs_[size_t(ci)];
+        ChunkLog& log = out[size_t(ci - first)];
         log.clear();
         TraceStats st;
         std::vector<float> carry(max_carry_, 0.0f);
@@ -126,16 +175,10 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     };
 
     run_with_threads(c.threads, [&] {
-        tbb::parallel_for(tbb::blocked_range<int64_t>(0, nchunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
+        tbb::parallel_for(tbb::blocked_range<int64_t>(first, last, 1), [&](const tbb::blocked_range<int64_t>& r) {
             for (int64_t ci = r.begin(); ci < r.end(); ++ci) run_chunk(ci);
         });
     });
-
-    TraceStats total_st;
-    for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
-    apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_, c.threads);
-    total_st.trace_seconds = seconds_since(t0);
-    return total_st;
 }
 
 RaycastStats raw_raycast(const SceneIndex& index, const SceneFrame& frame, int64_t n_rays, int threads,

@@ -51,6 +51,8 @@ class RunOptions:
     samples: int = 4            # camera rays per pixel (appearance renders)
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
+    ray: bool = False           # trace on a local Ray (distributed.py)
+    ray_address: str | None = None   # trace on the Ray cluster there
 
 
 def runtime_module():
@@ -233,6 +235,9 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
             publish(subscribers, RunFinished(session, session.summary))
     except OSError as err:
         raise RunError(f"cannot write to '{session.out}': {err.strerror or err}") from None
+    finally:
+        if session.tracer is not None:
+            session.tracer.close()
     return session.summary
 
 
@@ -257,9 +262,12 @@ class Run:
     summary: dict                  # what summary.json holds (grows per iteration)
     nonfinite: "NonFiniteReport"
     behind: object                 # events.WriteQueue: jobs run in order behind the loop
+    tracer: object = None          # distributed.RayTracer with --ray / --ray-address
 
     def trace(self, it: int) -> dict:
         """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
+        if self.tracer is not None:
+            return self.tracer.trace(it)
         return self.sim.trace(it)
 
     def update(self, it: int, traced: dict) -> tuple[np.ndarray, dict, dict]:
@@ -273,6 +281,8 @@ class Run:
                                    for name, col in props.items()}
         record["trace_seconds"] = traced["trace_seconds"]
         record["update_seconds"] = updated["seconds"]
+        if "bytes_moved" in traced:
+            record["ray"] = traced["bytes_moved"]
         self.summary["iterations"].append(record)
         return rows, props, record
 
@@ -325,6 +335,15 @@ def start(effect: Effect, opts: RunOptions) -> Run:
         if np.allclose(opts.eye, target):
             raise RunError("--eye must not be the centre of the scene, which the camera looks at")
         camera = (tuple(opts.eye), target, up, fov)
+    tracer = None
+    if opts.ray or opts.ray_address:
+        from . import distributed
+        from .cluster import RayUnavailable
+
+        try:
+            tracer = distributed.start(rt, effect, kernels, opts, scene, sim, build_config)
+        except RayUnavailable as err:
+            raise RunError(str(err)) from None
     clear_earlier_run(out)
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
@@ -348,10 +367,13 @@ def start(effect: Effect, opts: RunOptions) -> Run:
         "appearance": looks,
         "iterations": [],
     }
+    if tracer is not None:
+        summary["ray"] = {"address": opts.ray_address or "local", "workers": tracer.workers,
+                          "job_bytes": tracer.job_bytes}
     report = NonFiniteReport(effect, opts.progress)
     summary["nonfinite"] = report.entries
     return Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
-               surfel_surface, static, summary, report, WriteQueue())
+               surfel_surface, static, summary, report, WriteQueue(), tracer)
 
 
 class NonFiniteReport:

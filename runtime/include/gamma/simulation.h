@@ -51,6 +51,15 @@ public:
     void set_rows(const float* data);  // N*W floats
 
     TraceStats trace(int iteration);
+    // trace() in pieces (see Tracer::trace_chunks): the driver of a
+    // distributed run merges the chunks its workers traced.
+    int64_t num_chunks(int iteration) const { return tracer_->num_chunks(iteration); }
+    std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last) const {
+        return tracer_->trace_chunks(iteration, first, last, *index_, frame_, state_);
+    }
+    TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs) {
+        return tracer_->merge_chunks(iteration, logs, state_);
+    }
     UpdateStats update(int iteration);
     RaycastStats raw_raycast(int64_t n_rays, int threads, uint64_t seed);
     // Out arrays are height*width.

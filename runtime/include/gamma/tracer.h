@@ -30,7 +30,24 @@ public:
     // surfels (checked by the caller).
     TraceStats trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state);
 
+    // The same work in pieces, for tracing on other processes or machines:
+    // the iteration's gamma-tons fall in num_chunks() chunks of kChunkSize;
+    // trace_chunks traces chunks [first, last) against state.rows (left
+    // unchanged) and returns their logs; merge_chunks applies the logs of
+    // all chunks, in chunk order, exactly as trace() does after tracing.  A
+    // chunk's log depends only on (config, scene, rows, iteration, chunk), so
+    // the pieces give trace()'s bytes wherever they are traced.  Both throw
+    // gammart::Error on chunks or logs that do not fit.
+    int64_t num_chunks(int iteration) const;
+    std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
+                                       const SceneFrame& frame, const SurfelState& state) const;
+    TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state);
+
 private:
+    // Traces chunks [first, last) into out[0 .. last - first).
+    void run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index, const SceneFrame& frame,
+                    const SurfelState& state, ChunkLog* out) const;
+
     const Config& cfg_;
     const KernelTable& kernels_;
     const std::vector<SourceRt>& sources_;
