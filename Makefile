@@ -82,6 +82,7 @@ bench: install
 	$(PY) bench/bench_stain.py
 	$(PY) bench/bench_compile.py
 	$(PY) bench/bench_render.py
+	$(PY) bench/bench_ray.py
 
 clean:
 	rm -rf build build-tests out $(VENV)
