@@ -80,8 +80,8 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> Connecti
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     os.environ.setdefault("RAY_DEDUP_LOGS", "0")
     # A local start waits 30 s (fixed in Ray) for its raylet; on a machine
-    # busy enough to miss that, a second try usually makes it.
-    attempts = 1 if address else 2
+    # busy enough to miss that, another try usually makes it.
+    attempts = 1 if address else 3
     for attempt in range(attempts):
         try:
             if address:
