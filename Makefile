@@ -13,7 +13,7 @@ PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypo
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
-.PHONY: all demo stain test deps install runtime-tests pytest bench clean
+.PHONY: all demo stain test deps install runtime-tests pytest bench clean fuzz
 
 all: install
 
@@ -75,6 +75,15 @@ pytest: install
 	$(PY) -m pytest -q tests
 
 test: runtime-tests pytest
+
+# Fuzzing for longer than `make test` does: the compiler (grammar-aware
+# mutants and random bytes) and the mesh readers, FUZZ_SECONDS each.  Inputs
+# that break something are saved to tests/fuzz_regressions/ and
+# tests/mesh_regressions/; checked in, they are regression tests.
+FUZZ_SECONDS ?= 300
+fuzz: install
+	cd tests && ../$(PY) fuzz_gamma.py --seconds $(FUZZ_SECONDS)
+	cd tests && ../$(PY) fuzz_meshes.py --seconds $(FUZZ_SECONDS)
 
 bench: install
 	$(PY) bench/bench_patina.py

@@ -372,6 +372,29 @@ class Unit:
         return None if self.main else SourceFile(self.path, self.source)
 
 
+def path_problem(text: str) -> str | None:
+    """Why a file name written in an effect cannot name a file, or None."""
+    if "\0" in text:
+        return "a file name cannot contain a NUL character"
+    if any(len(part.encode("utf-8", "surrogatepass")) > 255 for part in text.split("/")) \
+            or len(text.encode("utf-8", "surrogatepass")) > 4095:
+        return "the file name is too long"
+    return None
+
+
+def _shown(text: str) -> str:
+    """A file name as it may be printed: control characters escaped, long ones cut."""
+    shown = text.encode("unicode_escape").decode("ascii") if not text.isprintable() else text
+    return shown if len(shown) <= 80 else shown[:77] + "..."
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def _display_path(path: Path) -> str:
     """A path as a user would write it: relative to the working folder when inside it."""
     import os
@@ -462,9 +485,13 @@ class _Checker:
         units.append(unit)
 
     def resolve_import(self, unit: Unit, d: A.ImportDecl) -> Path | None:
+        problem = path_problem(d.path)
+        if problem:
+            self.error(d.pos, f"cannot import '{_shown(d.path)}': {problem}")
+            return None
         for base in (Path(unit.path).resolve().parent, stdlib_dir()):
             candidate = (base / d.path).resolve()
-            if candidate.is_file():
+            if _is_file(candidate):
                 return candidate
         self.error(d.pos, f"cannot find '{d.path}' next to {Path(unit.path).name} or in the "
                    "standard library")
@@ -868,8 +895,12 @@ class _Checker:
         if not isinstance(arg, A.String):
             self.error(call.pos, 'texture() takes a file name in quotes: texture("rust.png")')
             return
+        problem = path_problem(arg.value)
+        if problem:
+            self.error(arg.pos, f"cannot read texture '{_shown(arg.value)}': {problem}")
+            return
         path = (Path(self.unit.path).resolve().parent / arg.value).resolve()
-        if not path.is_file():
+        if not _is_file(path):
             self.error(arg.pos, f"cannot find texture '{arg.value}' next to {Path(self.unit.path).name}")
             return
         index = self.textures.setdefault(str(path), len(self.textures))

@@ -16,8 +16,18 @@ from .diagnostics import GammaError
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
 
+def _float(text: str) -> float:
+    """A number written in ASCII: Python's float() also reads other scripts'
+    digits ('٣'), which no user means on a command line."""
+    if not text.isascii():
+        raise ValueError(text)
+    return float(text)
+
+
 def _bounded_int(text: str) -> int:
     try:
+        if not text.isascii():
+            raise ValueError(text)
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
@@ -30,7 +40,7 @@ def _vector3(text: str) -> tuple[float, float, float]:
     import math
 
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(_float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values) or not any(values):
@@ -43,7 +53,7 @@ def _param(text: str) -> tuple[str, float]:
 
     name, sep, value = text.partition("=")
     try:
-        number = float(value)
+        number = _float(value)
     except ValueError:
         number = math.nan
     if not sep or not name.isidentifier() or not math.isfinite(number):
@@ -51,11 +61,18 @@ def _param(text: str) -> tuple[str, float]:
     return name, number
 
 
+def _fov(text: str) -> float:
+    try:
+        return _float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+
+
 def _point3(text: str) -> tuple[float, float, float]:
     import math
 
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(_float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
@@ -98,7 +115,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="direction from the scene's centre toward the camera (default -0.6,0.35,1)")
     r.add_argument("--eye", type=_point3, metavar="X,Y,Z",
                    help="camera position in scene units (looks at the scene's centre; overrides --view)")
-    r.add_argument("--fov", type=float, default=30.0, help="vertical field of view in degrees")
+    r.add_argument("--fov", type=_fov, default=30.0, help="vertical field of view in degrees")
     r.add_argument("--iterations", type=_bounded_int, default=10)
     r.add_argument("--surfels", type=_bounded_int, default=100_000)
     r.add_argument("--tons", type=_bounded_int, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
@@ -120,6 +137,13 @@ def _parser() -> argparse.ArgumentParser:
 
 def _read(path: str) -> str:
     """The text of a user's file, or a one-line error."""
+    from pathlib import Path
+
+    from .files import file_problem
+
+    problem = file_problem(Path(path))
+    if problem:
+        raise _Fail(f"cannot read '{path}': {problem}")
     try:
         with open(path, encoding="utf-8") as f:
             return f.read()
@@ -166,7 +190,15 @@ def _fmt(args) -> int:
         return EXIT_OK
     if args.write:
         if formatted != text:
-            atomic_write(Path(args.file), formatted.encode("utf-8"))
+            import os
+
+            path = Path(args.file)
+            if not os.access(path, os.W_OK) or not path.stat().st_mode & 0o222:
+                raise _Fail(f"cannot write '{args.file}': the file is read-only")
+            try:
+                atomic_write(path, formatted.encode("utf-8"), mode=path.stat().st_mode & 0o7777)
+            except OSError as err:
+                raise _Fail(f"cannot write '{args.file}': {err.strerror or err}") from None
         return EXIT_OK
     sys.stdout.write(formatted)
     return EXIT_OK
@@ -201,6 +233,10 @@ def main(argv=None) -> int:
             return EXIT_OK
         from .runner import RunError, RunOptions, run
 
+        if not args.out.strip():
+            print("gammac: error: --out must name a folder (it is empty)", file=sys.stderr)
+            return EXIT_USAGE
+
         opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down, view=args.view, eye=args.eye, fov=args.fov,
                           iterations=args.iterations, surfels=args.surfels, tons=args.tons,
                           seed=args.seed, threads=args.threads,
@@ -226,6 +262,10 @@ def main(argv=None) -> int:
     except UsageError as err:
         print(f"gammac: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except MemoryError:
+        print("gammac: error: out of memory (use fewer --surfels or --tons, or a smaller --size)",
+              file=sys.stderr)
+        return EXIT_INPUT
     except KeyboardInterrupt:
         print("gammac: interrupted", file=sys.stderr)
         return 130

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import abi, __version__
+from . import abi, budget, __version__
 from .ast import Pos
 from .backend import JitKernels
 from .checker import Effect, Length, Source
@@ -145,7 +145,12 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
     if opts.tons is not None:
         counts = split_counts(counts, opts.tons)
     for src, count in zip(effect.sources, counts):
-        cfg.add_source(src.kind, src.ton, count, **source_arguments(src, lo, hi, diagonal, down))
+        args = source_arguments(src, lo, hi, diagonal, down)
+        if "position" in args:
+            problem = budget.distance_problem(f"source '{src.name}'", args["position"], (lo + hi) / 2, diagonal)
+            if problem:
+                raise RunError(problem)
+        cfg.add_source(src.kind, src.ton, count, **args)
     for k in effect.transport_kernels():
         cfg.set_transport(abi.EVENTS[k.event], k.ton.index, k.surface.index,
                           kernels.address[k.symbol], k.writes_surface)
@@ -156,16 +161,30 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
     return cfg
 
 
+#: Largest texture() image, in pixels per side (SPEC §8a); checked from the
+#: image's header, before it is decoded, so a decompression bomb costs nothing.
+MAX_TEXTURE_SIDE = 8192
+
+
 def load_textures(effect: Effect) -> list[np.ndarray]:
     """Every texture() image as float32 [H, W, 3] in [0, 1] (display values)."""
     from PIL import Image, UnidentifiedImageError
 
+    from .files import file_problem
+
     images = []
     for path in effect.textures:
+        problem = file_problem(Path(path))
+        if problem:
+            raise RunError(f"cannot read texture '{path}': {problem}")
         try:
             with Image.open(path) as image:
+                w, h = image.size
+                if max(w, h) > MAX_TEXTURE_SIDE:
+                    raise RunError(f"texture '{path}' is {w}x{h} pixels; at most "
+                                   f"{MAX_TEXTURE_SIDE}x{MAX_TEXTURE_SIDE} are supported")
                 images.append(np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0)
-        except (OSError, UnidentifiedImageError) as err:
+        except (OSError, UnidentifiedImageError, Image.DecompressionBombError, ValueError) as err:
             raise RunError(f"cannot read texture '{path}': {err}") from None
     return images
 
@@ -288,6 +307,17 @@ def run(effect: Effect, opts: RunOptions) -> dict:
     if shown is not None and not any(shown in s.properties for s in present):
         raise RunError(f"--show {shown}: no surface of the scene has that property "
                        f"({', '.join(sorted({n for s in present for n in s.properties})) or 'none'})")
+    if opts.eye is not None:
+        centre = (np.asarray(scene.bounds[0], float) + np.asarray(scene.bounds[1], float)) / 2
+        problem = budget.distance_problem("--eye", opts.eye, centre, scene.diagonal)
+        if problem:
+            raise RunError(problem)
+    need = budget.run_memory(opts.surfels, effect.row_width, opts.iterations, history=shown is not None)
+    problem = budget.memory_problem(need, budget.available_memory())
+    if problem:
+        raise RunError(problem)
+    if need > budget.ANNOUNCE_BYTES:
+        print(f"gammac: note: this run needs about {budget.gigabytes(need)} of memory", file=sys.stderr)
     out = Path(opts.out)
     prepare_output(out)
     kernels = JitKernels(effect)
