@@ -301,9 +301,9 @@ def test_fmt_write_keeps_the_file_mode(tmp_path):
 
 @pytest.mark.parametrize("damage", ["garbage", "truncated", "flipped", "empty", "old-format"])
 def test_damaged_kernel_cache_is_rebuilt(tmp_path, damage):
-    from gamma.backend import JitKernels
-    from gamma.checker import check as check_effect
-    from gamma.parser import parse
+    from gamma.backends.jit import JitKernels
+    from gamma.frontend.checker import check as check_effect
+    from gamma.frontend.parser import parse
     from test_cache import RULE, run
     from test_kernels import HEADER as KERNEL_HEADER
 
@@ -321,7 +321,7 @@ def test_damaged_kernel_cache_is_rebuilt(tmp_path, damage):
     elif damage == "empty":
         path.write_bytes(b"")
     else:                                   # machine code without the header
-        from gamma.backend import CACHE_MAGIC
+        from gamma.backends.jit import CACHE_MAGIC
 
         path.write_bytes(data[len(CACHE_MAGIC) + 4 + 64 + 32:])
     again = JitKernels(effect, cache=tmp_path)

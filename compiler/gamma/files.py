@@ -1,11 +1,23 @@
-"""Checks on the files a user names (effect, mesh, scene, texture) before
-they are opened: a directory, a FIFO or a device is refused with a one-line
-reason instead of an OS error or a read that never returns."""
+"""The user's files: checked before they are read, written so that each is
+either complete or absent.
+
+``file_problem`` refuses a directory, a FIFO or a device with a one-line
+reason instead of an OS error or a read that never returns.
+``atomic_write`` writes to a temporary name in the same folder, then renames
+it into place: an interrupted run, a full disk or two processes sharing a
+kernel cache never leave a half-written file.  Every file the package writes
+(run outputs, the kernel cache, ``gammac fmt --write``) goes through it.
+"""
 
 from __future__ import annotations
 
+import os
 import stat
+import tempfile
+import threading
 from pathlib import Path
+
+_umask_lock = threading.Lock()
 
 
 def file_problem(path: Path | str) -> str | None:
@@ -21,3 +33,30 @@ def file_problem(path: Path | str) -> str | None:
     if not stat.S_ISREG(mode):
         return "not a regular file (a pipe or a device)"
     return None
+
+
+def _umask() -> int:
+    # os.umask can only be read by setting it: the lock keeps a writer thread
+    # from seeing the temporary 0 another thread set.
+    with _umask_lock:
+        mask = os.umask(0)
+        os.umask(mask)
+    return mask
+
+
+def atomic_write(path: Path, data: bytes, mode: int | None = None) -> None:
+    """Write ``data`` to ``path``; the file gets ``mode`` (default: 0666 less
+    the umask)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.chmod(tmp, (0o666 & ~_umask()) if mode is None else mode)  # mkstemp creates 0600
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise

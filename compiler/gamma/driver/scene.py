@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .checker import Effect
+from ..frontend.checker import Effect
 from .budget import scene_size_problem
-from .files import file_problem
+from ..files import file_problem
 
 
 class SceneError(Exception):
