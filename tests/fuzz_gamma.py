@@ -47,9 +47,8 @@ ODD = ["\x00", "\ufeff", "\u2028", "\x85", "\f", "\r", "\t", "é", "\U0001f600",
 def grammar_words() -> tuple[list[str], list[str]]:
     """Keywords and punctuation of the grammar (language/gamma.lark)."""
     text = (ROOT / "language" / "gamma.lark").read_text(encoding="utf-8")
-    literals = set(re.findall(r'"([^"\\]+)"', text))
-    words = sorted(w for w in literals if w.isidentifier())
-    punct = sorted(w for w in literals if not w.isidentifier())
+    words = sorted(set(re.findall(r'"([A-Za-z_]+)"', text)))
+    punct = sorted(set(re.findall(r'"([^"\sA-Za-z0-9]{1,2})"', text)))
     return words, punct
 
 

@@ -125,7 +125,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
     r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
     r.add_argument("--export", action="store_true",
-                   help="write DIR/export/iter_NNNN.glb and .obj (+ baked textures when the mesh has UVs)")
+                   help="after every iteration, per object of the scene: DIR/export/OBJECT/iter_NNNN.glb, "
+                        ".obj + .mtl and baked textures (iter_NNNN_color.png, iter_NNNN_PROP.png)")
     r.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
     r.add_argument("--samples", type=_bounded_int, default=4,
                    help="camera rays per pixel of appearance renders (anti-aliasing)")

@@ -84,7 +84,7 @@ CACHE_MAGIC = b"gamma-kernels\0"
 
 
 def pack_cached(key: str, code: bytes) -> bytes:
-    from . import abi
+    from .. import abi
 
     return (CACHE_MAGIC + abi.ABI_VERSION.to_bytes(4, "little") + key.encode("ascii")
             + hashlib.sha256(code).digest() + code)
@@ -92,7 +92,7 @@ def pack_cached(key: str, code: bytes) -> bytes:
 
 def unpack_cached(key: str, blob: bytes) -> bytes | None:
     """The machine code of a cache file, or None if it is not intact and ours."""
-    from . import abi
+    from .. import abi
 
     head = CACHE_MAGIC + abi.ABI_VERSION.to_bytes(4, "little") + key.encode("ascii")
     if not blob.startswith(head) or len(blob) < len(head) + 32:
