@@ -4,8 +4,9 @@ Only argument parsing and reporting live here: the front end checks, the
 back ends compile, the driver runs; this module turns their errors into
 diagnostics or one line and an exit status.
 
-Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
-2 a usage error.  A user mistake is reported as diagnostics or a one-line
+Exit status (SPEC §16.2): 0 success, 1 an error in the user's input (effect
+file, mesh), 2 a usage error, 130 interrupted by SIGINT (Ctrl-C), 143 stopped
+by SIGTERM.  A user mistake is reported as diagnostics or a one-line
 ``gammac: error: ...``, never as a Python traceback.
 """
 
@@ -139,6 +140,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--ao", type=_bounded_int, default=8, dest="ao_samples",
                    help="ambient-occlusion rays per pixel sample (0: none)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its last complete iteration (same command; "
+                        "--iterations may grow)")
     return p
 
 
@@ -180,6 +184,49 @@ def _load(path: str, params=()):
 
 class _Fail(Exception):
     pass
+
+
+class _PipeTolerant:
+    """A text stream that stops writing, without an error, once its reader
+    has gone (``gammac run ... | head``): the run finishes its work."""
+
+    def __init__(self, stream):
+        self._stream = stream
+        self.closed_pipe = False
+
+    def _gone(self) -> None:
+        import os
+
+        self.closed_pipe = True
+        try:   # the interpreter's own flush at exit must not fail either
+            os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+        except (OSError, ValueError):
+            pass
+
+    def write(self, text: str) -> int:
+        if not self.closed_pipe:
+            try:
+                self._stream.write(text)
+            except (BrokenPipeError, ValueError):
+                self._gone()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.closed_pipe:
+            try:
+                self._stream.flush()
+            except (BrokenPipeError, ValueError):
+                self._gone()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _tolerate_closed_pipes() -> None:
+    if not isinstance(sys.stdout, _PipeTolerant):
+        sys.stdout = _PipeTolerant(sys.stdout)
+    if not isinstance(sys.stderr, _PipeTolerant):
+        sys.stderr = _PipeTolerant(sys.stderr)
 
 
 def _fmt(args) -> int:
@@ -243,7 +290,7 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .driver.runner import RunError, RunOptions, run
+        from .driver.runner import RunError, RunInterrupted, RunOptions, run
 
         if not args.out.strip():
             print("gammac: error: --out must name a folder (it is empty)", file=sys.stderr)
@@ -255,11 +302,29 @@ def main(argv=None) -> int:
                           max_interactions=args.max_interactions, show=args.show,
                           width=args.size, height=args.size, progress=not args.quiet,
                           samples=args.samples, ao_samples=args.ao_samples,
-                          export=args.export, bake_size=args.bake_size)
+                          export=args.export, bake_size=args.bake_size, resume=args.resume)
+        streams = sys.stdout, sys.stderr
+        _tolerate_closed_pipes()
         try:
             summary = run(effect, opts)
         except RunError as err:
             raise _Fail(str(err)) from None
+        except RunInterrupted as stop:
+            print(f"\ngammac: {stop}", file=sys.stderr)
+            if stop.abandoned_call:
+                # a runtime call still runs on another thread: leave without
+                # the interpreter's shutdown (which would wait for it)
+                sys.stdout.flush()
+                sys.stderr.flush()
+                import os
+
+                os._exit(stop.status)
+            return stop.status
+        finally:
+            if isinstance(sys.stdout, _PipeTolerant) and not sys.stdout.closed_pipe:
+                sys.stdout = streams[0]
+            if isinstance(sys.stderr, _PipeTolerant) and not sys.stderr.closed_pipe:
+                sys.stderr = streams[1]
         renders = f"{args.out}/renders, " if summary["rendered"] else ""
         print(f"gammac: wrote {args.out}/maps, {renders}{args.out}/summary.json", file=sys.stderr)
         return EXIT_OK

@@ -52,6 +52,7 @@ class RunOptions:
     samples: int = 4            # camera rays per pixel (appearance renders)
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
+    resume: bool = False          # continue the run in ``out`` from its last complete iteration
 
 
 def runtime_module():
@@ -216,44 +217,85 @@ def prepare_output(out: Path) -> None:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
 
-def clear_earlier_run(out: Path) -> None:
-    """Drop an earlier run's iteration files, so the folder describes one run.
-    Called only once this run has been set up without error: a run that fails
-    early leaves the earlier results alone."""
-    try:
-        for sub in OUTPUT_FOLDERS:
-            for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9]*"):
-                stale.unlink()
-        for stale in (out / "export").glob("*/iter_[0-9][0-9][0-9][0-9]*"):
-            stale.unlink()
-        for stale in ("sequence.gif", "sequence.mp4", "strip.png"):
-            (out / "renders" / stale).unlink(missing_ok=True)
-    except OSError as err:
-        raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
-
-
-
-
 def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
     """Simulate ``effect`` with ``opts``; the standard outputs, then ``writers``,
-    receive the run's events (``events.py``).  Returns the summary."""
+    receive the run's events (``events.py``).  Returns the summary.
+
+    SIGINT and SIGTERM stop the run within a fraction of a second
+    (``interrupt.py``): the iterations completed so far stay written, with
+    ``"completed": false``, and ``RunInterrupted`` is raised.  A run that fails
+    puts the earlier run's files back (``folder.py``)."""
+    from . import folder
     from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
+    from .interrupt import Interrupted, Interruptions
     from .writers import standard_writers
 
-    session = start(effect, opts)
-    subscribers = standard_writers(session) + list(writers)
-    try:
-        with session.behind:   # leaving it waits for the writers' queued jobs
-            publish(subscribers, SetupDone(session))
-            for it in range(1, opts.iterations + 1):
-                traced = session.trace(it)
-                publish(subscribers, IterationTraced(session, it, traced))
-                rows, props, record = session.update(it, traced)
-                publish(subscribers, IterationUpdated(session, it, rows, props, record))
-            publish(subscribers, RunFinished(session, session.summary))
-    except OSError as err:
-        raise RunError(f"cannot write to '{session.out}': {err.strerror or err}") from None
+    with Interruptions() as stop:
+        session = start(effect, opts, stop)
+        subscribers = standard_writers(session) + list(writers)
+        done = session.first_iteration - 1
+        try:
+            with session.behind:   # leaving it waits for the writers' queued jobs
+                publish(subscribers, SetupDone(session))
+                for it in range(session.first_iteration, opts.iterations + 1):
+                    traced = stop.call(session.trace, it)
+                    publish(subscribers, IterationTraced(session, it, traced))
+                    rows, props, record = stop.call(session.update, it, traced)
+                    publish(subscribers, IterationUpdated(session, it, rows, props, record))
+                    done = it
+                    stop.check()
+                session.summary["completed"] = True
+                publish(subscribers, RunFinished(session, session.summary))
+            folder.drop(session.out)
+        except Interrupted as sig:
+            _interrupted(session, sig, done, stop.busy)     # raises RunInterrupted
+        except BaseException as err:
+            if not opts.resume:
+                folder.restore(session.out)      # the earlier run's files come back
+            if isinstance(err, OSError):
+                raise RunError(f"cannot write to '{session.out}': {err.strerror or err}") from None
+            raise
+        finally:
+            session.lock.__exit__()
     return session.summary
+
+
+def _direct(fn, *args, **kwargs):
+    return fn(*args, **kwargs)
+
+
+class RunInterrupted(Exception):
+    """The run stopped at a signal; its folder holds ``done`` complete iterations."""
+
+    def __init__(self, message: str, status: int, abandoned_call: bool):
+        super().__init__(message)
+        self.status = status
+        self.abandoned_call = abandoned_call   # a runtime call still runs: exit with os._exit
+
+
+def _interrupted(session: "Run", sig, done: int, busy: bool):
+    """Finish the folder of an interrupted run: complete iterations only (the
+    queued writes are done: leaving ``behind`` waited for them), summary.json
+    with ``"completed": false``; keep the earlier run's files if none is."""
+    from . import folder
+    from ..files import atomic_write
+
+    summary = session.summary
+    summary["completed"] = False
+    summary["interrupted"] = sig.name
+    del summary["iterations"][done:]
+    out = session.out
+    if done == 0 and not session.opts.resume:
+        folder.restore(out)
+        kept = "the earlier results are kept"
+    else:
+        folder.discard_after(out, done)
+        atomic_write(out / "summary.json", (__import__("json").dumps(summary, indent=2) + "\n").encode())
+        folder.drop(out)
+        kept = (f"'{out}' holds iterations 1 to {done} of {session.opts.iterations} "
+                f"(summary.json: \"completed\": false); add --resume to continue")
+    raise RunInterrupted(f"interrupted by {sig.name} during iteration {done + 1}; {kept}",
+                         sig.status, busy)
 
 
 @dataclass
@@ -277,6 +319,9 @@ class Run:
     summary: dict                  # what summary.json holds (grows per iteration)
     nonfinite: "NonFiniteReport"
     behind: object                 # events.WriteQueue: jobs run in order behind the loop
+    first_iteration: int = 1       # 1, or where --resume continues
+    lock: object = None            # folder.OutputLock, held for the run
+    call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
 
     def trace(self, it: int) -> dict:
         """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
@@ -297,11 +342,9 @@ class Run:
         return rows, props, record
 
 
-def start(effect: Effect, opts: RunOptions) -> Run:
+def start(effect: Effect, opts: RunOptions, stop=None) -> Run:
     """Check the options, load the scene, compile, build the simulation and
-    clear an earlier run's files; every user error is raised before any output."""
-    from .camera import DEFAULT_VIEW, CameraError, auto_camera
-    from .events import WriteQueue
+    set the earlier run's files aside; every user error is raised before any output."""
     from .scene import SceneError, load_scene
 
     check_limits(opts)
@@ -337,12 +380,38 @@ def start(effect: Effect, opts: RunOptions) -> Run:
     textures = load_textures(effect) if looks else None     # before any long setup
     out = Path(opts.out)
     prepare_output(out)
-    kernels = JitKernels(effect)
+    from . import folder
+
+    call = stop.call if stop is not None else _direct
+    lock = folder.OutputLock(out)
+    try:
+        lock.__enter__()
+    except folder.FolderError as err:
+        raise RunError(str(err)) from None
+    try:
+        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call)
+    except BaseException:
+        lock.__exit__()
+        raise
+    session.lock = lock
+    return session
+
+
+def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call) -> Run:
+    """The rest of ``start``, with the output folder locked."""
+    from . import folder, resume
+    from .camera import DEFAULT_VIEW, CameraError, auto_camera
+    from .events import WriteQueue
+
+    mesh = scene.mesh
+    folder.remove_stale_temporaries(out)
+    folder.recover(out)
+    kernels = call(JitKernels, effect)
     t0 = time.perf_counter()
     try:
         cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
         cfg.triangle_surface = scene.triangle_surface
-        sim = rt.Simulation(mesh, cfg)
+        sim = call(rt.Simulation, mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
         raise RunError(str(err).removeprefix("config: ")) from None
     setup_seconds = time.perf_counter() - t0
@@ -357,7 +426,22 @@ def start(effect: Effect, opts: RunOptions) -> Run:
         if np.allclose(opts.eye, target):
             raise RunError("--eye must not be the centre of the scene, which the camera looks at")
         camera = (tuple(opts.eye), target, up, fov)
-    clear_earlier_run(out)
+    key = resume.run_key(str(kernels.ir), scene, opts)
+    earlier, first = None, 1
+    if opts.resume:
+        try:
+            earlier, done = resume.load(out, key, opts.iterations)
+            sim.set_rows(resume.rows_from_map(out / "maps" / f"iter_{done:04d}.ply", effect,
+                                              np.asarray(sim.surfel_surfaces()), effect.row_width))
+        except resume.ResumeError as err:
+            raise RunError(str(err)) from None
+        folder.discard_after(out, done)
+        first = done + 1
+    else:
+        try:
+            folder.set_aside(out)
+        except OSError as err:
+            raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     pos, nrm = sim.surfel_positions(), sim.surfel_normals()
@@ -378,12 +462,29 @@ def start(effect: Effect, opts: RunOptions) -> Run:
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
         "rendered": shown,
         "appearance": looks,
+        "requested_iterations": opts.iterations,
+        "completed": False,            # true once the last iteration's outputs are written
+        "run_key": key,                # what --resume checks (resume.py)
         "iterations": [],
     }
     report = NonFiniteReport(effect, opts.progress)
     summary["nonfinite"] = report.entries
-    return Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
-               surfel_surface, static, summary, report, WriteQueue())
+    if earlier is not None:
+        summary["iterations"] = earlier["iterations"][:first - 1]
+        summary["resumed_at"] = first
+        for entry in earlier.get("nonfinite", []):
+            report.by_key[(entry["where"], entry["rule"])] = entry
+            report.entries.append(entry)
+    session = Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
+                  surfel_surface, static, summary, report, WriteQueue())
+    session.first_iteration = first
+    session.call = call
+    return session
+
+
+#: The event number NonFiniteReport files appearance kernels under (the
+#: runtime reports them apart, by surface and statement).
+APPEARANCE = -2
 
 
 class NonFiniteReport:
@@ -397,11 +498,19 @@ class NonFiniteReport:
         self.kernels = {(abi.EVENTS[k.event], k.ton.index, k.surface.index): k
                         for k in effect.transport_kernels()}
         self.kernels.update({(-1, 0, k.surface.index): k for k in effect.update_kernels()})
+        self.kernels.update({(APPEARANCE, 0, k.surface.index): k for k in effect.appearance_kernels()})
+
+    def add_appearance(self, iteration: int, items) -> None:
+        """The (surface, statement, count) list of ``Simulation.last_render_stats``."""
+        self.add(iteration, [(APPEARANCE, 0, surface, statement, count)
+                             for surface, statement, count in items])
 
     def add(self, iteration: int, *lists) -> None:
         for items in lists:
             for event, ton, surface, statement, count in items:
-                kernel = self.kernels[(event, ton if event >= 0 else 0, surface)]
+                kernel = self.kernels.get((event, ton if event >= 0 else 0, surface))
+                if kernel is None:
+                    continue
                 st = kernel.statement_at(statement)
                 where = f"{st.origin}:{st.pos.line}:{st.pos.col}"
                 key = (where, kernel.label)
