@@ -329,3 +329,13 @@ def test_damaged_kernel_cache_is_rebuilt(tmp_path, damage):
     assert run(again, effect) == expected
     assert path.read_bytes() == data            # rewritten intact
     assert JitKernels(effect, cache=tmp_path).from_cache
+
+
+def test_absurd_source_count_is_refused_before_allocating(tmp_path):
+    """count 1e12 is within the language's limit but no machine holds a
+    pass of that many γ-tons: refused up front with the memory it needs."""
+    (tmp_path / "e.gamma").write_text(PATINA.read_text().replace("count 4000000", "count 1e12"))
+    r = run_gammac("run", tmp_path / "e.gamma", "--scene", BUNNY, "--surfels", 300, "--iterations", 1,
+                   "--quiet", "--out", tmp_path / "out", timeout=120)
+    assert_one_line_error(r, "this run needs about", "GB of memory", "γ-tons")
+    assert not (tmp_path / "out").exists()

@@ -370,7 +370,9 @@ def start(effect: Effect, opts: RunOptions, stop=None) -> Run:
         problem = budget.distance_problem("--eye", opts.eye, centre, scene.diagonal)
         if problem:
             raise RunError(problem)
-    need = budget.run_memory(opts.surfels, effect.row_width, opts.iterations, history=shown is not None)
+    tons = opts.tons if opts.tons is not None else sum(src.count for src in effect.sources)
+    need = budget.run_memory(opts.surfels, effect.row_width, opts.iterations, history=shown is not None,
+                             tons=tons)
     problem = budget.memory_problem(need, budget.available_memory())
     if problem:
         raise RunError(problem)
