@@ -58,6 +58,8 @@ class OutputLock:
 
     def __exit__(self, *exc) -> None:
         if self.file is not None:
+            # removed while still held, so the folder keeps no trace of the run's lock
+            (self.out / LOCK_NAME).unlink(missing_ok=True)
             self.file.close()     # releases the lock
             self.file = None
 
