@@ -10,6 +10,7 @@ output is a writer, so adding one never touches the loop.
 from __future__ import annotations
 
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -161,12 +162,32 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
         cfg.set_update(k.surface.index, kernels.address[k.symbol])
     for k in effect.appearance_kernels():
         cfg.set_appearance(k.surface.index, kernels.address[k.symbol])
+    for surface in effect.surfaces.values():
+        for slot, rate, _ in surface.shape.values():
+            cfg.add_shape_rate(surface.index, slot, rate)
+    for name in mass_properties(effect):
+        cfg.add_mass_property([s.properties.get(name, -1) for s in effect.surfaces.values()],
+                              [t.carry.get(name, -1) for t in effect.tons.values()])
     return cfg
 
 
 #: Largest texture() image, in pixels per side (SPEC §8a); checked from the
 #: image's header, before it is decoded, so a decompression bomb costs nothing.
 MAX_TEXTURE_SIDE = 8192
+
+
+def mass_properties(effect: Effect) -> list[str]:
+    """Properties whose pick-up is accounted (SPEC §19): a name that is both a
+    surface property and an attribute some ton type carries."""
+    carried = {name for t in effect.tons.values() for name in t.carry}
+    names = []
+    for s in effect.surfaces.values():
+        names += [n for n in s.properties if n in carried and n not in names]
+    return names
+
+
+def shape_changes(effect: Effect) -> bool:
+    return any(s.shape for s in effect.surfaces.values())
 
 
 def load_textures(effect: Effect) -> list[np.ndarray]:
@@ -205,7 +226,7 @@ def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarra
     return columns
 
 
-OUTPUT_FOLDERS = ("maps", "renders", "renders/false_colour", "export")
+OUTPUT_FOLDERS = ("maps", "renders", "renders/false_colour", "export", "meshes")
 
 
 def prepare_output(out: Path) -> None:
@@ -319,6 +340,8 @@ class Run:
     summary: dict                  # what summary.json holds (grows per iteration)
     nonfinite: "NonFiniteReport"
     behind: object                 # events.WriteQueue: jobs run in order behind the loop
+    shapes: bool = False           # some surface's shape follows a property
+    shape_where: str = ""          # FILE:LINE:COL of the first `shape` entry (for warnings)
     first_iteration: int = 1       # 1, or where --resume continues
     lock: object = None            # folder.OutputLock, held for the run
     call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
@@ -338,8 +361,53 @@ class Run:
                                    for name, col in props.items()}
         record["trace_seconds"] = traced["trace_seconds"]
         record["update_seconds"] = updated["seconds"]
+        names = mass_properties(self.effect)
+        if names:
+            record["mass"] = {name: books for name, books in zip(names, traced["mass"])}
+        if self.shapes:
+            shaped = self.sim.shape(it)
+            record["geometry"] = shaped["geometry"]
+            record["shape"] = {k: v for k, v in shaped.items() if k != "geometry"}
+            for key, count in (("clamped_vertices", "was cut to the per-iteration bound"),
+                               ("inversion_limited", "was shortened so that no triangle turns over")):
+                if shaped[key]:
+                    print(f"\ngammac: warning: {self.shape_where}: the displacement of {shaped[key]} "
+                          f"vertices {count} in iteration {it}", file=sys.stderr)
+            if shaped["changed"]:
+                rows = self.sim.rows()
+                self.refresh_surfels()
+                props = property_columns(self.effect, rows, self.surfel_surface)
+                record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
+                                           for name, col in props.items()}
         self.summary["iterations"].append(record)
         return rows, props, record
+
+    def refresh_surfels(self) -> None:
+        """Surfel positions, normals and surfaces after the shape changed."""
+        self.surfel_surface = np.asarray(self.sim.surfel_surfaces())
+        self.static_columns = static_columns(self.sim, self.surfel_surface)
+
+    def export_scene(self):
+        """The scene as export sees it: the deformed mesh as one object once the
+        shape has changed, else the loaded scene."""
+        if not self.shapes:
+            return self.scene
+        from types import SimpleNamespace
+
+        vertices, triangles = self.sim.mesh_arrays()
+        mesh = self.rt.Mesh.from_arrays(vertices, triangles)
+        return SimpleNamespace(mesh=mesh, object_names=[Path(self.opts.scene).stem],
+                               triangle_object=np.zeros(len(triangles), np.int64),
+                               triangle_surface=np.asarray(self.sim.triangle_surfaces()))
+
+
+def static_columns(sim, surfel_surface: np.ndarray) -> dict:
+    """x y z nx ny nz surface per surfel."""
+    pos, nrm = sim.surfel_positions(), sim.surfel_normals()
+    static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
+    static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
+    static["surface"] = surfel_surface.astype(np.float32)
+    return static
 
 
 def start(effect: Effect, opts: RunOptions, stop=None) -> Run:
@@ -415,7 +483,12 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call) ->
         cfg.triangle_surface = scene.triangle_surface
         sim = call(rt.Simulation, mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
-        raise RunError(str(err).removeprefix("config: ")) from None
+        message = str(err).removeprefix("config: ")
+        names = list(effect.surfaces)
+        # The runtime knows surfaces by index: name them.
+        message = re.sub(r"^surface (\d+) ", lambda m: f"surface {names[int(m[1])]} "
+                         if int(m[1]) < len(names) else m[0], message)
+        raise RunError(message) from None
     setup_seconds = time.perf_counter() - t0
     if looks:
         sim.set_textures(textures)
@@ -431,6 +504,9 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call) ->
     key = resume.run_key(str(kernels.ir), scene, opts)
     earlier, first = None, 1
     if opts.resume:
+        if shape_changes(effect):
+            raise RunError("--resume: an effect that changes the shape of the scene cannot be "
+                           "resumed (its geometry is not in the maps); run it again")
         try:
             earlier, done = resume.load(out, key, opts.iterations)
             sim.set_rows(resume.rows_from_map(out / "maps" / f"iter_{done:04d}.ply", effect,
@@ -446,10 +522,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call) ->
             raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
-    pos, nrm = sim.surfel_positions(), sim.surfel_normals()
-    static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
-    static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
-    static["surface"] = surfel_surface.astype(np.float32)
+    static = static_columns(sim, surfel_surface)
     threads = min(opts.threads or _cpu_count(), LIMITS["--threads"][1])
     summary = {
         "effect": str(effect.path), "scene": str(opts.scene),
@@ -477,8 +550,12 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call) ->
         for entry in earlier.get("nonfinite", []):
             report.by_key[(entry["where"], entry["rule"])] = entry
             report.entries.append(entry)
+    shapes = shape_changes(effect)
+    where = next((w for s in effect.surfaces.values() for _, _, w in s.shape.values()), "")
+    if shapes:
+        summary["geometry"] = sim.geometry()
     session = Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
-                  surfel_surface, static, summary, report, WriteQueue())
+                  surfel_surface, static, summary, report, WriteQueue(), shapes, where)
     session.first_iteration = first
     session.call = call
     return session

@@ -135,6 +135,9 @@ class _ToAst(Transformer):
     def property(self, meta, c):
         return ("properties", c[0])
 
+    def shape(self, meta, c):
+        return ("shape", c[0])
+
     def param_decl(self, meta, c):
         return A.ParamDecl(str(c[0]), c[1], _pos(c[0]))
 
