@@ -6,4 +6,16 @@ reference interpreter over the same AST.  ``runner`` drives the C++ runtime
 (``gamma._runtime``); ``cli`` is the ``gammac`` command.
 """
 
-__version__ = "0.1.0"
+
+def _installed_version() -> str:
+    # One version: CMakeLists.txt's project(VERSION), which pyproject.toml reads
+    # (scikit-build-core regex provider) into the package metadata.
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("gamma-weathering")
+    except PackageNotFoundError:   # running from a source tree that was never installed
+        return "0+unknown"
+
+
+__version__ = _installed_version()

@@ -309,6 +309,7 @@ class Effect:
     params: dict = field(default_factory=dict)
     assign: list = field(default_factory=list)   # (pattern, surface) from `assign` declarations
     textures: list = field(default_factory=list) # image files read by texture(), in index order
+    files: list = field(default_factory=list)    # the effect file and every file it imports
 
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]
@@ -401,6 +402,14 @@ class _Checker:
         self.warnings: list[Diagnostic] = []
         self.unit = Unit(module.path, module.source, module, main=True)
         self.unknown_overrides: list[str] = []
+        # "recipe.name" overrides go to the imported file recipe.gamma
+        self.recipe_overrides: dict[str, dict[str, float]] = {}
+        for key, value in list(overrides.items()):
+            recipe, dot, name = key.partition(".")
+            if dot:
+                self.recipe_overrides.setdefault(recipe, {})[name] = value
+        self.overrides = {k: v for k, v in overrides.items() if "." not in k}
+        self.recipes_seen: set[str] = set()
         self.textures: dict[str, int] = {}      # resolved path -> index
         self.kernel: Kernel | None = None       # the kernel whose body is being checked
 
@@ -456,6 +465,11 @@ class _Checker:
                                for x in err.diagnostics]
                 continue
             child = Unit(_display_path(found), text, module, main=False)
+            # --param RECIPE.NAME=VALUE (pos None: from the command line) wins over the import's own
+            recipe = found.stem
+            if recipe in self.recipe_overrides:
+                self.recipes_seen.add(recipe)
+                args.update({name: (value, None) for name, value in self.recipe_overrides[recipe].items()})
             self.load_units(child, args, chain + (str(found),), units)
             self.unit = unit
         self.unit = unit
@@ -490,9 +504,12 @@ class _Checker:
         for name, (_, pos) in overrides.items():
             if name not in unit.params:
                 where = Path(unit.path).name
-                if unit.main:
-                    self.unknown_overrides.append(f"--param {name}: {where} has no parameter "
-                                                  f"'{name}'{did_you_mean(name, unit.params)}")
+                if unit.main or pos is None:
+                    option = name if unit.main else f"{Path(unit.path).stem}.{name}"
+                    known = ", ".join(unit.params) or "none"
+                    self.unknown_overrides.append(f"--param {option}: {where} has no parameter "
+                                                  f"'{name}'{did_you_mean(name, unit.params)}; "
+                                                  f"its parameters: {known}")
                 else:
                     self.diags.append(Diagnostic(pos, f"{where} has no parameter '{name}'"
                                                  f"{did_you_mean(name, unit.params)}"))
@@ -579,6 +596,12 @@ class _Checker:
             elif isinstance(d, A.AppearanceDecl):
                 self.appearance(d, surfaces, tons, kernels)
         self.unit = main
+        for recipe in self.recipe_overrides:
+            if recipe not in self.recipes_seen:
+                imported = ", ".join(Path(u.path).stem for u in units if not u.main) or "none"
+                name = next(iter(self.recipe_overrides[recipe]))
+                self.unknown_overrides.append(f"--param {recipe}.{name}: {Path(main.path).name} imports "
+                                              f"no recipe '{recipe}' (imported: {imported})")
         if self.unknown_overrides:
             raise UsageError(self.unknown_overrides[0])
         width = abi.ROW_HEADER + max((len(s.properties) for s in surfaces.values()), default=0)
@@ -591,6 +614,7 @@ class _Checker:
         effect.params = dict(main.params)
         effect.assign = assign
         effect.textures = list(self.textures)
+        effect.files = [u.path for u in units]
         return effect
 
     def collect_warnings(self, effect: Effect, units: list[Unit]) -> None:

@@ -7,10 +7,10 @@
   Empty texels next to filled ones are filled from their neighbours a few
   times over ("seam bleeding"), so mip-mapping shows no dark seams.
 - ``write_glb``: glTF 2.0 binary with positions, normals, texture
-  coordinates, the appearance colour per vertex (``COLOR_0``), one float
-  attribute per surface property (``_PROPERTYNAME``, the glTF convention
-  for application-specific attributes) and, when baked, the colour texture
-  as the material's base colour.
+  coordinates, one float attribute per surface property (``_PROPERTYNAME``,
+  the glTF convention for application-specific attributes) and the
+  appearance colour: as the material's base-colour texture when baked, else
+  per vertex (``COLOR_0``) — never both, since viewers multiply them.
 
 Every object of the scene (``pieces``: OBJ object, else group, else mesh
 file) is exported on its own.  Objects without texture coordinates get an
@@ -209,8 +209,13 @@ def png16(values: np.ndarray) -> tuple[bytes, float, float]:
 
 
 def write_glb(positions, normals, uvs, triangles, colours, attributes: dict,
-              texture_png: bytes | None = None, extras: dict | None = None) -> bytes:
-    """glTF 2.0 binary (.glb) of one triangle mesh."""
+              texture_png: bytes | None = None, extras: dict | None = None, name: str = "gamma") -> bytes:
+    """glTF 2.0 binary (.glb) of one triangle mesh, its node and mesh named
+    ``name``.  The appearance colour goes in the base-colour texture when there
+    is one, else per vertex (``COLOR_0``): never both, since a viewer multiplies
+    the two."""
+    from . import __version__
+
     chunks, views, accessors = [], [], []
 
     def add(data: bytes, target: int | None = None) -> int:
@@ -234,20 +239,21 @@ def write_glb(positions, normals, uvs, triangles, colours, attributes: dict,
     FLOAT, UINT = 5126, 5125
     ARRAY, ELEMENTS = 34962, 34963
     attrs = {"POSITION": accessor(positions.astype(np.float32), "VEC3", FLOAT, ARRAY, bounds=True),
-             "NORMAL": accessor(normals.astype(np.float32), "VEC3", FLOAT, ARRAY),
-             "COLOR_0": accessor(colours.astype(np.float32), "VEC3", FLOAT, ARRAY)}
+             "NORMAL": accessor(normals.astype(np.float32), "VEC3", FLOAT, ARRAY)}
+    if texture_png is None:
+        attrs["COLOR_0"] = accessor(np.clip(colours, 0, 1).astype(np.float32), "VEC3", FLOAT, ARRAY)
     if uvs is not None:
         # glTF's v runs downward from the top of the image
         flipped = np.column_stack([uvs[:, 0], 1.0 - uvs[:, 1]]).astype(np.float32)
         attrs["TEXCOORD_0"] = accessor(flipped, "VEC2", FLOAT, ARRAY)
-    for name, values in attributes.items():
-        attrs["_" + name.upper()] = accessor(values.astype(np.float32).reshape(-1, 1), "SCALAR",
+    for attribute, values in attributes.items():
+        attrs["_" + attribute.upper()] = accessor(values.astype(np.float32).reshape(-1, 1), "SCALAR",
                                              FLOAT, ARRAY, bounds=True)
     indices = accessor(triangles.astype(np.uint32).reshape(-1), "SCALAR", UINT, ELEMENTS)
     material = {"name": "weathered", "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.8}}
-    doc = {"asset": {"version": "2.0", "generator": "gamma"}, "scene": 0, "scenes": [{"nodes": [0]}],
-           "nodes": [{"mesh": 0}],
-           "meshes": [{"primitives": [{"attributes": attrs, "indices": indices, "material": 0}]}],
+    doc = {"asset": {"version": "2.0", "generator": f"gamma {__version__}"}, "scene": 0,
+           "scenes": [{"name": name, "nodes": [0]}], "nodes": [{"name": name, "mesh": 0}],
+           "meshes": [{"name": name, "primitives": [{"attributes": attrs, "indices": indices, "material": 0}]}],
            "materials": [material], "accessors": accessors}
     if texture_png is not None:
         doc["images"] = [{"bufferView": add(texture_png), "mimeType": "image/png"}]

@@ -37,6 +37,8 @@ class RunOptions:
     down: tuple[float, float, float] | None = None    # None: the scene file's, else -y
     view: tuple[float, float, float] | None = None    # camera direction from the scene's centre
     eye: tuple[float, float, float] | None = None     # camera position (overrides view)
+    look_at: tuple[float, float, float] | None = None # the point looked at (None: the scene's centre)
+    up: tuple[float, float, float] | None = None      # camera up (None: against gravity)
     fov: float = 30.0                                 # vertical field of view, degrees
     iterations: int = 10
     surfels: int = 100_000
@@ -200,6 +202,28 @@ def auto_camera(bounds, view=DEFAULT_VIEW, down=(0.0, -1.0, 0.0), fov_deg: float
     return tuple(centre + direction * distance), tuple(centre), tuple(up), fov_deg
 
 
+def choose_camera(bounds, down, opts: "RunOptions"):
+    """The camera of the command-line options: --view (or --eye) around
+    --look-at (default the scene's centre), --up (default against gravity)."""
+    eye, target, up, fov = auto_camera(bounds, opts.view or DEFAULT_VIEW, down, opts.fov)
+    if opts.look_at is not None:
+        shift = np.asarray(opts.look_at, float) - np.asarray(target, float)
+        target = tuple(opts.look_at)
+        eye = tuple(np.asarray(eye, float) + shift)
+    if opts.eye is not None:
+        eye = tuple(opts.eye)
+    if np.allclose(eye, target):
+        raise RunError("--eye must not be the point the camera looks at "
+                       f"({', '.join(f'{c:g}' for c in target)})")
+    if opts.up is not None:
+        forward = np.asarray(target, float) - np.asarray(eye, float)
+        up = np.asarray(opts.up, float)
+        if np.linalg.norm(np.cross(forward, up)) <= 1e-6 * np.linalg.norm(forward) * np.linalg.norm(up):
+            raise RunError("--up must not point along the viewing direction")
+        up = tuple(up / np.linalg.norm(up))
+    return tuple(eye), tuple(target), tuple(up), fov
+
+
 class Progress:
     """A one-line progress bar on a terminal; a line per step otherwise."""
 
@@ -302,12 +326,7 @@ def run(effect: Effect, opts: RunOptions) -> dict:
     looks = bool(effect.appearance_kernels())
     if looks:
         sim.set_textures(load_textures(effect))
-    camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
-    if opts.eye is not None:
-        _, target, up, fov = camera
-        if np.allclose(opts.eye, target):
-            raise RunError("--eye must not be the centre of the scene, which the camera looks at")
-        camera = (tuple(opts.eye), target, up, fov)
+    camera = choose_camera(scene.bounds, scene.down, opts)
     frames = []
     pieces = None       # the scene's objects for --export, made on first use
     clear_earlier_run(out)
@@ -440,7 +459,8 @@ def export_iteration(sim, scene, effect: Effect, folder: Path, it: int, threads:
         atomic_write(where / f"{stem}.mtl",
                      f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
         atomic_write(where / f"{stem}.glb",
-                     write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
+                     write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras,
+                               name=piece.name))
         atomic_write(where / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
 
 
@@ -487,7 +507,8 @@ def write_sequence(frames: list, folder: Path) -> None:
 
 
 def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
-    """H.264 video (imageio-ffmpeg), via a temporary file renamed into place."""
+    """H.264 video (imageio-ffmpeg) that streams (+faststart), via a temporary
+    file renamed into place."""
     import os
     import tempfile
 
@@ -500,7 +521,9 @@ def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
         w, h = frames[0].size
         pad = ((0, h % 2), (0, w % 2), (0, 0))
         with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=1,
-                                ffmpeg_log_level="error", pixelformat="yuv420p") as writer:
+                                ffmpeg_log_level="error", pixelformat="yuv420p",
+                                # the index (moov atom) first, so a browser can start playing at once
+                                output_params=["-movflags", "+faststart"]) as writer:
             for frame in frames:
                 writer.append_data(np.pad(np.asarray(frame.convert("RGB")), pad, mode="edge"))
         os.chmod(tmp, 0o644)
