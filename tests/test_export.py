@@ -185,3 +185,27 @@ def test_each_object_is_exported_on_its_own(tmp_path):
     rust = ball.accessors[ball.meshes[0].primitives[0].attributes._RUST]
     assert rust.max[0] > 0                          # the ball is Metal and rusted
     assert (out / "export" / "slab" / "iter_0001_damp.png").is_file()
+
+
+def test_uv_rasteriser_matches_a_texel_by_texel_reference():
+    """Every texel centre inside a triangle is found, once, with the first
+    triangle that covers it and that triangle's barycentrics."""
+    from gamma.export import rasterise_uv
+
+    rng = np.random.default_rng(3)
+    size = 40
+    corners = rng.random((60, 1, 2)) * 0.8 + rng.random((60, 3, 2)) * 0.25
+    texels, tris, bary = rasterise_uv(corners, size, chunk=500)     # small chunks: several passes
+    j, i = np.meshgrid(np.arange(size), np.arange(size))
+    centre = np.column_stack([(j.reshape(-1) + 0.5) / size, 1 - (i.reshape(-1) + 0.5) / size])
+    owner = np.full(size * size, -1)
+    for t in range(len(corners) - 1, -1, -1):          # the lowest-numbered triangle wins
+        a, b, c = corners[t]
+        m = np.column_stack([b - a, c - a])
+        l23 = np.linalg.solve(m, (centre - a).T).T
+        inside = (l23 >= -1e-9).all(axis=1) & (l23.sum(axis=1) <= 1 + 1e-9)
+        owner[inside] = t
+    assert np.array_equal(texels, np.flatnonzero(owner >= 0))
+    assert np.array_equal(tris, owner[texels])
+    back = np.einsum("kc,kcd->kd", bary, corners[tris])
+    assert np.allclose(back, centre[texels], atol=1e-9)

@@ -384,7 +384,7 @@ def run(effect: Effect, opts: RunOptions) -> dict:
                 if pieces is None:
                     from .export import pieces as split
 
-                    pieces = split(scene)
+                    pieces = split(scene, opts.bake_size)
                 export_iteration(sim, scene, effect, out / "export", it, threads, opts.bake_size, pieces)
             rate = stats["emitted"] / max(stats["trace_seconds"], 1e-9)
             progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
