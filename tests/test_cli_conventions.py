@@ -12,9 +12,9 @@ import pytest
 
 from conftest import ROOT, run_gammac
 from gamma import __version__
-from gamma.checker import load
+from gamma.frontend.checker import load
 from gamma.cli import _join_negative_vectors, _parser
-from gamma.runner import RunError, RunOptions, auto_camera, choose_camera
+from gamma.driver.camera import CameraError, auto_camera, choose_camera
 
 CMAKE_VERSION = re.search(r"project\(gamma_runtime VERSION ([0-9.]+)",
                           (ROOT / "CMakeLists.txt").read_text()).group(1)
@@ -55,20 +55,20 @@ BOUNDS = ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
 
 def test_look_at_moves_the_target_and_keeps_the_view_direction():
     base = auto_camera(BOUNDS)
-    eye, target, up, fov = choose_camera(BOUNDS, (0, -1, 0), RunOptions("s", "o", look_at=(0.5, 0.2, 0.0)))
+    eye, target, up, fov = choose_camera(BOUNDS, (0, -1, 0), look_at=(0.5, 0.2, 0.0))
     assert target == (0.5, 0.2, 0.0)
     assert np.allclose(np.subtract(eye, target), np.subtract(base[0], base[1]))
-    eye2, target2, *_ = choose_camera(BOUNDS, (0, -1, 0), RunOptions("s", "o", eye=(0, 0, 5), look_at=(1, 0, 0)))
+    eye2, target2, *_ = choose_camera(BOUNDS, (0, -1, 0), eye=(0, 0, 5), look_at=(1, 0, 0))
     assert eye2 == (0, 0, 5) and target2 == (1, 0, 0)
 
 
 def test_up_vector_is_used_and_checked():
-    _, _, up, _ = choose_camera(BOUNDS, (0, -1, 0), RunOptions("s", "o", up=(0, 0, 2)))
+    _, _, up, _ = choose_camera(BOUNDS, (0, -1, 0), up=(0, 0, 2))
     assert np.allclose(up, (0, 0, 1))
-    with pytest.raises(RunError, match="--up must not point along the viewing direction"):
-        choose_camera(BOUNDS, (0, -1, 0), RunOptions("s", "o", eye=(0, 5, 0), up=(0, 1, 0)))
-    with pytest.raises(RunError, match="--eye must not be the point the camera looks at"):
-        choose_camera(BOUNDS, (0, -1, 0), RunOptions("s", "o", eye=(1, 1, 1), look_at=(1, 1, 1)))
+    with pytest.raises(CameraError, match="--up must not point along the viewing direction"):
+        choose_camera(BOUNDS, (0, -1, 0), eye=(0, 5, 0), up=(0, 1, 0))
+    with pytest.raises(CameraError, match="--eye must not be the point the camera looks at"):
+        choose_camera(BOUNDS, (0, -1, 0), eye=(1, 1, 1), look_at=(1, 1, 1))
 
 
 def test_camera_options_change_the_render(tmp_path, bumpy_obj):

@@ -9,10 +9,10 @@ import pytest
 from PIL import Image
 
 from conftest import ROOT, run_gammac
-from gamma.backend import JitKernels
-from gamma.checker import load
-from gamma.export import bake
-from gamma.runner import RunOptions, build_config, runtime_module
+from gamma.backends.jit import JitKernels
+from gamma.frontend.checker import load
+from gamma.driver.export import bake
+from gamma.driver.runner import RunOptions, build_config, runtime_module
 
 SPOT = ROOT / "examples" / "scenes" / "spot.obj"
 
@@ -73,7 +73,7 @@ def test_gltf_names_and_generator(exported):
 
 
 def test_untextured_glb_has_vertex_colours_only():
-    from gamma.export import write_glb
+    from gamma.driver.export import write_glb
 
     tri = np.array([[0, 1, 2]], np.uint32)
     pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
@@ -133,10 +133,10 @@ def test_baked_texels_hold_the_values_of_their_surface_points():
     rows = sim.rows()
     rows[:, 3] = sim.surfel_positions()[:, 0]
     sim.set_rows(rows)
-    from gamma.export import rasterise_uv
+    from gamma.driver.export import rasterise_uv
 
     size = 128
-    from gamma.export import Piece
+    from gamma.driver.export import Piece
 
     corner_uvs = np.asarray(mesh.triangle_uvs())
     piece = Piece("spot", np.arange(mesh.num_triangles), np.asarray(mesh.vertices()),
@@ -190,7 +190,7 @@ def test_each_object_is_exported_on_its_own(tmp_path):
 def test_uv_rasteriser_matches_a_texel_by_texel_reference():
     """Every texel centre inside a triangle is found, once, with the first
     triangle that covers it and that triangle's barycentrics."""
-    from gamma.export import rasterise_uv
+    from gamma.driver.export import rasterise_uv
 
     rng = np.random.default_rng(3)
     size = 40

@@ -8,8 +8,8 @@ import trimesh
 from PIL import Image
 
 from conftest import run_gammac
-from gamma.checker import load
-from gamma.scene import load_scene
+from gamma.frontend.checker import load
+from gamma.driver.scene import load_scene
 
 EFFECT = """\
 ton T { motion straight = 0.5 carry a = 1 }

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .checker import UsageError
-from .diagnostics import GammaError
+from .frontend.checker import UsageError
+from .frontend.diagnostics import GammaError
 
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
@@ -181,7 +181,7 @@ def _picture_options(r: argparse.ArgumentParser) -> None:
 
 
 def _camera_options(p: argparse.ArgumentParser) -> None:
-    from .runner import DEFAULT_VIEW
+    from .driver.camera import DEFAULT_VIEW
 
     p.add_argument("--view", type=_vector3, metavar="X,Y,Z",
                    help="direction from the scene's centre toward the camera "
@@ -209,9 +209,9 @@ def _read(path: str) -> str:
 
 
 def _load(path: str, params=()):
-    from .checker import check
-    from .diagnostics import render
-    from .parser import parse
+    from .frontend.checker import check
+    from .frontend.diagnostics import render
+    from .frontend.parser import parse
 
     overrides = {}
     for name, value in params:
@@ -230,7 +230,7 @@ class _Fail(Exception):
 
 def _run_options(args):
     """RunOptions from the parsed options of ``run`` or ``watch``."""
-    from .runner import RunOptions
+    from .driver.runner import RunOptions
 
     size = getattr(args, "size", 512)
     return RunOptions(scene=args.scene, out=getattr(args, "out", ""), assign=args.assign, down=args.down,
@@ -246,8 +246,8 @@ def _run_options(args):
 def _fmt(args) -> int:
     from pathlib import Path
 
-    from .fmt import format_source
-    from .outputs import atomic_write
+    from .frontend.fmt import format_source
+    from .files import atomic_write
 
     text = _read(args.file)
     formatted = format_source(text, args.file)
@@ -266,7 +266,7 @@ def _fmt(args) -> int:
 
 def _watch(args) -> int:
     """The effect's errors are shown in the page (and on stderr), not fatal."""
-    from .runner import RunError
+    from .driver.runner import RunError
     from .viewer.watch import watch
 
     if not 0.0 < args.preview <= 1.0:
@@ -293,12 +293,12 @@ def main(argv=None) -> int:
         if args.command == "check":
             return EXIT_OK
         if args.command == "emit":
-            from .backend import assembly, compile_ir
-            from .codegen import generate
+            from .backends.jit import assembly, compile_ir
+            from .backends.codegen import generate
 
             if args.what == "ast":
-                from .ast import dump
-                from .parser import parse
+                from .frontend.ast import dump
+                from .frontend.parser import parse
 
                 sys.stdout.write(dump(parse(effect.source, effect.path).decls) + "\n")
                 return EXIT_OK
@@ -311,7 +311,7 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .runner import RunError, run
+        from .driver.runner import RunError, run
 
         opts = _run_options(args)
         try:

@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checker import UsageError
-from ..diagnostics import GammaError
-from ..runner import (RunError, RunOptions, build_config, check_limits, choose_camera, load_textures,
-                      property_columns, runtime_module)
+from ..frontend.checker import UsageError
+from ..frontend.diagnostics import GammaError
+from ..driver.runner import (RunError, RunOptions, build_config, check_limits, load_textures,
+                               property_columns, run_camera, runtime_module)
 from .server import ViewerState, serve
 
 
@@ -50,7 +50,7 @@ class ViewerMesh:
 
 
 def viewer_mesh(mesh) -> ViewerMesh:
-    from ..export import vertex_normals
+    from ..driver.export import vertex_normals
 
     verts = np.asarray(mesh.vertices(), np.float32)
     tris = np.asarray(mesh.triangles(), np.int64)
@@ -120,8 +120,8 @@ class Watcher:
                 self.stop.wait(self.poll)
 
     def once(self) -> None:
-        from ..checker import check
-        from ..parser import parse
+        from ..frontend.checker import check
+        from ..frontend.parser import parse
 
         started = time.perf_counter()
         # the generation changes with the result, so the page never takes the old one for the new
@@ -156,8 +156,8 @@ class Watcher:
                            error={"text": text, "diagnostics": where}, progress=None)
 
     def simulate(self, effect, fraction: float, started: float) -> None:
-        from ..backend import JitKernels
-        from ..scene import SceneError, load_scene
+        from ..backends.jit import JitKernels
+        from ..driver.scene import SceneError, load_scene
 
         opts = self.opts
         rt = runtime_module()
@@ -170,7 +170,7 @@ class Watcher:
                 raise RunError(str(err)) from None
             self.scene_key = key
             self.mesh = viewer_mesh(self.scene.mesh)
-            camera = choose_camera(self.scene.bounds, self.scene.down, opts)
+            camera = run_camera(self.scene, opts)
             self._publish_mesh(camera)
         scene = self.scene
         t0 = time.perf_counter()

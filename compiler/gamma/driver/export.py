@@ -258,7 +258,7 @@ def write_glb(positions, normals, uvs, triangles, colours, attributes: dict,
     ``name``.  The appearance colour goes in the base-colour texture when there
     is one, else per vertex (``COLOR_0``): never both, since a viewer multiplies
     the two."""
-    from . import __version__
+    from .. import __version__
 
     chunks, views, accessors = [], [], []
 
