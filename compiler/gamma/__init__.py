@@ -24,3 +24,19 @@ def _installed_version() -> str:
 
 
 __version__ = _installed_version()
+
+from .api import Result, compile, run  # noqa: E402  (the Python API; see api.py)
+
+
+def __getattr__(name: str):
+    # the error types, imported on first use (they pull in the compiler and driver)
+    if name == "GammaError":
+        from .frontend.diagnostics import GammaError
+        return GammaError
+    if name == "UsageError":
+        from .frontend.checker import UsageError
+        return UsageError
+    if name == "RunError":
+        from .driver.runner import RunError
+        return RunError
+    raise AttributeError(f"module 'gamma' has no attribute '{name}'")

@@ -142,6 +142,21 @@ def _parser() -> argparse.ArgumentParser:
                    help="write DIR/export/OBJECT/iter_NNNN.glb and .obj with baked textures")
     r.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    v = sub.add_parser("render", help="a picture of a saved run's iteration, without simulating")
+    v.add_argument("dir", help="the --out folder of a gammac run")
+    v.add_argument("--iteration", type=_bounded_int, help="iteration to show (default: the last saved)")
+    _camera_options(v)
+    _picture_options(v)
+    v.add_argument("--output", "-o", metavar="FILE",
+                   help="PNG to write (default: DIR/renders/view_iter_NNNN[_PROPERTY].png)")
+    v.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
+    x = sub.add_parser("export", help="glTF/OBJ + baked textures of a saved run, without simulating")
+    x.add_argument("dir", help="the --out folder of a gammac run")
+    which = x.add_mutually_exclusive_group()
+    which.add_argument("--iteration", type=_bounded_int, help="iteration to export (default: the last saved)")
+    which.add_argument("--all", action="store_true", help="every saved iteration")
+    x.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
+    x.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
     w = sub.add_parser("watch", help="run an effect again on every save and show it in the browser")
     _simulation_options(w)
     w.add_argument("--port", type=_bounded_int, default=8000, help="port on 127.0.0.1 (0: any free one)")
@@ -282,6 +297,36 @@ def _watch(args) -> int:
         raise _Fail(str(err)) from None
 
 
+def _saved(args) -> int:
+    """``render`` and ``export`` of a saved run's maps."""
+    from .driver.runner import LIMITS, RunError
+    from .driver.saved import export_saved, render_saved
+
+    try:
+        if args.command == "render":
+            low, high = LIMITS["--size"]
+            if not low <= args.size <= high:
+                raise UsageError(f"--size must be between {low} and {high:,}, not {args.size}")
+            path = render_saved(args.dir, args.iteration, args.show, args.output, args.size, args.samples,
+                                args.ao_samples, view=args.view, eye=args.eye, look_at=args.look_at,
+                                up=args.up, fov=args.fov, threads=args.threads)
+            print(f"gammac: wrote {path}", file=sys.stderr)
+        else:
+            iterations = None
+            if args.all:
+                from pathlib import Path
+
+                iterations = sorted(int(p.stem[5:]) for p in Path(args.dir, "maps").glob("iter_[0-9][0-9][0-9][0-9].ply"))
+            elif args.iteration is not None:
+                iterations = [args.iteration]
+            done = export_saved(args.dir, iterations, args.bake_size, args.threads)
+            print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
+                  f"{', '.join(map(str, done))} to {args.dir}/export", file=sys.stderr)
+    except RunError as err:
+        raise _Fail(str(err)) from None
+    return EXIT_OK
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(_join_negative_vectors(list(sys.argv[1:] if argv is None else argv)))
     try:
@@ -289,6 +334,8 @@ def main(argv=None) -> int:
             return _fmt(args)
         if args.command == "watch":
             return _watch(args)
+        if args.command in ("render", "export"):
+            return _saved(args)
         effect = _load(args.file, getattr(args, "param", ()))
         if args.command == "check":
             return EXIT_OK
@@ -311,11 +358,18 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .driver.runner import RunError, run
+        from .driver.runner import RunError
 
         opts = _run_options(args)
+        from dataclasses import asdict
+
+        from . import api
+
+        fields = asdict(opts)
+        scene, out = fields.pop("scene"), fields.pop("out")
+        fields["show_progress"] = fields.pop("progress")
         try:
-            summary = run(effect, opts)
+            summary = api.run(effect, scene, out=out, **fields).summary
         except RunError as err:
             raise _Fail(str(err)) from None
         renders = f"{args.out}/renders, " if summary["rendered"] else ""

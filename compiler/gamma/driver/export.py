@@ -76,12 +76,12 @@ def cell_atlas(triangles: int, size: int) -> np.ndarray:
     never straddles two cells."""
     cells = max(1, (triangles + 1) // 2)
     grid = int(np.ceil(np.sqrt(cells)))
-    width = max(1, size // grid)                       # texels per cell side
+    width = size // grid if size >= grid else size / grid   # texels per cell side
     if width < 4:
         import sys
 
         print(f"gammac: warning: a {size}² texture gives each of the {triangles:,} triangles of an "
-              f"object without texture coordinates under 2 texels; try --bake-size {size * 2}",
+              f"object without texture coordinates under 2 texels; try --bake-size {grid * 4}",
               file=sys.stderr)
     k = np.arange(triangles)
     cell = k // 2
@@ -91,7 +91,8 @@ def cell_atlas(triangles: int, size: int) -> np.ndarray:
     # corners in texel units inside the cell (y down): a texel of gutter at the
     # cell's sides, half a texel on each side of the diagonal
     pad = 1.0 if width >= 4 else 0.0
-    far, near = width - pad, pad + 0.5
+    gap = 0.5 if width >= 2 else 0.0                   # too small a texture: a cell's texel to its first
+    far, near = width - pad, pad + gap
     a = np.where(first[:, None], [pad, pad], [far, far])
     b = np.where(first[:, None], [width - near, pad], [near, far])
     c = np.where(first[:, None], [pad, width - near], [far, near])
@@ -224,7 +225,8 @@ def bake(sim, piece: Piece, size: int, iteration: int, threads: int):
 
 def texture_from_texels(values: np.ndarray, texels: np.ndarray, size: int) -> np.ndarray:
     """A (size, size, C) image with ``values`` at ``texels`` and bled seams."""
-    values = np.asarray(values, np.float32).reshape(len(texels), -1)
+    values = np.asarray(values, np.float32)
+    values = values.reshape(len(texels), -1) if len(texels) else values.reshape(0, max(1, values.shape[-1] if values.ndim > 1 else 1))
     image = np.zeros((size * size, values.shape[1]), np.float32)
     covered = np.zeros(size * size, bool)
     image[texels], covered[texels] = values, True
@@ -239,12 +241,16 @@ def png8(rgb: np.ndarray) -> bytes:
     return out.getvalue()
 
 
-def png16(values: np.ndarray) -> tuple[bytes, float, float]:
-    """A property as a 16-bit grey PNG, 0..65535 spanning [low, high] (returned)."""
+def png16(values: np.ndarray, span: tuple[float, float] | None = None) -> tuple[bytes, float, float]:
+    """A property as a 16-bit grey PNG, 0..65535 spanning [low, high] (returned):
+    ``span``, else the values' own range."""
     from PIL import Image
 
     finite = values[np.isfinite(values)]
-    low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    if span is not None:
+        low, high = (float(span[0]), float(span[1]))
+    else:
+        low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
     scale = 65535.0 / (high - low) if high > low else 0.0
     grey = np.clip(np.nan_to_num((values - low) * scale), 0, 65535).astype(np.uint16)
     out = io.BytesIO()

@@ -226,14 +226,16 @@ STAT_KEYS = ("emitted", "settled", "escaped", "capped", "interactions", "rays",
              "bounces", "flow_steps", "drips", "segments")
 
 
-def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
-    """Simulate ``effect`` with ``opts``; the standard outputs, then ``writers``,
-    receive the run's events (``events.py``).  Returns the summary."""
+def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None, session=None) -> dict:
+    """Simulate ``effect`` with ``opts``; the standard outputs (when ``opts.out``
+    names a folder), then ``writers``, receive the run's events (``events.py``).
+    ``scene`` (a ``scene.Scene``) replaces ``opts.scene``; ``session`` is a run
+    already ``start``ed.  Returns the summary."""
     from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
     from .writers import standard_writers
 
-    session = start(effect, opts)
-    subscribers = standard_writers(session) + list(writers)
+    session = session or start(effect, opts, scene)
+    subscribers = (standard_writers(session) if opts.out else []) + list(writers)
     try:
         with session.behind:   # leaving it waits for the writers' queued jobs
             publish(subscribers, SetupDone(session))
@@ -286,12 +288,24 @@ class Run:
         record["trace_seconds"] = traced["trace_seconds"]
         record["update_seconds"] = updated["seconds"]
         self.summary["iterations"].append(record)
+        # one value range per property over the whole run so far (finite values, the
+        # surfels of surfaces that have the property), so iterations compare
+        ranges = self.summary.setdefault("ranges", {})
+        for surface in self.effect.surfaces.values():
+            mine = self.surfel_surface == surface.index
+            for name, slot in surface.properties.items():
+                values = rows[mine, slot]
+                values = values[np.isfinite(values)]
+                if values.size:
+                    low, high = ranges.get(name, (math.inf, -math.inf))
+                    ranges[name] = [min(low, float(values.min())), max(high, float(values.max()))]
         return rows, props, record
 
 
-def start(effect: Effect, opts: RunOptions) -> Run:
-    """Check the options, load the scene, compile, build the simulation and
-    clear an earlier run's files; every user error is raised before any output."""
+def start(effect: Effect, opts: RunOptions, scene=None) -> Run:
+    """Check the options, load the scene (unless given), compile, build the
+    simulation and clear an earlier run's files (when ``opts.out`` names a
+    folder); every user error is raised before any output."""
     from .events import WriteQueue
     from .scene import SceneError, load_scene
 
@@ -301,7 +315,7 @@ def start(effect: Effect, opts: RunOptions) -> Run:
             Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced")])
     rt = runtime_module()
     try:
-        scene = load_scene(rt, opts.scene, effect, opts.assign, opts.down)
+        scene = scene or load_scene(rt, opts.scene, effect, opts.assign, opts.down)
     except SceneError as err:
         raise RunError(str(err)) from None
     mesh = scene.mesh
@@ -313,8 +327,9 @@ def start(effect: Effect, opts: RunOptions) -> Run:
     if shown is not None and not any(shown in s.properties for s in present):
         raise RunError(f"--show {shown}: no surface of the scene has that property "
                        f"({', '.join(sorted({n for s in present for n in s.properties})) or 'none'})")
-    out = Path(opts.out)
-    prepare_output(out)
+    out = Path(opts.out) if opts.out else None
+    if out is not None:
+        prepare_output(out)
     kernels = JitKernels(effect)
     t0 = time.perf_counter()
     try:
@@ -328,7 +343,8 @@ def start(effect: Effect, opts: RunOptions) -> Run:
     if looks:
         sim.set_textures(load_textures(effect))
     camera = run_camera(scene, opts)
-    clear_earlier_run(out)
+    if out is not None:
+        clear_earlier_run(out)
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     pos, nrm = sim.surfel_positions(), sim.surfel_normals()
@@ -349,6 +365,11 @@ def start(effect: Effect, opts: RunOptions) -> Run:
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
         "rendered": shown,
         "appearance": looks,
+        # what `gammac render DIR` and `gammac export DIR` need to rebuild the surfels
+        "options": {"params": dict(effect.overrides), "assign": list(opts.assign),
+                    "down": list(opts.down) if opts.down is not None else None,
+                    "surfels": opts.surfels, "seed": opts.seed, "tons": opts.tons,
+                    "iterations": opts.iterations, "max_interactions": opts.max_interactions},
         "iterations": [],
     }
     report = NonFiniteReport(effect, opts.progress)

@@ -190,13 +190,33 @@ def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect) -> np.ndarr
     return chosen[inverse.reshape(-1)]
 
 
-def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> Scene:
+def arrays_scene(rt, vertices, faces, uvs, effect: Effect, assign: list[str], down=None,
+                 name: str = "mesh") -> Scene:
+    """A scene of one mesh given as arrays: vertices (n, 3), faces (m, 3) and
+    optionally texture coordinates per vertex (n, 2) or per corner (m, 3, 2)."""
+    verts = np.asarray(vertices, np.float32)
+    tris = np.asarray(faces, np.int32)
+    corner_uvs = None
+    if uvs is not None:
+        uvs = np.asarray(uvs, np.float32)
+        corner_uvs = uvs[tris] if uvs.ndim == 2 else uvs
+    try:
+        mesh = rt.Mesh.from_arrays(verts, tris, corner_uvs)
+    except (ValueError, RuntimeError, TypeError) as err:
+        raise SceneError(str(err)) from None
+    return load_scene(rt, name, effect, assign, down, parts=[_Part(mesh, name, [])])
+
+
+def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None, parts=None) -> Scene:
+    """The scene of ``path`` (or of ``parts`` already loaded, ``path`` then only names it)."""
     cli_rules = parse_assign(assign, effect)
     file_rules = list(effect.assign)       # the effect's own `assign` declarations come last
     if not cli_rules and not file_rules and len(effect.surfaces) == 1:
         file_rules = [("*", next(iter(effect.surfaces)))]
     scene_path = Path(path)
-    if scene_path.suffix.lower() == ".json":
+    if parts is not None:
+        file_down = None
+    elif scene_path.suffix.lower() == ".json":
         parts, file_down = _read_scene_file(rt, scene_path, effect)
     else:
         parts, file_down = _file_parts(rt, scene_path), None

@@ -168,8 +168,9 @@ class ExportWriter(Writer):
     """Per object and iteration, in export/OBJECT/: iter_NNNN.glb, .obj + .mtl,
     the baked colour (8-bit PNG) and every property (16-bit PNG)."""
 
-    def __init__(self, bake_size: int):
+    def __init__(self, bake_size: int, ranges: dict | None = None):
         self.bake_size = bake_size
+        self.ranges = ranges    # property -> (low, high) of every 16-bit map; None: each map's own
         self.pieces = None      # the scene's objects, made on first use
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
@@ -187,11 +188,11 @@ class ExportWriter(Writer):
             texel_columns = property_columns(run.effect, texel_rows, triangle_surface[texel_tris])
             run.behind(_write_export, run.out / "export" / _safe_name(piece.name), it, piece.name,
                        self.bake_size, (positions, normals, uvs, tris, rgb), attributes, colour,
-                       texels, texel_columns)
+                       texels, texel_columns, self.ranges)
 
 
 def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, colour, texels,
-                  texel_columns) -> None:
+                  texel_columns, ranges=None) -> None:
     from .export import png16, png8, texture_from_texels, write_glb, write_obj
 
     positions, normals, uvs, tris, rgb = mesh
@@ -200,7 +201,8 @@ def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, 
     texture = png8(colour)
     atomic_write(where / f"{stem}_color.png", texture)
     for prop, column in texel_columns.items():
-        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0])
+        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0],
+                                (ranges or {}).get(prop))
         atomic_write(where / f"{stem}_{prop}.png", data)
         extras["gamma"]["properties"][prop] = {"texture": f"{stem}_{prop}.png", "min": low, "max": high}
     atomic_write(where / f"{stem}.mtl",

@@ -310,6 +310,7 @@ class Effect:
     assign: list = field(default_factory=list)   # (pattern, surface) from `assign` declarations
     textures: list = field(default_factory=list) # image files read by texture(), in index order
     files: list = field(default_factory=list)    # the effect file and every file it imports
+    overrides: dict = field(default_factory=dict) # --param values it was checked with (NAME or RECIPE.NAME)
 
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]
@@ -408,6 +409,7 @@ class _Checker:
             recipe, dot, name = key.partition(".")
             if dot:
                 self.recipe_overrides.setdefault(recipe, {})[name] = value
+        self.all_overrides = dict(overrides)
         self.overrides = {k: v for k, v in overrides.items() if "." not in k}
         self.recipes_seen: set[str] = set()
         self.textures: dict[str, int] = {}      # resolved path -> index
@@ -615,6 +617,7 @@ class _Checker:
         effect.assign = assign
         effect.textures = list(self.textures)
         effect.files = [u.path for u in units]
+        effect.overrides = self.all_overrides
         return effect
 
     def collect_warnings(self, effect: Effect, units: list[Unit]) -> None:
