@@ -157,6 +157,7 @@ def _parser() -> argparse.ArgumentParser:
     which.add_argument("--all", action="store_true", help="every saved iteration")
     x.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
     x.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
+    x.add_argument("--quiet", action="store_true", help="no progress bar")
     w = sub.add_parser("watch", help="run an effect again on every save and show it in the browser")
     _simulation_options(w)
     w.add_argument("--port", type=_bounded_int, default=8000, help="port on 127.0.0.1 (0: any free one)")
@@ -319,7 +320,7 @@ def _saved(args) -> int:
                 iterations = sorted(int(p.stem[5:]) for p in Path(args.dir, "maps").glob("iter_[0-9][0-9][0-9][0-9].ply"))
             elif args.iteration is not None:
                 iterations = [args.iteration]
-            done = export_saved(args.dir, iterations, args.bake_size, args.threads)
+            done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=not args.quiet)
             print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
                   f"{', '.join(map(str, done))} to {args.dir}/export", file=sys.stderr)
     except RunError as err:

@@ -12,6 +12,7 @@ it; pictures and textures then come from the runtime as in the run, with no
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -144,7 +145,8 @@ def _column(session, name: str) -> np.ndarray:
     return property_columns(session.effect, rows, session.surfel_surface)[name]
 
 
-def export_saved(folder, iterations: list[int] | None, bake_size: int, threads: int = 0) -> list[int]:
+def export_saved(folder, iterations: list[int] | None, bake_size: int, threads: int = 0,
+                 progress: bool = False) -> list[int]:
     """export/OBJECT/iter_NNNN.* of saved iterations (the last by default),
     every 16-bit property map on the run's range.  Returns the iterations."""
     from .events import IterationUpdated, WriteQueue
@@ -160,8 +162,10 @@ def export_saved(folder, iterations: list[int] | None, bake_size: int, threads: 
     writer = ExportWriter(bake_size, run_ranges(summary, folder, saved, names))
     session.out = folder
     session.behind = WriteQueue()
+    from tqdm import tqdm
+
     with session.behind:
-        for it in chosen:
+        for it in tqdm(chosen, unit=" iteration", file=sys.stderr, disable=not progress, desc="export"):
             load_iteration(session, folder, it)
             writer.on_iteration_updated(IterationUpdated(session, it, None, {}, {}))
     return chosen

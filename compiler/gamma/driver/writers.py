@@ -219,29 +219,24 @@ def _safe_name(name: str) -> str:
 
 
 class ProgressWriter(Writer):
-    """A one-line progress bar on a terminal; a line per iteration otherwise."""
+    """A progress bar with the elapsed time and the time left (tqdm) on stderr;
+    ``--quiet`` leaves it out."""
 
-    def __init__(self, total: int):
-        self.total = total
-        self.tty = sys.stderr.isatty()
+    def __init__(self, total: int, what: str = "iteration"):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, unit=f" {what}", file=sys.stderr, dynamic_ncols=True,
+                        bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt}{unit} [{elapsed}<{remaining}]{postfix}")
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         record = event.record
         rate = record["emitted"] / max(record["trace_seconds"], 1e-9)
-        self.update(event.iteration, f"iterations  {record['trace_seconds']:.2f} s trace  "
-                                     f"{rate / 1e3:.0f}k γ-tons/s")
+        self.bar.set_postfix_str(f"{record['trace_seconds']:.2f} s trace, {rate / 1e3:.0f}k γ-tons/s",
+                                 refresh=False)
+        self.bar.update(1)
 
-    def update(self, done: int, note: str) -> None:
-        width = 30
-        filled = int(width * done / max(1, self.total))
-        line = f"[{'#' * filled}{'.' * (width - filled)}] {done}/{self.total} {note}"
-        if self.tty:
-            sys.stderr.write("\r" + line.ljust(100)[:120])
-            if done == self.total:
-                sys.stderr.write("\n")
-        else:
-            sys.stderr.write(line + "\n")
-        sys.stderr.flush()
+    def on_run_finished(self, event) -> None:
+        self.bar.close()
 
 
 def standard_writers(run) -> list[Writer]:
