@@ -23,8 +23,8 @@ import numpy as np
 
 from ..frontend.checker import UsageError
 from ..frontend.diagnostics import GammaError
-from ..driver.runner import (RunError, RunOptions, build_config, check_limits, load_textures,
-                               property_columns, run_camera, runtime_module)
+from ..driver.events import Writer
+from ..driver.runner import RunError, RunOptions, property_columns, run_camera, runtime_module
 from .server import ViewerState, serve
 
 
@@ -156,81 +156,37 @@ class Watcher:
                            error={"text": text, "diagnostics": where}, progress=None)
 
     def simulate(self, effect, fraction: float, started: float) -> None:
-        from ..backends.jit import JitKernels
+        """One run on the driver's loop (``driver.runner``), the viewer a writer on it."""
+        from ..driver.runner import run, start
         from ..driver.scene import SceneError, load_scene
 
         opts = self.opts
-        rt = runtime_module()
-        check_limits(opts)
         key = (tuple(effect.surfaces), tuple(effect.assign))
         if self.scene_key != key:
             try:
-                self.scene = load_scene(rt, opts.scene, effect, opts.assign, opts.down)
+                self.scene = load_scene(runtime_module(), opts.scene, effect, opts.assign, opts.down)
             except SceneError as err:
                 raise RunError(str(err)) from None
             self.scene_key = key
             self.mesh = viewer_mesh(self.scene.mesh)
-            camera = run_camera(self.scene, opts)
-            self._publish_mesh(camera)
-        scene = self.scene
-        t0 = time.perf_counter()
-        kernels = JitKernels(effect)
-        compile_seconds = time.perf_counter() - t0
-        counts = [s.count for s in effect.sources]
-        total = opts.tons if opts.tons is not None else sum(counts)
+            self._publish_mesh(run_camera(self.scene, opts))
+        total = opts.tons if opts.tons is not None else sum(s.count for s in effect.sources)
         tons = max(1, round(total * fraction)) if fraction < 1.0 else total
-        run_opts = replace(opts, tons=tons)
         t0 = time.perf_counter()
-        try:
-            cfg = build_config(rt, effect, kernels, run_opts, scene.bounds, scene.down)
-            cfg.triangle_surface = scene.triangle_surface
-            sim = rt.Simulation(scene.mesh, cfg)
-        except (ValueError, TypeError, RuntimeError) as err:
-            raise RunError(str(err).removeprefix("config: ")) from None
-        if effect.appearance_kernels():
-            sim.set_textures(load_textures(effect))
-        setup_seconds = time.perf_counter() - t0
+        session = start(effect, replace(opts, tons=tons, out="", progress=False), self.scene)
+        setup_seconds = time.perf_counter() - t0          # compilation (or the cache) and surfels
         quality = "final" if fraction >= 1.0 else "preview"
-        surfel_surface = np.asarray(sim.surfel_surfaces())
-        threads = opts.threads or os.cpu_count() or 1
-        frames, records, ranges = [], [], {}
-        t_run = time.perf_counter()
-        mesh = self.mesh
-        for it in range(1, opts.iterations + 1):
-            self._check()
-            stats = sim.trace(it)
-            sim.update(it)
-            rows = sim.rows()
-            props = property_columns(effect, rows, surfel_surface)
-            records.append({"emitted": stats["emitted"], "settled": stats["settled"],
-                            "escaped": stats["escaped"], "interactions": stats["interactions"],
-                            "property_sums": {k: float(np.sum(v, dtype=np.float64)) for k, v in props.items()}})
-            vrows, rgb = sim.bake_points(mesh.positions, mesh.normals, mesh.owner, mesh.uvs, it, threads)
-            vertex_props = property_columns(effect, np.asarray(vrows),
-                                            np.asarray(scene.triangle_surface)[mesh.owner])
-            parts = [np.asarray(rgb, "<f4").reshape(-1)]
-            for name, values in vertex_props.items():
-                finite = values[np.isfinite(values)]
-                if finite.size:
-                    lo, hi = ranges.get(name, (np.inf, -np.inf))
-                    ranges[name] = (min(lo, float(finite.min())), max(hi, float(finite.max())))
-                parts.append(np.asarray(values, "<f4"))
-            frames.append(b"".join(p.tobytes() for p in parts))
-            if quality == "final":
-                self.state.publish(progress=f"refining: iteration {it}/{opts.iterations}")
-        run_seconds = time.perf_counter() - t_run
-        names = list(vertex_props) if opts.iterations else []
-        properties = [{"name": n, "min": ranges.get(n, (0.0, 0.0))[0], "max": ranges.get(n, (0.0, 1.0))[1]}
-                      for n in names]
-        info = {"surfels": int(sim.num_surfels), "triangles": int(scene.mesh.num_triangles),
-                "tons_per_iteration": int(tons), "compile_seconds": compile_seconds,
-                "setup_seconds": setup_seconds, "run_seconds": run_seconds,
-                "seconds_since_save": time.perf_counter() - started, "records": records}
+        writer = ViewerWriter(self, self.mesh, quality)
+        t0 = time.perf_counter()
+        run(effect, session.opts, [writer], session=session)
+        run_seconds = time.perf_counter() - t0
+        info = {"surfels": int(session.sim.num_surfels), "triangles": int(self.scene.mesh.num_triangles),
+                "tons_per_iteration": int(tons), "setup_seconds": setup_seconds, "run_seconds": run_seconds,
+                "seconds_since_save": time.perf_counter() - started, "records": writer.records}
         done = quality == "final"
-        self.state.publish(frames=frames, status="ready" if done else "running", quality=quality, error=None,
-                           generation=self.generation, properties=properties,
-                           appearance=bool(effect.appearance_kernels()), run=info,
-                           progress=None if done else "refining")
+        self.state.publish(frames=writer.frames, status="ready" if done else "running", quality=quality,
+                           error=None, generation=self.generation, properties=writer.properties(),
+                           appearance=session.looks, run=info, progress=None if done else "refining")
         self.log(f"gammac watch: {quality} result {self.generation} "
                  f"({info['seconds_since_save']:.2f} s after the change, {tons:,} γ-tons per iteration)")
 
@@ -240,6 +196,47 @@ class Watcher:
                                  "triangles": len(self.mesh.triangles)},
                            camera={"eye": [float(c) for c in camera[0]], "target": [float(c) for c in camera[1]],
                                    "up": [float(c) for c in camera[2]], "fov": float(camera[3])})
+
+
+class ViewerWriter(Writer):
+    """The page's frames, one per iteration: the appearance colour and every
+    property at the viewer mesh's vertices (the surfels' smoothed values),
+    with each property's range over the run.  Stops the run (``Superseded``)
+    as soon as the files change."""
+
+    def __init__(self, watcher: "Watcher", mesh: ViewerMesh, quality: str):
+        self.watcher, self.mesh, self.quality = watcher, mesh, quality
+        self.frames: list[bytes] = []
+        self.records: list[dict] = []
+        self.ranges: dict[str, tuple[float, float]] = {}
+        self.names: list[str] = []
+
+    def on_iteration_traced(self, event) -> None:
+        self.watcher._check()
+
+    def on_iteration_updated(self, event) -> None:
+        run, it, mesh = event.run, event.iteration, self.mesh
+        record = event.record
+        self.records.append({k: record[k] for k in ("emitted", "settled", "escaped", "interactions",
+                                                     "property_sums")})
+        rows, rgb = run.sim.bake_points(mesh.positions, mesh.normals, mesh.owner, mesh.uvs, it, run.threads)
+        columns = property_columns(run.effect, np.asarray(rows), np.asarray(run.scene.triangle_surface)[mesh.owner])
+        self.names = list(columns)
+        parts = [np.asarray(rgb, "<f4").reshape(-1)]
+        for name, values in columns.items():
+            finite = values[np.isfinite(values)]
+            if finite.size:
+                low, high = self.ranges.get(name, (np.inf, -np.inf))
+                self.ranges[name] = (min(low, float(finite.min())), max(high, float(finite.max())))
+            parts.append(np.asarray(values, "<f4"))
+        self.frames.append(b"".join(p.tobytes() for p in parts))
+        if self.quality == "final":
+            self.watcher.state.publish(progress=f"refining: iteration {it}/{run.opts.iterations}")
+        self.watcher._check()
+
+    def properties(self) -> list[dict]:
+        return [{"name": n, "min": self.ranges.get(n, (0.0, 1.0))[0], "max": self.ranges.get(n, (0.0, 1.0))[1]}
+                for n in self.names]
 
 
 def watch(path: str, overrides: dict, opts: RunOptions, port: int = 8000, preview: float = 0.25,

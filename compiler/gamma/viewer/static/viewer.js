@@ -153,7 +153,8 @@ function showNumbers(state) {
   if (r) {
     rows.push(["surfels", r.surfels.toLocaleString()], ["triangles", r.triangles.toLocaleString()],
               ["γ-tons per iteration", r.tons_per_iteration.toLocaleString()],
-              ["compile", `${r.compile_seconds.toFixed(2)} s`], ["setup", `${r.setup_seconds.toFixed(2)} s`],
+              ["compile + surfels", `${r.setup_seconds.toFixed(2)} s`],
+              ["since the save", `${r.seconds_since_save.toFixed(2)} s`],
               ["simulation", `${r.run_seconds.toFixed(2)} s`]);
     const it = r.records[Math.min(Number($("iteration").value), r.records.length) - 1];
     if (it) {
@@ -185,6 +186,12 @@ async function refresh() {
   status.className = `status ${state.status}`;
   $("files").textContent = `${state.effect} on ${state.scene}`;
   $("quality-state").textContent = state.iterations ? `showing: ${state.quality} result` : "";
+  if (!viewer.qualityShown) {          // the page starts with the server's --preview
+    viewer.qualityShown = true;
+    const choice = Array.from($("quality").options).find((o) => Math.abs(Number(o.value) - state.preview) < 1e-9);
+    if (choice) $("quality").value = choice.value;
+    else $("quality").add(new Option(`${state.preview} of the γ-tons (--preview), then refine`, state.preview), 0), ($("quality").value = String(state.preview));
+  }
   showErrors(state);
   const select = $("show");
   const wanted = ["appearance", ...state.properties.map((p) => p.name)];
