@@ -12,7 +12,8 @@ APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
 	chromium $(if $(shell command -v npm),,npm)
 # chromium: the headless browser the viewer test drives (Playwright, never its own browser download);
 # npm (unless a Node.js install already brings it): three.js and the glTF validator, see web/
-PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib playwright
+# ray: the optional extra (.[ray]); installed here so its tests run in CI
+PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray playwright
 WEB_MODULES := web/node_modules/.installed
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
