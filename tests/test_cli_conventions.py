@@ -108,7 +108,7 @@ def test_param_reaches_imported_recipes(tmp_path):
     effect = load(str(main), {"patina.tons": 1234, "patina.rate": 0.7})
     assert effect.sources[0].count == 1234                    # the recipe's own default replaced
     settle = next(k for k in effect.kernels if k.event == "settle")
-    assert settle.bodies[0][0].params["rate"] == pytest.approx(0.7)   # the command line wins over the import
+    assert settle.bodies[0][0].value.left.value == pytest.approx(0.7)   # the command line wins over the import
     r = run_gammac("check", main, "--param", "patina.trap=0.25")
     assert r.returncode == 0, r.stderr
     assert load(str(main), {"patina.trap": 0.25}).surfaces["Copper"].initial_row[0] == 0.25
