@@ -28,7 +28,7 @@ from ..ir import effect as ir
 from ..ir.builtins import FUNCTIONS, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS
 from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
-from .diagnostics import GammaError, Report, did_you_mean
+from .diagnostics import Report, did_you_mean
 from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
                       stdlib_dir)
 
