@@ -56,8 +56,10 @@ def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, u
     iteration.  With ``out`` the standard outputs (maps, renders, summary,
     ``export=True`` for glTF) are written there as by ``gammac run``; the
     other keyword options are those of ``gamma.driver.RunOptions``."""
-    from .driver.events import CallbackWriter, IterationUpdated
-    from .driver.runner import RunError, RunOptions, runtime_module, start
+    import tempfile
+
+    from .driver.events import CallbackWriter, IterationUpdated, SetupDone
+    from .driver.runner import RunError, RunOptions, runtime_module
     from .driver.runner import run as drive
     from .driver.scene import SceneError, arrays_scene
 
@@ -65,7 +67,10 @@ def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, u
         raise TypeError("run() takes a scene path or vertices= and faces=, not both")
     if vertices is not None and faces is None:
         raise TypeError("run() needs faces= with vertices=")
-    opts = RunOptions(scene=str(scene) if scene is not None else "<arrays>", out=str(out) if out else "",
+    # without `out` the run's folder is a temporary one, and only what is asked for is computed
+    scratch = None if out else tempfile.TemporaryDirectory(prefix="gamma-run-")
+    opts = RunOptions(scene=str(scene) if scene is not None else "<arrays>",
+                      out=str(out) if out else scratch.name,
                       assign=list(assign), iterations=iterations, surfels=surfels, tons=tons, seed=seed,
                       threads=threads, down=tuple(down) if down is not None else None,
                       max_interactions=max_interactions, progress=options.pop("show_progress", False),
@@ -76,14 +81,16 @@ def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, u
             built = arrays_scene(runtime_module(), vertices, faces, uvs, effect, list(assign), opts.down)
         except SceneError as err:
             raise RunError(str(err)) from None
-    session = start(effect, opts, built)
-    writers = []
+    sessions: list = []
+    writers = [CallbackWriter(lambda e: sessions.append(e.run), events=(SetupDone,))]
     if progress is not None:
         writers.append(CallbackWriter(lambda e: progress(e.iteration, iterations, e.record),
                                       events=(IterationUpdated,)))
     history: list[dict] = []
-    summary = drive(effect, opts, writers + [_history_writer(history)], session=session)
-    return Result(effect, session, summary, history)
+    summary = drive(effect, opts, writers + [_history_writer(history)], scene=built, standard=bool(out))
+    result = Result(effect, sessions[0], summary, history)
+    result._scratch = scratch
+    return result
 
 
 def _history_writer(keep: list):

@@ -57,7 +57,7 @@ def pieces(scene, size: int = 1024) -> list[Piece]:
             continue
         used, faces = np.unique(tris[ids], return_inverse=True)
         faces = faces.reshape(-1, 3)
-        has_uv = scene.triangle_has_uv
+        has_uv = getattr(scene, "triangle_has_uv", None)
         own = uvs[ids] if uvs is not None and (has_uv is None or has_uv[ids].all()) else None
         layout = own if own is not None else cell_atlas(len(faces), size)
         out.append(Piece(name, ids, verts[used], faces, own, layout))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +49,12 @@ def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: 
                       surfels=options["surfels"], seed=options["seed"], tons=options.get("tons"),
                       threads=threads, max_interactions=options.get("max_interactions", 100),
                       iterations=max(saved), progress=False)
-    session = start(effect, opts)
+    import tempfile
+
+    scratch = tempfile.TemporaryDirectory(prefix="gamma-saved-")   # start() wants a folder of its own
+    session = start(effect, replace(opts, out=scratch.name))
+    session.lock.__exit__()
+    session.scratch = scratch
     return session, summary, saved
 
 

@@ -30,7 +30,7 @@ from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
 from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
-                      stdlib_dir)
+                      is_file, path_problem, shown_path, stdlib_dir)
 
 __all__ = ["check", "load", "Effect", "Kernel", "Length", "Place", "Source", "Surface", "TonType",
            "UsageError", "stdlib_dir", "EVENTS"]
@@ -221,7 +221,16 @@ class _Checker:
                            "(it names a column of the output maps or a built-in field)")
         row = [refl.get(n, (0.0, None))[0] for n in MOTION_NAMES] + [v for v, _ in props.values()]
         slots = {n: abi.ROW_HEADER + i for i, n in enumerate(props)}
-        return Surface(d.name, index, slots, row, d)
+        shape = {}
+        for name, (rate, init) in self.inits(d.shape, "shape rate").items():
+            if name not in slots:
+                self.error(init.pos, f"shape follows '{name}', which is not a property of {d.name}"
+                           f"{did_you_mean(name, slots)}")
+            elif not math.isfinite(rate):
+                self.error(init.value.pos, f"shape rate of '{name}' must be finite")
+            else:
+                shape[name] = (slots[name], rate, f"{self.module.path}:{init.pos.line}:{init.pos.col}")
+        return Surface(d.name, index, slots, row, d, shape)
 
     # -- scene values (source arguments, bounce distance, flow step) --
 
@@ -439,8 +448,12 @@ class _Checker:
         if not isinstance(arg, A.String):
             self.error(call.pos, 'texture() takes a file name in quotes: texture("rust.png")')
             return None
+        problem = path_problem(arg.value)
+        if problem:
+            self.error(arg.pos, f"cannot read texture '{shown_path(arg.value)}': {problem}")
+            return None
         path = (Path(self.unit.path).resolve().parent / arg.value).resolve()
-        if not path.is_file():
+        if not is_file(path):
             self.error(arg.pos, f"cannot find texture '{arg.value}' next to {Path(self.unit.path).name}")
             return None
         return self.textures.setdefault(str(path), len(self.textures))

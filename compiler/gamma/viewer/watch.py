@@ -85,6 +85,9 @@ class Watcher:
         self.scene_key = None
         self.scene = None
         self.mesh = None
+        import tempfile
+
+        self.scratch = tempfile.TemporaryDirectory(prefix="gamma-watch-")   # the runs' folder (nothing kept)
 
     # -- files --
 
@@ -157,7 +160,7 @@ class Watcher:
 
     def simulate(self, effect, fraction: float, started: float) -> None:
         """One run on the driver's loop (``driver.runner``), the viewer a writer on it."""
-        from ..driver.runner import run, start
+        from ..driver.runner import run
         from ..driver.scene import SceneError, load_scene
 
         opts = self.opts
@@ -172,14 +175,14 @@ class Watcher:
             self._publish_mesh(run_camera(self.scene, opts))
         total = opts.tons if opts.tons is not None else sum(s.count for s in effect.sources)
         tons = max(1, round(total * fraction)) if fraction < 1.0 else total
-        t0 = time.perf_counter()
-        session = start(effect, replace(opts, tons=tons, out="", progress=False), self.scene)
-        setup_seconds = time.perf_counter() - t0          # compilation (or the cache) and surfels
         quality = "final" if fraction >= 1.0 else "preview"
         writer = ViewerWriter(self, self.mesh, quality)
         t0 = time.perf_counter()
-        run(effect, session.opts, [writer], session=session)
-        run_seconds = time.perf_counter() - t0
+        run(effect, replace(opts, tons=tons, out=self.scratch.name, progress=False), [writer],
+            scene=self.scene, standard=False)
+        session = writer.session
+        setup_seconds = writer.setup_seconds - t0            # compilation (or the cache) and surfels
+        run_seconds = time.perf_counter() - writer.setup_seconds
         info = {"surfels": int(session.sim.num_surfels), "triangles": int(self.scene.mesh.num_triangles),
                 "tons_per_iteration": int(tons), "setup_seconds": setup_seconds, "run_seconds": run_seconds,
                 "seconds_since_save": time.perf_counter() - started, "records": writer.records}
@@ -210,6 +213,10 @@ class ViewerWriter(Writer):
         self.records: list[dict] = []
         self.ranges: dict[str, tuple[float, float]] = {}
         self.names: list[str] = []
+
+    def on_setup_done(self, event) -> None:
+        self.session = event.run
+        self.setup_seconds = time.perf_counter()
 
     def on_iteration_traced(self, event) -> None:
         self.watcher._check()
