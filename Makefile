@@ -13,7 +13,7 @@ PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypo
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
-.PHONY: all demo stain test deps install runtime-tests pytest bench clean
+.PHONY: all demo stain moss-dirt leak-stain hydrant gallery test deps install runtime-tests pytest bench clean
 
 all: install
 
@@ -62,6 +62,16 @@ stain: install
 	  --assign chain=Iron --assign '*=Cement' --show rust --view 1,0.7,0.9 \
 	  --iterations 30 --out out/stain-bleeding
 	@echo "Rust bleeding from the chain onto the steps: $(abspath out/stain-bleeding)/renders/"
+
+# The paper's other results (examples/gallery.py holds scenes, options and
+# cameras): Fig. 9 moss suppressing dirt splatter, Fig. 10 a stain from a
+# leak (spot source), Fig. 1 rust, dust and moss around a hydrant.
+moss-dirt leak-stain hydrant: install
+	$(PY) examples/gallery.py run $@
+
+# Small pictures of every example and recipe for the README (docs/gallery/).
+gallery: install
+	$(PY) examples/gallery.py pictures
 
 # Runtime unit tests, built separately with AddressSanitizer + UBSan.
 runtime-tests: install

@@ -1,4 +1,4 @@
-"""The ``gammac`` command: ``check``, ``run`` and ``emit``.
+"""The ``gammac`` command: ``check``, ``run``, ``emit``, ``fmt`` and ``recipes``.
 
 Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
 2 a usage error.  A user mistake is reported as diagnostics or a one-line
@@ -84,6 +84,8 @@ def _parser() -> argparse.ArgumentParser:
     how = f.add_mutually_exclusive_group()
     how.add_argument("--write", "-w", action="store_true", help="rewrite the file in place")
     how.add_argument("--check", action="store_true", help="exit 1 if the file is not formatted")
+    rc = sub.add_parser("recipes", help="list the standard library's recipes, their parameters and defaults")
+    rc.add_argument("--verbose", "-v", action="store_true", help="print each recipe's whole description")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
     r.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
@@ -177,6 +179,11 @@ def main(argv=None) -> int:
     try:
         if args.command == "fmt":
             return _fmt(args)
+        if args.command == "recipes":
+            from .recipes import describe, stdlib_recipes
+
+            sys.stdout.write(describe(stdlib_recipes(), verbose=args.verbose))
+            return EXIT_OK
         effect = _load(args.file, getattr(args, "param", ()))
         if args.command == "check":
             return EXIT_OK
