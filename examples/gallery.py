@@ -34,6 +34,7 @@ class Entry:
     args: list[str] = field(default_factory=list)      # camera, binding, ...
     full: list[str] = field(default_factory=list)      # extra options at full scale
     small: list[str] = field(default_factory=list)     # extra options for the gallery picture
+    compare: list[str] | None = None  # options of a second run shown on the left of the picture
 
     @property
     def script(self) -> Path | None:
@@ -56,7 +57,7 @@ EXAMPLES = [
     Entry("moss-dirt", "examples/moss-dirt.gamma", "examples/scenes/courtyard.obj",
           "Moss on the ground suppresses the dirt rain splashes onto a wall (Fig. 9)",
           ["--view", "0.5,0.45,1"], ["--surfels", "100000", "--iterations", "30"],
-          ["--surfels", "100000", "--iterations", "30"]),
+          ["--surfels", "100000", "--iterations", "30"], compare=["--param", "moss=0"]),
     Entry("leak-stain", "examples/leak-stain.gamma", "examples/scenes/leak.obj",
           "A stain from water dripping out of a leaking pipe (Fig. 10, spot source)",
           ["--view", "0.35,0.2,1"], ["--surfels", "100000", "--iterations", "30"],
@@ -116,14 +117,23 @@ def run(entry: Entry, out: Path, extra: list[str], scale: str = "full") -> subpr
 
 
 def picture(entry: Entry, out_root: Path, size: int) -> Path:
+    """docs/gallery/NAME.png: the last iteration, size x size pixels (two
+    side by side for an entry that compares), reduced to 256 colours."""
     from PIL import Image
 
-    out = out_root / entry.name
-    run(entry, out, ["--size", str(size), "--quiet"], scale="small")
-    renders = sorted((out / "renders").glob("iter_*.png"))
+    runs = [[]] if entry.compare is None else [entry.compare, []]
+    images = []
+    for k, options in enumerate(runs):
+        out = out_root / f"{entry.name}-{k}"
+        run(entry, out, ["--size", str(size), "--quiet", *options], scale="small")
+        renders = sorted((out / "renders").glob("iter_*.png"))
+        images.append(Image.open(renders[-1]).convert("RGB"))
+    sheet = Image.new("RGB", (size * len(images), size))
+    for k, image in enumerate(images):
+        sheet.paste(image, (k * size, 0))
     GALLERY.mkdir(parents=True, exist_ok=True)
     target = GALLERY / f"{entry.name}.png"
-    Image.open(renders[-1]).convert("RGB").save(target, optimize=True)
+    sheet.quantize(256, dither=Image.Dither.NONE).save(target, optimize=True)
     return target
 
 
@@ -135,7 +145,7 @@ def main(argv=None) -> int:
     r.add_argument("--out")
     g = sub.add_parser("pictures")
     g.add_argument("names", nargs="*")
-    g.add_argument("--size", type=int, default=320)
+    g.add_argument("--size", type=int, default=288)
     g.add_argument("--work", default=str(ROOT / "out" / "gallery"))
     sub.add_parser("list")
     args, extra = p.parse_known_args(argv)

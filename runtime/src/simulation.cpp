@@ -20,6 +20,8 @@
 #include "gamma/philox.h"
 #include "gamma/sampling.h"
 #include "gamma/vec.h"
+#include "gamma/flow.h"
+#include "gamma/splat.h"
 
 namespace gammart {
 
@@ -177,6 +179,8 @@ struct Simulation::Impl {
     float eps = 1e-5f;  // ray offset
     float sigma = 1;    // render kernel width (mean surfel spacing)
     float min_up = 0;   // min over vertices of dot(v, up)
+    SplatKernel splat;  // where a surfel's deltas spread (SPEC 13.2)
+    std::vector<float> spread;  // the merged deltas after the splat
     int n_types = 0, n_surfaces = 0;
     std::vector<TransportSlot> transport;        // [event][type][surface]
     std::vector<GammaUpdateKernel> update;       // [surface]
@@ -407,6 +411,8 @@ Simulation::Simulation(const Mesh& mesh, const Config& config)
             fail(at + "bounce_distance must be positive and finite");
         if (!std::isfinite(tt.flow_step) || !(tt.flow_step > 0))
             fail(at + "flow_step must be positive and finite");
+        if (!(tt.drip_angle_deg >= 0 && tt.drip_angle_deg <= 90))
+            fail(at + "drip_angle_deg must be in [0, 90]");
         I.max_carry = std::max(I.max_carry, tt.initial_carry.size());
     }
 
@@ -560,6 +566,9 @@ Simulation::Simulation(const Mesh& mesh, const Config& config)
         t.kd = std::make_unique<KDTree>(3, t.cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
     }
     I.sigma = float(std::sqrt(mesh_.area() / double(n_)));
+    run_with_threads(c.threads, [&] {
+        I.splat = build_splat_kernel(surf_.position.data(), surf_.normal.data(), surfel_surface_.data(), n_, I.sigma);
+    });
 
     // Embree scene.
     I.device = rtcNewDevice(nullptr);
@@ -610,6 +619,13 @@ TraceStats Simulation::trace(int iteration) {
         start.push_back(start.back() + s.count);
     }
     const int64_t total = start.back();
+    // Weight of each active source's gamma-tons (SPEC 13.2): strength * n / N.
+    std::vector<float> weight;
+    for (size_t k = 0; k < active.size(); ++k) {
+        const Source& s = c.sources[active[k]];
+        weight.push_back(s.strength > 0 && s.count > 0 ? float(double(s.strength) * double(n_) / double(s.count))
+                                                       : 1.0f);
+    }
     const int64_t nchunks = (total + kChunkSize - 1) / kChunkSize;
     if (I.logs.size() < size_t(nchunks)) I.logs.resize(size_t(nchunks));
     const float* rows = rows_.data();
@@ -632,6 +648,7 @@ TraceStats Simulation::trace(int iteration) {
         size_t a = size_t(std::upper_bound(start.begin(), start.end(), begin) - start.begin()) - 1;
         // interaction_key: mixed from (seed, iteration, gamma-ton, interaction);
         // each event's kernel gets its own random() key from it.
+        float ton_weight = 1.0f;
         auto call = [&](const TransportSlot& sl, uint32_t s, GammaContext& ctx, uint64_t interaction_key) {
             set_random_key(ctx, mix64(interaction_key ^ uint64_t(sl.event)));
             int32_t bad;
@@ -640,6 +657,8 @@ TraceStats Simulation::trace(int iteration) {
             } else {
                 std::fill(delta.begin() + GAMMA_ROW_HEADER, delta.end(), 0.0f);
                 bad = sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
+                if (ton_weight != 1.0f)
+                    for (int j = GAMMA_ROW_HEADER; j < W; ++j) delta[size_t(j)] *= ton_weight;
                 log.surfel.push_back(s);
                 log.delta.insert(log.delta.end(), delta.begin() + GAMMA_ROW_HEADER, delta.end());
             }
@@ -694,6 +713,8 @@ TraceStats Simulation::trace(int iteration) {
             const Source& so = c.sources[src];
             const int type = so.ton_type;
             const TonType& tt = c.ton_types[size_t(type)];
+            ton_weight = weight[a];
+            const float sin_drip = std::sin(tt.drip_angle_deg * 0.017453292519943295f);
             PhiloxStream rng(seed, iter_u, uint64_t(g));
             float ks = tt.ks, kp = tt.kp, kf = tt.kf;
             std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
@@ -755,25 +776,26 @@ TraceStats Simulation::trace(int iteration) {
                     fe = flight(p + n * eps, ld * float(launch_speed(D)), flight_dt(D));
                 } else {  // flow
                     ++st.flow_steps;
-                    const float step = tt.flow_step;
-                    const V3 gt = down - n * dot(down, n);
-                    if (dot(n, up) < 0) {
-                        ++st.drips;  // overhang: gravity pulls it off
-                        fe = flight(p + n * eps, V3{0, 0, 0}, flight_dt(tt.bounce_distance));
-                    } else if (length(gt) < 1e-3f) {
-                        dir = V3{0, 0, 0};  // horizontal: no drift, interact again here
+                    auto probe = [&](V3 org, V3 d, float tfar, FlowHit& h) {
+                        I.cast(rh, org, d, 0.0f, tfar);
+                        ++st.rays;
+                        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+                        h.p = org + d * rh.ray.tfar;
+                        h.n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+                        if (dot(h.n, d) > 0) h.n = h.n * -1.0f;
+                        h.prim = rh.hit.primID;
+                        return true;
+                    };
+                    const FlowResult fr = flow_step(p, n, dir, down, tt.flow_step, eps, sin_drip, probe,
+                                                    [&] { return rng.next(); });
+                    if (fr.end == FlowEnd::Moved) {
+                        p = fr.hit.p;
+                        n = fr.hit.n;
+                        prim = fr.hit.prim;
+                        dir = fr.dir;
                     } else {
-                        const V3 t = normalize(gt);
-                        const V3 q = p + t * step;
-                        const V3 pn = n;
-                        if (straight(p + pn * eps, t, 0.0f, step)) {
-                            // concave corner: the gamma-ton is where the ray hit
-                        } else if (straight(q + pn * (0.5f * step), pn * -1.0f, 0.0f, step)) {
-                            dir = t;  // re-attached (flat or convex bend)
-                        } else {
-                            ++st.drips;  // the surface fell away: an edge
-                            fe = flight(q, V3{0, 0, 0}, flight_dt(tt.bounce_distance));
-                        }
+                        ++st.drips;  // an overhang, or the surface fell away beneath it
+                        fe = flight(fr.drip_from, V3{0, 0, 0}, flight_dt(tt.bounce_distance));
                     }
                 }
                 if (fe == FlightEnd::Escaped) { ++st.escaped; break; }
@@ -834,8 +856,14 @@ TraceStats Simulation::trace(int iteration) {
                         for (int j = 0; j < P; ++j) d[j] += rec[j];
                     }
                 }
-                for (size_t s = lo; s < hi; ++s)
-                    for (int j = 0; j < P; ++j) R[s * W + GAMMA_ROW_HEADER + j] += D[s * P + j];
+            });
+            // Spread every surfel's summed delta over its neighbourhood, then add.
+            I.spread.resize(I.delta.size());
+            apply_splat(I.splat, D, I.spread.data(), n_, P);
+            const float* S = I.spread.data();
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, n_, 4096), [&](const tbb::blocked_range<size_t>& r) {
+                for (size_t s = r.begin(); s < r.end(); ++s)
+                    for (int j = 0; j < P; ++j) R[s * W + GAMMA_ROW_HEADER + j] += S[s * P + j];
             });
         });
     }
