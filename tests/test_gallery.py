@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from gamma.outputs import read_ply
+from gamma.driver.outputs import read_ply
 
 sys.path.insert(0, str(ROOT / "examples"))
 import gallery  # noqa: E402

@@ -43,7 +43,7 @@ def test_all_recipes_import_together(tmp_path):
 def test_every_recipe_documents_itself():
     """A summary and a usage line at the top, every parameter with a default
     and a comment, declared before anything else."""
-    from gamma.recipes import stdlib_recipes
+    from gamma.frontend.recipes import stdlib_recipes
 
     listed = stdlib_recipes(ROOT / "stdlib")
     assert [r.path.stem for r in listed] == RECIPES

@@ -180,7 +180,7 @@ def main(argv=None) -> int:
         if args.command == "fmt":
             return _fmt(args)
         if args.command == "recipes":
-            from .recipes import describe, stdlib_recipes
+            from .frontend.recipes import describe, stdlib_recipes
 
             sys.stdout.write(describe(stdlib_recipes(), verbose=args.verbose))
             return EXIT_OK
