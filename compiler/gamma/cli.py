@@ -1,4 +1,8 @@
-"""The ``gammac`` command: ``check``, ``run``, ``emit``, ``fmt`` and ``recipes``.
+"""The ``gammac`` command: ``check``, ``emit``, ``fmt``, ``recipes`` and ``run``.
+
+Only argument parsing and reporting live here: the front end checks, the
+back ends compile, the driver runs; this module turns their errors into
+diagnostics or one line and an exit status.
 
 Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
 2 a usage error.  A user mistake is reported as diagnostics or a one-line
@@ -76,6 +80,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a parameter of the effect")
     what = e.add_mutually_exclusive_group(required=True)
     what.add_argument("--ast", action="store_const", dest="what", const="ast", help="the syntax tree")
+    what.add_argument("--effect", action="store_const", dest="what", const="effect",
+                      help="the checked effect: declarations and typed, resolved rule bodies (the IR)")
     what.add_argument("--ir", action="store_const", dest="what", const="ir", help="LLVM IR as generated")
     what.add_argument("--ir-opt", action="store_const", dest="what", const="ir-opt", help="LLVM IR after optimisation")
     what.add_argument("--asm", action="store_const", dest="what", const="asm", help="native assembly")
@@ -196,6 +202,11 @@ def main(argv=None) -> int:
                 from .frontend.parser import parse
 
                 sys.stdout.write(dump(parse(effect.source, effect.path).decls) + "\n")
+                return EXIT_OK
+            if args.what == "effect":
+                from .ir.effect import dump
+
+                sys.stdout.write(dump(effect))
                 return EXIT_OK
             module = generate(effect)
             if args.what == "ir":
