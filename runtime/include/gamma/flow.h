@@ -48,7 +48,7 @@ FlowResult flow_step(V3 p, V3 n, V3 arriving, V3 down, float step, float eps, fl
     V3 m = arriving - n * dot(arriving, n);
     const float lm = length(m);
     m = lm > 0.1f ? m * (1.0f / lm) : V3{0, 0, 0};
-    const V3 a = g_t + m * 0.05f;
+    const V3 a = g_t + m * 0.01f;
     V3 t;
     if (length(a) >= 1e-3f) {
         t = normalize(a);
