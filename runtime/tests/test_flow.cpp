@@ -53,7 +53,7 @@ bool cast_rects(const std::vector<Rect>& rects, V3 o, V3 d, float tfar, FlowHit&
 
 FlowResult step_on(const std::vector<Rect>& rects, V3 p, V3 n, V3 arriving, float sin_drip = kSin10,
                    float xi = 0.25f) {
-    return flow_step(p, n, arriving, kDown, kStep, kEps, sin_drip,
+    return flow_move(p, n, arriving, kDown, kStep, kEps, sin_drip,
                      [&](V3 o, V3 d, float tfar, FlowHit& h) { return cast_rects(rects, o, d, tfar, h); },
                      [&] { return xi; });
 }

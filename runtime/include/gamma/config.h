@@ -1,9 +1,13 @@
+// The configuration of a run, as the Python driver (or a C++ test) fills it:
+// surfels, seed, threads, surfaces and their initial rows, ton types,
+// sources and the addresses of the compiled kernels.
 #pragma once
 #include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
 
+#include "gamma/mesh.h"
 #include "gamma_abi.h"
 
 namespace gammart {
@@ -87,5 +91,15 @@ struct Config {
     void set_update(int surface, uint64_t address) { updates.push_back({surface, address}); }
     void set_appearance(int surface, uint64_t address) { appearances.push_back({surface, address}); }
 };
+
+// Checks the run-wide settings, the surface rows and the ton types (throws
+// gammart::Error with a one-line message) and returns the surface id of every
+// kept triangle of `mesh` (triangle_surface may be given per kept or per
+// input triangle; empty = all surface 0).  Sources and kernels are checked by
+// the parts that use them (sources.h, kernel_table.h).
+std::vector<int32_t> validate_config(const Config& c, const Mesh& mesh);
+
+// The longest initial carry of any ton type (at least 1).
+size_t max_carry(const Config& c);
 
 }  // namespace gammart

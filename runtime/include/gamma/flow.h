@@ -33,7 +33,7 @@ inline bool holds_water(V3 n, V3 up, float sin_drip) { return dot(n, up) >= -sin
 // `cast(org, dir, tfar, FlowHit&)` -> bool: first hit along the ray within
 // tfar (normal turned toward the origin); `draw()` -> float in [0, 1).
 template <class Cast, class Draw>
-FlowResult flow_step(V3 p, V3 n, V3 arriving, V3 down, float step, float eps, float sin_drip, Cast&& cast,
+FlowResult flow_move(V3 p, V3 n, V3 arriving, V3 down, float step, float eps, float sin_drip, Cast&& cast,
                      Draw&& draw) {
     FlowResult r;
     const V3 up = down * -1.0f;

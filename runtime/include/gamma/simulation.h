@@ -1,86 +1,53 @@
+// The simulation facade: one run's parts wired together and the API the
+// Python binding and the tests use.  Each part lives in its own file:
+//   config.h        validation of the run-wide settings
+//   scene_index.h   Embree BVH + per-surface surfel kd-trees (rebuildable)
+//   surfel_state.h  surfel positions, surfaces and rows
+//   sources.h       gamma-ton sources and emission
+//   kernel_table.h  compiled kernels per (event, ton type, surface)
+//   tracer.h        the gamma-ton loop; motion.h its per-mode step table;
+//                   surface_log.h the deposit path (chunk logs and merge)
+//   update_pass.h   the update rules
+//   renderer.h      false-colour and appearance renders
+//   baker.h         rows and colours at surface points
 #pragma once
 #include <array>
 #include <cstdint>
-#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "gamma/config.h"
+#include "gamma/kernel_table.h"
 #include "gamma/mesh.h"
 #include "gamma/render.h"
+#include "gamma/renderer.h"
+#include "gamma/scene_index.h"
+#include "gamma/sources.h"
+#include "gamma/stats.h"
+#include "gamma/surfel_state.h"
 #include "gamma/surfels.h"
+#include "gamma/threads.h"
+#include "gamma/tracer.h"
 
 namespace gammart {
-
-// How often a kernel's statement produced NaN or infinity (the store was
-// skipped).  event is GAMMA_EVENT_* for transport kernels, -1 for update.
-struct NonFinite {
-    int event = 0, ton_type = 0, surface = 0, statement = 0;
-    int64_t count = 0;
-};
-
-// Adds one occurrence, keeping the list sorted (so merges are order-free).
-void count_nonfinite(std::vector<NonFinite>& list, int event, int ton_type, int surface,
-                     int statement, int64_t count = 1);
-
-struct TraceStats {
-    int64_t emitted = 0, settled = 0, escaped = 0, capped = 0;
-    int64_t interactions = 0, rays = 0;
-    int64_t flow_steps = 0, bounces = 0, drips = 0, segments = 0;
-    std::vector<NonFinite> nonfinite;
-    double trace_seconds = 0;
-};
-
-struct UpdateStats {
-    std::vector<NonFinite> nonfinite;
-    double seconds = 0;
-};
-
-// Counters of one render_appearance call.  nonfinite: event kAppearanceEvent,
-// ton_type 0, surface, statement, count (per camera sample that hit).
-struct RenderStats {
-    int64_t rays = 0, kernel_calls = 0;
-    std::vector<NonFinite> nonfinite;
-    double seconds = 0;
-};
-
-struct RaycastStats {
-    int64_t rays = 0, hits = 0;
-    double seconds = 0;
-};
-
-// Number of gamma-tons per parallel work item.  Never depends on thread count.
-constexpr int64_t kChunkSize = 1024;
-// Largest accepted thread count.
-constexpr int kMaxThreads = 1024;
-
-// Runs f inside a task arena of exactly `threads` threads (<= 0: all hardware
-// threads); a global_control lifts TBB's default cap at the core count.
-void run_with_threads(int threads, const std::function<void()>& f);
-int resolve_threads(int threads);
-
-// Landing of a parabolic flight (g = 1, launch speed sqrt(D) along unit d) on
-// the plane dot(x, up) = floor_height, up = -normalize(down): `traced` as the
-// tracer's piecewise-linear chords meet the plane, `analytic` the exact
-// parabola.  Throws gammart::Error if the flight never reaches the plane.
-void parabola_landing(std::array<float, 3> p0, std::array<float, 3> d, float D, std::array<float, 3> down,
-                      float floor_height, std::array<float, 3>& traced, std::array<float, 3>& analytic);
 
 class Simulation {
 public:
     // Validates config (throws gammart::Error), resamples surfels, builds the
-    // Embree scene and the surfel kd-trees.
+    // Embree scene and the surfel kd-trees.  A surface that has triangles but
+    // receives no surfel is an error (its hits would otherwise run another
+    // surface's rules).
     Simulation(const Mesh& mesh, const Config& config);
     ~Simulation();
     Simulation(const Simulation&) = delete;
     Simulation& operator=(const Simulation&) = delete;
 
-    size_t num_surfels() const { return n_; }
-    int row_width() const { return w_; }
-    const SurfelSet& surfels() const { return surf_; }
-    const std::vector<int32_t>& surfel_surfaces() const { return surfel_surface_; }
-    const std::vector<float>& rows() const { return rows_; }
+    size_t num_surfels() const { return state_.size(); }
+    int row_width() const { return state_.width; }
+    const SurfelSet& surfels() const { return state_.surf; }
+    const std::vector<int32_t>& surfel_surfaces() const { return state_.surface; }
+    const std::vector<float>& rows() const { return state_.rows; }
     void set_rows(const float* data);  // N*W floats
 
     TraceStats trace(int iteration);
@@ -129,20 +96,27 @@ public:
     // Index of the surfel nearest to p (any surface).
     uint32_t nearest_surfel(const float p[3]) const;
     // Index of the surfel of `surface` nearest to p (any surfel if the
-    // surface received none).
+    // surface has no triangles, hence no surfels, or is out of range).
     uint32_t nearest_surfel_of(int surface, const float p[3]) const;
 
-    struct Impl;
+    // The parts (read-only views for tests).
+    const SceneIndex& scene_index() const { return *index_; }
+    const SceneFrame& frame() const { return frame_; }
+    const SurfelState& state() const { return state_; }
 
 private:
-    std::unique_ptr<Impl> impl_;
+    RenderScene render_scene() const {
+        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_};
+    }
+
     Mesh mesh_;
     Config cfg_;
-    size_t n_ = 0;
-    int w_ = 0;
-    SurfelSet surf_;
-    std::vector<int32_t> surfel_surface_;
-    std::vector<float> rows_;
+    SceneFrame frame_;
+    KernelTable kernels_;
+    std::vector<SourceRt> sources_;
+    SurfelState state_;
+    std::unique_ptr<SceneIndex> index_;
+    std::unique_ptr<Tracer> tracer_;
     std::vector<Texture> textures_;
 };
 

@@ -1,24 +1,24 @@
-// Minimal float3 helpers used by the runtime (kept header-only and inline).
+// Vector math of the runtime: GLM's vec3 (float) and its dot / cross /
+// length.  GLM's operations are plain IEEE float in the same order as the
+// runtime's former hand-written helpers (dot = (x*x' + y*y') + z*z',
+// normalize = v * (1 / sqrt(dot(v, v)))), so results are bit-identical.
+// GLM_FORCE_CTOR_INIT (set by the build) makes a default V3 zero.
 #pragma once
 #include <cmath>
 
+#include <glm/geometric.hpp>
+#include <glm/vec3.hpp>
+
 namespace gammart {
-struct V3 {
-    float x = 0, y = 0, z = 0;
-};
-inline V3 operator+(V3 a, V3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
-inline V3 operator-(V3 a, V3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
-inline V3 operator*(V3 a, float s) { return {a.x * s, a.y * s, a.z * s}; }
-inline V3 operator*(float s, V3 a) { return a * s; }
-inline float dot(V3 a, V3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-inline V3 cross(V3 a, V3 b) {
-    return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
-}
-inline float length(V3 a) { return std::sqrt(dot(a, a)); }
-inline V3 normalize(V3 a) {
-    float l = length(a);
-    return l > 0 ? a * (1.0f / l) : a;
-}
+
+using V3 = glm::vec3;
+using glm::cross;
+using glm::dot;
+using glm::length;
+
+// glm::normalize, except that the zero vector stays zero (GLM divides by zero).
+inline V3 normalize(V3 a) { return dot(a, a) > 0 ? glm::normalize(a) : a; }
+
 // Orthonormal basis around unit n (Duff et al. 2017).
 inline void onb(V3 n, V3& t, V3& b) {
     float sign = std::copysign(1.0f, n.z);

@@ -1,0 +1,60 @@
+// The renderers: the false-colour render of one value per surfel and the
+// appearance render (appearance kernels per camera sample, sky ambient x AO
+// + sun with shadows); the property smoothing and the per-point albedo they
+// share with the baker.  See runtime/README.md, "Render" and "Appearance
+// render".
+#pragma once
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "gamma/kernel_table.h"
+#include "gamma/mesh.h"
+#include "gamma/render.h"
+#include "gamma/scene_index.h"
+#include "gamma/stats.h"
+#include "gamma/surfel_state.h"
+
+namespace gammart {
+
+// Fixed Philox key and stream of the appearance render (independent of the
+// simulation seed: the picture's noise does not change between runs).
+constexpr uint64_t kRenderKey = 0x47414D4D41524E44ULL;  // "GAMMARND"
+constexpr uint32_t kRenderStream = 0xFFFFFFFEu;         // sampling uses 0xFFFFFFFF
+
+// What a render reads (all by reference; nothing is modified).
+struct RenderScene {
+    const SceneIndex& index;
+    const SceneFrame& frame;
+    const SurfelState& state;
+    const KernelTable& kernels;
+    const std::vector<Texture>& textures;
+    const Mesh& mesh;
+};
+
+// Checks textures (positive size, height*width*3 finite floats); throws
+// gammart::Error naming the texture.
+void validate_textures(const std::vector<Texture>& textures);
+
+// The smoothed row (W floats) of `surface` at p: out[c] = float(sum_j w_j *
+// row_j[c]) over SceneIndex::smooth's neighbours.
+void interpolate_row(const RenderScene& rs, int surface, const float p[3], float* out);
+
+// The colour the surface's appearance kernel gives at point p of triangle
+// `triangle` (normal n, texture coordinates uv) with the smoothed row,
+// clamped to [0, 1]; the neutral albedo without a kernel.  `row` (W floats)
+// and `tex` (3 per texture) are scratch; returns the kernel's non-finite report.
+int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
+                  const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]);
+
+// False colour: smoothed `values` (one per surfel) and a shade per pixel
+// (height*width each; NaN on the background).
+void render_false_colour(const RenderScene& rs, const float* values, std::array<float, 3> eye,
+                         std::array<float, 3> target, std::array<float, 3> up, float fov_deg, int width,
+                         int height, int threads, float* out_value, float* out_shade);
+
+// Appearance render into out_rgba (height*width*4).  Throws gammart::Error
+// on bad parameters.
+RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& params, float* out_rgba);
+
+}  // namespace gammart

@@ -1,0 +1,98 @@
+// The scene index: what the passes query about the geometry and the surfels.
+// - the Embree BVH over the mesh's triangles (rays, shadow/occlusion rays),
+//   with the surface id of every triangle;
+// - one nanoflann kd-tree over all surfels and one per surface id (the
+//   surfel an interaction touches, the renders' property smoothing);
+// - the scene frame: constants derived from the mesh's bounds and gravity.
+// Both halves are rebuildable on their own: build_geometry after the mesh
+// changed, build_surfels after the surfels changed.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <vector>
+
+#include <embree3/rtcore.h>
+
+#include "gamma/mesh.h"
+#include "gamma/render.h"
+#include "gamma/vec.h"
+
+namespace gammart {
+
+// Constants of the scene used by the passes (computed from the mesh bounds).
+struct SceneFrame {
+    V3 centre, down, up;
+    float radius = 1;   // environment source sphere radius (1.05 x half diagonal)
+    float diag = 1;
+    float eps = 1e-5f;  // ray offset (1e-5 x diagonal)
+    float min_up = 0;   // min over used vertices of dot(v, up)
+    std::array<float, 3> lo{}, hi{};  // bounding box
+
+    // `down` must be finite and non-zero (it is normalised here).
+    static SceneFrame of(const Mesh& mesh, std::array<float, 3> down);
+};
+
+class SceneIndex {
+public:
+    SceneIndex();
+    ~SceneIndex();
+    SceneIndex(const SceneIndex&) = delete;
+    SceneIndex& operator=(const SceneIndex&) = delete;
+
+    // (Re)builds the BVH over the mesh's triangles; tri_surface has one
+    // surface id in [0, n_surfaces) per triangle.
+    void build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces);
+    // (Re)builds the kd-trees over n surfels (positions n*3, surface ids n;
+    // copied).  sigma = the smoothing width (mean surfel spacing).
+    void build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma);
+
+    // Closest hit along org + t*dir, t in [tnear, tfar]; rh.hit.geomID is
+    // RTC_INVALID_GEOMETRY_ID on a miss.
+    void cast(RTCRayHit& rh, V3 org, V3 dir, float tnear,
+              float tfar = std::numeric_limits<float>::infinity()) const;
+    // Shadow / AO ray: true if anything lies between tnear and tfar.
+    bool occluded(V3 org, V3 dir, float tnear, float tfar) const;
+
+    // Index of the surfel nearest to p (any surface).
+    uint32_t nearest(const float p[3]) const;
+    // Index of the surfel of `surface` nearest to p.  Only for a surface that
+    // has surfels (has_surfels); otherwise the nearest surfel of any surface
+    // (callers that run rules must not rely on this: see Simulation).
+    uint32_t nearest_of(int surface, const float p[3]) const;
+    bool has_surfels(int surface) const;
+    // Number of surfels of each surface.
+    std::vector<size_t> surfels_per_surface() const;
+
+    // The property smoothing shared by both renders: the k = 8 nearest
+    // surfels of `surface` to p (all surfels if the surface has none or is
+    // out of range), Gaussian weights exp(-d^2 / (2 sigma^2)), normalised to
+    // sum 1; if every weight underflows, the nearest surfel alone (weight 1).
+    // Returns the number of neighbours written to idx / w (nearest first).
+    size_t smooth(int surface, const float p[3], uint32_t idx[kSmoothingNeighbours],
+                  double w[kSmoothingNeighbours]) const;
+
+    const std::vector<int32_t>& tri_surface() const { return tri_surface_; }
+    int n_surfaces() const { return n_surfaces_; }
+    size_t n_surfels() const { return n_surfels_; }
+    float sigma() const { return sigma_; }
+    // How many times each half was built (for tests of "rebuilt only when
+    // needed").
+    int geometry_builds() const { return geometry_builds_; }
+    int surfel_builds() const { return surfel_builds_; }
+
+    struct Trees;
+
+private:
+    RTCDevice device_ = nullptr;
+    RTCScene scene_ = nullptr;
+    std::vector<int32_t> tri_surface_;
+    int n_surfaces_ = 0;
+    size_t n_surfels_ = 0;
+    float sigma_ = 1;
+    std::unique_ptr<Trees> trees_;
+    int geometry_builds_ = 0, surfel_builds_ = 0;
+};
+
+}  // namespace gammart

@@ -1,0 +1,54 @@
+// The tracer: one iteration of gamma-tons (SPEC §13.3-13.4).  Each gamma-ton
+// is emitted by its source, interacts with the nearest surfel of the hit
+// triangle's surface (hit kernel, then the chosen outcome's kernel), has its
+// motion probabilities deteriorated by that surfel's row, and moves by the
+// motion table (motion.h) until it settles, escapes or is capped.  Rules'
+// writes go through the chunk logs (surface_log.h).  Also the raw-ray
+// benchmark and the parabola check against a plane.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "gamma/config.h"
+#include "gamma/kernel_table.h"
+#include "gamma/scene_index.h"
+#include "gamma/sources.h"
+#include "gamma/stats.h"
+#include "gamma/surface_log.h"
+#include "gamma/surfel_state.h"
+
+namespace gammart {
+
+class Tracer {
+public:
+    // Keeps references: c, kernels and sources must outlive the tracer.
+    Tracer(const Config& c, const KernelTable& kernels, const std::vector<SourceRt>& sources);
+
+    // Traces iteration `iteration` (1-based) and adds the rules' deltas to
+    // state.rows.  Every surface that has triangles in `index` must have
+    // surfels (checked by the caller).
+    TraceStats trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state);
+
+private:
+    const Config& cfg_;
+    const KernelTable& kernels_;
+    const std::vector<SourceRt>& sources_;
+    size_t max_carry_ = 1;
+    std::vector<ChunkLog> logs_;
+    std::vector<float> merge_scratch_;
+};
+
+// Throughput benchmark of the BVH alone: n_rays environment-sphere rays
+// (Philox stream 0 of `seed`), counting hits.
+RaycastStats raw_raycast(const SceneIndex& index, const SceneFrame& frame, int64_t n_rays, int threads,
+                         uint64_t seed);
+
+// Landing of a parabolic flight (g = 1, launch speed sqrt(D) along unit d) on
+// the plane dot(x, up) = floor_height, up = -normalize(down): `traced` as the
+// tracer's piecewise-linear chords meet the plane, `analytic` the exact
+// parabola.  Throws gammart::Error if the flight never reaches the plane.
+void parabola_landing(std::array<float, 3> p0, std::array<float, 3> d, float D, std::array<float, 3> down,
+                      float floor_height, std::array<float, 3>& traced, std::array<float, 3>& analytic);
+
+}  // namespace gammart

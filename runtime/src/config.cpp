@@ -1,0 +1,88 @@
+// Validation of the run-wide part of a Config (see gamma/config.h).
+#include "gamma/config.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "gamma/error.h"
+#include "gamma/threads.h"
+
+namespace gammart {
+
+namespace {
+bool finite3(const std::array<float, 3>& a) {
+    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
+}
+bool nonzero3(const std::array<float, 3>& a) {
+    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
+    return std::isfinite(l) && l > 0;
+}
+}  // namespace
+
+std::vector<int32_t> validate_config(const Config& c, const Mesh& mesh) {
+    auto fail = [](const std::string& m) { throw Error(m); };
+    if (c.surfels < 1) fail("config: surfels must be at least 1 (got " + std::to_string(c.surfels) + ")");
+    if (c.surfels > 400000000) fail("config: surfels too large (" + std::to_string(c.surfels) + ")");
+    if (c.max_interactions < 1)
+        fail("config: max_interactions must be at least 1 (got " + std::to_string(c.max_interactions) + ")");
+    if (c.threads > kMaxThreads)
+        fail("config: threads must be at most " + std::to_string(kMaxThreads) + " (got " +
+             std::to_string(c.threads) + ")");
+    if (c.row_width < GAMMA_ROW_HEADER)
+        fail("config: row_width must be at least " + std::to_string(GAMMA_ROW_HEADER) + " (got " +
+             std::to_string(c.row_width) + ")");
+    if (!finite3(c.down)) fail("config: down has a non-finite component");
+    if (!nonzero3(c.down)) fail("config: down is the zero vector");
+    if (c.surface_rows.empty()) fail("config: no surfaces (surface_rows is empty)");
+    const int W = c.row_width;
+    const int nsurf = int(c.surface_rows.size());
+    for (int s = 0; s < nsurf; ++s) {
+        if (int(c.surface_rows[size_t(s)].size()) != W)
+            fail("config: surface_rows[" + std::to_string(s) + "] has " +
+                 std::to_string(c.surface_rows[size_t(s)].size()) + " floats, row_width is " + std::to_string(W));
+        for (float x : c.surface_rows[size_t(s)])
+            if (!std::isfinite(x)) fail("config: surface_rows[" + std::to_string(s) + "] has a non-finite value");
+    }
+    // Per-triangle surface ids (accept post- or pre-degenerate-removal length).
+    const size_t m = mesh.num_triangles();
+    std::vector<int32_t> tri_surface(m, 0);
+    if (!c.triangle_surface.empty()) {
+        if (c.triangle_surface.size() == m) {
+            tri_surface = c.triangle_surface;
+        } else if (c.triangle_surface.size() == mesh.input_triangles) {
+            for (size_t t = 0; t < m; ++t) tri_surface[t] = c.triangle_surface[size_t(mesh.original_triangle[t])];
+        } else {
+            fail("config: triangle_surface has " + std::to_string(c.triangle_surface.size()) +
+                 " entries, mesh has " + std::to_string(m) + " triangles");
+        }
+        for (size_t t = 0; t < m; ++t)
+            if (tri_surface[t] < 0 || tri_surface[t] >= nsurf)
+                fail("config: triangle " + std::to_string(t) + " has surface id " +
+                     std::to_string(tri_surface[t]) + ", only " + std::to_string(nsurf) + " surfaces");
+    }
+    const int ntypes = int(c.ton_types.size());
+    for (int t = 0; t < ntypes; ++t) {
+        const TonType& tt = c.ton_types[size_t(t)];
+        const std::string at = "config: ton type " + std::to_string(t) + ": ";
+        if (!(std::isfinite(tt.ks) && std::isfinite(tt.kp) && std::isfinite(tt.kf)) || tt.ks < 0 ||
+            tt.kp < 0 || tt.kf < 0)
+            fail(at + "motion probabilities must be finite and non-negative");
+        for (float x : tt.initial_carry)
+            if (!std::isfinite(x)) fail(at + "initial_carry has a non-finite value");
+        if (!std::isfinite(tt.bounce_distance) || !(tt.bounce_distance > 0))
+            fail(at + "bounce_distance must be positive and finite");
+        if (!std::isfinite(tt.flow_step) || !(tt.flow_step > 0))
+            fail(at + "flow_step must be positive and finite");
+        if (!(tt.drip_angle_deg >= 0 && tt.drip_angle_deg <= 90))
+            fail(at + "drip_angle_deg must be in [0, 90]");
+    }
+    return tri_surface;
+}
+
+size_t max_carry(const Config& c) {
+    size_t n = 1;
+    for (const TonType& tt : c.ton_types) n = std::max(n, tt.initial_carry.size());
+    return n;
+}
+
+}  // namespace gammart

@@ -1,0 +1,282 @@
+// False-colour and appearance renders (see gamma/renderer.h).
+#include "gamma/renderer.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <string>
+
+#include "gamma/error.h"
+#include "gamma/philox.h"
+#include "gamma/sampling.h"
+#include "gamma/threads.h"
+
+namespace gammart {
+
+namespace {
+
+bool finite3(const std::array<float, 3>& a) {
+    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
+}
+bool nonzero3(const std::array<float, 3>& a) {
+    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
+    return std::isfinite(l) && l > 0;
+}
+V3 unit(const std::array<float, 3>& a) {
+    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
+    return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
+}
+
+// Pinhole camera, vertical field of view fov_deg, row 0 = top.  dir(px, py)
+// is the ray through image position (px, py) in pixels ((x + 0.5, y + 0.5) =
+// the centre of pixel (x, y)).
+struct Camera {
+    V3 eye, fwd, right, camup;
+    float th = 1, aspect = 1, w = 1, h = 1;
+    Camera(std::array<float, 3> e, std::array<float, 3> target, std::array<float, 3> up, float fov_deg, int width,
+           int height) {
+        eye = V3{e[0], e[1], e[2]};
+        fwd = normalize(V3{target[0], target[1], target[2]} - eye);
+        right = normalize(cross(fwd, V3{up[0], up[1], up[2]}));
+        if (!(length(right) > 0.5f)) {
+            V3 t, b;
+            onb(fwd, t, b);
+            right = t;
+        }
+        camup = cross(right, fwd);
+        th = std::tan(0.5f * fov_deg * 3.14159265358979f / 180.0f);
+        w = float(width);
+        h = float(std::max(height, 1));
+        aspect = float(width) / h;
+    }
+    V3 dir(float px, float py) const {
+        const float sx = (2.0f * px / w - 1.0f) * th * aspect;
+        const float sy = (1.0f - 2.0f * py / h) * th;
+        return normalize(fwd + right * sx + camup * sy);
+    }
+};
+
+inline float clamp01(float x) { return x > 0.0f ? (x < 1.0f ? x : 1.0f) : 0.0f; }  // NaN -> 0
+
+}  // namespace
+
+void validate_textures(const std::vector<Texture>& textures) {
+    for (size_t i = 0; i < textures.size(); ++i) {
+        const Texture& t = textures[i];
+        const std::string at = "set_textures: texture " + std::to_string(i) + " ";
+        if (t.width < 1 || t.height < 1) throw Error(at + "must have a positive width and height");
+        if (t.rgb.size() != size_t(t.width) * size_t(t.height) * 3)
+            throw Error(at + "must have height*width*3 floats");
+        for (float x : t.rgb)
+            if (!std::isfinite(x)) throw Error(at + "has a non-finite value");
+    }
+}
+
+void interpolate_row(const RenderScene& rs, int surface, const float p[3], float* out) {
+    uint32_t idx[kSmoothingNeighbours];
+    double w[kSmoothingNeighbours];
+    const size_t k = rs.index.smooth(surface, p, idx, w);
+    const float* rows = rs.state.rows.data();
+    const int W = rs.state.width;
+    for (int c = 0; c < W; ++c) {
+        double acc = 0;
+        for (size_t j = 0; j < k; ++j) acc += w[j] * rows[size_t(idx[j]) * size_t(W) + size_t(c)];
+        out[c] = float(acc);
+    }
+}
+
+int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
+                  const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]) {
+    const int surface = rs.index.tri_surface()[triangle];
+    GammaAppearanceKernel fn = rs.kernels.appearance[size_t(surface)];
+    if (!fn) {
+        out_rgb[0] = out_rgb[1] = out_rgb[2] = kNeutralAlbedo;
+        return 0;
+    }
+    interpolate_row(rs, surface, p, row);
+    GammaContext ctx;
+    for (int c = 0; c < 3; ++c) {
+        ctx.position[c] = p[c];
+        ctx.normal[c] = n[c];
+        ctx.direction[c] = dir[c];
+    }
+    ctx.height = dot(V3{p[0], p[1], p[2]}, rs.frame.up) - rs.frame.min_up;
+    ctx.iteration = iteration;
+    ctx.interactions = 0;
+    set_random_key(ctx, random_key);
+    ctx.uv[0] = uv[0];
+    ctx.uv[1] = uv[1];
+    for (size_t ti = 0; ti < rs.textures.size(); ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
+    float rgb[3] = {0, 0, 0};
+    const int32_t bad = fn(row, tex, rgb, &ctx);
+    for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(rgb[c]);
+    return bad;
+}
+
+void render_false_colour(const RenderScene& rs, const float* values, std::array<float, 3> eye,
+                         std::array<float, 3> target, std::array<float, 3> up, float fov_deg, int width,
+                         int height, int threads, float* out_value, float* out_shade) {
+    const SceneIndex& I = rs.index;
+    const Camera cam(eye, target, up, fov_deg, width, height);
+    const V3 light = normalize(cam.fwd * -1.0f + cam.camup * 0.35f - cam.right * 0.35f);
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    constexpr size_t K = kSmoothingNeighbours;
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
+            for (int y = r.begin(); y < r.end(); ++y)
+                for (int x = 0; x < width; ++x) {
+                    const V3 dir = cam.dir(float(x) + 0.5f, float(y) + 0.5f);
+                    RTCRayHit rh;
+                    I.cast(rh, cam.eye, dir, 0.0f);
+                    const size_t px = size_t(y) * size_t(width) + size_t(x);
+                    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
+                        out_value[px] = nan;
+                        out_shade[px] = nan;
+                        continue;
+                    }
+                    const V3 p = cam.eye + dir * rh.ray.tfar;
+                    const float q[3] = {p.x, p.y, p.z};
+                    uint32_t idx[K];
+                    double w[K];
+                    const size_t k = I.smooth(I.tri_surface()[rh.hit.primID], q, idx, w);
+                    double sv = 0;
+                    for (size_t j = 0; j < k; ++j) sv += w[j] * values[idx[j]];
+                    out_value[px] = float(sv);
+                    const V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+                    out_shade[px] = 0.25f + 0.75f * std::fabs(dot(n, light));
+                }
+        });
+    });
+}
+
+RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, float* out) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const SceneIndex& I = rs.index;
+    auto fail = [](const std::string& m) { throw Error("render_appearance: " + m); };
+    if (P.width < 1 || P.height < 1) fail("width and height must be positive");
+    if (int64_t(P.width) * int64_t(P.height) > (int64_t(1) << 28)) fail("image too large");
+    if (!(P.fov_deg > 0 && P.fov_deg < 180)) fail("fov_deg must be in (0, 180)");
+    if (!finite3(P.eye) || !finite3(P.target) || !finite3(P.up) || !finite3(P.sun))
+        fail("eye, target, up and sun_direction must be finite");
+    if (P.eye == P.target) fail("eye and target must differ");
+    if (P.samples < 1 || P.samples > kMaxRenderSamples)
+        fail("samples must be in 1.." + std::to_string(kMaxRenderSamples));
+    if (P.ao_samples < 0 || P.ao_samples > kMaxAoSamples)
+        fail("ao_samples must be in 0.." + std::to_string(kMaxAoSamples));
+    if (P.threads > kMaxThreads) fail("threads must be at most " + std::to_string(kMaxThreads));
+
+    const Camera cam(P.eye, P.target, P.up, P.fov_deg, P.width, P.height);
+    const bool sun_on = nonzero3(P.sun);
+    const V3 sun = sun_on ? unit(P.sun) : V3{0, 0, 0};
+    const float ambient = sun_on ? kAmbientWithSun : kAmbientWithoutSun;
+    const float ao_len = kAoLengthFraction * rs.frame.diag;
+    const float inv_gamma = 1.0f / kDisplayGamma;
+    const float eps = rs.frame.eps;
+    const V3 up = rs.frame.up;
+    const int S = P.samples, A = P.ao_samples;
+    int grid = 1;  // strata per axis: the smallest g with g*g >= S
+    while (grid * grid < S) ++grid;
+    const int W = rs.state.width;
+    const size_t T = rs.textures.size();
+    const bool has_uvs = rs.mesh.has_uvs();
+    const float* uvs = rs.mesh.uvs.data();
+    const int32_t* tri_surface = I.tri_surface().data();
+    RenderStats stats;
+    std::mutex merge;
+
+    run_with_threads(P.threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int>(0, P.height, 1), [&](const tbb::blocked_range<int>& r) {
+            // Per-task buffers: nothing is allocated per pixel.
+            std::vector<float> row(size_t(W), 0.0f), tex(3 * T + 1, 0.0f);
+            std::vector<NonFinite> bad_local;
+            int64_t rays = 0, calls = 0;
+            for (int y = r.begin(); y < r.end(); ++y)
+                for (int x = 0; x < P.width; ++x) {
+                    const uint64_t pix = uint64_t(y) * uint64_t(P.width) + uint64_t(x);
+                    double acc[3] = {0, 0, 0};
+                    int hits = 0;
+                    for (int s = 0; s < S; ++s) {
+                        PhiloxStream rng(kRenderKey, kRenderStream, pix * uint64_t(S) + uint64_t(s));
+                        float jx = 0.5f, jy = 0.5f;
+                        if (S > 1) {
+                            const float a = rng.next(), b = rng.next();
+                            jx = (float(s % grid) + a) / float(grid);
+                            jy = (float(s / grid) + b) / float(grid);
+                        }
+                        const V3 dir = cam.dir(float(x) + jx, float(y) + jy);
+                        RTCRayHit rh;
+                        I.cast(rh, cam.eye, dir, 0.0f);
+                        ++rays;
+                        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
+                            const float t = 0.5f + 0.5f * dot(dir, up);
+                            for (int c = 0; c < 3; ++c)
+                                acc[c] += kSkyHorizon[size_t(c)] + t * (kSkyZenith[size_t(c)] - kSkyHorizon[size_t(c)]);
+                            continue;
+                        }
+                        ++hits;
+                        const uint32_t prim = rh.hit.primID;
+                        const V3 p = cam.eye + dir * rh.ray.tfar;
+                        V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+                        if (dot(n, dir) > 0) n = n * -1.0f;
+                        const int surface = tri_surface[prim];
+                        // Albedo.
+                        float albedo[3];
+                        {
+                            float uv[2] = {0.0f, 0.0f};
+                            if (has_uvs) {
+                                const float bu = rh.hit.u, bv = rh.hit.v, bw = 1.0f - bu - bv;
+                                const float* c3 = uvs + 6 * size_t(prim);
+                                uv[0] = bw * c3[0] + bu * c3[2] + bv * c3[4];
+                                uv[1] = bw * c3[1] + bu * c3[3] + bv * c3[5];
+                            }
+                            const float q[3] = {p.x, p.y, p.z}, nn[3] = {n.x, n.y, n.z};
+                            const float dd[3] = {dir.x, dir.y, dir.z};
+                            if (rs.kernels.appearance[size_t(surface)]) ++calls;
+                            if (int32_t bad = albedo_at(rs, prim, q, nn, dd, uv, P.iteration,
+                                                        mix64(mix64(kRenderKey ^ pix) ^ uint64_t(s)),
+                                                        row.data(), tex.data(), albedo))
+                                count_nonfinite(bad_local, kAppearanceEvent, 0, surface, bad);
+                        }
+                        // Lighting: sky ambient x (1 - occluded fraction) + sun.
+                        float light = ambient;
+                        if (A > 0) {
+                            int open = 0;
+                            const V3 o = p + n * eps;
+                            for (int a = 0; a < A; ++a) {
+                                const float u1 = rng.next(), u2 = rng.next();
+                                if (!I.occluded(o, cosine_hemisphere(n, u1, u2), eps, ao_len)) ++open;
+                            }
+                            rays += A;
+                            light = ambient * (float(open) / float(A));
+                        }
+                        if (sun_on) {
+                            const float cs = dot(n, sun);
+                            if (cs > 0) {
+                                ++rays;
+                                if (!I.occluded(p + n * eps, sun, eps, std::numeric_limits<float>::infinity()))
+                                    light += kSunIntensity * cs;
+                            }
+                        }
+                        const float enc = std::pow(light, inv_gamma);  // pow(1, x) == 1 exactly
+                        for (int c = 0; c < 3; ++c) acc[c] += clamp01(albedo[c] * enc);
+                    }
+                    float* o = out + 4 * size_t(pix);
+                    for (int c = 0; c < 3; ++c) o[c] = float(acc[c] / double(S));
+                    o[3] = float(double(hits) / double(S));
+                }
+            std::lock_guard<std::mutex> hold(merge);  // integer counts: order-free
+            stats.rays += rays;
+            stats.kernel_calls += calls;
+            for (const NonFinite& nf : bad_local)
+                count_nonfinite(stats.nonfinite, nf.event, nf.ton_type, nf.surface, nf.statement, nf.count);
+        });
+    });
+    stats.seconds = seconds_since(t0);
+    return stats;
+}
+
+}  // namespace gammart

@@ -1,0 +1,228 @@
+// The gamma-ton loop of one iteration (see gamma/tracer.h).
+#include "gamma/tracer.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+#include "gamma/error.h"
+#include "gamma/motion.h"
+#include "gamma/philox.h"
+#include "gamma/sampling.h"
+#include "gamma/threads.h"
+
+namespace gammart {
+
+Tracer::Tracer(const Config& c, const KernelTable& kernels, const std::vector<SourceRt>& sources)
+    : cfg_(c), kernels_(kernels), sources_(sources), max_carry_(max_carry(c)) {}
+
+TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const Config& c = cfg_;
+    const KernelTable& K = kernels_;
+    const int W = state.width;
+    const int P = W - GAMMA_ROW_HEADER;  // property columns
+    const EmissionSchedule sched = schedule(c.sources, iteration);
+    const std::vector<int64_t>& start = sched.start;
+    const int64_t total = sched.total();
+    const int64_t nchunks = (total + kChunkSize - 1) / kChunkSize;
+    if (logs_.size() < size_t(nchunks)) logs_.resize(size_t(nchunks));
+    const float* rows = state.rows.data();
+    const int32_t* surf_of = state.surface.data();
+    const int32_t* tri_surf = index.tri_surface().data();
+    const int max_inter = c.max_interactions;
+    const uint64_t seed = c.seed;
+    const uint32_t iter_u = uint32_t(iteration);
+    const V3 up = frame.up;
+    // Weight of each active source's gamma-tons (SPEC §13.2): strength * n / N.
+    std::vector<float> weight;
+    for (size_t k = 0; k < sched.active.size(); ++k) {
+        const Source& so = c.sources[sched.active[k]];
+        weight.push_back(so.strength > 0 && so.count > 0
+                             ? float(double(so.strength) * double(state.size()) / double(so.count))
+                             : 1.0f);
+    }
+
+    auto run_chunk = [&](int64_t ci) {
+        ChunkLog& log = logs_[size_t(ci)];
+        log.clear();
+        TraceStats st;
+        std::vector<float> carry(max_carry_, 0.0f);
+        std::vector<float> delta(size_t(W), 0.0f), scratch(size_t(W), 0.0f);
+        const int64_t begin = ci * kChunkSize, end = std::min(total, begin + kChunkSize);
+        size_t a = size_t(std::upper_bound(start.begin(), start.end(), begin) - start.begin()) - 1;
+        // interaction_key: mixed from (seed, iteration, gamma-ton, interaction);
+        // each event's kernel gets its own random() key from it.
+        float ton_weight = 1.0f;
+        auto call = [&](const TransportSlot& sl, uint32_t s, GammaContext& ctx, uint64_t interaction_key) {
+            set_random_key(ctx, mix64(interaction_key ^ uint64_t(sl.event)));
+            int32_t bad;
+            if (!sl.writes) {
+                bad = sl.fn(carry.data(), rows + size_t(s) * W, scratch.data(), &ctx);
+            } else {
+                std::fill(delta.begin() + GAMMA_ROW_HEADER, delta.end(), 0.0f);
+                bad = sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
+                if (ton_weight != 1.0f)
+                    for (int j = GAMMA_ROW_HEADER; j < W; ++j) delta[size_t(j)] *= ton_weight;
+                log.record(s, delta.data() + GAMMA_ROW_HEADER, P);
+            }
+            if (bad) count_nonfinite(st.nonfinite, sl.event, sl.ton_type, sl.surface, bad);
+        };
+        Walker w(index, frame, st);
+
+        for (int64_t g = begin; g < end; ++g) {
+            while (g >= start[a + 1]) ++a;
+            const size_t src = sched.active[a];
+            const int type = c.sources[src].ton_type;
+            const TonType& tt = c.ton_types[size_t(type)];
+            ton_weight = weight[a];
+            PhiloxStream rng(seed, iter_u, uint64_t(g));
+            float ks = tt.ks, kp = tt.kp, kf = tt.kf;
+            std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
+            V3 org, d0;
+            emit(sources_[src], rng, org, d0);
+            int inter = 0;
+            ++st.emitted;
+            if (!w.straight(org, d0, 0.0f)) {
+                ++st.escaped;
+                continue;
+            }
+            for (;;) {
+                ++inter;
+                const V3 p = w.p, n = w.n, dir = w.dir;
+                const float pa[3] = {p.x, p.y, p.z};
+                const uint32_t s = index.nearest_of(tri_surf[w.prim], pa);
+                const int surface = surf_of[s];
+                GammaContext ctx;
+                ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
+                ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
+                ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
+                ctx.height = dot(p, up) - frame.min_up;
+                ctx.iteration = iteration;
+                ctx.interactions = inter;
+                const float xi = rng.next();
+                const float c1 = std::min(ks, 1.0f);
+                const float c2 = std::min(c1 + kp, 1.0f);
+                const float c3 = std::min(c2 + kf, 1.0f);
+                const int event = xi < c1 ? GAMMA_EVENT_REFLECT
+                                : xi < c2 ? GAMMA_EVENT_BOUNCE
+                                : xi < c3 ? GAMMA_EVENT_FLOW
+                                          : GAMMA_EVENT_SETTLE;
+                const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
+                const TransportSlot& ev = K.slot(event, type, surface);
+                if (hit.fn || ev.fn) {
+                    const uint64_t key = mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(inter));
+                    if (hit.fn) call(hit, s, ctx, key);
+                    if (ev.fn) call(ev, s, ctx, key);
+                }
+                if (event == GAMMA_EVENT_SETTLE) { ++st.settled; break; }
+                if (inter >= max_inter) { ++st.capped; break; }
+                const float* row = rows + size_t(s) * W;
+                const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
+                            df = row[GAMMA_ROW_REFLECTANCE_FLOW];
+                const float kp_left = std::max(kp - dp, 0.0f);
+                ks = std::max(ks - ds, 0.0f);
+                kf = std::max(kf + kp_left - df, 0.0f);
+                kp = kp_left;
+                const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
+                if (fe == FlightEnd::Escaped) { ++st.escaped; break; }
+                if (fe == FlightEnd::Capped) { ++st.capped; break; }
+            }
+            st.interactions += inter;
+        }
+        log.st = st;
+    };
+
+    run_with_threads(c.threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int64_t>(0, nchunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
+            for (int64_t ci = r.begin(); ci < r.end(); ++ci) run_chunk(ci);
+        });
+    });
+
+    TraceStats total_st;
+    for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
+    apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_, c.threads,
+                     &state.splat);
+    total_st.trace_seconds = seconds_since(t0);
+    return total_st;
+}
+
+RaycastStats raw_raycast(const SceneIndex& index, const SceneFrame& frame, int64_t n_rays, int threads,
+                         uint64_t seed) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const int64_t nchunks = (n_rays + kChunkSize - 1) / kChunkSize;
+    std::vector<int64_t> hits(size_t(std::max<int64_t>(nchunks, 0)), 0);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int64_t>(0, nchunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
+            for (int64_t ci = r.begin(); ci < r.end(); ++ci) {
+                int64_t h = 0;
+                const int64_t b = ci * kChunkSize, e = std::min(n_rays, b + kChunkSize);
+                for (int64_t g = b; g < e; ++g) {
+                    PhiloxStream rng(seed, 0, uint64_t(g));
+                    V3 org, dir;
+                    emit_environment(frame.centre, frame.radius, frame.up, rng, false, org, dir);
+                    RTCRayHit rh;
+                    index.cast(rh, org, dir, 0.0f);
+                    if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) ++h;
+                }
+                hits[size_t(ci)] = h;
+            }
+        });
+    });
+    RaycastStats st;
+    st.rays = std::max<int64_t>(n_rays, 0);
+    for (int64_t h : hits) st.hits += h;
+    st.seconds = seconds_since(t0);
+    return st;
+}
+
+namespace {
+bool finite3(const std::array<float, 3>& a) {
+    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
+}
+bool nonzero3(const std::array<float, 3>& a) {
+    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
+    return std::isfinite(l) && l > 0;
+}
+V3 unit(const std::array<float, 3>& a) {
+    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
+    return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
+}
+}  // namespace
+
+void parabola_landing(std::array<float, 3> p0a, std::array<float, 3> da, float D, std::array<float, 3> downa,
+                      float floor_height, std::array<float, 3>& traced, std::array<float, 3>& analytic) {
+    if (!finite3(p0a) || !nonzero3(da) || !nonzero3(downa) || !std::isfinite(floor_height))
+        throw Error("parabola_landing: arguments must be finite, d and down non-zero");
+    if (!(D > 0) || !std::isfinite(D)) throw Error("parabola_landing: D must be positive");
+    const V3 p0{p0a[0], p0a[1], p0a[2]}, d = unit(da), down = unit(downa), up = down * -1.0f;
+    const double h0 = double(dot(p0, up)) - floor_height;
+    if (h0 < 0) throw Error("parabola_landing: p0 is below the floor");
+    const double v = launch_speed(D);
+    const V3 vel = d * float(v);
+    // Analytic: h(t) = h0 + v*du*t - t^2/2 = 0.
+    const double vu = v * double(dot(d, up));
+    const double t_star = vu + std::sqrt(vu * vu + 2.0 * h0);
+    const V3 a_pt = flight_point(p0, vel, down, t_star);
+    analytic = {a_pt.x, a_pt.y, a_pt.z};
+    V3 hit{};
+    int64_t segments = 0;
+    FlightEnd end = fly(
+        p0, vel, down, flight_dt(D), segments,
+        [&](V3 a, V3 b) {
+            const double ha = double(dot(a, up)) - floor_height, hb = double(dot(b, up)) - floor_height;
+            if (!(hb <= 0)) return false;
+            const double s = ha > hb ? ha / (ha - hb) : 0.0;
+            hit = a + (b - a) * float(s);
+            return true;
+        },
+        [](V3, double) { return false; });
+    if (end != FlightEnd::Landed) throw Error("parabola_landing: the flight never reaches the floor");
+    traced = {hit.x, hit.y, hit.z};
+}
+
+}  // namespace gammart

@@ -1,0 +1,94 @@
+// The Simulation facade: the parts it wires (surfel state, baker through the
+// render scene) and the refusal of a surface that received no surfel.
+#include <gtest/gtest.h>
+
+#include "gamma/baker.h"
+#include "gamma/simulation.h"
+#include "helpers.h"
+
+using namespace gammart;
+using gamma_test::expect_error;
+
+namespace {
+
+// A 10 x 10 floor (surface 0) and a tiny triangle of area 5e-5 far above it
+// (the triangle's surface chosen by the caller).
+Mesh floor_and_speck(gamma_test::Builder& b) {
+    gamma_test::floor_quad(b, -5, 5, -5, 5);
+    const int32_t i = b.vert({0, 3, 0}), j = b.vert({0.01f, 3, 0}), k = b.vert({0, 3, 0.01f});
+    b.t.insert(b.t.end(), {i, k, j});
+    return b.mesh("floor and speck");
+}
+
+Config two_surfaces(int64_t surfels) {
+    Config c;
+    c.surfels = surfels;
+    c.row_width = 4;
+    c.surface_rows = {{0, 0, 0, 1}, {0, 0, 0, 2}};
+    return c;
+}
+
+}  // namespace
+
+TEST(Facade, SurfaceWithoutSurfelsIsRefusedNotRunWithAnothersRules) {
+    gamma_test::Builder b;
+    const Mesh m = floor_and_speck(b);
+    Config c = two_surfaces(200);
+    c.triangle_surface = {0, 0, 1};
+    const std::string msg = expect_error([&] { Simulation sim(m, c); });
+    EXPECT_NE(msg.find("surface 1 has 1 triangle(s)"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("received no surfel at 200 surfels"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("raise the surfel count"), std::string::npos) << msg;
+    // The same speck on surface 0 is fine (surface 1 has no triangles: never hit).
+    c.triangle_surface = {0, 0, 0};
+    Simulation sim(m, c);
+    EXPECT_EQ(sim.num_surfels(), 200u);
+    for (int32_t s : sim.surfel_surfaces()) EXPECT_EQ(s, 0);
+}
+
+TEST(Facade, SurfelStateRowsFollowTheirSurface) {
+    gamma_test::Builder b;
+    b.quad({0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0});
+    b.quad({1, 0, 0}, {2, 0, 0}, {2, 1, 0}, {1, 1, 0});
+    const Mesh m = b.mesh();
+    Config c = two_surfaces(300);
+    c.triangle_surface = {0, 0, 1, 1};
+    Simulation sim(m, c);
+    const SurfelState& st = sim.state();
+    ASSERT_EQ(st.size(), 300u);
+    EXPECT_EQ(st.width, 4);
+    for (size_t i = 0; i < st.size(); ++i) {
+        const int s = st.surface[i];
+        EXPECT_EQ(s, st.surf.position[3 * i] < 1.0f ? 0 : 1);
+        EXPECT_EQ(st.row(i)[3], float(s + 1));
+    }
+    EXPECT_EQ(sim.scene_index().geometry_builds(), 1);
+    EXPECT_EQ(sim.scene_index().surfel_builds(), 1);
+}
+
+TEST(Facade, BakerGivesTheSmoothedRowAndNeutralAlbedo) {
+    gamma_test::Builder b;
+    b.quad({0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0});
+    const Mesh m = b.mesh();
+    Config c = two_surfaces(400);
+    c.surface_rows = {{0, 0, 0, 0.25f}};
+    Simulation sim(m, c);
+    std::vector<float> rows = sim.rows();
+    for (size_t i = 0; i < sim.num_surfels(); ++i) rows[4 * i + 3] = sim.surfels().position[3 * i];  // x
+    sim.set_rows(rows.data());
+    const float pos[6] = {0.3f, 0.4f, 0, 0.7f, 0.2f, 0}, nrm[6] = {0, 0, 1, 0, 0, 1}, uv[4] = {0, 0, 0, 0};
+    const int32_t tri[2] = {0, 1};
+    float out_rows[8], rgb[6];
+    sim.bake_points(2, pos, nrm, tri, uv, 1, 2, out_rows, rgb);
+    for (int k = 0; k < 2; ++k) {
+        float ref[4];
+        sim.interpolate_row(0, pos + 3 * k, ref);
+        for (int col = 0; col < 4; ++col) EXPECT_EQ(out_rows[4 * k + col], ref[col]);
+        EXPECT_NEAR(out_rows[4 * k + 3], pos[3 * k], 0.05f);  // smoothing of x is about x
+        for (int col = 0; col < 3; ++col) EXPECT_EQ(rgb[3 * k + col], kNeutralAlbedo);
+    }
+    const int32_t bad[1] = {2};
+    EXPECT_NE(expect_error([&] { sim.bake_points(1, pos, nrm, bad, uv, 1, 1, out_rows, rgb); })
+                  .find("triangle 2 out of range"),
+              std::string::npos);
+}
