@@ -75,3 +75,39 @@ def test_leak_leaves_a_streak_below_the_pipe(tmp_path):
     assert stain[y > 1.75].sum() == 0                   # nothing runs upward
     column = np.abs(x) < 0.15
     assert stain[column].sum() > 0.95 * stain.sum()
+
+
+def test_rust_bleeds_below_the_chain_and_down_the_risers(tmp_path):
+    """Fig. 8: rust carried by rain lies on the cement below the chain, and
+    runs over the treads' nosings down the risers below it (flow), far more
+    than anywhere else on the staircase; only the paper's rain source."""
+    m, summary = run_small(tmp_path, "stain", "--surfels", 40000, "--iterations", 10)
+    it = summary["iterations"][-1]
+    assert it["flow_steps"] > 0 and it["bounces"] > 0
+    cement = m["surface"] == 1
+    rust, x, z = m["rust"], m["x"], m["z"]
+    below = np.abs(x + 0.3) < 0.15
+    stairs = cement & (z > 0.6) & (z < 1.5) & (m["y"] > 0.005)
+    assert rust[stairs & below].mean() > 5 * rust[cement & ~below].mean()
+    risers = cement & (m["nz"] > 0.9) & (z > 0.85) & (z < 1.25)
+    assert rust[risers & below].mean() > 3 * rust[risers & ~below].mean()
+    assert rust[risers & below].mean() > 0
+
+
+def test_hydrant_rusts_gathers_dust_and_moss_fills_the_joints(tmp_path):
+    """Fig. 1: the open joints between the floor tiles stay more humid than
+    the tile tops, so moss grows there; dust lies on the hydrant's faces
+    that look up; rust washes onto the floor around its foot."""
+    m, _ = run_small(tmp_path, "hydrant", "--surfels", 60000, "--iterations", 10)
+    stone, iron = m["surface"] == 1, m["surface"] == 0
+    r = np.hypot(m["x"], m["z"])
+    far = stone & (r > 0.45)
+    tops = far & (m["y"] > 0.029) & (m["ny"] > 0.9)
+    joints = far & (m["y"] < 0.001) & (m["ny"] > 0.9)
+    assert m["humidity"][joints].mean() > 1.5 * m["humidity"][tops].mean()
+    assert m["moss"][joints].mean() > 2 * m["moss"][tops].mean()
+    up, side = iron & (m["ny"] > 0.7), iron & (np.abs(m["ny"]) < 0.3)
+    assert m["dust"][up].mean() > 5 * m["dust"][side].mean()
+    assert m["rust"][iron].mean() > 0
+    foot = stone & (r > 0.17) & (r < 0.3)
+    assert m["rust"][foot].mean() > 10 * m["rust"][far].mean()
