@@ -23,6 +23,7 @@ struct Points {
 using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Points>, Points, 3, uint32_t>;
 constexpr float kRadiusInSigmas = 2.0f;
 constexpr float kMinNormalDot = 0.5f;  // cos 60°
+constexpr float kMaxPlaneOffsetInSigmas = 0.5f;  // a neighbour lies on the surfel's tangent plane
 }  // namespace
 
 SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
@@ -54,6 +55,10 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
                 if (j == s || surface[j] != surface[s]) continue;
                 const float* nj = normal + 3 * size_t(j);
                 if (ns[0] * nj[0] + ns[1] * nj[1] + ns[2] * nj[2] < kMinNormalDot) continue;
+                // Not on a parallel face nearby (the top of a step over the floor of a joint).
+                const float* pj = position + 3 * size_t(j);
+                const float off = (pj[0] - ps[0]) * ns[0] + (pj[1] - ps[1]) * ns[1] + (pj[2] - ps[2]) * ns[2];
+                if (std::fabs(off) > kMaxPlaneOffsetInSigmas * sigma) continue;
                 out.emplace_back(j, float(d2));
             }
             out.emplace_back(uint32_t(s), 0.0f);  // always in its own neighbourhood

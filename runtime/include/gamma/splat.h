@@ -1,6 +1,7 @@
 // The splat kernel (SPEC §13.2): a rule's surface deltas at a surfel are
 // spread over its neighbourhood -- surfels of the same surface within 2σ
-// whose normals are within 60° -- with Gaussian weights of width σ
+// whose normals are within 60° and that lie within σ/2 of its tangent plane
+// -- with Gaussian weights of width σ
 // normalised to 1, so amounts are conserved and cover about the same
 // number of surfels at any resolution.  Built once at setup; applied to the
 // merged per-surfel deltas after every tracing pass.
