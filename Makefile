@@ -18,7 +18,7 @@ WEB_MODULES := web/node_modules/.installed
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
-.PHONY: all demo stain erosion test deps install runtime-tests pytest bench clean fuzz coverage
+.PHONY: all demo stain moss-dirt leak-stain hydrant gallery erosion test deps install runtime-tests pytest bench clean fuzz coverage
 
 all: install
 
@@ -82,6 +82,16 @@ erosion: install
 	  --surfels 60000 --iterations 30 --out out/erosion
 	@echo "Erosion of the arch: $(abspath out/erosion)/renders/ (false colour of stone),"
 	@echo "  meshes/iter_0001.ply ... iter_0030.ply (the deformed mesh), summary.json (geometry, mass books)"
+
+# The paper's other results (examples/gallery.py holds scenes, options and
+# cameras): Fig. 9 moss suppressing dirt splatter, Fig. 10 a stain from a
+# leak (spot source), Fig. 1 rust, dust and moss around a hydrant.
+moss-dirt leak-stain hydrant: install
+	$(PY) examples/gallery.py run $@
+
+# Small pictures of every example and recipe for the README (docs/gallery/).
+gallery: install
+	$(PY) examples/gallery.py pictures
 
 # Runtime unit tests, built separately with AddressSanitizer + UBSan.
 runtime-tests: install

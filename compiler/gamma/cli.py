@@ -1,4 +1,4 @@
-"""The ``gammac`` command: ``check``, ``emit``, ``fmt`` and ``run``.
+"""The ``gammac`` command: ``check``, ``emit``, ``fmt``, ``recipes`` and ``run``.
 
 Only argument parsing and reporting live here: the front end checks, the
 back ends compile, the driver runs; this module turns their errors into
@@ -158,6 +158,8 @@ def _parser() -> argparse.ArgumentParser:
     how = f.add_mutually_exclusive_group()
     how.add_argument("--write", "-w", action="store_true", help="rewrite the file in place")
     how.add_argument("--check", action="store_true", help="exit 1 if the file is not formatted")
+    rc = sub.add_parser("recipes", help="list the standard library's recipes, their parameters and defaults")
+    rc.add_argument("--verbose", "-v", action="store_true", help="print each recipe's whole description")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
     _add_run_options(r)
@@ -509,6 +511,11 @@ def main(argv=None) -> int:
             return _watch(args)
         if args.command in ("render", "export"):
             return _saved(args)
+        if args.command == "recipes":
+            from .frontend.recipes import describe, stdlib_recipes
+
+            sys.stdout.write(describe(stdlib_recipes(), verbose=args.verbose))
+            return EXIT_OK
         if args.command == "sweep":
             return _sweep(args)
         effect = _load(args.file, getattr(args, "param", ()))

@@ -166,12 +166,12 @@ NB_MODULE(_runtime, m) {
             "down", [](const gammart::Config& c) { return c.down; },
             [](gammart::Config& c, std::array<float, 3> d) { c.down = d; })
         .def("add_ton_type", &gammart::Config::add_ton_type, "ks"_a, "kp"_a, "kf"_a, "initial_carry"_a,
-             "bounce_distance"_a, "flow_step"_a)
+             "bounce_distance"_a, "flow_step"_a, "drip_angle_deg"_a = 10.0f)
         .def(
             "add_source",
             [](gammart::Config& c, std::string kind, int ton_type, int64_t count, std::array<float, 3> position,
                std::array<float, 3> direction, float angle_deg, float falloff, std::array<float, 2> size,
-               float radius, std::string emission, int first_iteration, int last_iteration) {
+               float radius, std::string emission, int first_iteration, int last_iteration, float strength) {
                 gammart::Source s;
                 s.kind = std::move(kind);
                 s.ton_type = ton_type;
@@ -185,12 +185,13 @@ NB_MODULE(_runtime, m) {
                 s.emission = std::move(emission);
                 s.first_iteration = first_iteration;
                 s.last_iteration = last_iteration;
+                s.strength = strength;
                 return c.add_source(std::move(s));
             },
             "kind"_a, "ton_type"_a, "count"_a, "position"_a = std::array<float, 3>{0, 0, 0},
             "direction"_a = std::array<float, 3>{0, -1, 0}, "angle_deg"_a = 0.0f, "falloff"_a = 0.0f,
             "size"_a = std::array<float, 2>{0, 0}, "radius"_a = 0.0f, "emission"_a = "parallel",
-            "first_iteration"_a = 1, "last_iteration"_a = 0)
+            "first_iteration"_a = 1, "last_iteration"_a = 0, "strength"_a = 0.0f)
         .def("set_transport", &gammart::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
              "writes_surface"_a)
         .def("set_update", &gammart::Config::set_update, "surface"_a, "address"_a)

@@ -73,6 +73,8 @@ std::vector<int32_t> validate_config(const Config& c, const Mesh& mesh) {
             fail(at + "bounce_distance must be positive and finite");
         if (!std::isfinite(tt.flow_step) || !(tt.flow_step > 0))
             fail(at + "flow_step must be positive and finite");
+        if (!(tt.drip_angle_deg >= 0 && tt.drip_angle_deg <= 90))
+            fail(at + "drip_angle_deg must be in [0, 90]");
     }
     for (size_t i = 0; i < c.shape_rates.size(); ++i) {
         const ShapeRate& r = c.shape_rates[i];

@@ -13,6 +13,7 @@
 #include "gamma/error.h"
 #include "gamma/kernel_table.h"
 #include "gamma/render.h"
+#include "gamma/splat.h"
 #include "gamma/surfels.h"
 #include "gamma/threads.h"
 
@@ -225,6 +226,12 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     mesh = std::move(rt.mesh);
     state = std::move(fresh);
     index = std::move(rebuilt);
+    // The new surfels need their own splat neighbourhoods (SPEC §13.2); the old
+    // kernel's offsets no longer match and would silently switch spreading off.
+    run_with_threads(c.threads, [&] {
+        state.splat = build_splat_kernel(state.surf.position.data(), state.surf.normal.data(),
+                                         state.surface.data(), state.size(), index->sigma());
+    });
     frame = SceneFrame::of(mesh, c.down);
     before_ = state.rows;
     st.geometry = measure(mesh);

@@ -63,6 +63,10 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
     index_->build_surfels(state_.surf.position.data(), state_.surface.data(), state_.size(),
                           float(std::sqrt(mesh_.area() / double(state_.size()))));
     require_surfels_on_every_surface(mesh_, *index_, c.surfels);
+    run_with_threads(c.threads, [&] {
+        state_.splat = build_splat_kernel(state_.surf.position.data(), state_.surf.normal.data(),
+                                          state_.surface.data(), state_.size(), index_->sigma());
+    });
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
 }
 

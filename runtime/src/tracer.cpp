@@ -38,6 +38,14 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     const uint64_t seed = c.seed;
     const uint32_t iter_u = uint32_t(iteration);
     const V3 up = frame.up;
+    // Weight of each active source's gamma-tons (SPEC §13.2): strength * n / N.
+    std::vector<float> weight;
+    for (size_t k = 0; k < sched.active.size(); ++k) {
+        const Source& so = c.sources[sched.active[k]];
+        weight.push_back(so.strength > 0 && so.count > 0
+                             ? float(double(so.strength) * double(state.size()) / double(so.count))
+                             : 1.0f);
+    }
 
     auto run_chunk = [&](int64_t ci) {
         ChunkLog& log = logs_[size_t(ci)];
@@ -59,6 +67,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             const int ci = MP[j].carry[size_t(type)];
             return ci >= 0 ? double(carry[size_t(ci)]) : 0.0;
         };
+        float ton_weight = 1.0f;
         auto call = [&](const TransportSlot& sl, uint32_t s, GammaContext& ctx, uint64_t interaction_key) {
             set_random_key(ctx, mix64(interaction_key ^ uint64_t(sl.event)));
             for (size_t j = 0; j < M; ++j) carried_before[j] = float(carried(j, sl.ton_type));
@@ -68,12 +77,15 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             } else {
                 std::fill(delta.begin() + GAMMA_ROW_HEADER, delta.end(), 0.0f);
                 bad = sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
+                if (ton_weight != 1.0f)
+                    for (int j = GAMMA_ROW_HEADER; j < W; ++j) delta[size_t(j)] *= ton_weight;
                 log.record(s, delta.data() + GAMMA_ROW_HEADER, P);
             }
             for (size_t j = 0; j < M; ++j) {
                 const int col = MP[j].column[size_t(sl.surface)];
                 const double ds = sl.writes && col >= 0 ? double(delta[size_t(col)]) : 0.0;
-                const double dt = carried(j, sl.ton_type) - double(carried_before[j]);
+                // a gamma-ton stands for ton_weight of its source's strength (SPEC §13.2): so does what it carries
+                const double dt = (carried(j, sl.ton_type) - double(carried_before[j])) * ton_weight;
                 MassBooks& b = st.mass[j];
                 if (ds < 0) b.removed -= ds;
                 else b.deposited += ds;
@@ -83,7 +95,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
         };
         // A gamma-ton's life ends: what it still carries escapes or is dropped.
         auto end_life = [&](int type, bool settled) {
-            for (size_t j = 0; j < M; ++j) (settled ? st.mass[j].dropped : st.mass[j].escaped) += carried(j, type);
+            for (size_t j = 0; j < M; ++j) (settled ? st.mass[j].dropped : st.mass[j].escaped) += carried(j, type) * ton_weight;
         };
         Walker w(index, frame, st);
 
@@ -92,6 +104,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             const size_t src = sched.active[a];
             const int type = c.sources[src].ton_type;
             const TonType& tt = c.ton_types[size_t(type)];
+            ton_weight = weight[a];
             PhiloxStream rng(seed, iter_u, uint64_t(g));
             float ks = tt.ks, kp = tt.kp, kf = tt.kf;
             std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
@@ -99,7 +112,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             emit(sources_[src], rng, org, d0);
             int inter = 0;
             ++st.emitted;
-            for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type);
+            for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type) * ton_weight;
             if (!w.straight(org, d0, 0.0f)) {
                 ++st.escaped;
                 end_life(type, false);
@@ -160,7 +173,8 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     TraceStats total_st;
     total_st.mass.assign(c.mass_properties.size(), MassBooks{});
     for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
-    apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_, c.threads);
+    apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_, c.threads,
+                     &state.splat);
     total_st.trace_seconds = seconds_since(t0);
     return total_st;
 }

@@ -72,6 +72,7 @@ def runtime_module():
 #: Defaults for ton types that do not say, as fractions of the scene diagonal.
 DEFAULT_BOUNCE = Length(0.02, relative=True)
 DEFAULT_STEP = Length(0.005, relative=True)
+DEFAULT_DRIP_DEGREES = 10.0  # SPEC §4: water clings to walls and slight overhangs
 #: Upper bounds on options, so a typo cannot ask for terabytes.
 LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
           "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
@@ -112,7 +113,7 @@ def _direction(value, down) -> tuple[float, float, float]:
 def source_arguments(src: Source, lo, hi, diagonal: float, down) -> dict:
     """The runtime's ``add_source`` keyword arguments, in scene units."""
     p = src.params
-    args = {"first_iteration": src.first, "last_iteration": src.last}
+    args = {"first_iteration": src.first, "last_iteration": src.last, "strength": src.strength or 0.0}
     if "position" in p:
         args["position"] = p["position"].resolve(lo, hi)
     if "direction" in p:
@@ -146,7 +147,8 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
     for ton in effect.tons.values():
         bounce = (ton.bounce or DEFAULT_BOUNCE).resolve(diagonal)
         step = (ton.step or DEFAULT_STEP).resolve(diagonal)
-        cfg.add_ton_type(*ton.motion, ton.initial, bounce, step)
+        drip = DEFAULT_DRIP_DEGREES if ton.drip is None else ton.drip
+        cfg.add_ton_type(*ton.motion, ton.initial, bounce, step, drip)
     counts = [s.count for s in effect.sources]
     if opts.tons is not None:
         counts = split_counts(counts, opts.tons)

@@ -138,7 +138,8 @@ class TonDecl:
     carry: list[Init] = field(default_factory=list)
     bounce: Expr | None = None
     step: Expr | None = None
-    repeated: list[tuple[str, Expr]] = field(default_factory=list)  # 2nd 'bounce'/'step'
+    drip: Expr | None = None        # drip angle, degrees
+    repeated: list[tuple[str, Expr]] = field(default_factory=list)  # 2nd 'bounce'/'step'/'drip'
 
 
 @dataclass
@@ -170,6 +171,8 @@ class SourceDecl:
     first: Expr | None = None   # `from N`
     last: Expr | None = None    # `until N`
     repeated_window: list[Expr] = field(default_factory=list)
+    strength: Expr | None = None  # `strength S`
+    repeated_strength: list[Expr] = field(default_factory=list)
 
 
 @dataclass

@@ -209,8 +209,14 @@ class _Checker:
             self.error(expr.pos, f"'{key}' is given twice in ton {d.name}")
         bounce = self.length(d.bounce, "the bounce distance") if d.bounce is not None else None
         step = self.length(d.step, "the flow step") if d.step is not None else None
+        drip = None
+        if d.drip is not None:
+            drip = self.constant(d.drip, "the drip angle")
+            if drip is not None and not (0.0 <= drip <= 90.0):
+                self.error(d.drip.pos, f"the drip angle must be between 0 and 90 degrees, not {drip:g}")
+                drip = None
         return TonType(d.name, index, values, {n: i for i, n in enumerate(carry)},
-                       [v for v, _ in carry.values()], bounce, step, d)
+                       [v for v, _ in carry.values()], bounce, step, drip, d)
 
     def surface(self, d: A.SurfaceDecl, index: int) -> Surface:
         refl = self.inits(d.reflectance, "reflectance", MOTION_NAMES, unit=True)
@@ -393,6 +399,14 @@ class _Checker:
             ok = False
         for extra in d.repeated_window:
             self.error(extra.pos, "'from' or 'until' is given twice")
+        for extra in d.repeated_strength:
+            self.error(extra.pos, "'strength' is given twice")
+        strength = None
+        if d.strength is not None:
+            strength = self.constant(d.strength, "the strength of a source")
+            if strength is not None and not (math.isfinite(strength) and strength > 0):
+                self.error(d.strength.pos, f"the strength of a source must be a positive number, not {strength:g}")
+                ok = False
         first = self.iteration_number(d.first, "'from'")
         last = self.iteration_number(d.last, "'until'")
         if first and last and last < first:
@@ -406,7 +420,7 @@ class _Checker:
         if not ok or params is None or count is None or first is None or last is None:
             return None
         kind = params.get("shape", d.kind) if d.kind in SHAPED_KINDS else d.kind
-        return Source(d.name, kind, ton.index, int(count), params, first or 1, last, d)
+        return Source(d.name, kind, ton.index, int(count), params, first or 1, last, d, strength)
 
 
     # -- rules --

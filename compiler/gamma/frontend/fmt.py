@@ -190,13 +190,13 @@ class _Layout:
                 shown.append(_expr(a.children[0]))
         text = f"source {name} = {kind}({', '.join(shown)}) emits {ton} count {_expr(count)}"
         for w in windows:
-            word = "from" if w.data == "window_from" else "until"
+            word = {"window_from": "from", "window_until": "until", "window_strength": "strength"}[w.data]
             text += f" {word} {_expr(w.children[0])}"
         return text
 
     def item(self, node, indent):
         """One item of a ton or surface block."""
-        word = node.data  # motion, carry, bounce, step, reflectance, property
+        word = node.data  # motion, carry, bounce, step, drip, reflectance, property
         value = node.children[0]
         shown = _inits(value.children) if isinstance(value, Tree) and value.data == "init_list" \
             else _expr(value)

@@ -129,6 +129,9 @@ class _ToAst(Transformer):
     def step(self, meta, c):
         return ("step", c[0])
 
+    def drip(self, meta, c):
+        return ("drip", c[0])
+
     def reflectance(self, meta, c):
         return ("reflectance", c[0])
 
@@ -178,6 +181,9 @@ class _ToAst(Transformer):
     def window_until(self, meta, c):
         return ("last", c[0])
 
+    def window_strength(self, meta, c):
+        return ("strength", c[0])
+
     def source_decl(self, meta, c):
         name, kind = c[0], c[1]
         rest = list(c[2:])
@@ -191,6 +197,8 @@ class _ToAst(Transformer):
         for key, expr in windows:
             if getattr(decl, key) is None:
                 setattr(decl, key, expr)
+            elif key == "strength":
+                decl.repeated_strength.append(expr)
             else:
                 decl.repeated_window.append(expr)
         return decl

@@ -56,6 +56,7 @@ class TonType:
     initial: list[float]
     bounce: Length | None          # None: the runner's default
     step: Length | None
+    drip: float | None             # drip angle in degrees (SPEC §4); None: the runner's default
     decl: object                   # ast.TonDecl (positions for warnings)
 
 
@@ -80,6 +81,7 @@ class Source:
     first: int                     # first iteration it emits in (1-based)
     last: int                      # last iteration it emits in; 0 = no end
     decl: object                   # ast.SourceDecl
+    strength: float | None = None  # SPEC §13.2; None: every gamma-ton weighs 1
 
 
 # ---- rule bodies ----------------------------------------------------------------------

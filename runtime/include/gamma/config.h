@@ -17,6 +17,7 @@ struct TonType {
     std::vector<float> initial_carry;
     float bounce_distance = 1;  // scene units: range of a 45-degree launch on flat ground
     float flow_step = 1;        // scene units: length of one flow step
+    float drip_angle_deg = 10;  // flow clings to faces turned down at most this far past vertical
 };
 
 struct Source {
@@ -32,6 +33,7 @@ struct Source {
     std::string emission = "parallel";  // rect/disk: parallel | uniform | cosine
     int first_iteration = 1;          // active in first..last (inclusive)
     int last_iteration = 0;           // 0 = no end
+    float strength = 0;               // > 0: gamma-tons weigh strength * surfels / count (SPEC 13.2); 0: weight 1
 };
 
 struct TransportEntry {
@@ -88,8 +90,8 @@ struct Config {
     std::vector<MassProperty> mass_properties;
 
     int add_ton_type(float ks, float kp, float kf, std::vector<float> carry, float bounce_distance = 1.0f,
-                     float flow_step = 1.0f) {
-        ton_types.push_back({ks, kp, kf, std::move(carry), bounce_distance, flow_step});
+                     float flow_step = 1.0f, float drip_angle_deg = 10.0f) {
+        ton_types.push_back({ks, kp, kf, std::move(carry), bounce_distance, flow_step, drip_angle_deg});
         return int(ton_types.size()) - 1;
     }
     int add_source(Source s) {

@@ -44,7 +44,7 @@ using MotionStep = FlightEnd (*)(Walker& w, PhiloxStream& rng, const TonType& tt
 
 FlightEnd reflect_step(Walker& w, PhiloxStream& rng, const TonType& tt);  // §14.1 straight
 FlightEnd bounce_step(Walker& w, PhiloxStream& rng, const TonType& tt);   // §14.2 parabolic
-FlightEnd flow_step(Walker& w, PhiloxStream& rng, const TonType& tt);     // §14.3 flow
+FlightEnd flow_step(Walker& w, PhiloxStream& rng, const TonType& tt);     // §14.3 flow (gamma/flow.h)
 
 // The step of each event, indexed by GAMMA_EVENT_*; nullptr for events that
 // do not move (hit, settle).
