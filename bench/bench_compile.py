@@ -23,8 +23,8 @@ ROOT = Path(__file__).resolve().parent.parent
 MEASURE = """
 import json, time
 t0 = time.perf_counter()
-from gamma.checker import load
-from gamma.backend import JitKernels
+from gamma.frontend.checker import load
+from gamma.backends.jit import JitKernels
 t1 = time.perf_counter()
 effect = load({path!r})
 t2 = time.perf_counter()

@@ -20,9 +20,9 @@ from pathlib import Path
 
 from report import cpu_name, report
 
-from gamma.backend import JitKernels
-from gamma.checker import load
-from gamma.runner import RunOptions, build_config, runtime_module
+from gamma.backends.jit import JitKernels
+from gamma.frontend.checker import load
+from gamma.driver.runner import RunOptions, build_config, runtime_module
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"

@@ -13,10 +13,11 @@ from pathlib import Path
 
 from bench_patina import SCENE
 from report import cpu_name, report
-from gamma.backend import JitKernels
-from gamma.checker import check
-from gamma.parser import parse
-from gamma.runner import RunOptions, auto_camera, build_config, runtime_module, sun_direction
+from gamma.backends.jit import JitKernels
+from gamma.frontend.checker import check
+from gamma.frontend.parser import parse
+from gamma.driver.camera import auto_camera, sun_direction
+from gamma.driver.runner import RunOptions, build_config, runtime_module
 
 ROOT = Path(__file__).resolve().parent.parent
 EFFECT = """
@@ -58,7 +59,7 @@ def main() -> None:
     # Baking: a 1024 x 1024 texture of Spot (issue 5 goal: under 2 s).
     import numpy as np
 
-    from gamma.export import Piece, bake
+    from gamma.driver.export import Piece, bake
 
     spot_mesh = rt.Mesh.load(str(ROOT / "examples" / "scenes" / "spot.obj"))
     spot_cfg = build_config(rt, effect, kernels, RunOptions(scene="", out="", surfels=100_000, threads=2),

@@ -18,10 +18,10 @@ import time
 from pathlib import Path
 
 from report import cpu_name, report
-from gamma.backend import JitKernels
-from gamma.checker import load
-from gamma.runner import RunOptions, build_config, runtime_module
-from gamma.scene import load_scene
+from gamma.backends.jit import JitKernels
+from gamma.frontend.checker import load
+from gamma.driver.runner import RunOptions, build_config, runtime_module
+from gamma.driver.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 

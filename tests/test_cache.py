@@ -4,9 +4,9 @@ import ctypes
 
 import numpy as np
 
-from gamma.backend import JitKernels
-from gamma.checker import check
-from gamma.parser import parse
+from gamma.backends.jit import JitKernels
+from gamma.frontend.checker import check
+from gamma.frontend.parser import parse
 from test_kernels import HEADER, TRANSPORT, GammaContext, ptr
 
 RULE = "on hit(t: T, s: S) { t.a = t.a * {k} + s.p  s.q += exp(t.b) }"

@@ -9,10 +9,10 @@ import pytest
 from PIL import Image
 
 from conftest import ROOT, run_gammac
-from gamma.backend import JitKernels
-from gamma.checker import load
-from gamma.export import bake
-from gamma.runner import RunOptions, build_config, runtime_module
+from gamma.backends.jit import JitKernels
+from gamma.frontend.checker import load
+from gamma.driver.export import bake
+from gamma.driver.runner import RunOptions, build_config, runtime_module
 
 SPOT = ROOT / "examples" / "scenes" / "spot.obj"
 
@@ -85,10 +85,10 @@ def test_baked_texels_hold_the_values_of_their_surface_points():
     rows = sim.rows()
     rows[:, 3] = sim.surfel_positions()[:, 0]
     sim.set_rows(rows)
-    from gamma.export import rasterise_uv
+    from gamma.driver.export import rasterise_uv
 
     size = 128
-    from gamma.export import Piece
+    from gamma.driver.export import Piece
 
     corner_uvs = np.asarray(mesh.triangle_uvs())
     piece = Piece("spot", np.arange(mesh.num_triangles), np.asarray(mesh.vertices()),

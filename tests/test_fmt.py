@@ -1,4 +1,4 @@
-"""gammac fmt: the canonical layout (gamma.fmt.format_source).
+"""gammac fmt: the canonical layout (gamma.frontend.fmt.format_source).
 
 Formatting is idempotent, keeps every comment and keeps the meaning: the
 formatted file parses to the same AST as the original, positions aside.
@@ -10,9 +10,9 @@ import re
 import pytest
 
 from conftest import ROOT
-from gamma.diagnostics import GammaError
-from gamma.fmt import format_source
-from gamma.parser import parse
+from gamma.frontend.diagnostics import GammaError
+from gamma.frontend.fmt import format_source
+from gamma.frontend.parser import parse
 
 
 def _dump(node):

@@ -3,7 +3,7 @@
 import pytest
 
 from conftest import ROOT, run_gammac
-from gamma.checker import load
+from gamma.frontend.checker import load
 
 
 def write(path, text):

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from gamma import abi
-from gamma.backend import JitKernels
-from gamma.checker import check
-from gamma.interp import Context, run_kernel
-from gamma.parser import parse
+from gamma.backends.jit import JitKernels
+from gamma.frontend.checker import check
+from gamma.backends.interp import Context, run_kernel
+from gamma.frontend.parser import parse
 
 
 _CTYPE = {"float": ctypes.c_float, "int32_t": ctypes.c_int32, "uint32_t": ctypes.c_uint32}
@@ -186,7 +186,7 @@ def random_color(rng, depth=0):
 def test_appearance_matches_interpreter(tmp_path, seed):
     from PIL import Image
 
-    from gamma.interp import run_appearance
+    from gamma.backends.interp import run_appearance
 
     for name in ("a.png", "b.png"):
         Image.new("RGB", (2, 2)).save(tmp_path / name)
@@ -196,7 +196,7 @@ def test_appearance_matches_interpreter(tmp_path, seed):
                        for _ in range(rng.randint(1, 3)))
     path = tmp_path / "look.gamma"
     path.write_text(HEADER + f"appearance(s: S) {{\n  {body}\n}}\n")
-    from gamma.checker import load
+    from gamma.frontend.checker import load
 
     effect = load(str(path))
     kernel = effect.appearance_kernels()[0]

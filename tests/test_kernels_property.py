@@ -11,10 +11,10 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gamma.backend import JitKernels
-from gamma.checker import COLOR_FUNCTIONS, FUNCTIONS, check
-from gamma.interp import Context, run_kernel
-from gamma.parser import parse
+from gamma.backends.jit import JitKernels
+from gamma.frontend.checker import COLOR_FUNCTIONS, FUNCTIONS, check
+from gamma.backends.interp import Context, run_kernel
+from gamma.frontend.parser import parse
 from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, ptr, same, set_key
 
 READS = ["t.a", "t.b", "s.p", "s.q", "s.reflectance.straight", "iteration", "interactions",

@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from conftest import ROOT, run_gammac
-from gamma.outputs import read_ply
+from gamma.driver.outputs import read_ply
 
 
 @pytest.fixture(scope="module")

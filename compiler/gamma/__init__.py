@@ -1,9 +1,14 @@
 """gamma: weathering effects by gamma-ton tracing (Chen et al., SIGGRAPH 2005).
 
-Compiler pipeline: ``parser`` (lark) -> ``ast`` -> ``checker`` -> ``codegen``
-(llvmlite IR) -> ``backend`` (verify, optimise, JIT).  ``interp`` is the
-reference interpreter over the same AST.  ``runner`` drives the C++ runtime
-(``gamma._runtime``); ``cli`` is the ``gammac`` command.
+    frontend/   source text -> AST -> checked effect; diagnostics; formatter
+    backends/   LLVM code generation + verify/optimise/JIT; reference interpreter
+    driver/     the run loop over the C++ runtime (``gamma._runtime``), its
+                writers (maps, renders, summary, export), scene loading
+    abi.py      the compiler <-> runtime interface, declared once
+    files.py    atomic file writes
+    cli.py      the ``gammac`` command
+
+Dependencies point one way: cli -> driver -> backends -> frontend -> abi.
 """
 
 __version__ = "0.1.0"

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .checker import UsageError
-from .diagnostics import GammaError
+from .frontend.checker import UsageError
+from .frontend.diagnostics import GammaError
 
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
@@ -132,9 +132,9 @@ def _read(path: str) -> str:
 
 
 def _load(path: str, params=()):
-    from .checker import check
-    from .diagnostics import render
-    from .parser import parse
+    from .frontend.checker import check
+    from .frontend.diagnostics import render
+    from .frontend.parser import parse
 
     overrides = {}
     for name, value in params:
@@ -154,8 +154,8 @@ class _Fail(Exception):
 def _fmt(args) -> int:
     from pathlib import Path
 
-    from .fmt import format_source
-    from .outputs import atomic_write
+    from .frontend.fmt import format_source
+    from .files import atomic_write
 
     text = _read(args.file)
     formatted = format_source(text, args.file)
@@ -181,12 +181,12 @@ def main(argv=None) -> int:
         if args.command == "check":
             return EXIT_OK
         if args.command == "emit":
-            from .backend import assembly, compile_ir
-            from .codegen import generate
+            from .backends.jit import assembly, compile_ir
+            from .backends.codegen import generate
 
             if args.what == "ast":
-                from .ast import dump
-                from .parser import parse
+                from .frontend.ast import dump
+                from .frontend.parser import parse
 
                 sys.stdout.write(dump(parse(effect.source, effect.path).decls) + "\n")
                 return EXIT_OK
@@ -199,7 +199,7 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .runner import RunError, RunOptions, run
+        from .driver.runner import RunError, RunOptions, run
 
         opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down, view=args.view, eye=args.eye, fov=args.fov,
                           iterations=args.iterations, surfels=args.surfels, tons=args.tons,

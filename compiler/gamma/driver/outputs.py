@@ -1,40 +1,19 @@
 """What a run writes: PLY maps, false-colour PNG renders, summary.json.
 
-Every file is written atomically (to a temporary name in the same folder,
-then renamed), so an interrupted run never leaves a half-written file.
+Pure encoders (bytes in memory) plus ``write_json``; every file is written
+with ``gamma.files.atomic_write``, so an interrupted run never leaves a
+half-written file.  Nothing here touches the simulation.
 """
 
 from __future__ import annotations
 
 import io
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual mode
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+from ..files import atomic_write
 
 
 def ply_bytes(columns: dict[str, np.ndarray], comments: list[str] = ()) -> bytes:

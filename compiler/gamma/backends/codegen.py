@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from llvmlite import ir
 
-from . import abi
-from . import ast as A
-from .checker import Effect, Kernel, Scope
+from .. import abi
+from ..frontend import ast as A
+from ..frontend.checker import Effect, Kernel, Scope
 
 F32 = ir.FloatType()
 I32 = ir.IntType(32)

@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import abi
+from .. import abi
 from . import ast as A
 from .diagnostics import Diagnostic, GammaError, did_you_mean
 
@@ -384,11 +384,11 @@ def _display_path(path: Path) -> str:
 
 
 def stdlib_dir() -> Path:
-    here = Path(__file__).resolve().parent
-    for candidate in (here / "stdlib", here.parent.parent / "stdlib"):
+    package = Path(__file__).resolve().parent.parent   # installed: gamma/stdlib
+    for candidate in (package / "stdlib", package.parent.parent / "stdlib"):
         if candidate.is_dir():
             return candidate
-    return here / "stdlib"
+    return package / "stdlib"
 
 
 # ---- the checker ---------------------------------------------------------------------

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import ast as A
-from .abi import random_value
-from .checker import Kernel, Scope
+from ..frontend import ast as A
+from ..abi import random_value
+from ..frontend.checker import Kernel, Scope
 
 f32 = np.float32
 

@@ -22,8 +22,8 @@ _DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update|param|import|ass
 
 
 def grammar_path() -> Path:
-    here = Path(__file__).resolve().parent
-    for candidate in (here / "gamma.lark", here.parent.parent / "language" / "gamma.lark"):
+    package = Path(__file__).resolve().parent.parent   # installed: gamma/gamma.lark
+    for candidate in (package / "gamma.lark", package.parent.parent / "language" / "gamma.lark"):
         if candidate.is_file():
             return candidate
     raise FileNotFoundError("gamma.lark not found next to the compiler or in language/")

@@ -16,7 +16,7 @@ from pathlib import Path
 import llvmlite.binding as llvm
 from llvmlite import ir
 
-from .checker import Effect
+from ..frontend.checker import Effect
 from .codegen import generate
 
 
@@ -68,7 +68,7 @@ def cache_dir() -> Path | None:
 
 def cache_key(ir_text: str) -> str:
     """Everything the machine code depends on: compiler, ABI, LLVM, host CPU, IR."""
-    from . import __version__, abi
+    from .. import __version__, abi
 
     _initialise()
     parts = [__version__, str(abi.ABI_VERSION), ".".join(map(str, llvm.llvm_version_info)),
@@ -103,7 +103,7 @@ class JitKernels:
             if path is None or cached is not None:
                 return
             try:
-                from .outputs import atomic_write
+                from ..files import atomic_write
 
                 atomic_write(path, bytes(data))
             except OSError:

@@ -1,14 +1,14 @@
-"""``gammac run``: compile an effect, hand its kernels to the C++ runtime,
-iterate (trace, merge, update) and write the outputs.
+"""``gammac run``: set a run up and iterate it.
 
-This module (with ``scene.py``, which assembles the mesh) is what talks to
-``gamma._runtime``: it turns a checked ``Effect`` plus command-line options
-into the runtime's ``Config`` and the run's outputs.
+``Run.start`` turns a checked ``Effect`` plus options into the runtime's
+``Config`` and ``Simulation`` (with ``scene.py``, which assembles the mesh);
+``run`` iterates (trace, update) and publishes the loop's events to writers
+(``events.py``, ``writers.py``).  This module writes no file itself: every
+output is a writer, so adding one never touches the loop.
 """
 
 from __future__ import annotations
 
-import io
 import math
 import sys
 import time
@@ -17,12 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import abi, __version__
-from .ast import Pos
-from .backend import JitKernels
-from .checker import Effect, Length, Source
-from .diagnostics import Diagnostic, GammaError
-from .outputs import atomic_write, false_colour_png, ply_bytes, write_json
+from .. import abi, __version__
+from ..frontend.ast import Pos
+from ..backends.jit import JitKernels
+from ..frontend.checker import Effect, Length, Source
+from ..frontend.diagnostics import Diagnostic, GammaError
 
 
 class RunError(Exception):
@@ -55,7 +54,7 @@ class RunOptions:
 
 
 def runtime_module():
-    from . import _runtime as rt
+    from .. import _runtime as rt
 
     if rt.ABI_VERSION != abi.ABI_VERSION:
         raise RunError(f"runtime ABI {rt.ABI_VERSION} does not match compiler ABI "
@@ -170,58 +169,6 @@ def load_textures(effect: Effect) -> list[np.ndarray]:
     return images
 
 
-def sun_direction(camera) -> tuple[float, float, float]:
-    """Toward the sun: above the scene, over the camera's left shoulder."""
-    eye, target, up, _ = (np.asarray(v, float) if i < 3 else v for i, v in enumerate(camera))
-    view = eye - target
-    view /= np.linalg.norm(view)
-    left = np.cross(up, view)
-    sun = 1.0 * up + 0.45 * view + 0.5 * left
-    return tuple(sun / np.linalg.norm(sun))
-
-
-DEFAULT_VIEW = (-0.6, 0.35, 1.0)   # front-left-above for a +z-facing, y-up model
-
-
-def auto_camera(bounds, view=DEFAULT_VIEW, down=(0.0, -1.0, 0.0), fov_deg: float = 30.0):
-    """Eye, target and up framing the scene's bounding box; ``view`` points from
-    the scene's centre toward the camera, "up" is against gravity."""
-    lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
-    centre = (lo + hi) / 2
-    radius = np.linalg.norm(hi - lo) / 2
-    direction = np.asarray(view, float)
-    direction /= np.linalg.norm(direction)
-    up = -np.asarray(down, float) / np.linalg.norm(down)
-    if not 1.0 <= fov_deg <= 170.0:
-        raise RunError(f"--fov must be between 1 and 170 degrees, not {fov_deg:g}")
-    if abs(float(np.dot(up, direction))) > 0.999:   # looking straight along gravity
-        up = np.array([0.0, 0.0, -1.0]) if abs(up[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    distance = radius / math.sin(math.radians(fov_deg) / 2) * 1.02
-    return tuple(centre + direction * distance), tuple(centre), tuple(up), fov_deg
-
-
-class Progress:
-    """A one-line progress bar on a terminal; a line per step otherwise."""
-
-    def __init__(self, total: int, enabled: bool):
-        self.total, self.enabled = total, enabled
-        self.tty = sys.stderr.isatty()
-
-    def update(self, done: int, note: str) -> None:
-        if not self.enabled:
-            return
-        width = 30
-        filled = int(width * done / max(1, self.total))
-        line = f"[{'#' * filled}{'.' * (width - filled)}] {done}/{self.total} {note}"
-        if self.tty:
-            sys.stderr.write("\r" + line.ljust(100)[:120])
-            if done == self.total:
-                sys.stderr.write("\n")
-        else:
-            sys.stderr.write(line + "\n")
-        sys.stderr.flush()
-
-
 def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarray) -> dict:
     """One column per property name of any surface; 0 where a surfel's surface lacks it."""
     columns: dict[str, np.ndarray] = {}
@@ -267,7 +214,74 @@ STAT_KEYS = ("emitted", "settled", "escaped", "capped", "interactions", "rays",
              "bounces", "flow_steps", "drips", "segments")
 
 
-def run(effect: Effect, opts: RunOptions) -> dict:
+def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
+    """Simulate ``effect`` with ``opts``; the standard outputs, then ``writers``,
+    receive the run's events (``events.py``).  Returns the summary."""
+    from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
+    from .writers import standard_writers
+
+    session = start(effect, opts)
+    subscribers = standard_writers(session) + list(writers)
+    try:
+        with session.behind:   # leaving it waits for the writers' queued jobs
+            publish(subscribers, SetupDone(session))
+            for it in range(1, opts.iterations + 1):
+                traced = session.trace(it)
+                publish(subscribers, IterationTraced(session, it, traced))
+                rows, props, record = session.update(it, traced)
+                publish(subscribers, IterationUpdated(session, it, rows, props, record))
+            publish(subscribers, RunFinished(session, session.summary))
+    except OSError as err:
+        raise RunError(f"cannot write to '{session.out}': {err.strerror or err}") from None
+    return session.summary
+
+
+@dataclass
+class Run:
+    """One run's state, shared by the loop and its writers.  Writers read it;
+    only the loop advances ``sim`` (and only on the loop's thread)."""
+
+    effect: Effect
+    opts: RunOptions
+    out: Path
+    rt: object                     # gamma._runtime
+    scene: object                  # scene.Scene
+    kernels: JitKernels            # owns the machine code ``sim`` calls: keep alive
+    sim: object                    # gamma._runtime.Simulation
+    camera: tuple                  # eye, target, up, fov (camera.auto_camera)
+    threads: int
+    shown: str | None              # the property rendered in false colour
+    looks: bool                    # the effect has appearance blocks
+    surfel_surface: np.ndarray     # surface index per surfel
+    static_columns: dict           # x y z nx ny nz surface per surfel
+    summary: dict                  # what summary.json holds (grows per iteration)
+    nonfinite: "NonFiniteReport"
+    behind: object                 # events.WriteQueue: jobs run in order behind the loop
+
+    def trace(self, it: int) -> dict:
+        """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
+        return self.sim.trace(it)
+
+    def update(self, it: int, traced: dict) -> tuple[np.ndarray, dict, dict]:
+        """Run the update rules; (rows, property columns, summary record)."""
+        updated = self.sim.update(it)
+        self.nonfinite.add(it, traced["nonfinite"], updated["nonfinite"])
+        rows = self.sim.rows()
+        props = property_columns(self.effect, rows, self.surfel_surface)
+        record = {k: traced[k] for k in STAT_KEYS if k in traced}
+        record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
+                                   for name, col in props.items()}
+        record["trace_seconds"] = traced["trace_seconds"]
+        record["update_seconds"] = updated["seconds"]
+        self.summary["iterations"].append(record)
+        return rows, props, record
+
+
+def start(effect: Effect, opts: RunOptions) -> Run:
+    """Check the options, load the scene, compile, build the simulation and
+    clear an earlier run's files; every user error is raised before any output."""
+    from .camera import DEFAULT_VIEW, CameraError, auto_camera
+    from .events import WriteQueue
     from .scene import SceneError, load_scene
 
     check_limits(opts)
@@ -302,14 +316,15 @@ def run(effect: Effect, opts: RunOptions) -> dict:
     looks = bool(effect.appearance_kernels())
     if looks:
         sim.set_textures(load_textures(effect))
-    camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
+    try:
+        camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
+    except CameraError as err:
+        raise RunError(str(err)) from None
     if opts.eye is not None:
         _, target, up, fov = camera
         if np.allclose(opts.eye, target):
             raise RunError("--eye must not be the centre of the scene, which the camera looks at")
         camera = (tuple(opts.eye), target, up, fov)
-    frames = []
-    pieces = None       # the scene's objects for --export, made on first use
     clear_earlier_run(out)
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
@@ -330,54 +345,13 @@ def run(effect: Effect, opts: RunOptions) -> dict:
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
         "rendered": shown,
-        "appearance": bool(effect.appearance_kernels()),
+        "appearance": looks,
         "iterations": [],
     }
-    history = []
     report = NonFiniteReport(effect, opts.progress)
     summary["nonfinite"] = report.entries
-    progress = Progress(opts.iterations, opts.progress)
-    comments = [f"gamma {__version__}", f"effect {Path(effect.path).name}"]
-    try:
-        for it in range(1, opts.iterations + 1):
-            stats = sim.trace(it)
-            updated = sim.update(it)
-            report.add(it, stats["nonfinite"], updated["nonfinite"])
-            rows = sim.rows()
-            props = property_columns(effect, rows, surfel_surface)
-            record = {k: stats[k] for k in STAT_KEYS if k in stats}
-            record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
-                                       for name, col in props.items()}
-            record["trace_seconds"] = stats["trace_seconds"]
-            record["update_seconds"] = updated["seconds"]
-            summary["iterations"].append(record)
-            columns = dict(static, **props)
-            for j, name in enumerate(abi.REFLECTANCE_SLOTS):
-                columns[f"reflectance_{name}"] = rows[:, j]
-            atomic_write(out / "maps" / f"iter_{it:04d}.ply",
-                         ply_bytes(columns, comments + [f"iteration {it}"]))
-            write_json(out / "summary.json", summary)
-            if shown is not None:
-                history.append(props[shown].copy())
-            if looks:
-                frames.append(render_appearance(sim, out, opts, threads, camera, it))
-            if opts.export:
-                if pieces is None:
-                    from .export import pieces as split
-
-                    pieces = split(scene)
-                export_iteration(sim, scene, effect, out / "export", it, threads, opts.bake_size, pieces)
-            rate = stats["emitted"] / max(stats["trace_seconds"], 1e-9)
-            progress.update(it, f"iterations  {stats['trace_seconds']:.2f} s trace  "
-                                f"{rate / 1e3:.0f}k γ-tons/s")
-        if shown is not None:
-            folder = out / "renders" / ("false_colour" if looks else "")
-            render_history(sim, history, shown, folder, opts, threads, camera)
-        if frames:
-            write_sequence(frames, out / "renders")
-    except OSError as err:
-        raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
-    return summary
+    return Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
+               surfel_surface, static, summary, report, WriteQueue())
 
 
 class NonFiniteReport:
@@ -414,118 +388,6 @@ def llvm_version():
     import llvmlite.binding
 
     return llvmlite.binding.llvm_version_info
-
-
-def export_iteration(sim, scene, effect: Effect, folder: Path, it: int, threads: int, size: int,
-                     pieces) -> None:
-    """Per object, in folder/OBJECT/: iter_NNNN.glb, .obj + .mtl, the baked
-    colour (8-bit PNG) and every property (16-bit PNG)."""
-    from .export import bake, png16, png8, texture_from_texels, vertex_data, write_glb, write_obj
-
-    stem = f"iter_{it:04d}"
-    for piece in pieces:
-        where = folder / _safe_name(piece.name)
-        positions, normals, uvs, tris, rows, rgb, owner = vertex_data(sim, piece, it, threads)
-        surfaces = np.asarray(scene.triangle_surface)[owner]
-        attributes = property_columns(effect, rows, surfaces)
-        extras = {"gamma": {"iteration": it, "object": piece.name, "properties": {}}}
-        colour, texels, texel_tris, texel_rows = bake(sim, piece, size, it, threads)
-        texture = png8(colour)
-        atomic_write(where / f"{stem}_color.png", texture)
-        texel_surfaces = np.asarray(scene.triangle_surface)[texel_tris]
-        for name, column in property_columns(effect, texel_rows, texel_surfaces).items():
-            data, low, high = png16(texture_from_texels(column, texels, size)[..., 0])
-            atomic_write(where / f"{stem}_{name}.png", data)
-            extras["gamma"]["properties"][name] = {"texture": f"{stem}_{name}.png", "min": low, "max": high}
-        atomic_write(where / f"{stem}.mtl",
-                     f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
-        atomic_write(where / f"{stem}.glb",
-                     write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
-        atomic_write(where / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
-
-
-def _safe_name(name: str) -> str:
-    """An object name as a folder name."""
-    import re
-
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "object"
-
-
-def render_appearance(sim, out: Path, opts: RunOptions, threads: int, camera, iteration: int):
-    """The scene as its appearance blocks paint it (sun, sky, ambient occlusion)."""
-    from PIL import Image
-
-    eye, target, up, fov = camera
-    image = sim.render_appearance(eye, target, up, fov, opts.width, opts.height, threads,
-                                  opts.samples, sun_direction(camera), opts.ao_samples, iteration)
-    rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
-    picture = Image.fromarray((rgb * 255 + 0.5).astype(np.uint8))
-    buffer = io.BytesIO()
-    picture.save(buffer, format="PNG")
-    atomic_write(out / "renders" / f"iter_{iteration:04d}.png", buffer.getvalue())
-    return picture
-
-
-def write_sequence(frames: list, folder: Path) -> None:
-    """The iterations as an animated GIF, an MP4 and a strip of (at most 5) of them."""
-    buffer = io.BytesIO()
-    frames[0].save(buffer, format="GIF", save_all=True, append_images=frames[1:], duration=400, loop=0)
-    atomic_write(folder / "sequence.gif", buffer.getvalue())
-    write_mp4(frames, folder / "sequence.mp4")
-    chosen = sorted({round(i * (len(frames) - 1) / 4) for i in range(5)}) if len(frames) > 1 else [0]
-    from PIL import Image, ImageDraw
-
-    w, h = frames[0].size
-    strip = Image.new("RGB", (w * len(chosen), h), (255, 255, 255))
-    draw = ImageDraw.Draw(strip)
-    for slot, index in enumerate(chosen):
-        strip.paste(frames[index], (slot * w, 0))
-        draw.text((slot * w + 8, 8), f"iteration {index + 1}", fill=(0, 0, 0))
-    buffer = io.BytesIO()
-    strip.save(buffer, format="PNG")
-    atomic_write(folder / "strip.png", buffer.getvalue())
-
-
-def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
-    """H.264 video (imageio-ffmpeg), via a temporary file renamed into place."""
-    import os
-    import tempfile
-
-    import imageio.v2 as imageio
-
-    fd, tmp = tempfile.mkstemp(prefix=".sequence.", suffix=".mp4", dir=path.parent)
-    os.close(fd)
-    try:
-        # yuv420p needs even sizes: pad by one pixel where needed
-        w, h = frames[0].size
-        pad = ((0, h % 2), (0, w % 2), (0, 0))
-        with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=1,
-                                ffmpeg_log_level="error", pixelformat="yuv420p") as writer:
-            for frame in frames:
-                writer.append_data(np.pad(np.asarray(frame.convert("RGB")), pad, mode="edge"))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def render_history(sim, history, shown, out: Path, opts: RunOptions, threads: int, camera) -> None:
-    """One false-colour PNG per iteration, all on the same colour scale
-    (non-finite values, which a rule can produce, are left out of the scale)."""
-    finite = [h[np.isfinite(h)] for h in history]
-    vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
-    vmin = min(0.0, min((float(f.min()) for f in finite if f.size), default=0.0))
-    if vmax <= vmin:
-        vmax = vmin + 1.0
-    eye, target, up, fov = camera
-    for it, values in enumerate(history, start=1):
-        values = np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin).astype(np.float32)
-        value, shade = sim.render(np.ascontiguousarray(values), eye, target, up,
-                                  fov, opts.width, opts.height, threads)
-        png = false_colour_png(value, shade, vmin, vmax, shown, f"{shown}, iteration {it}")
-        atomic_write(out / f"iter_{it:04d}.png", png)
 
 
 def _cpu_count() -> int:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .checker import Effect
+from ..frontend.checker import Effect
 
 
 class SceneError(Exception):

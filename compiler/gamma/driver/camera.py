@@ -1,0 +1,42 @@
+"""Where the run's pictures are taken from: the camera framing the scene and
+the sun's direction relative to it.  Pure geometry; knows nothing of the run."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Direction from the scene's centre toward the camera when --view is not given.
+DEFAULT_VIEW = (-0.6, 0.35, 1.0)   # front-left-above for a +z-facing, y-up model
+
+
+class CameraError(ValueError):
+    """A camera option that cannot frame the scene."""
+
+
+def auto_camera(bounds, view=DEFAULT_VIEW, down=(0.0, -1.0, 0.0), fov_deg: float = 30.0):
+    """Eye, target and up framing the scene's bounding box; ``view`` points from
+    the scene's centre toward the camera, "up" is against gravity."""
+    lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
+    centre = (lo + hi) / 2
+    radius = np.linalg.norm(hi - lo) / 2
+    direction = np.asarray(view, float)
+    direction /= np.linalg.norm(direction)
+    up = -np.asarray(down, float) / np.linalg.norm(down)
+    if not 1.0 <= fov_deg <= 170.0:
+        raise CameraError(f"--fov must be between 1 and 170 degrees, not {fov_deg:g}")
+    if abs(float(np.dot(up, direction))) > 0.999:   # looking straight along gravity
+        up = np.array([0.0, 0.0, -1.0]) if abs(up[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    distance = radius / math.sin(math.radians(fov_deg) / 2) * 1.02
+    return tuple(centre + direction * distance), tuple(centre), tuple(up), fov_deg
+
+
+def sun_direction(camera) -> tuple[float, float, float]:
+    """Toward the sun: above the scene, over the camera's left shoulder."""
+    eye, target, up, _ = (np.asarray(v, float) if i < 3 else v for i, v in enumerate(camera))
+    view = eye - target
+    view /= np.linalg.norm(view)
+    left = np.cross(up, view)
+    sun = 1.0 * up + 0.45 * view + 0.5 * left
+    return tuple(sun / np.linalg.norm(sun))

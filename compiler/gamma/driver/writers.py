@@ -1,0 +1,254 @@
+"""The standard outputs of ``gammac run``, each a ``Writer`` (see ``events.py``).
+
+    MapWriter            maps/iter_NNNN.ply per iteration
+    SummaryWriter        summary.json, rewritten after every iteration
+    FalseColourWriter    renders[/false_colour]/iter_NNNN.png of one property, one scale
+    AppearanceWriter     renders/iter_NNNN.png as the appearance blocks paint it,
+                         then sequence.gif, sequence.mp4, strip.png
+    ExportWriter         export/OBJECT/iter_NNNN.{glb,obj,mtl} + baked textures
+    ProgressWriter       the progress bar on stderr
+
+``standard_writers`` picks them for a run's options, in the order above (the
+order the files were always written in).  Each handler asks the simulation
+for what it needs on the loop's thread and hands encoding and writing to
+``run.behind``.  These writers own the output layout of ``DIR``; they never
+change the simulation.
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+import os
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .. import abi, __version__
+from ..files import atomic_write
+from .camera import sun_direction
+from .events import IterationUpdated, RunFinished, Writer
+from .outputs import false_colour_png, ply_bytes, write_json
+
+
+class MapWriter(Writer):
+    """maps/iter_NNNN.ply: position, normal, surface, every property, the reflectance."""
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        run, it = event.run, event.iteration
+        columns = dict(run.static_columns, **event.properties)
+        for j, name in enumerate(abi.REFLECTANCE_SLOTS):
+            columns[f"reflectance_{name}"] = event.rows[:, j]
+        comments = [f"gamma {__version__}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
+        run.behind(_write_ply, run.out / "maps" / f"iter_{it:04d}.ply", columns, comments)
+
+
+def _write_ply(path: Path, columns: dict, comments: list[str]) -> None:
+    atomic_write(path, ply_bytes(columns, comments))
+
+
+class SummaryWriter(Writer):
+    """summary.json as it stands after each iteration (a snapshot: the loop goes on)."""
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        event.run.behind(write_json, event.run.out / "summary.json", copy.deepcopy(event.run.summary))
+
+
+class FalseColourWriter(Writer):
+    """One false-colour PNG per iteration of ``property``, all on the scale of
+    the whole run, so they are drawn once the run is finished (non-finite
+    values, which a rule can produce, are left out of the scale)."""
+
+    def __init__(self, property: str, folder: Path):
+        self.property, self.folder = property, folder
+        self.history: list[np.ndarray] = []
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        self.history.append(event.properties[self.property].copy())
+
+    def on_run_finished(self, event: RunFinished) -> None:
+        run, shown = event.run, self.property
+        finite = [h[np.isfinite(h)] for h in self.history]
+        vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
+        vmin = min(0.0, min((float(f.min()) for f in finite if f.size), default=0.0))
+        if vmax <= vmin:
+            vmax = vmin + 1.0
+        eye, target, up, fov = run.camera
+        for it, values in enumerate(self.history, start=1):
+            values = np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin).astype(np.float32)
+            value, shade = run.sim.render(np.ascontiguousarray(values), eye, target, up,
+                                          fov, run.opts.width, run.opts.height, run.threads)
+            run.behind(_write_false_colour, self.folder / f"iter_{it:04d}.png", value, shade,
+                       vmin, vmax, shown, f"{shown}, iteration {it}")
+
+
+def _write_false_colour(path: Path, value, shade, vmin, vmax, label, title) -> None:
+    atomic_write(path, false_colour_png(value, shade, vmin, vmax, label, title))
+
+
+class AppearanceWriter(Writer):
+    """The scene as its appearance blocks paint it (sun, sky, ambient occlusion),
+    per iteration; at the end the sequence as GIF, MP4 and a strip."""
+
+    def __init__(self):
+        self.frames: list = []
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        from PIL import Image
+
+        run, it = event.run, event.iteration
+        eye, target, up, fov = run.camera
+        opts = run.opts
+        image = run.sim.render_appearance(eye, target, up, fov, opts.width, opts.height, run.threads,
+                                          opts.samples, sun_direction(run.camera), opts.ao_samples, it)
+        rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
+        picture = Image.fromarray((rgb * 255 + 0.5).astype(np.uint8))
+        self.frames.append(picture)
+        run.behind(_write_png, run.out / "renders" / f"iter_{it:04d}.png", picture)
+
+    def on_run_finished(self, event: RunFinished) -> None:
+        if self.frames:
+            event.run.behind(write_sequence, list(self.frames), event.run.out / "renders")
+
+
+def _write_png(path: Path, picture) -> None:
+    buffer = io.BytesIO()
+    picture.save(buffer, format="PNG")
+    atomic_write(path, buffer.getvalue())
+
+
+def write_sequence(frames: list, folder: Path) -> None:
+    """The iterations as an animated GIF, an MP4 and a strip of (at most 5) of them."""
+    buffer = io.BytesIO()
+    frames[0].save(buffer, format="GIF", save_all=True, append_images=frames[1:], duration=400, loop=0)
+    atomic_write(folder / "sequence.gif", buffer.getvalue())
+    write_mp4(frames, folder / "sequence.mp4")
+    chosen = sorted({round(i * (len(frames) - 1) / 4) for i in range(5)}) if len(frames) > 1 else [0]
+    from PIL import Image, ImageDraw
+
+    w, h = frames[0].size
+    strip = Image.new("RGB", (w * len(chosen), h), (255, 255, 255))
+    draw = ImageDraw.Draw(strip)
+    for slot, index in enumerate(chosen):
+        strip.paste(frames[index], (slot * w, 0))
+        draw.text((slot * w + 8, 8), f"iteration {index + 1}", fill=(0, 0, 0))
+    buffer = io.BytesIO()
+    strip.save(buffer, format="PNG")
+    atomic_write(folder / "strip.png", buffer.getvalue())
+
+
+def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
+    """H.264 video (imageio-ffmpeg), via a temporary file renamed into place."""
+    import imageio.v2 as imageio
+
+    fd, tmp = tempfile.mkstemp(prefix=".sequence.", suffix=".mp4", dir=path.parent)
+    os.close(fd)
+    try:
+        # yuv420p needs even sizes: pad by one pixel where needed
+        w, h = frames[0].size
+        pad = ((0, h % 2), (0, w % 2), (0, 0))
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=1,
+                                ffmpeg_log_level="error", pixelformat="yuv420p") as writer:
+            for frame in frames:
+                writer.append_data(np.pad(np.asarray(frame.convert("RGB")), pad, mode="edge"))
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class ExportWriter(Writer):
+    """Per object and iteration, in export/OBJECT/: iter_NNNN.glb, .obj + .mtl,
+    the baked colour (8-bit PNG) and every property (16-bit PNG)."""
+
+    def __init__(self, bake_size: int):
+        self.bake_size = bake_size
+        self.pieces = None      # the scene's objects, made on first use
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        from .export import bake, pieces, vertex_data
+        from .runner import property_columns
+
+        run, it = event.run, event.iteration
+        if self.pieces is None:
+            self.pieces = pieces(run.scene)
+        triangle_surface = np.asarray(run.scene.triangle_surface)
+        for piece in self.pieces:
+            positions, normals, uvs, tris, rows, rgb, owner = vertex_data(run.sim, piece, it, run.threads)
+            attributes = property_columns(run.effect, rows, triangle_surface[owner])
+            colour, texels, texel_tris, texel_rows = bake(run.sim, piece, self.bake_size, it, run.threads)
+            texel_columns = property_columns(run.effect, texel_rows, triangle_surface[texel_tris])
+            run.behind(_write_export, run.out / "export" / _safe_name(piece.name), it, piece.name,
+                       self.bake_size, (positions, normals, uvs, tris, rgb), attributes, colour,
+                       texels, texel_columns)
+
+
+def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, colour, texels,
+                  texel_columns) -> None:
+    from .export import png16, png8, texture_from_texels, write_glb, write_obj
+
+    positions, normals, uvs, tris, rgb = mesh
+    stem = f"iter_{it:04d}"
+    extras = {"gamma": {"iteration": it, "object": name, "properties": {}}}
+    texture = png8(colour)
+    atomic_write(where / f"{stem}_color.png", texture)
+    for prop, column in texel_columns.items():
+        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0])
+        atomic_write(where / f"{stem}_{prop}.png", data)
+        extras["gamma"]["properties"][prop] = {"texture": f"{stem}_{prop}.png", "min": low, "max": high}
+    atomic_write(where / f"{stem}.mtl",
+                 f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
+    atomic_write(where / f"{stem}.glb",
+                 write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
+    atomic_write(where / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
+
+
+def _safe_name(name: str) -> str:
+    """An object name as a folder name."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "object"
+
+
+class ProgressWriter(Writer):
+    """A one-line progress bar on a terminal; a line per iteration otherwise."""
+
+    def __init__(self, total: int):
+        self.total = total
+        self.tty = sys.stderr.isatty()
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        record = event.record
+        rate = record["emitted"] / max(record["trace_seconds"], 1e-9)
+        self.update(event.iteration, f"iterations  {record['trace_seconds']:.2f} s trace  "
+                                     f"{rate / 1e3:.0f}k γ-tons/s")
+
+    def update(self, done: int, note: str) -> None:
+        width = 30
+        filled = int(width * done / max(1, self.total))
+        line = f"[{'#' * filled}{'.' * (width - filled)}] {done}/{self.total} {note}"
+        if self.tty:
+            sys.stderr.write("\r" + line.ljust(100)[:120])
+            if done == self.total:
+                sys.stderr.write("\n")
+        else:
+            sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+
+
+def standard_writers(run) -> list[Writer]:
+    """The outputs ``gammac run`` writes for ``run.opts``, in writing order."""
+    writers: list[Writer] = [MapWriter(), SummaryWriter()]
+    if run.shown is not None:
+        folder = run.out / "renders" / ("false_colour" if run.looks else "")
+        writers.append(FalseColourWriter(run.shown, folder))
+    if run.looks:
+        writers.append(AppearanceWriter())
+    if run.opts.export:
+        writers.append(ExportWriter(run.opts.bake_size))
+    if run.opts.progress:
+        writers.append(ProgressWriter(run.opts.iterations))
+    return writers

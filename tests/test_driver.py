@@ -1,0 +1,113 @@
+"""The run driver: the loop's events, writers subscribed to them, and the
+ordered, bounded queue that runs writers' slow jobs behind the loop."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from gamma.driver import (CallbackWriter, IterationTraced, IterationUpdated, RunError, RunFinished,
+                          RunOptions, SetupDone, Writer, run)
+from gamma.driver.events import WriteQueue
+from gamma.driver.outputs import read_ply
+from gamma.frontend.checker import load
+
+
+def _options(scene, out, **kw):
+    return RunOptions(scene=str(scene), out=str(out), surfels=2000, tons=5000, iterations=3,
+                      width=64, height=64, progress=False, **kw)
+
+
+def test_writers_see_every_event_in_order(tmp_path, bumpy_obj):
+    seen = []
+    run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, tmp_path / "out"),
+        writers=[CallbackWriter(seen.append)])
+    kinds = [(type(e).__name__, getattr(e, "iteration", None)) for e in seen]
+    assert kinds == [("SetupDone", None),
+                     ("IterationTraced", 1), ("IterationUpdated", 1),
+                     ("IterationTraced", 2), ("IterationUpdated", 2),
+                     ("IterationTraced", 3), ("IterationUpdated", 3),
+                     ("RunFinished", None)]
+    updated = [e for e in seen if isinstance(e, IterationUpdated)]
+    # the event's rows are what the map of that iteration holds
+    last = read_ply(tmp_path / "out" / "maps" / "iter_0003.ply")
+    assert np.array_equal(updated[-1].properties["patina"], last["patina"])
+    assert updated[-1].record is seen[-1].summary["iterations"][-1]
+    assert seen[-1].summary["iterations"][0]["emitted"] == seen[1].stats["emitted"] == 5000
+
+
+def test_a_callback_can_pick_its_events(tmp_path, bumpy_obj):
+    seen = []
+    run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, tmp_path / "out"),
+        writers=[CallbackWriter(seen.append, events=(SetupDone, RunFinished))])
+    assert [type(e) for e in seen] == [SetupDone, RunFinished]
+
+
+def test_a_writer_is_a_class_and_its_jobs_run_behind_in_order(tmp_path, bumpy_obj):
+    class Sums(Writer):
+        def __init__(self):
+            self.written = []
+
+        def on_iteration_updated(self, event):
+            total = float(np.sum(event.properties["patina"], dtype=np.float64))
+            event.run.behind(self.slow_write, event.iteration, total)
+
+        def slow_write(self, iteration, total):
+            time.sleep(0.05 if iteration == 1 else 0)   # a slow first job must not be overtaken
+            assert threading.current_thread() is not threading.main_thread()
+            self.written.append((iteration, total))
+
+    writer = Sums()
+    summary = run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, tmp_path / "out"),
+                  writers=[writer])
+    assert [i for i, _ in writer.written] == [1, 2, 3]    # all done when run() returns
+    assert [t for _, t in writer.written] == [it["property_sums"]["patina"]
+                                              for it in summary["iterations"]]
+
+
+def test_a_failing_job_is_a_run_error(tmp_path, bumpy_obj):
+    class Full(Writer):
+        def on_iteration_updated(self, event):
+            event.run.behind(self.fail)
+
+        def fail(self):
+            raise OSError(28, "No space left on device")
+
+    with pytest.raises(RunError, match="cannot write to .*No space left on device"):
+        run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, tmp_path / "out"),
+            writers=[Full()])
+
+
+def test_the_queue_is_bounded_ordered_and_reports_the_first_error():
+    started, release = threading.Event(), threading.Event()
+    done = []
+    queue = WriteQueue()
+
+    def hold():
+        started.set()
+        release.wait()
+
+    with queue:
+        queue(hold)
+        started.wait()
+        for i in range(WriteQueue.BOUND):
+            queue(done.append, i)
+        blocked = threading.Thread(target=queue, args=(done.append, "late"))
+        blocked.start()
+        blocked.join(0.2)
+        assert blocked.is_alive()       # the queue is full: the producer waits
+        release.set()
+        blocked.join()
+    assert done == list(range(WriteQueue.BOUND)) + ["late"]
+
+    def boom():
+        raise ValueError("first")
+
+    failing = WriteQueue()
+    with pytest.raises(ValueError, match="first"):
+        with failing:
+            failing(boom)
+            failing(done.append, "skipped")
+    assert "skipped" not in done
