@@ -77,10 +77,12 @@ pytest: install
 test: runtime-tests pytest
 
 bench: install
-	$(PY) bench/bench_patina.py
+	$(PY) bench/bench_tracer.py
+	$(PY) bench/bench_endtoend.py
 	$(PY) bench/bench_stain.py
 	$(PY) bench/bench_compile.py
 	$(PY) bench/bench_render.py
+	$(PY) bench/bench_scaling.py
 
 clean:
 	rm -rf build build-tests out $(VENV)

@@ -9,6 +9,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+
+# Start-up time reported in summary.json runs from here (the interpreter's
+# own start, before the first import of gamma, is not included).
+_STARTED = time.perf_counter()
 
 from .frontend.checker import UsageError
 from .frontend.diagnostics import GammaError
@@ -207,7 +212,7 @@ def main(argv=None) -> int:
                           max_interactions=args.max_interactions, show=args.show,
                           width=args.size, height=args.size, progress=not args.quiet,
                           samples=args.samples, ao_samples=args.ao_samples,
-                          export=args.export, bake_size=args.bake_size)
+                          export=args.export, bake_size=args.bake_size, started=_STARTED)
         try:
             summary = run(effect, opts)
         except RunError as err:

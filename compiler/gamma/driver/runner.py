@@ -51,6 +51,7 @@ class RunOptions:
     samples: int = 4            # camera rays per pixel (appearance renders)
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
+    started: float | None = None  # time.perf_counter() when gammac started (start-up time)
 
 
 def runtime_module():
@@ -210,7 +211,7 @@ def clear_earlier_run(out: Path) -> None:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
 
-STAT_KEYS = ("emitted", "settled", "escaped", "capped", "interactions", "rays",
+STAT_KEYS = ("emitted", "missed", "settled", "escaped", "capped", "interactions", "rays",
              "bounces", "flow_steps", "drips", "segments")
 
 
@@ -284,6 +285,7 @@ def start(effect: Effect, opts: RunOptions) -> Run:
     from .events import WriteQueue
     from .scene import SceneError, load_scene
 
+    entered = time.perf_counter()
     check_limits(opts)
     if not effect.sources:
         raise GammaError(effect.path, effect.source, [Diagnostic(
@@ -304,7 +306,9 @@ def start(effect: Effect, opts: RunOptions) -> Run:
                        f"({', '.join(sorted({n for s in present for n in s.properties})) or 'none'})")
     out = Path(opts.out)
     prepare_output(out)
+    t0 = time.perf_counter()
     kernels = JitKernels(effect)
+    compile_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
         cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
@@ -340,6 +344,11 @@ def start(effect: Effect, opts: RunOptions) -> Run:
                                                  effect.surfaces.values())},
         "surfels": sim.num_surfels, "triangles": mesh.num_triangles, "threads": threads,
         "seed": opts.seed, "down": list(scene.down), "setup_seconds": setup_seconds,
+        # start-up: gammac's imports, reading and checking the effect;
+        # compile: code generation and JIT of the kernels (or the cache)
+        "startup_seconds": None if opts.started is None else entered - opts.started,
+        "compile_seconds": compile_seconds,
+        "setup_phases": dict(getattr(sim, "setup_seconds", {})),
         "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
                      "llvm": ".".join(map(str, llvm_version())),
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),

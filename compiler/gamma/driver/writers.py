@@ -222,9 +222,12 @@ class ProgressWriter(Writer):
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         record = event.record
-        rate = record["emitted"] / max(record["trace_seconds"], 1e-9)
+        # γ-tons that reached the surface: a source's misses cost one ray each
+        # and would flatter the rate.
+        hitting = record["emitted"] - record.get("missed", 0)
+        rate = hitting / max(record["trace_seconds"], 1e-9)
         self.update(event.iteration, f"iterations  {record['trace_seconds']:.2f} s trace  "
-                                     f"{rate / 1e3:.0f}k γ-tons/s")
+                                     f"{rate / 1e3:.0f}k hitting γ-tons/s")
 
     def update(self, done: int, note: str) -> None:
         width = 30
