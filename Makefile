@@ -9,7 +9,8 @@ DEMO_OUT ?= out/patina-bunny
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
 	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev
-PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib
+# ray: the optional extra (.[ray]); installed here so its tests run in CI
+PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 

@@ -37,3 +37,16 @@ def bumpy_obj(tmp_path_factory):
 @pytest.fixture(scope="session")
 def box_obj():
     return Path(__file__).parent / "golden" / "open_box.obj"
+
+
+@pytest.fixture(scope="session")
+def ray_local():
+    """One local Ray (loopback, 2 CPUs) for the whole session: Ray's start-up
+    takes seconds, so every test that needs it shares this one.  Skipped, with
+    the install command as the reason, where the optional extra is missing."""
+    from gamma.driver import cluster
+
+    if not cluster.available():
+        pytest.skip(cluster.INSTALL_HINT)
+    with cluster.connect(num_cpus=2) as connection:
+        yield connection.ray

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
+from gamma import abi
 from gamma.driver import (CallbackWriter, IterationTraced, IterationUpdated, RunError, RunFinished,
                           RunOptions, SetupDone, Writer, run)
 from gamma.driver.events import WriteQueue
@@ -36,6 +37,8 @@ def test_writers_see_every_event_in_order(tmp_path, bumpy_obj):
     assert np.array_equal(updated[-1].properties["patina"], last["patina"])
     assert updated[-1].record is seen[-1].summary["iterations"][-1]
     assert seen[-1].summary["iterations"][0]["emitted"] == seen[1].stats["emitted"] == 5000
+    assert set(abi.STATISTICS) <= set(seen[1].stats)              # the runtime reports them all
+    assert list(updated[0].record)[:len(abi.STATISTICS)] == list(abi.STATISTICS)
 
 
 def test_a_callback_can_pick_its_events(tmp_path, bumpy_obj):

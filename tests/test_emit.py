@@ -26,3 +26,13 @@ def test_emit_ast_shows_positions():
     r = run_gammac("emit", "--ast", PATINA)
     assert r.returncode == 0, r.stderr
     assert "TonDecl @" in r.stdout and "RuleDecl @" in r.stdout and "event: 'settle'" in r.stdout
+
+
+def test_emit_effect_shows_the_typed_resolved_ir():
+    r = run_gammac("emit", "--effect", PATINA)
+    assert r.returncode == 0, r.stderr
+    line = next(i for i, l in enumerate(PATINA.read_text().splitlines(), 1) if "s.patina +=" in l)
+    kernel = r.stdout[r.stdout.index("kernel on settle(Weather, Copper) -> gamma.settle.Weather.Copper"):]
+    # the property and the carried attribute bound to their slots, the statement numbered
+    assert "#1 surf:patina[3] += " in kernel and "ton:patina[0]" in kernel
+    assert f"{PATINA}:{line}:5" in kernel

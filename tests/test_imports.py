@@ -16,8 +16,8 @@ def test_import_from_stdlib_with_override(tmp_path):
     effect = load(str(main))
     assert set(effect.tons) == {"Weather"} and set(effect.surfaces) == {"Copper"}
     settle = next(k for k in effect.kernels if k.event == "settle")
-    scope = settle.bodies[0][0]
-    assert scope.params["rate"] == pytest.approx(0.2)      # the importer's value won
+    rate = settle.bodies[0][0].value.left                  # s.patina += rate * t.patina
+    assert rate.value == pytest.approx(0.2)                 # the importer's value won, folded in
     assert effect.sources[0].count == 1_000_000             # the recipe's own default
     assert effect.surfaces["Copper"].initial_row[0] == 0.5   # trap, a parameter used in a declaration
 

@@ -12,7 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gamma.backends.jit import JitKernels
-from gamma.frontend.checker import COLOR_FUNCTIONS, FUNCTIONS, check
+from gamma.frontend.checker import check
+from gamma.ir.builtins import FUNCTIONS
 from gamma.backends.interp import Context, run_kernel
 from gamma.frontend.parser import parse
 from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, ptr, same, set_key
@@ -31,9 +32,9 @@ def floats(names):
     leaf = st.one_of(numbers(), st.sampled_from(names))
 
     def grow(inner):
-        most = lambda name: 3 if FUNCTIONS[name][1] is None else FUNCTIONS[name][1]
-        fn = st.sampled_from(sorted(set(FUNCTIONS) - set(COLOR_FUNCTIONS))).flatmap(
-            lambda name: st.lists(inner, min_size=FUNCTIONS[name][0], max_size=most(name)).map(
+        most = lambda name: 3 if FUNCTIONS[name].max_args is None else FUNCTIONS[name].max_args
+        fn = st.sampled_from(sorted(n for n, f in FUNCTIONS.items() if not f.appearance_only)).flatmap(
+            lambda name: st.lists(inner, min_size=FUNCTIONS[name].min_args, max_size=most(name)).map(
                 lambda args: f"{name}({', '.join(args)})"))
         binary = st.tuples(inner, st.sampled_from("+-*/"), inner).map(lambda t: f"({t[0]} {t[1]} {t[2]})")
         return st.one_of(binary, inner.map(lambda x: f"-{x}"), fn)

@@ -1,20 +1,25 @@
 """The compiler <-> runtime interface, declared once.
 
-Everything the generated kernels and the C++ runtime must agree on lives here:
-the ABI version, the kernel signatures, the layout of a surfel's row and of the
-context struct a kernel may read, and the event numbering.  The C++ side does
-not restate any of it: CMake runs this file as a script
-(``python abi.py --header OUT``) to generate ``gamma_abi.h``, and the compiler's
-code generator builds its LLVM types from the same tables.  Only the standard
-library is imported so the build can run it before the package is installed.
+Everything the generated kernels, the Python driver and the C++ runtime must
+agree on lives here: the ABI version, the kernel signatures, the layout of a
+surfel's row and of the context struct a kernel may read, the event
+numbering, the source kinds and statistics of the runtime, and the binding
+(``BINDING``: every name the Python side calls on ``gamma._runtime``).  The
+C++ side does not restate the kernel interface: CMake runs this file as a
+script (``python abi.py --header OUT``) to generate ``gamma_abi.h``, and the
+code generator builds its LLVM types from the same tables.  The binding is
+checked when the driver imports the runtime (``check_runtime``), so a runtime
+built from other sources fails with a list of what differs, not halfway
+through a run.  Only the standard library is imported so the build can run
+this before the package is installed.
 """
 
 from __future__ import annotations
 
 import sys
 
-#: Bumped whenever anything below changes; ``runner.runtime_module`` refuses a
-#: runtime built for another version.
+#: Bumped whenever anything below changes; ``driver.runner.runtime_module``
+#: refuses a runtime built for another version.
 ABI_VERSION = 4
 
 #: A surfel's state is one row of floats.  The first three slots are its
@@ -96,6 +101,45 @@ def mix64(z: int) -> int:
 def random_value(key: int, site: int) -> float:
     """The value of the ``site``-th random() call for a context key, in [0, 1)."""
     return (mix64(key ^ (site * RANDOM_GOLDEN & 0xFFFFFFFFFFFFFFFF)) >> 40) * 2.0 ** -24
+
+
+#: Source kinds the runtime emits from (``Config.add_source``'s first argument).
+SOURCE_KINDS = ("point", "spot", "rect", "disk", "directional", "sphere", "hemisphere")
+
+#: Counts ``Simulation.trace`` reports per iteration, in the order summary.json lists them.
+STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions", "rays",
+              "bounces", "flow_steps", "drips", "segments")
+
+#: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.
+BINDING = {
+    "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation"),
+    "Mesh": ("load", "from_arrays", "num_vertices", "num_triangles", "degenerate_dropped", "bounds",
+             "vertices", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
+    "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",
+               "triangle_surface", "add_ton_type", "add_source", "set_transport", "set_update",
+               "set_appearance"),
+    "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
+                   "rows", "trace", "update", "render", "set_textures", "bake_points",
+                   "render_appearance"),
+}
+
+
+def check_runtime(rt) -> list[str]:
+    """What the runtime module ``rt`` lacks or has different from this file
+    (empty: it matches)."""
+    problems = []
+    version = getattr(rt, "ABI_VERSION", None)
+    if version != ABI_VERSION:
+        problems.append(f"runtime ABI {version} does not match compiler ABI {ABI_VERSION}")
+    for owner, names in BINDING.items():
+        obj = rt if owner == "module" else getattr(rt, owner, None)
+        if obj is None:
+            continue          # reported as a missing module attribute
+        missing = [n for n in names if not hasattr(obj, n)]
+        if missing:
+            where = "the module" if owner == "module" else owner
+            problems.append(f"{where} lacks {', '.join(missing)}")
+    return problems
 
 
 def c_header() -> str:

@@ -1,4 +1,8 @@
-"""The ``gammac`` command: ``check``, ``run`` and ``emit``.
+"""The ``gammac`` command: ``check``, ``emit``, ``fmt`` and ``run``.
+
+Only argument parsing and reporting live here: the front end checks, the
+back ends compile, the driver runs; this module turns their errors into
+diagnostics or one line and an exit status.
 
 Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
 2 a usage error.  A user mistake is reported as diagnostics or a one-line
@@ -81,6 +85,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a parameter of the effect")
     what = e.add_mutually_exclusive_group(required=True)
     what.add_argument("--ast", action="store_const", dest="what", const="ast", help="the syntax tree")
+    what.add_argument("--effect", action="store_const", dest="what", const="effect",
+                      help="the checked effect: declarations and typed, resolved rule bodies (the IR)")
     what.add_argument("--ir", action="store_const", dest="what", const="ir", help="LLVM IR as generated")
     what.add_argument("--ir-opt", action="store_const", dest="what", const="ir-opt", help="LLVM IR after optimisation")
     what.add_argument("--asm", action="store_const", dest="what", const="asm", help="native assembly")
@@ -91,6 +97,30 @@ def _parser() -> argparse.ArgumentParser:
     how.add_argument("--check", action="store_true", help="exit 1 if the file is not formatted")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
+    _add_run_options(r)
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    s = sub.add_parser("sweep", help="run every combination of a parameter grid (a Ray task each)",
+                       description="Run the effect once per combination of the --grid values (each a "
+                                   "'gammac run' with the other options, as a Ray task) into "
+                                   "OUT/cells/NAME; OUT/index.json lists the cells, "
+                                   "OUT/contact-sheet.png shows their final renders. Finished cells "
+                                   "are skipped on a rerun. Needs the optional extra: pip install '.[ray]'. "
+                                   "--threads is per cell (default 1: cells run side by side).")
+    s.add_argument("file")
+    s.add_argument("--grid", action="append", required=True, metavar="NAME=VALUES",
+                   help="a parameter of the effect or one of seed, iterations, surfels, tons, "
+                        "max_interactions, with values V1,V2,... or a range A..B (repeatable)")
+    s.add_argument("--ray-address", metavar="ADDRESS",
+                   help="an existing Ray cluster (default: a local Ray on this machine)")
+    s.add_argument("--quiet", action="store_true", help="no progress")
+    _add_run_options(s)
+    s.set_defaults(threads=1)
+    return p
+
+
+def _add_run_options(r: argparse.ArgumentParser) -> None:
+    """The options of ``gammac run`` that ``gammac sweep`` passes on to each cell."""
+    r.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (default: all cores)")
     r.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                    help="override a parameter of the effect (repeatable)")
     r.add_argument("--scene", required=True, help="OBJ or PLY mesh, or a JSON scene file")
@@ -108,7 +138,6 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--surfels", type=_bounded_int, default=100_000)
     r.add_argument("--tons", type=_bounded_int, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
     r.add_argument("--seed", type=_bounded_int, default=1)
-    r.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (default: all cores)")
     r.add_argument("--max-interactions", type=_bounded_int, default=100, help="bound on interactions per gamma-ton")
     r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
     r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
@@ -119,8 +148,6 @@ def _parser() -> argparse.ArgumentParser:
                    help="camera rays per pixel of appearance renders (anti-aliasing)")
     r.add_argument("--ao", type=_bounded_int, default=8, dest="ao_samples",
                    help="ambient-occlusion rays per pixel sample (0: none)")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
-    return p
 
 
 def _read(path: str) -> str:
@@ -177,11 +204,76 @@ def _fmt(args) -> int:
     return EXIT_OK
 
 
+_SWEEP_OWN = {"scene", "out", "threads"}   # run options the sweep handles itself
+
+
+def _run_options_text(args) -> list[str]:
+    """The run options of parsed ``args`` that differ from their defaults, as
+    ``gammac run`` arguments (numbers in repr form, so they parse back exactly)."""
+    def text(value) -> str:
+        if isinstance(value, (tuple, list)):
+            return ",".join(map(text, value))
+        return repr(value) if isinstance(value, float) else str(value)
+
+    probe = argparse.ArgumentParser(add_help=False)
+    _add_run_options(probe)
+    out = []
+    for action in probe._actions:
+        value = getattr(args, action.dest)
+        if action.dest in _SWEEP_OWN or value == action.default:
+            continue
+        flag = action.option_strings[0]
+        if isinstance(action, argparse._StoreTrueAction):
+            out.append(flag)
+        elif isinstance(action, argparse._AppendAction):
+            for item in value:
+                out += [flag, f"{item[0]}={text(item[1])}" if action.dest == "param" else text(item)]
+        else:
+            out += [flag, text(value)]
+    return out
+
+
+def _sweep(args) -> int:
+    """``gammac sweep``: check the effect and every option here, then run the cells."""
+    from .driver.cluster import RayUnavailable
+    from .driver.sweep import RUN_OPTIONS, SweepError, parse_grid, sweep
+
+    try:
+        axes = [parse_grid(g) for g in args.grid]
+    except SweepError as err:
+        raise _Fail(str(err)) from None
+    # The effect must check with the first value of every parameter swept.
+    first = [(a.name, float(a.values[0])) for a in axes if a.name not in RUN_OPTIONS]
+    swept = {name for name, _ in first}
+    try:
+        _load(args.file, [p for p in args.param if p[0] not in swept] + first)
+    except UsageError as err:      # name the option the user wrote
+        text = str(err)
+        for name in swept:
+            text = text.replace(f"--param {name}:", f"--grid {name}:")
+        raise UsageError(text) from None
+    try:
+        cells = sweep(args.file, args.scene, axes, _run_options_text(args), args.out,
+                      address=args.ray_address, threads=args.threads or 1, progress=not args.quiet)
+    except (SweepError, RayUnavailable) as err:
+        raise _Fail(str(err)) from None
+    failed = [c for c in cells if c.status != "ok"]
+    print(f"gammac: {len(cells) - len(failed)} of {len(cells)} cells finished; wrote {args.out}/index.json, "
+          f"{args.out}/contact-sheet.png, {args.out}/cells/", file=sys.stderr)
+    if failed:
+        print(f"gammac: error: {len(failed)} cell{'s' if len(failed) != 1 else ''} failed: "
+              + "; ".join(c.label() for c in failed), file=sys.stderr)
+        return EXIT_INPUT
+    return EXIT_OK
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "fmt":
             return _fmt(args)
+        if args.command == "sweep":
+            return _sweep(args)
         effect = _load(args.file, getattr(args, "param", ()))
         if args.command == "check":
             return EXIT_OK
@@ -194,6 +286,11 @@ def main(argv=None) -> int:
                 from .frontend.parser import parse
 
                 sys.stdout.write(dump(parse(effect.source, effect.path).decls) + "\n")
+                return EXIT_OK
+            if args.what == "effect":
+                from .ir.effect import dump
+
+                sys.stdout.write(dump(effect))
                 return EXIT_OK
             module = generate(effect)
             if args.what == "ir":

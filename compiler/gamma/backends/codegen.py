@@ -1,7 +1,8 @@
-"""LLVM IR generation for the kernels of a checked ``Effect``.
+"""LLVM IR generation for the kernels of an effect's IR (``ir.effect``).
 
 One C-ABI function per kernel (``Kernel.symbol``), with the signatures
-declared in ``abi.py``.  All arithmetic is 32-bit float, in source order,
+declared in ``abi.py``.  It reads the IR only: names are already bound to
+slots, built-ins are lowered by their entry in ``ir.builtins``.  All arithmetic is 32-bit float, in source order,
 without fast-math flags, so results match the reference interpreter
 (``interp.py``) bit for bit.  ``min``/``max`` are ``llvm.minnum``/``maxnum``
 (a NaN operand is ignored), ``clamp(x, lo, hi)`` is ``min(max(x, lo), hi)``.
@@ -15,8 +16,9 @@ from __future__ import annotations
 from llvmlite import ir
 
 from .. import abi
-from ..frontend import ast as A
-from ..frontend.checker import Effect, Kernel, Scope
+from ..ir import effect as I
+from ..ir.builtins import DEFAULT_ALBEDO, FUNCTIONS
+from ..ir.effect import Effect, Kernel
 
 F32 = ir.FloatType()
 I32 = ir.IntType(32)
@@ -31,8 +33,6 @@ I64 = ir.IntType(64)
 TRANSPORT_FNTY = ir.FunctionType(I32, [PTR, PTR, PTR, PTR])
 UPDATE_FNTY = ir.FunctionType(I32, [PTR, PTR])
 APPEARANCE_FNTY = ir.FunctionType(I32, [PTR, PTR, PTR, PTR])
-#: The colour of a surface whose appearance block never sets `color`.
-DEFAULT_ALBEDO = 0.7
 
 
 class _KernelBuilder:
@@ -60,9 +60,6 @@ class _KernelBuilder:
             arg.add_attribute("noalias")
         self.kernel = kernel
         self.b = ir.IRBuilder(fn.append_basic_block("entry"))
-        self.scope: Scope | None = None
-        self.numbers = kernel.statement_numbers()
-        self.sites = kernel.random_sites()
         self.first_bad = self.b.alloca(I32, name="first_bad")  # see abi.TRANSPORT_SIGNATURE
         self.b.store(ir.Constant(I32, 0), self.first_bad)
         self.random_key = None
@@ -83,25 +80,27 @@ class _KernelBuilder:
     def slot_ptr(self, base, index: int):
         return self.b.gep(base, [ir.Constant(I32, index)], inbounds=True, source_etype=F32)
 
-    def load_ref(self, ref: A.Ref, lets: dict):
-        slot = self.scope.resolve(ref, lets)
-        if slot.space == "let":
-            return lets[slot.name]
-        if slot.space == "color":
+    def load(self, var: I.Var, lets: dict):
+        if var.space == "let":
+            return lets[var.name]
+        if var.space == "color":
             return tuple(self.b.load(self.slot_ptr(self.rgb, c), typ=F32) for c in range(3))
-        if slot.space == "param":
-            return ir.Constant(F32, _f32(self.scope.params[slot.name]))
-        if slot.space == "ctx":
-            index = _CONTEXT_INDEX[slot.name]
+        if var.space == "ctx":
+            index = _CONTEXT_INDEX[var.name]
             _, ctype, count = abi.CONTEXT_FIELDS[index]
             path = [ir.Constant(I32, 0), ir.Constant(I32, index)]
             if count > 1:
-                path.append(ir.Constant(I32, slot.index))
+                path.append(ir.Constant(I32, var.component))
             field = self.b.gep(self.ctx, path, inbounds=True, source_etype=CONTEXT_TYPE)
             value = self.b.load(field, typ=_CTYPES[ctype])
             return value if ctype == "float" else self.b.sitofp(value, F32)
-        base = self.ton if slot.space == "ton" else self.surf
-        return self.b.load(self.slot_ptr(base, slot.index), typ=F32)
+        base = self.ton if var.space == "ton" else self.surf
+        return self.b.load(self.slot_ptr(base, var.slot), typ=F32)
+
+    # -- the emitter interface the lowerings of ir.builtins use --
+
+    def const(self, value: float):
+        return ir.Constant(F32, value)
 
     def arith(self, op: str, left, right):
         """One float operation, folded when both operands are constants
@@ -130,34 +129,15 @@ class _KernelBuilder:
         a_is_nan = bld.fcmp_unordered("uno", a, a)
         return bld.select(bld.or_(better, a_is_nan), b, a)
 
-    def call(self, name: str, args: list):
-        b = self.b
-        if name in ("min", "max"):
-            acc = args[0]
-            for a in args[1:]:
-                acc = self.pick(name, acc, a)
-            return acc
-        if name == "clamp":
-            return self.pick("min", self.pick("max", args[0], args[1]), args[2])
-        if name == "rgb":
-            return tuple(args)
-        if name == "mix":              # a + (b - a) * t
-            a, b_, t = args
-            return self.arith("+", a, self.arith("*", self.arith("-", b_, a), t))
-        if name == "smoothstep":       # t = clamp((x - e0) / (e1 - e0), 0, 1); t * t * (3 - 2 * t)
-            e0, e1, x = args
-            t = self.call("clamp", [self.arith("/", self.arith("-", x, e0), self.arith("-", e1, e0)),
-                                    ir.Constant(F32, 0.0), ir.Constant(F32, 1.0)])
-            return self.arith("*", self.arith("*", t, t),
-                              self.arith("-", ir.Constant(F32, 3.0), self.arith("*", ir.Constant(F32, 2.0), t)))
-        if name in ("abs", "sqrt", "floor"):
-            intrinsic = {"abs": "llvm.fabs", "sqrt": "llvm.sqrt", "floor": "llvm.floor"}[name]
-            return b.call(self._intrinsic(intrinsic, 1), args)
-        if name == "fract":            # x - floor(x)
-            return self.arith("-", args[0], self.call("floor", args))
-        if name in ("exp", "log", "pow"):
-            return b.call(self._libm(name + "f", len(args)), args)
-        raise AssertionError(f"unchecked function {name}")
+    def intrinsic(self, name: str, args: list):
+        return self.b.call(self._intrinsic(name, len(args)), args)
+
+    def libm(self, name: str, args: list):
+        return self.b.call(self._libm(name, len(args)), args)
+
+    def texture(self, index: int):
+        base = 3 * index
+        return tuple(self.b.load(self.slot_ptr(self.textures, base + c), typ=F32) for c in range(3))
 
     def key(self):
         """The context's 64-bit random() key, loaded once per kernel call."""
@@ -186,13 +166,13 @@ class _KernelBuilder:
         bits = b.trunc(b.lshr(z, c(40)), I32)
         return b.fmul(b.uitofp(bits, F32), ir.Constant(F32, 2.0 ** -24))
 
-    def expr(self, e: A.Expr, lets: dict):
+    def expr(self, e: I.Expr, lets: dict):
         b = self.b
-        if isinstance(e, A.Number):
-            return ir.Constant(F32, _f32(e.value))
-        if isinstance(e, A.Ref):
-            return self.load_ref(e, lets)
-        if isinstance(e, A.Unary):
+        if isinstance(e, I.Const):
+            return ir.Constant(F32, e.value)
+        if isinstance(e, I.Load):
+            return self.load(e.var, lets)
+        if isinstance(e, I.Neg):
             operand = self.expr(e.operand, lets)
             if isinstance(operand, tuple):
                 return tuple(b.fneg(c) if not isinstance(c, ir.Constant) else ir.Constant(F32, -c.constant)
@@ -200,25 +180,20 @@ class _KernelBuilder:
             if isinstance(operand, ir.Constant):
                 return ir.Constant(F32, -operand.constant)
             return b.fneg(operand)
-        if isinstance(e, A.Binary):
+        if isinstance(e, I.Arith):
             return self.arith(e.op, self.expr(e.left, lets), self.expr(e.right, lets))
-        if isinstance(e, A.Compare):
+        if isinstance(e, I.Compare):
             # ordered comparisons are false on NaN; != is true on NaN (IEEE, as in C)
             compare = b.fcmp_unordered if e.op == "!=" else b.fcmp_ordered
             return compare(e.op, self.expr(e.left, lets), self.expr(e.right, lets))
-        if isinstance(e, A.Logic):     # both sides are evaluated (no short circuit)
+        if isinstance(e, I.Logic):     # both sides are evaluated (no short circuit)
             left = self.expr(e.left, lets)
             if e.op == "not":
                 return b.not_(left)
             right = self.expr(e.right, lets)
             return b.and_(left, right) if e.op == "and" else b.or_(left, right)
-        if isinstance(e, A.Call):
-            if e.name == "random":
-                return self.random(self.sites[id(e)])
-            if e.name == "texture":
-                base = 3 * self.kernel.textures[id(e)]
-                return tuple(b.load(self.slot_ptr(self.textures, base + c), typ=F32) for c in range(3))
-            return self.call(e.name, [self.expr(a, lets) for a in e.args])
+        if isinstance(e, I.Call):
+            return FUNCTIONS[e.name].lower(self, e, [self.expr(a, lets) for a in e.args])
         raise AssertionError(f"unchecked expression {e!r}")
 
     def store_finite(self, new, ptr, number: int) -> None:
@@ -234,32 +209,32 @@ class _KernelBuilder:
                 first = b.icmp_signed("==", seen, ir.Constant(I32, 0))
                 b.store(b.select(first, ir.Constant(I32, number), seen), self.first_bad)
 
-    def assign(self, st: A.Assign, lets: dict) -> None:
-        slot = self.scope.resolve(st.target, lets)
+    def assign(self, st: I.Store, lets: dict) -> None:
+        var = st.target
         value = self.expr(st.value, lets)
         b = self.b
-        if slot.space == "color":
+        if var.space == "color":
             for c in range(3):
-                self.store_finite(value[c], self.slot_ptr(self.rgb, c), self.numbers[id(st)])
+                self.store_finite(value[c], self.slot_ptr(self.rgb, c), st.number)
             return
-        if slot.space == "surf" and self.delta is not None:
-            ptr = self.slot_ptr(self.delta, slot.index)  # transport: accumulate a delta
+        if var.space == "surf" and self.delta is not None:
+            ptr = self.slot_ptr(self.delta, var.slot)  # transport: accumulate a delta
         else:
-            ptr = self.slot_ptr(self.ton if slot.space == "ton" else self.surf, slot.index)
+            ptr = self.slot_ptr(self.ton if var.space == "ton" else self.surf, var.slot)
         if st.op == "=":
             new = value
         else:
             old = b.load(ptr, typ=F32)
             new = {"+=": b.fadd, "-=": b.fsub, "*=": b.fmul}[st.op](old, value)
         # A NaN or infinite result is not stored; the first such statement is returned.
-        self.store_finite(new, ptr, self.numbers[id(st)])
+        self.store_finite(new, ptr, st.number)
 
     def statements(self, body: list, lets: dict) -> None:
         lets = dict(lets)
         for st in body:
-            if isinstance(st, A.Let):
+            if isinstance(st, I.Let):
                 lets[st.name] = self.expr(st.value, lets)
-            elif isinstance(st, A.If):
+            elif isinstance(st, I.If):
                 cond = self.expr(st.cond, lets)
                 with self.b.if_else(cond) as (then, otherwise):
                     with then:
@@ -267,22 +242,13 @@ class _KernelBuilder:
                     with otherwise:
                         self.statements(st.otherwise, lets)
             else:
-                self.b.comment(f"{st.target.pos.line}:{st.target.pos.col}: "
-                               f"{'.'.join(st.target.parts)} {st.op} ...")
+                self.b.comment(f"{st.pos.line}:{st.pos.col}: {st.target.text} {st.op} ...")
                 self.assign(st, lets)
 
     def build(self) -> None:
-        for scope, body in self.kernel.bodies:
-            self.scope = scope
+        for body in self.kernel.bodies:
             self.statements(body, {})
         self.b.ret(self.b.load(self.first_bad, typ=I32))
-
-
-def _f32(value: float) -> float:
-    import numpy as np
-
-    with np.errstate(over="ignore"):
-        return float(np.float32(value))
 
 
 def generate(effect: Effect) -> ir.Module:

@@ -1,19 +1,27 @@
-"""Reference interpreter: runs a kernel's rule bodies over the same AST.
+"""Reference interpreter: runs a kernel's rule bodies, the oracle the compiled
+kernels are tested against.
 
-Deliberately simple and independent of the code generator (it shares only
-name resolution, ``Scope.resolve``).  It is the oracle the compiled kernels
-are tested against: every operation is done in numpy float32, in source
-order, with the same semantics as ``codegen.py`` (min/max ignore NaN like
-``llvm.minnum``/``maxnum``).
+It is a second, independent reading of the language.  It shares the IR with
+the code generator but none of its shortcuts: it reads every name by what it
+is (``Var.space`` and ``Var.name``), never by ``Var.slot``, and finds where
+that name lives in the caller's arrays from the declarations themselves
+(``abi.REFLECTANCE_SLOTS`` and the declaration order of properties and
+carried attributes, as the ABI lays a row out); it numbers statements and
+``random()`` sites by walking the bodies itself.  A wrong slot, number or
+site assigned by the front end therefore shows up as a difference.  Every
+operation is done in numpy float32, in source order, with the reference
+semantics of ``ir.builtins``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..frontend import ast as A
+from .. import abi
 from ..abi import random_value
-from ..frontend.checker import Kernel, Scope
+from ..ir import effect as I
+from ..ir.builtins import DEFAULT_ALBEDO, FUNCTIONS, ref_arith
+from ..ir.effect import Kernel
 
 f32 = np.float32
 
@@ -34,176 +42,179 @@ class Context:
         self.uv = np.zeros(2, np.float32)
 
 
-def _libm():
-    """The C library's expf/logf/powf: the compiled kernels call the same ones
-    (numpy's own float32 exp/log differ from libm in the last bit)."""
-    import ctypes
-    import ctypes.util
-
-    lib = ctypes.CDLL(ctypes.util.find_library("m"))
-    fns = {}
-    for name, arity in (("expf", 1), ("logf", 1), ("powf", 2)):
-        fn = getattr(lib, name)
-        fn.restype = ctypes.c_float
-        fn.argtypes = [ctypes.c_float] * arity
-        fns[name] = fn
-    return fns
+def _row_layout(kernel: Kernel) -> dict[str, int]:
+    """Where each name of the surface lives in a surfel row, from the ABI and
+    the surface's declaration (properties in the order written, first of a name)."""
+    layout = {f"reflectance.{n}": i for i, n in enumerate(abi.REFLECTANCE_SLOTS)}
+    for init in kernel.surface.decl.properties:
+        layout.setdefault(init.name, abi.ROW_HEADER + len(layout) - len(abi.REFLECTANCE_SLOTS))
+    return layout
 
 
-_LIBM = _libm()
-
-
-def _arith(op: str, a, b):
-    """A float32 operation; colours (3-tuples) component by component."""
-    if isinstance(a, tuple) or isinstance(b, tuple):
-        a = a if isinstance(a, tuple) else (a,) * 3
-        b = b if isinstance(b, tuple) else (b,) * 3
-        return tuple(_arith(op, x, y) for x, y in zip(a, b))
-    return f32({"+": np.add, "-": np.subtract, "*": np.multiply, "/": np.divide}[op](a, b))
-
-
-def _pick(name: str, a, b):
-    """b if b is strictly smaller (min) / larger (max) than a, or a is NaN; else a."""
-    better = b < a if name == "min" else b > a
-    return f32(b if better or np.isnan(a) else a)
-
-
-def _call(name: str, args: list):
-    if name in ("min", "max"):
-        acc = args[0]
-        for a in args[1:]:
-            acc = _pick(name, acc, a)
-        return acc
-    if name == "clamp":
-        return _pick("min", _pick("max", args[0], args[1]), args[2])
-    if name == "rgb":
-        return tuple(args)
-    if name == "mix":
-        a, b, t = args
-        return _arith("+", a, _arith("*", _arith("-", b, a), t))
-    if name == "smoothstep":
-        e0, e1, x = args
-        t = _call("clamp", [f32(f32(x - e0) / f32(e1 - e0)), f32(0), f32(1)])
-        return f32(f32(t * t) * f32(f32(3) - f32(f32(2) * t)))
-    if name == "abs":
-        return f32(np.abs(args[0]))
-    if name == "sqrt":
-        return f32(np.sqrt(args[0]))
-    if name == "floor":
-        return f32(np.floor(args[0]))
-    if name == "fract":
-        return f32(args[0] - np.floor(args[0]))
-    if name in ("exp", "log", "pow"):
-        return f32(_LIBM[name + "f"](*[float(a) for a in args]))
-    raise AssertionError(f"unchecked function {name}")
+def _ton_layout(kernel: Kernel) -> dict[str, int]:
+    layout: dict[str, int] = {}
+    if kernel.ton is not None:
+        for init in kernel.ton.decl.carry:
+            layout.setdefault(init.name, len(layout))
+    return layout
 
 
 _COMPARE = {"<": np.less, "<=": np.less_equal, ">": np.greater, ">=": np.greater_equal,
             "==": np.equal, "!=": np.not_equal}
 
 
-def _eval(e: A.Expr, scope: Scope, ton, surf, ctx: Context, lets: dict):
-    if isinstance(e, A.Number):
-        return f32(e.value)
-    if isinstance(e, A.Ref):
-        slot = scope.resolve(e, lets)
-        if slot.space == "let":
-            return lets[slot.name]
-        if slot.space == "color":
-            return tuple(f32(c) for c in _STATE.rgb)
-        if slot.space == "param":
-            return f32(scope.params[slot.name])
-        if slot.space == "ctx":
-            value = getattr(ctx, slot.name)
-            return f32(value[slot.index] if np.ndim(value) else value)
-        return (ton if slot.space == "ton" else surf)[slot.index]
-    if isinstance(e, A.Unary):
-        value = _eval(e.operand, scope, ton, surf, ctx, lets)
-        return tuple(-c for c in value) if isinstance(value, tuple) else -value
-    if isinstance(e, A.Binary):
-        a = _eval(e.left, scope, ton, surf, ctx, lets)
-        b = _eval(e.right, scope, ton, surf, ctx, lets)
-        return _arith(e.op, a, b)
-    if isinstance(e, A.Compare):
-        a = _eval(e.left, scope, ton, surf, ctx, lets)
-        b = _eval(e.right, scope, ton, surf, ctx, lets)
-        return bool(_COMPARE[e.op](a, b))
-    if isinstance(e, A.Logic):  # both sides evaluated, like the compiled code
-        a = _eval(e.left, scope, ton, surf, ctx, lets)
-        if e.op == "not":
-            return not a
-        b = _eval(e.right, scope, ton, surf, ctx, lets)
-        return (a and b) if e.op == "and" else (a or b)
-    if isinstance(e, A.Call):
-        if e.name == "random":
-            return f32(random_value(ctx.random_key, _STATE.sites[id(e)]))
-        if e.name == "texture":
-            base = 3 * _STATE.kernel.textures[id(e)]
-            return tuple(f32(_STATE.textures[base + c]) for c in range(3))
-        return _call(e.name, [_eval(a, scope, ton, surf, ctx, lets) for a in e.args])
-    raise AssertionError(f"unchecked expression {e!r}")
+class _Call:
+    """One kernel call: the caller's arrays, addressed by name, and the
+    bookkeeping a call needs (statement count, random() sites, first bad)."""
+
+    def __init__(self, kernel: Kernel, ton, surf, delta, ctx: Context, textures=None, rgb=None):
+        self.kernel, self.ton, self.surf, self.delta, self.ctx = kernel, ton, surf, delta, ctx
+        self.row, self.carry = _row_layout(kernel), _ton_layout(kernel)
+        self.transport = kernel.ton is not None
+        self.textures, self.rgb = textures, rgb
+        self.first_bad = 0
+        self.statement = 0        # statements are numbered in source order, not run order
+        self.sites: dict[int, int] = {}
+
+    # -- what the reference semantics of ir.builtins ask for --
+
+    def random(self, call: I.Call):
+        return f32(random_value(self.ctx.random_key, self.sites[id(call)]))
+
+    def texture(self, call: I.Call):
+        base = 3 * call.texture
+        return tuple(f32(self.textures[base + c]) for c in range(3))
+
+    # -- names --
+
+    def where(self, var: I.Var):
+        """(array, index) of a ton attribute or a surfel value, by name."""
+        if var.space == "ton":
+            return self.ton, self.carry[var.name]
+        return self.surf, self.row[var.name]
+
+    def read(self, var: I.Var, lets: dict):
+        if var.space == "let":
+            return lets[var.name]
+        if var.space == "color":
+            return tuple(f32(c) for c in self.rgb)
+        if var.space == "ctx":
+            value = getattr(self.ctx, var.name)
+            return f32(value[var.component] if np.ndim(value) else value)
+        array, index = self.where(var)
+        return array[index]
+
+    # -- evaluation --
+
+    def eval(self, e, lets: dict):
+        if isinstance(e, I.Const):
+            return f32(e.value)
+        if isinstance(e, I.Load):
+            return self.read(e.var, lets)
+        if isinstance(e, I.Neg):
+            value = self.eval(e.operand, lets)
+            return tuple(-c for c in value) if isinstance(value, tuple) else -value
+        if isinstance(e, I.Arith):
+            return ref_arith(e.op, self.eval(e.left, lets), self.eval(e.right, lets))
+        if isinstance(e, I.Compare):
+            a, b = self.eval(e.left, lets), self.eval(e.right, lets)
+            return bool(_COMPARE[e.op](a, b))
+        if isinstance(e, I.Logic):  # both sides evaluated, like the compiled code
+            a = self.eval(e.left, lets)
+            if e.op == "not":
+                return not a
+            b = self.eval(e.right, lets)
+            return (a and b) if e.op == "and" else (a or b)
+        if isinstance(e, I.Call):
+            return FUNCTIONS[e.name].reference(self, e, [self.eval(a, lets) for a in e.args])
+        raise AssertionError(f"unchecked expression {e!r}")
+
+    def run(self, body: list, lets: dict, numbers: dict) -> None:
+        lets = dict(lets)
+        for st in body:
+            if isinstance(st, I.Let):
+                lets[st.name] = self.eval(st.value, lets)
+            elif isinstance(st, I.If):
+                branch = st.then if self.eval(st.cond, lets) else st.otherwise
+                self.run(branch, lets, numbers)
+            else:
+                self.store(st, self.eval(st.value, lets), numbers[id(st)])
+
+    def store(self, st: I.Store, value, number: int) -> None:
+        if st.target.space == "color":
+            for c in range(3):
+                if np.isfinite(value[c]):
+                    self.rgb[c] = value[c]
+                elif not self.first_bad:
+                    self.first_bad = number
+            return
+        array, index = self.where(st.target)
+        if st.target.space == "surf" and self.transport:
+            array = self.delta                       # transport rules add to a delta row
+        old = array[index]
+        new = {"=": value, "+=": f32(old + value), "-=": f32(old - value), "*=": f32(old * value)}[st.op]
+        if np.isfinite(new):
+            array[index] = new
+        elif not self.first_bad:                    # not stored; the first such statement is reported
+            self.first_bad = number
 
 
-def _run(body: list, scope: Scope, ton, surf, delta, ctx: Context, lets: dict, transport: bool):
-    lets = dict(lets)
-    for st in body:
-        if isinstance(st, A.Let):
-            lets[st.name] = _eval(st.value, scope, ton, surf, ctx, lets)
-        elif isinstance(st, A.If):
-            branch = st.then if _eval(st.cond, scope, ton, surf, ctx, lets) else st.otherwise
-            _run(branch, scope, ton, surf, delta, ctx, lets, transport)
-        else:
-            slot = scope.resolve(st.target, lets)
-            value = _eval(st.value, scope, ton, surf, ctx, lets)
-            if slot.space == "color":
-                for c in range(3):
-                    if np.isfinite(value[c]):
-                        _STATE.rgb[c] = value[c]
-                    elif not _STATE.first_bad:
-                        _STATE.first_bad = _STATE.numbers[id(st)]
-                continue
-            dest = ton if slot.space == "ton" else (delta if transport else surf)
-            old = dest[slot.index]
-            new = {"=": value, "+=": f32(old + value), "-=": f32(old - value),
-                   "*=": f32(old * value)}[st.op]
-            if np.isfinite(new):
-                dest[slot.index] = new
-            elif not _STATE.first_bad:          # not stored; the first such statement is reported
-                _STATE.first_bad = _STATE.numbers[id(st)]
+def _number(kernel: Kernel) -> tuple[dict, dict]:
+    """Statement numbers (id -> 1, 2, ...) and random() sites (id -> 0, 1, ...)
+    in source order across the kernel's bodies: a condition before its
+    branches, a statement's value before its target (SPEC §11)."""
+    numbers: dict[int, int] = {}
+    sites: dict[int, int] = {}
+
+    def expr(e):
+        if isinstance(e, I.Call) and e.name == "random":
+            sites[id(e)] = len(sites)
+        for child in ([e.operand] if isinstance(e, I.Neg) else
+                      [e.left, e.right] if isinstance(e, (I.Arith, I.Compare)) else
+                      [e.left] + ([e.right] if e.right is not None else []) if isinstance(e, I.Logic) else
+                      list(e.args) if isinstance(e, I.Call) else []):
+            expr(child)
+
+    def body(stmts):
+        for st in stmts:
+            if isinstance(st, I.Let):
+                expr(st.value)
+            elif isinstance(st, I.If):
+                expr(st.cond)
+                body(st.then)
+                body(st.otherwise)
+            else:
+                expr(st.value)
+
+    def count(stmts):
+        for st in stmts:
+            if isinstance(st, I.If):
+                count(st.then)
+                count(st.otherwise)
+            elif isinstance(st, I.Store):
+                numbers[id(st)] = len(numbers) + 1
+
+    for b in kernel.bodies:
+        body(b)
+        count(b)
+    return numbers, sites
 
 
-class _State:
-    """Per-call bookkeeping shared by the helpers above (statement and random()
-    site numbers of the running kernel, the first non-finite statement)."""
-
-    numbers: dict = {}
-    sites: dict = {}
-    first_bad = 0
-    kernel = None
-    textures = None
-    rgb = None
-
-
-_STATE = _State()
-
-
-def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context) -> int:
+def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context, *, textures=None, rgb=None) -> int:
     """Run in place, like the compiled kernel: ``ton`` and ``delta`` (transport)
     or ``surf`` (update) are float32 arrays that get modified.  Returns 0 or the
     number of the first statement whose result was NaN or infinite."""
-    _STATE.numbers, _STATE.sites, _STATE.first_bad = kernel.statement_numbers(), kernel.random_sites(), 0
-    _STATE.kernel = kernel
+    call = _Call(kernel, ton, surf, delta, ctx, textures, rgb)
+    numbers, call.sites = _number(kernel)
     with np.errstate(all="ignore"):
-        for scope, body in kernel.bodies:
-            _run(body, scope, ton, surf, delta, ctx, {}, kernel.ton is not None)
-    return _STATE.first_bad
+        for body in kernel.bodies:
+            call.run(body, {}, numbers)
+    return call.first_bad
 
 
 def run_appearance(kernel: Kernel, surf, textures, ctx: Context):
     """The colour an appearance kernel gives: (rgb float32[3], first non-finite statement)."""
-    from .codegen import DEFAULT_ALBEDO
-
-    _STATE.textures = np.asarray(textures, np.float32).reshape(-1)
-    _STATE.rgb = np.full(3, DEFAULT_ALBEDO, np.float32)
-    bad = run_kernel(kernel, None, surf, None, ctx)
-    return _STATE.rgb.copy(), bad
+    rgb = np.full(3, DEFAULT_ALBEDO, np.float32)
+    bad = run_kernel(kernel, None, surf, None, ctx, textures=np.asarray(textures, np.float32).reshape(-1),
+                     rgb=rgb)
+    return rgb.copy(), bad

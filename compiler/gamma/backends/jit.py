@@ -16,7 +16,7 @@ from pathlib import Path
 import llvmlite.binding as llvm
 from llvmlite import ir
 
-from ..frontend.checker import Effect
+from ..ir.effect import Effect
 from .codegen import generate
 
 

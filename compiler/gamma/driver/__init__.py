@@ -6,6 +6,9 @@ iteration loop; the loop publishes events (``events``) to writers
 with ``run(effect, opts, writers=[...])``).  ``scene`` assembles meshes and
 binds their parts to surfaces; ``export`` bakes textures and encodes glTF/OBJ;
 ``outputs`` encodes PLY, false-colour PNG and JSON; ``camera`` frames the scene.
+``sweep`` runs a parameter grid as Ray tasks (``gammac sweep``) and
+``distributed`` traces iterations on Ray workers (``gammac run --ray``);
+``cluster`` connects to Ray, the optional extra.
 
 The driver never looks inside rule bodies: it uses the checked effect's
 declarations and the kernels' addresses.

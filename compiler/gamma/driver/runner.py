@@ -20,7 +20,7 @@ import numpy as np
 from .. import abi, __version__
 from ..frontend.ast import Pos
 from ..backends.jit import JitKernels
-from ..frontend.checker import Effect, Length, Source
+from ..ir.effect import Effect, Length, Source
 from ..frontend.diagnostics import Diagnostic, GammaError
 
 
@@ -55,11 +55,13 @@ class RunOptions:
 
 
 def runtime_module():
+    """``gamma._runtime``, checked against ``abi`` (version and binding)."""
     from .. import _runtime as rt
 
-    if rt.ABI_VERSION != abi.ABI_VERSION:
-        raise RunError(f"runtime ABI {rt.ABI_VERSION} does not match compiler ABI "
-                       f"{abi.ABI_VERSION}; reinstall the package")
+    problems = abi.check_runtime(rt)
+    if problems:
+        raise RunError(f"the runtime does not match the compiler ({'; '.join(problems)}); "
+                       "reinstall the package")
     return rt
 
 
@@ -211,8 +213,6 @@ def clear_earlier_run(out: Path) -> None:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
 
-STAT_KEYS = ("emitted", "missed", "settled", "escaped", "capped", "interactions", "rays",
-             "bounces", "flow_steps", "drips", "segments")
 
 
 def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
@@ -269,7 +269,7 @@ class Run:
         self.nonfinite.add(it, traced["nonfinite"], updated["nonfinite"])
         rows = self.sim.rows()
         props = property_columns(self.effect, rows, self.surfel_surface)
-        record = {k: traced[k] for k in STAT_KEYS if k in traced}
+        record = {k: traced[k] for k in abi.STATISTICS if k in traced}
         record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
                                    for name, col in props.items()}
         record["trace_seconds"] = traced["trace_seconds"]
@@ -379,15 +379,15 @@ class NonFiniteReport:
         for items in lists:
             for event, ton, surface, statement, count in items:
                 kernel = self.kernels[(event, ton if event >= 0 else 0, surface)]
-                scope, st = kernel.statement_at(statement)
-                where = f"{scope.origin}:{st.target.pos.line}:{st.target.pos.col}"
+                st = kernel.statement_at(statement)
+                where = f"{st.origin}:{st.pos.line}:{st.pos.col}"
                 key = (where, kernel.label)
                 if key not in self.by_key:
                     entry = {"where": where, "rule": kernel.label, "count": 0, "first_iteration": iteration}
                     self.by_key[key] = entry
                     self.entries.append(entry)
                     print(f"\ngammac: warning: {where}: in {kernel.label}, "
-                          f"'{'.'.join(st.target.parts)} {st.op} ...' gave NaN or infinity "
+                          f"'{st.target.text} {st.op} ...' gave NaN or infinity "
                           f"{count} times in iteration {iteration}; those results were not stored",
                           file=sys.stderr)
                 self.by_key[key]["count"] += count

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..frontend.checker import Effect
+from ..ir.effect import Effect
 
 
 class SceneError(Exception):

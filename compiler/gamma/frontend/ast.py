@@ -1,7 +1,8 @@
 """AST of a .gamma file: plain dataclasses, every node with its source position.
 
-The parser (``parser.py``) builds these; the checker, the code generator and
-the reference interpreter all walk the same tree.
+The parser (``parser.py``) builds these; name resolution (``resolve.py``) and
+the checker (``checker.py``) read them and produce the IR (``gamma.ir``).
+Nothing after the front end reads the AST (``gammac emit --ast`` prints it).
 """
 
 from __future__ import annotations

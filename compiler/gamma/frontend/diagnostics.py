@@ -5,7 +5,9 @@
           ^~~~~
 
 A user mistake never reaches the user as a Python traceback: every phase
-collects ``Diagnostic`` objects and raises ``GammaError`` holding all of them.
+of the front end adds ``Diagnostic`` objects to one ``Report``; at the end
+the report raises ``GammaError`` holding every error, or hands its warnings
+to the checked effect.  They are printed once, by the caller (``gammac``).
 """
 
 from __future__ import annotations
@@ -51,6 +53,34 @@ def render(diagnostics: list[Diagnostic], path: str, source: str) -> str:
 
     return "\n".join(d.format(d.file.path if d.file else path, d.file.text if d.file else source)
                      for d in sorted(diagnostics, key=key))
+
+
+class Report:
+    """Every diagnostic of one compilation, errors and warnings apart, each once
+    (a wildcard rule is checked once per expansion but reported once)."""
+
+    def __init__(self):
+        self.errors: list[Diagnostic] = []
+        self.warnings: list[Diagnostic] = []
+
+    def error(self, pos: Pos, message: str, file: SourceFile | None = None) -> None:
+        self.add(Diagnostic(pos, message, "error", file))
+
+    def warn(self, pos: Pos, message: str, file: SourceFile | None = None) -> None:
+        self.add(Diagnostic(pos, message, "warning", file))
+
+    def add(self, diag: Diagnostic) -> None:
+        found = self.warnings if diag.severity == "warning" else self.errors
+        if diag not in found:
+            found.append(diag)
+
+    def extend(self, diagnostics) -> None:
+        """Diagnostics from elsewhere (an imported file's syntax errors), kept as they are."""
+        self.errors.extend(diagnostics)
+
+    def raise_errors(self, path: str, source: str) -> None:
+        if self.errors:
+            raise GammaError(path, source, self.errors)
 
 
 class GammaError(Exception):

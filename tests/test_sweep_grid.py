@@ -1,0 +1,94 @@
+"""gammac sweep without Ray: grid syntax, cell names and commands, overlap
+with run options, and the message when the optional extra is missing."""
+
+import sys
+
+import pytest
+
+from gamma import cli
+from gamma.driver.sweep import Axis, SweepError, check_overlap, parse_grid, plan_cells
+
+
+def test_grid_values_and_ranges():
+    assert parse_grid("rate=0.05,0.1,0.2") == Axis("rate", ["0.05", "0.1", "0.2"])
+    assert parse_grid("seed=1..4") == Axis("seed", ["1", "2", "3", "4"])
+    assert parse_grid("seed=1..2,7").values == ["1", "2", "7"]
+    assert parse_grid("max-interactions=5").name == "max_interactions"
+
+
+@pytest.mark.parametrize("text, message", [
+    ("rate", "expected NAME=V1,V2"),
+    ("rate=", "expected NAME=V1,V2"),
+    ("1x=2", "expected NAME=V1,V2"),
+    ("rate=0.1,abc", "'abc' is not a number"),
+    ("rate=0.1,nan", "'nan' is not a number"),
+    ("seed=3..1", "is empty"),
+    ("seed=1..x", "not a range of whole numbers"),
+    ("seed=1.5", "--seed takes whole numbers"),
+    ("rate=0.1,0.10", "the value 0.10 is given twice"),
+    ("seed=0..20000", "more than 10,000 values"),
+])
+def test_bad_grids_are_named(text, message):
+    with pytest.raises(SweepError, match=message):
+        parse_grid(text)
+
+
+def test_cells_are_every_combination_as_gammac_run_commands(tmp_path):
+    cells = plan_cells("e.gamma", "mesh.obj", [parse_grid("rate=0.1,0.2"), parse_grid("seed=1..3")],
+                       ["--surfels", "500"], threads=1)
+    assert [c.name for c in cells] == [f"rate={r}_seed={s}" for r in ("0.1", "0.2") for s in (1, 2, 3)]
+    last = cells[-1]
+    assert last.parameters() == {"rate": 0.2, "seed": 3}
+    assert last.argv[:2] == ["run", str((tmp_path.cwd() / "e.gamma").resolve())]
+    assert last.argv[-4:] == ["--param", "rate=0.2", "--seed", "3"]
+    assert "--surfels" in last.argv and "--quiet" in last.argv
+
+
+def test_a_swept_name_may_not_also_be_a_run_option():
+    with pytest.raises(SweepError, match="--seed is given and also swept"):
+        check_overlap([parse_grid("seed=1..2")], ["--seed", "4"])
+    with pytest.raises(SweepError, match="--param rate=0.3 is given and also swept"):
+        check_overlap([parse_grid("rate=0.1")], ["--param", "rate=0.3"])
+    check_overlap([parse_grid("rate=0.1")], ["--param", "other=0.3", "--seed", "2"])
+
+
+def test_run_options_are_passed_on_exactly():
+    args = cli._parser().parse_args(["sweep", "e.gamma", "--scene", "m.obj", "--out", "o", "--grid", "seed=1",
+                                     "--param", "k=0.1", "--view", "1,0.7,0.9", "--surfels", "123",
+                                     "--export", "--assign", "a=B", "--threads", "2"])
+    again = cli._parser().parse_args(["run", "e.gamma", "--scene", "m.obj", "--out", "o",
+                                      *cli._run_options_text(args)])
+    for name in ("param", "view", "surfels", "export", "assign", "iterations", "fov"):
+        assert getattr(again, name) == getattr(args, name), name
+    assert args.threads == 2
+    assert "--threads" not in cli._run_options_text(args)   # the sweep sets it per cell
+
+
+def test_sweep_without_ray_says_how_to_install_it(tmp_path, monkeypatch, capsys):
+    (tmp_path / "e.gamma").write_text("""
+        ton T { motion straight = 1.0  carry p = 1.0 }
+        surface S { property q = 0.0 }
+        source a = environment(sphere) emits T count 10
+        on settle(t: T, s: S) { s.q += t.p }
+    """)
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    monkeypatch.setitem(sys.modules, "ray", None)     # import ray fails as if not installed
+    code = cli.main(["sweep", str(tmp_path / "e.gamma"), "--scene", str(tmp_path / "m.obj"),
+                     "--grid", "seed=1..2", "--out", str(tmp_path / "out"), "--quiet"])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "Ray is not installed" in err and "pip install '.[ray]'" in err
+
+
+def test_sweep_checks_the_effect_before_starting(tmp_path, capsys):
+    (tmp_path / "e.gamma").write_text("""
+        ton T { motion straight = 1.0  carry p = 1.0 }
+        surface S { property q = 0.0 }
+        source a = environment(sphere) emits T count 10
+        on settle(t: T, s: S) { s.q += t.p }
+    """)
+    code = cli.main(["sweep", str(tmp_path / "e.gamma"), "--scene", "nowhere.obj",
+                     "--grid", "speed=1,2", "--out", str(tmp_path / "out"), "--quiet"])
+    assert code == 2
+    assert "--grid speed: e.gamma has no parameter 'speed'" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
