@@ -8,13 +8,14 @@ SCENES ?= examples/scenes
 DEMO_OUT ?= out/patina-bunny
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
-	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev
+	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev \
+	libcgal-dev libgmp-dev libmpfr-dev libboost-dev
 # ray: the optional extra (.[ray]); installed here so its tests run in CI
 PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
-.PHONY: all demo stain test deps install runtime-tests pytest bench clean
+.PHONY: all demo stain erosion test deps install runtime-tests pytest bench clean
 
 all: install
 
@@ -64,6 +65,16 @@ stain: install
 	  --iterations 30 --out out/stain-bleeding
 	@echo "Rust bleeding from the chain onto the steps: $(abspath out/stain-bleeding)/renders/"
 
+# The paper's Fig. 11: wind-driven sand wears a sandstone arch (30 iterations);
+# the shape follows the stone removed and deposited, re-tiled every iteration.
+erosion: install
+	$(PY) examples/scenes/make_arch.py examples/scenes/arch.obj
+	$(VENV)/bin/gammac run examples/erosion.gamma --scene examples/scenes/arch.obj \
+	  --assign arch=Sandstone --assign ground=Ground --show stone --view -1,0.45,0.9 \
+	  --surfels 60000 --iterations 30 --out out/erosion
+	@echo "Erosion of the arch: $(abspath out/erosion)/renders/ (false colour of stone),"
+	@echo "  meshes/iter_0001.ply ... iter_0030.ply (the deformed mesh), summary.json (geometry, mass books)"
+
 # Runtime unit tests, built separately with AddressSanitizer + UBSan.
 runtime-tests: install
 	cmake -S . -B build-tests -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
@@ -84,6 +95,7 @@ bench: install
 	$(PY) bench/bench_compile.py
 	$(PY) bench/bench_render.py
 	$(PY) bench/bench_scaling.py
+	$(PY) bench/bench_erosion.py
 
 clean:
 	rm -rf build build-tests out $(VENV)

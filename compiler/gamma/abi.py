@@ -117,10 +117,10 @@ BINDING = {
              "vertices", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
     "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",
                "triangle_surface", "add_ton_type", "add_source", "set_transport", "set_update",
-               "set_appearance"),
+               "set_appearance", "add_shape_rate", "add_mass_property"),
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
-                   "render_appearance"),
+                   "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces"),
 }
 
 

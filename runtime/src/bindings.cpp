@@ -13,6 +13,8 @@
 #include "gamma/error.h"
 #include "gamma/mesh.h"
 #include "gamma/sampling.h"
+#include "gamma/remesh.h"
+#include "gamma/shape_step.h"
 #include "gamma/simulation.h"
 #include "gamma_abi.h"
 
@@ -43,6 +45,16 @@ I32 as_i32(nb::handle obj) { return nb::cast<I32>(numpy_asarray(obj, "int32")); 
 }  // namespace
 
 namespace {
+nb::dict geometry_dict(const gammart::MeshMeasures& g) {
+    nb::dict d;
+    d["volume"] = g.closed ? nb::cast(g.volume) : nb::none();
+    d["area"] = g.area;
+    d["triangles"] = g.triangles;
+    d["min_angle_deg"] = g.min_angle_deg;
+    d["closed"] = g.closed;
+    return d;
+}
+
 nb::list nonfinite_list(const std::vector<gammart::NonFinite>& items) {
     nb::list out;
     for (const auto& nf : items)
@@ -183,6 +195,13 @@ NB_MODULE(_runtime, m) {
              "writes_surface"_a)
         .def("set_update", &gammart::Config::set_update, "surface"_a, "address"_a)
         .def("set_appearance", &gammart::Config::set_appearance, "surface"_a, "address"_a)
+        .def("add_shape_rate", &gammart::Config::add_shape_rate, "surface"_a, "column"_a, "metres_per_unit"_a,
+             "The surface's shape follows row column `column` (SPEC §19).")
+        .def("add_mass_property", &gammart::Config::add_mass_property, "columns"_a, "carry"_a,
+             "Account pick-up of a property: its row column per surface and carry index per ton type (-1: none).")
+        .def_rw("retile_edge_factor", &gammart::Config::retile_edge_factor)
+        .def_rw("retile_iterations", &gammart::Config::retile_iterations)
+        .def_rw("max_step_factor", &gammart::Config::max_step_factor)
         .def_prop_ro("num_ton_types", [](const gammart::Config& c) { return c.ton_types.size(); })
         .def_prop_ro("num_sources", [](const gammart::Config& c) { return c.sources.size(); });
 
@@ -237,6 +256,19 @@ NB_MODULE(_runtime, m) {
                  d["segments"] = st.segments;
                  d["trace_seconds"] = st.trace_seconds;
                  d["nonfinite"] = nonfinite_list(st.nonfinite);
+                 nb::list mass;
+                 for (const gammart::MassBooks& b : st.mass) {
+                     nb::dict m;
+                     m["removed"] = b.removed;
+                     m["deposited"] = b.deposited;
+                     m["escaped"] = b.escaped;
+                     m["in_flight"] = b.in_flight;
+                     m["emitted"] = b.emitted;
+                     m["created"] = b.created;
+                     m["dropped"] = b.dropped;
+                     mass.append(m);
+                 }
+                 d["mass"] = mass;
                  return d;
              },
              "iteration"_a,
@@ -256,6 +288,43 @@ NB_MODULE(_runtime, m) {
              },
              "iteration"_a,
              "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
+        .def("shape",
+             [](gammart::Simulation& s, int iteration) {
+                 gammart::ShapeStats st;
+                 {
+                     nb::gil_scoped_release nogil;
+                     st = s.shape(iteration);
+                 }
+                 nb::dict d;
+                 d["changed"] = st.changed;
+                 d["moved_vertices"] = st.moved_vertices;
+                 d["clamped_vertices"] = st.clamped_vertices;
+                 d["inversion_limited"] = st.inversion_limited;
+                 d["nonfinite_surfels"] = st.nonfinite_surfels;
+                 d["max_displacement"] = st.max_displacement;
+                 d["displace_seconds"] = st.displace_seconds;
+                 d["retile_seconds"] = st.retile_seconds;
+                 d["resample_seconds"] = st.resample_seconds;
+                 d["rebuild_seconds"] = st.rebuild_seconds;
+                 d["geometry"] = geometry_dict(st.geometry);
+                 return d;
+             },
+             "iteration"_a, "The shape step after the update pass (SPEC §19): a dict of counters, timings and geometry.")
+        .def("geometry", [](const gammart::Simulation& s) { return geometry_dict(gammart::measure(s.mesh())); },
+             "{volume (None if open), area, triangles, min_angle_deg, closed} of the current mesh.")
+        .def("mesh_arrays",
+             [](const gammart::Simulation& s) {
+                 const gammart::Mesh& m = s.mesh();
+                 return nb::make_tuple(to_numpy<float>(m.vertices, {m.num_vertices(), 3}),
+                                       to_numpy<int32_t>(m.triangles, {m.num_triangles(), 3}));
+             },
+             "The current (possibly deformed and re-tiled) mesh: (vertices float32[n,3], triangles int32[m,3]).")
+        .def("triangle_surfaces",
+             [](const gammart::Simulation& s) {
+                 const std::vector<int32_t>& t = s.scene_index().tri_surface();
+                 return to_numpy<int32_t>(t, {t.size()});
+             })
+        .def_prop_ro("shape_rebuilds", &gammart::Simulation::shape_rebuilds)
         .def("raw_raycast",
              [](gammart::Simulation& s, int64_t n_rays, int threads, uint64_t seed) {
                  gammart::RaycastStats st;

@@ -82,7 +82,12 @@ void Simulation::set_rows(const float* data) {
 uint32_t Simulation::nearest_surfel(const float p[3]) const { return index_->nearest(p); }
 uint32_t Simulation::nearest_surfel_of(int surface, const float p[3]) const { return index_->nearest_of(surface, p); }
 
-TraceStats Simulation::trace(int iteration) { return tracer_->trace(iteration, *index_, frame_, state_); }
+TraceStats Simulation::trace(int iteration) {
+    shape_.begin_iteration(state_);
+    return tracer_->trace(iteration, *index_, frame_, state_);
+}
+
+ShapeStats Simulation::shape(int iteration) { return shape_.apply(iteration, mesh_, state_, index_, frame_); }
 
 UpdateStats Simulation::update(int iteration) {
     return run_update_pass(kernels_, frame_, state_, iteration, cfg_.seed, cfg_.threads);

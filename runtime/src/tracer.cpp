@@ -49,8 +49,19 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
         size_t a = size_t(std::upper_bound(start.begin(), start.end(), begin) - start.begin()) - 1;
         // interaction_key: mixed from (seed, iteration, gamma-ton, interaction);
         // each event's kernel gets its own random() key from it.
+        // Mass books (only when properties are accounted): per kernel call,
+        // the change of the surface column and of the carried attribute.
+        const std::vector<MassProperty>& MP = c.mass_properties;
+        const size_t M = MP.size();
+        st.mass.assign(M, MassBooks{});
+        std::vector<float> carried_before(M, 0.0f);
+        auto carried = [&](size_t j, int type) -> double {
+            const int ci = MP[j].carry[size_t(type)];
+            return ci >= 0 ? double(carry[size_t(ci)]) : 0.0;
+        };
         auto call = [&](const TransportSlot& sl, uint32_t s, GammaContext& ctx, uint64_t interaction_key) {
             set_random_key(ctx, mix64(interaction_key ^ uint64_t(sl.event)));
+            for (size_t j = 0; j < M; ++j) carried_before[j] = float(carried(j, sl.ton_type));
             int32_t bad;
             if (!sl.writes) {
                 bad = sl.fn(carry.data(), rows + size_t(s) * W, scratch.data(), &ctx);
@@ -59,7 +70,20 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                 bad = sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
                 log.record(s, delta.data() + GAMMA_ROW_HEADER, P);
             }
+            for (size_t j = 0; j < M; ++j) {
+                const int col = MP[j].column[size_t(sl.surface)];
+                const double ds = sl.writes && col >= 0 ? double(delta[size_t(col)]) : 0.0;
+                const double dt = carried(j, sl.ton_type) - double(carried_before[j]);
+                MassBooks& b = st.mass[j];
+                if (ds < 0) b.removed -= ds;
+                else b.deposited += ds;
+                b.created += ds + dt;
+            }
             if (bad) count_nonfinite(st.nonfinite, sl.event, sl.ton_type, sl.surface, bad);
+        };
+        // A gamma-ton's life ends: what it still carries escapes or is dropped.
+        auto end_life = [&](int type, bool settled) {
+            for (size_t j = 0; j < M; ++j) (settled ? st.mass[j].dropped : st.mass[j].escaped) += carried(j, type);
         };
         Walker w(index, frame, st);
         if (record_rays_) w.record = &ray_logs_[size_t(ci)];
@@ -76,9 +100,11 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             emit(sources_[src], rng, org, d0);
             int inter = 0;
             ++st.emitted;
+            for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type);
             if (!w.straight(org, d0, 0.0f)) {
                 ++st.escaped;
                 ++st.missed;
+                end_life(type, false);
                 continue;
             }
             for (;;) {
@@ -109,8 +135,8 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                     if (hit.fn) call(hit, s, ctx, key);
                     if (ev.fn) call(ev, s, ctx, key);
                 }
-                if (event == GAMMA_EVENT_SETTLE) { ++st.settled; break; }
-                if (inter >= max_inter) { ++st.capped; break; }
+                if (event == GAMMA_EVENT_SETTLE) { ++st.settled; end_life(type, true); break; }
+                if (inter >= max_inter) { ++st.capped; end_life(type, false); break; }
                 const float* row = rows + size_t(s) * W;
                 const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
                             df = row[GAMMA_ROW_REFLECTANCE_FLOW];
@@ -119,8 +145,8 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                 kf = std::max(kf + kp_left - df, 0.0f);
                 kp = kp_left;
                 const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
-                if (fe == FlightEnd::Escaped) { ++st.escaped; break; }
-                if (fe == FlightEnd::Capped) { ++st.capped; break; }
+                if (fe == FlightEnd::Escaped) { ++st.escaped; end_life(type, false); break; }
+                if (fe == FlightEnd::Capped) { ++st.capped; end_life(type, false); break; }
             }
             st.interactions += inter;
         }
@@ -134,6 +160,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     });
 
     TraceStats total_st;
+    total_st.mass.assign(c.mass_properties.size(), MassBooks{});
     for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
     apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_, c.threads);
     total_st.trace_seconds = seconds_since(t0);

@@ -10,6 +10,7 @@ output is a writer, so adding one never touches the loop.
 from __future__ import annotations
 
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -155,7 +156,27 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
         cfg.set_update(k.surface.index, kernels.address[k.symbol])
     for k in effect.appearance_kernels():
         cfg.set_appearance(k.surface.index, kernels.address[k.symbol])
+    for surface in effect.surfaces.values():
+        for slot, rate, _ in surface.shape.values():
+            cfg.add_shape_rate(surface.index, slot, rate)
+    for name in mass_properties(effect):
+        cfg.add_mass_property([s.properties.get(name, -1) for s in effect.surfaces.values()],
+                              [t.carry.get(name, -1) for t in effect.tons.values()])
     return cfg
+
+
+def mass_properties(effect: Effect) -> list[str]:
+    """Properties whose pick-up is accounted (SPEC §19): a name that is both a
+    surface property and an attribute some ton type carries."""
+    carried = {name for t in effect.tons.values() for name in t.carry}
+    names = []
+    for s in effect.surfaces.values():
+        names += [n for n in s.properties if n in carried and n not in names]
+    return names
+
+
+def shape_changes(effect: Effect) -> bool:
+    return any(s.shape for s in effect.surfaces.values())
 
 
 def load_textures(effect: Effect) -> list[np.ndarray]:
@@ -185,7 +206,7 @@ def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarra
     return columns
 
 
-OUTPUT_FOLDERS = ("maps", "renders", "renders/false_colour", "export")
+OUTPUT_FOLDERS = ("maps", "renders", "renders/false_colour", "export", "meshes")
 
 
 def prepare_output(out: Path) -> None:
@@ -258,6 +279,8 @@ class Run:
     summary: dict                  # what summary.json holds (grows per iteration)
     nonfinite: "NonFiniteReport"
     behind: object                 # events.WriteQueue: jobs run in order behind the loop
+    shapes: bool = False           # some surface's shape follows a property
+    shape_where: str = ""          # FILE:LINE:COL of the first `shape` entry (for warnings)
 
     def trace(self, it: int) -> dict:
         """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
@@ -274,8 +297,53 @@ class Run:
                                    for name, col in props.items()}
         record["trace_seconds"] = traced["trace_seconds"]
         record["update_seconds"] = updated["seconds"]
+        names = mass_properties(self.effect)
+        if names:
+            record["mass"] = {name: books for name, books in zip(names, traced["mass"])}
+        if self.shapes:
+            shaped = self.sim.shape(it)
+            record["geometry"] = shaped["geometry"]
+            record["shape"] = {k: v for k, v in shaped.items() if k != "geometry"}
+            for key, count in (("clamped_vertices", "was cut to the per-iteration bound"),
+                               ("inversion_limited", "was shortened so that no triangle turns over")):
+                if shaped[key]:
+                    print(f"\ngammac: warning: {self.shape_where}: the displacement of {shaped[key]} "
+                          f"vertices {count} in iteration {it}", file=sys.stderr)
+            if shaped["changed"]:
+                rows = self.sim.rows()
+                self.refresh_surfels()
+                props = property_columns(self.effect, rows, self.surfel_surface)
+                record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
+                                           for name, col in props.items()}
         self.summary["iterations"].append(record)
         return rows, props, record
+
+    def refresh_surfels(self) -> None:
+        """Surfel positions, normals and surfaces after the shape changed."""
+        self.surfel_surface = np.asarray(self.sim.surfel_surfaces())
+        self.static_columns = static_columns(self.sim, self.surfel_surface)
+
+    def export_scene(self):
+        """The scene as export sees it: the deformed mesh as one object once the
+        shape has changed, else the loaded scene."""
+        if not self.shapes:
+            return self.scene
+        from types import SimpleNamespace
+
+        vertices, triangles = self.sim.mesh_arrays()
+        mesh = self.rt.Mesh.from_arrays(vertices, triangles)
+        return SimpleNamespace(mesh=mesh, object_names=[Path(self.opts.scene).stem],
+                               triangle_object=np.zeros(len(triangles), np.int64),
+                               triangle_surface=np.asarray(self.sim.triangle_surfaces()))
+
+
+def static_columns(sim, surfel_surface: np.ndarray) -> dict:
+    """x y z nx ny nz surface per surfel."""
+    pos, nrm = sim.surfel_positions(), sim.surfel_normals()
+    static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
+    static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
+    static["surface"] = surfel_surface.astype(np.float32)
+    return static
 
 
 def start(effect: Effect, opts: RunOptions) -> Run:
@@ -315,7 +383,12 @@ def start(effect: Effect, opts: RunOptions) -> Run:
         cfg.triangle_surface = scene.triangle_surface
         sim = rt.Simulation(mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
-        raise RunError(str(err).removeprefix("config: ")) from None
+        message = str(err).removeprefix("config: ")
+        names = list(effect.surfaces)
+        # The runtime knows surfaces by index: name them.
+        message = re.sub(r"^surface (\d+) ", lambda m: f"surface {names[int(m[1])]} "
+                         if int(m[1]) < len(names) else m[0], message)
+        raise RunError(message) from None
     setup_seconds = time.perf_counter() - t0
     looks = bool(effect.appearance_kernels())
     if looks:
@@ -332,10 +405,7 @@ def start(effect: Effect, opts: RunOptions) -> Run:
     clear_earlier_run(out)
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
-    pos, nrm = sim.surfel_positions(), sim.surfel_normals()
-    static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
-    static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
-    static["surface"] = surfel_surface.astype(np.float32)
+    static = static_columns(sim, surfel_surface)
     threads = min(opts.threads or _cpu_count(), LIMITS["--threads"][1])
     summary = {
         "effect": str(effect.path), "scene": str(opts.scene),
@@ -359,8 +429,12 @@ def start(effect: Effect, opts: RunOptions) -> Run:
     }
     report = NonFiniteReport(effect, opts.progress)
     summary["nonfinite"] = report.entries
+    shapes = shape_changes(effect)
+    where = next((w for s in effect.surfaces.values() for _, _, w in s.shape.values()), "")
+    if shapes:
+        summary["geometry"] = sim.geometry()
     return Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
-               surfel_surface, static, summary, report, WriteQueue())
+               surfel_surface, static, summary, report, WriteQueue(), shapes, where)
 
 
 class NonFiniteReport:

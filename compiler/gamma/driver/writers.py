@@ -5,6 +5,7 @@
     FalseColourWriter    renders[/false_colour]/iter_NNNN.png of one property, one scale
     AppearanceWriter     renders/iter_NNNN.png as the appearance blocks paint it,
                          then sequence.gif, sequence.mp4, strip.png
+    MeshWriter           meshes/iter_NNNN.ply when the shape changes (SPEC §19)
     ExportWriter         export/OBJECT/iter_NNNN.{glb,obj,mtl} + baked textures
     ProgressWriter       the progress bar on stderr
 
@@ -31,7 +32,7 @@ from .. import abi, __version__
 from ..files import atomic_write
 from .camera import sun_direction
 from .events import IterationUpdated, RunFinished, Writer
-from .outputs import false_colour_png, ply_bytes, write_json
+from .outputs import false_colour_png, mesh_ply_bytes, ply_bytes, write_json
 
 
 class MapWriter(Writer):
@@ -162,6 +163,35 @@ def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
         raise
 
 
+class MeshWriter(Writer):
+    """meshes/iter_NNNN.ply: the deformed mesh with per-vertex normals and
+    every property (smoothed from the surfels at each vertex)."""
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        from .export import vertex_normals
+        from .runner import property_columns
+
+        run, it = event.run, event.iteration
+        vertices, triangles = run.sim.mesh_arrays()
+        vertices = np.asarray(vertices, np.float32)
+        triangles = np.asarray(triangles, np.int64)
+        normals = vertex_normals(vertices.astype(np.float64), triangles)
+        owner = np.zeros(len(vertices), np.int32)          # a triangle of each vertex
+        owner[triangles.reshape(-1)] = np.repeat(np.arange(len(triangles), dtype=np.int32), 3)
+        rows, _ = run.sim.bake_points(vertices, normals, owner, np.zeros((len(vertices), 2), np.float32),
+                                      it, run.threads)
+        surface = np.asarray(run.sim.triangle_surfaces())[owner]
+        columns = {"x": vertices[:, 0], "y": vertices[:, 1], "z": vertices[:, 2],
+                   "nx": normals[:, 0], "ny": normals[:, 1], "nz": normals[:, 2]}
+        columns.update(property_columns(run.effect, rows, surface))
+        comments = [f"gamma {__version__}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
+        run.behind(_write_mesh, run.out / "meshes" / f"iter_{it:04d}.ply", columns, triangles, comments)
+
+
+def _write_mesh(path: Path, columns: dict, triangles, comments: list[str]) -> None:
+    atomic_write(path, mesh_ply_bytes(columns, triangles, comments))
+
+
 class ExportWriter(Writer):
     """Per object and iteration, in export/OBJECT/: iter_NNNN.glb, .obj + .mtl,
     the baked colour (8-bit PNG) and every property (16-bit PNG)."""
@@ -175,9 +205,11 @@ class ExportWriter(Writer):
         from .runner import property_columns
 
         run, it = event.run, event.iteration
-        if self.pieces is None:
-            self.pieces = pieces(run.scene)
-        triangle_surface = np.asarray(run.scene.triangle_surface)
+        if self.pieces is None or run.shapes:      # a changing shape is re-laid out every iteration
+            scene = run.export_scene()
+            self.pieces = pieces(scene)
+            self.triangle_surface = np.asarray(scene.triangle_surface)
+        triangle_surface = self.triangle_surface
         for piece in self.pieces:
             positions, normals, uvs, tris, rows, rgb, owner = vertex_data(run.sim, piece, it, run.threads)
             attributes = property_columns(run.effect, rows, triangle_surface[owner])
@@ -245,6 +277,8 @@ class ProgressWriter(Writer):
 def standard_writers(run) -> list[Writer]:
     """The outputs ``gammac run`` writes for ``run.opts``, in writing order."""
     writers: list[Writer] = [MapWriter(), SummaryWriter()]
+    if run.shapes:
+        writers.append(MeshWriter())
     if run.shown is not None:
         folder = run.out / "renders" / ("false_colour" if run.looks else "")
         writers.append(FalseColourWriter(run.shown, folder))

@@ -147,6 +147,7 @@ class SurfaceDecl:
     pos: Pos
     reflectance: list[Init] = field(default_factory=list)
     properties: list[Init] = field(default_factory=list)
+    shape: list[Init] = field(default_factory=list)   # property = metres per unit (SPEC §19)
 
 
 @dataclass

@@ -28,7 +28,7 @@ from ..ir import effect as ir
 from ..ir.builtins import FUNCTIONS, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS
 from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
-from .diagnostics import GammaError, Report, did_you_mean
+from .diagnostics import Report, did_you_mean
 from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
                       stdlib_dir)
 
@@ -219,7 +219,16 @@ class _Checker:
                            "(it names a column of the output maps or a built-in field)")
         row = [refl.get(n, (0.0, None))[0] for n in MOTION_NAMES] + [v for v, _ in props.values()]
         slots = {n: abi.ROW_HEADER + i for i, n in enumerate(props)}
-        return Surface(d.name, index, slots, row, d)
+        shape = {}
+        for name, (rate, init) in self.inits(d.shape, "shape rate").items():
+            if name not in slots:
+                self.error(init.pos, f"shape follows '{name}', which is not a property of {d.name}"
+                           f"{did_you_mean(name, slots)}")
+            elif not math.isfinite(rate):
+                self.error(init.value.pos, f"shape rate of '{name}' must be finite")
+            else:
+                shape[name] = (slots[name], rate, f"{self.module.path}:{init.pos.line}:{init.pos.col}")
+        return Surface(d.name, index, slots, row, d, shape)
 
     # -- scene values (source arguments, bounce distance, flow step) --
 

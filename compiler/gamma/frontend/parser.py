@@ -17,7 +17,7 @@ import lark
 from lark import Token, Transformer, v_args
 
 from . import ast as A
-from .diagnostics import Diagnostic, GammaError
+from .diagnostics import Diagnostic, GammaError, Report
 
 _DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update|param|import|assign|appearance)\b", re.MULTILINE)
 
@@ -140,6 +140,9 @@ class _ToAst(Transformer):
     def property(self, meta, c):
         return ("properties", c[0])
 
+    def shape(self, meta, c):
+        return ("shape", c[0])
+
     def param_decl(self, meta, c):
         return A.ParamDecl(str(c[0]), c[1], _pos(c[0]))
 
@@ -256,7 +259,7 @@ def _blank(text: str, start: int, end: int) -> str:
 
 def parse(source: str, path: str = "<input>") -> A.Module:
     """Parse a whole file; raise GammaError with every syntax error found."""
-    diagnostics: list[Diagnostic] = []
+    report = Report()
     text = source
     for _ in range(100):
         try:
@@ -264,7 +267,7 @@ def parse(source: str, path: str = "<input>") -> A.Module:
             break
         except lark.exceptions.LarkError as err:
             diag = _syntax_diagnostic(err)
-            diagnostics.append(diag)
+            report.extend([diag])    # kept as found, in order
             at = min(_offset(text, diag.pos.line, diag.pos.col), len(text))
             starts = [m.start(1) for m in _DECL_START.finditer(text)]
             if at in starts:
@@ -282,8 +285,7 @@ def parse(source: str, path: str = "<input>") -> A.Module:
             text = _blank(text, start, end)
     else:
         tree = None
-    if diagnostics:
-        raise GammaError(path, source, diagnostics)
+    report.raise_errors(path, source)
     try:
         decls = _ToAst().transform(tree)
     except RecursionError:

@@ -66,6 +66,8 @@ class Surface:
     properties: dict[str, int]     # property -> slot in the surfel row
     initial_row: list[float]       # reflectance then properties
     decl: object                   # ast.SurfaceDecl
+    # `shape` (SPEC §19): property -> (slot, metres per unit, "FILE:LINE:COL" of the entry)
+    shape: dict[str, tuple[int, float, str]] = field(default_factory=dict)
 
 
 @dataclass

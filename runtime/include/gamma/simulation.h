@@ -10,6 +10,7 @@
 //   update_pass.h   the update rules
 //   renderer.h      false-colour and appearance renders
 //   baker.h         rows and colours at surface points
+//   shape_step.h    displacement, re-tiling (remesh.h), surfel transfer, rebuild
 #pragma once
 #include <array>
 #include <cstdint>
@@ -23,6 +24,7 @@
 #include "gamma/render.h"
 #include "gamma/renderer.h"
 #include "gamma/scene_index.h"
+#include "gamma/shape_step.h"
 #include "gamma/sources.h"
 #include "gamma/stats.h"
 #include "gamma/surfel_state.h"
@@ -52,6 +54,12 @@ public:
 
     TraceStats trace(int iteration);
     UpdateStats update(int iteration);
+    // The shape step (after update): nothing happens unless some surface's
+    // shape follows a property (Config::shape_rates).
+    ShapeStats shape(int iteration);
+    int shape_rebuilds() const { return shape_.rebuilds(); }
+    // The current mesh (deformed and re-tiled once the shape changed).
+    const Mesh& mesh() const { return mesh_; }
     RaycastStats raw_raycast(int64_t n_rays, int threads, uint64_t seed);
     // The rays trace(iteration) casts from the current state, in gamma-ton
     // order; the rows are left as they were (the trace runs on a copy).
@@ -128,6 +136,7 @@ private:
     SurfelState state_;
     std::unique_ptr<SceneIndex> index_;
     std::unique_ptr<Tracer> tracer_;
+    ShapeStep shape_{cfg_};
     std::vector<Texture> textures_;
     SetupSeconds setup_seconds_;
 };
