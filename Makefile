@@ -11,11 +11,11 @@ APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
 	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev \
 	libcgal-dev libgmp-dev libmpfr-dev libboost-dev
 # ray: the optional extra (.[ray]); installed here so its tests run in CI
-PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray
+PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray coverage
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
-.PHONY: all demo stain erosion test deps install runtime-tests pytest bench clean
+.PHONY: all demo stain erosion test deps install runtime-tests pytest bench clean fuzz coverage
 
 all: install
 
@@ -87,6 +87,28 @@ pytest: install
 	$(PY) -m pytest -q tests
 
 test: runtime-tests pytest
+
+# Line coverage of the command line and the run driver, measured (coverage.py)
+# over the whole Python suite, subprocesses included; fails under CLI_COVERAGE %.
+CLI_COVERAGE ?= 85
+COVERAGE_TESTS ?= tests
+coverage: install
+	echo "import coverage; coverage.process_startup()" > \
+	  "$$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/gamma-coverage.pth"
+	rm -rf .coverage-data && mkdir -p .coverage-data
+	COVERAGE_PROCESS_START=$(abspath .coveragerc) $(PY) -m coverage run --rcfile=.coveragerc -m pytest -q $(COVERAGE_TESTS)
+	$(PY) -m coverage combine --rcfile=.coveragerc -q
+	$(PY) -m coverage report --rcfile=.coveragerc --include='*/gamma/cli.py,*/gamma/driver/*'
+	$(PY) -m coverage report --rcfile=.coveragerc --include='*/gamma/cli.py' --fail-under=$(CLI_COVERAGE)
+
+# Fuzzing for longer than `make test` does: the compiler (grammar-aware
+# mutants and random bytes) and the mesh readers, FUZZ_SECONDS each.  Inputs
+# that break something are saved to tests/fuzz_regressions/ and
+# tests/mesh_regressions/; checked in, they are regression tests.
+FUZZ_SECONDS ?= 300
+fuzz: install
+	cd tests && ../$(PY) fuzz_gamma.py --seconds $(FUZZ_SECONDS)
+	cd tests && ../$(PY) fuzz_meshes.py --seconds $(FUZZ_SECONDS)
 
 bench: install
 	$(PY) bench/bench_tracer.py

@@ -4,8 +4,9 @@ Only argument parsing and reporting live here: the front end checks, the
 back ends compile, the driver runs; this module turns their errors into
 diagnostics or one line and an exit status.
 
-Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
-2 a usage error.  A user mistake is reported as diagnostics or a one-line
+Exit status (SPEC §16.2): 0 success, 1 an error in the user's input (effect
+file, mesh), 2 a usage error, 130 interrupted by SIGINT (Ctrl-C), 143 stopped
+by SIGTERM.  A user mistake is reported as diagnostics or a one-line
 ``gammac: error: ...``, never as a Python traceback.
 """
 
@@ -25,8 +26,18 @@ from .frontend.diagnostics import GammaError
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
 
+def _float(text: str) -> float:
+    """A number written in ASCII: Python's float() also reads other scripts'
+    digits ('٣'), which no user means on a command line."""
+    if not text.isascii():
+        raise ValueError(text)
+    return float(text)
+
+
 def _bounded_int(text: str) -> int:
     try:
+        if not text.isascii():
+            raise ValueError(text)
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
@@ -39,7 +50,7 @@ def _vector3(text: str) -> tuple[float, float, float]:
     import math
 
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(_float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values) or not any(values):
@@ -52,7 +63,7 @@ def _param(text: str) -> tuple[str, float]:
 
     name, sep, value = text.partition("=")
     try:
-        number = float(value)
+        number = _float(value)
     except ValueError:
         number = math.nan
     if not sep or not name.isidentifier() or not math.isfinite(number):
@@ -60,11 +71,18 @@ def _param(text: str) -> tuple[str, float]:
     return name, number
 
 
+def _fov(text: str) -> float:
+    try:
+        return _float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+
+
 def _point3(text: str) -> tuple[float, float, float]:
     import math
 
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(_float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
@@ -99,6 +117,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("file")
     _add_run_options(r)
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its last complete iteration (same command; "
+                        "--iterations may grow)")
     s = sub.add_parser("sweep", help="run every combination of a parameter grid (a Ray task each)",
                        description="Run the effect once per combination of the --grid values (each a "
                                    "'gammac run' with the other options, as a Ray task) into "
@@ -133,7 +154,7 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
                    help="direction from the scene's centre toward the camera (default -0.6,0.35,1)")
     r.add_argument("--eye", type=_point3, metavar="X,Y,Z",
                    help="camera position in scene units (looks at the scene's centre; overrides --view)")
-    r.add_argument("--fov", type=float, default=30.0, help="vertical field of view in degrees")
+    r.add_argument("--fov", type=_fov, default=30.0, help="vertical field of view in degrees")
     r.add_argument("--iterations", type=_bounded_int, default=10)
     r.add_argument("--surfels", type=_bounded_int, default=100_000)
     r.add_argument("--tons", type=_bounded_int, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
@@ -142,7 +163,8 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
     r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
     r.add_argument("--export", action="store_true",
-                   help="write DIR/export/iter_NNNN.glb and .obj (+ baked textures when the mesh has UVs)")
+                   help="after every iteration, per object of the scene: DIR/export/OBJECT/iter_NNNN.glb, "
+                        ".obj + .mtl and baked textures (iter_NNNN_color.png, iter_NNNN_PROP.png)")
     r.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
     r.add_argument("--samples", type=_bounded_int, default=4,
                    help="camera rays per pixel of appearance renders (anti-aliasing)")
@@ -152,6 +174,13 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
 
 def _read(path: str) -> str:
     """The text of a user's file, or a one-line error."""
+    from pathlib import Path
+
+    from .files import file_problem
+
+    problem = file_problem(Path(path))
+    if problem:
+        raise _Fail(f"cannot read '{path}': {problem}")
     try:
         with open(path, encoding="utf-8") as f:
             return f.read()
@@ -183,6 +212,49 @@ class _Fail(Exception):
     pass
 
 
+class _PipeTolerant:
+    """A text stream that stops writing, without an error, once its reader
+    has gone (``gammac run ... | head``): the run finishes its work."""
+
+    def __init__(self, stream):
+        self._stream = stream
+        self.closed_pipe = False
+
+    def _gone(self) -> None:
+        import os
+
+        self.closed_pipe = True
+        try:   # the interpreter's own flush at exit must not fail either
+            os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+        except (OSError, ValueError):
+            pass
+
+    def write(self, text: str) -> int:
+        if not self.closed_pipe:
+            try:
+                self._stream.write(text)
+            except (BrokenPipeError, ValueError):
+                self._gone()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.closed_pipe:
+            try:
+                self._stream.flush()
+            except (BrokenPipeError, ValueError):
+                self._gone()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _tolerate_closed_pipes() -> None:
+    if not isinstance(sys.stdout, _PipeTolerant):
+        sys.stdout = _PipeTolerant(sys.stdout)
+    if not isinstance(sys.stderr, _PipeTolerant):
+        sys.stderr = _PipeTolerant(sys.stderr)
+
+
 def _fmt(args) -> int:
     from pathlib import Path
 
@@ -198,7 +270,15 @@ def _fmt(args) -> int:
         return EXIT_OK
     if args.write:
         if formatted != text:
-            atomic_write(Path(args.file), formatted.encode("utf-8"))
+            import os
+
+            path = Path(args.file)
+            if not os.access(path, os.W_OK) or not path.stat().st_mode & 0o222:
+                raise _Fail(f"cannot write '{args.file}': the file is read-only")
+            try:
+                atomic_write(path, formatted.encode("utf-8"), mode=path.stat().st_mode & 0o7777)
+            except OSError as err:
+                raise _Fail(f"cannot write '{args.file}': {err.strerror or err}") from None
         return EXIT_OK
     sys.stdout.write(formatted)
     return EXIT_OK
@@ -301,7 +381,11 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .driver.runner import RunError, RunOptions, run
+        from .driver.runner import RunError, RunInterrupted, RunOptions, run
+
+        if not args.out.strip():
+            print("gammac: error: --out must name a folder (it is empty)", file=sys.stderr)
+            return EXIT_USAGE
 
         opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down, view=args.view, eye=args.eye, fov=args.fov,
                           iterations=args.iterations, surfels=args.surfels, tons=args.tons,
@@ -309,11 +393,30 @@ def main(argv=None) -> int:
                           max_interactions=args.max_interactions, show=args.show,
                           width=args.size, height=args.size, progress=not args.quiet,
                           samples=args.samples, ao_samples=args.ao_samples,
-                          export=args.export, bake_size=args.bake_size, started=_STARTED)
+                          export=args.export, bake_size=args.bake_size, resume=args.resume,
+                          started=_STARTED)
+        streams = sys.stdout, sys.stderr
+        _tolerate_closed_pipes()
         try:
             summary = run(effect, opts)
         except RunError as err:
             raise _Fail(str(err)) from None
+        except RunInterrupted as stop:
+            print(f"\ngammac: {stop}", file=sys.stderr)
+            if stop.abandoned_call:
+                # a runtime call still runs on another thread: leave without
+                # the interpreter's shutdown (which would wait for it)
+                sys.stdout.flush()
+                sys.stderr.flush()
+                import os
+
+                os._exit(stop.status)
+            return stop.status
+        finally:
+            if isinstance(sys.stdout, _PipeTolerant) and not sys.stdout.closed_pipe:
+                sys.stdout = streams[0]
+            if isinstance(sys.stderr, _PipeTolerant) and not sys.stderr.closed_pipe:
+                sys.stderr = streams[1]
         renders = f"{args.out}/renders, " if summary["rendered"] else ""
         print(f"gammac: wrote {args.out}/maps, {renders}{args.out}/summary.json", file=sys.stderr)
         return EXIT_OK
@@ -328,6 +431,10 @@ def main(argv=None) -> int:
     except UsageError as err:
         print(f"gammac: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except MemoryError:
+        print("gammac: error: out of memory (use fewer --surfels or --tons, or a smaller --size)",
+              file=sys.stderr)
+        return EXIT_INPUT
     except KeyboardInterrupt:
         print("gammac: interrupted", file=sys.stderr)
         return 130

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import abi, __version__
+from . import budget
 from ..frontend.ast import Pos
 from ..backends.jit import JitKernels
 from ..ir.effect import Effect, Length, Source
@@ -52,6 +53,7 @@ class RunOptions:
     samples: int = 4            # camera rays per pixel (appearance renders)
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
+    resume: bool = False          # continue the run in ``out`` from its last complete iteration
     started: float | None = None  # time.perf_counter() when gammac started (start-up time)
 
 
@@ -148,7 +150,12 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
     if opts.tons is not None:
         counts = split_counts(counts, opts.tons)
     for src, count in zip(effect.sources, counts):
-        cfg.add_source(src.kind, src.ton, count, **source_arguments(src, lo, hi, diagonal, down))
+        args = source_arguments(src, lo, hi, diagonal, down)
+        if "position" in args:
+            problem = budget.distance_problem(f"source '{src.name}'", args["position"], (lo + hi) / 2, diagonal)
+            if problem:
+                raise RunError(problem)
+        cfg.add_source(src.kind, src.ton, count, **args)
     for k in effect.transport_kernels():
         cfg.set_transport(abi.EVENTS[k.event], k.ton.index, k.surface.index,
                           kernels.address[k.symbol], k.writes_surface)
@@ -163,6 +170,11 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
         cfg.add_mass_property([s.properties.get(name, -1) for s in effect.surfaces.values()],
                               [t.carry.get(name, -1) for t in effect.tons.values()])
     return cfg
+
+
+#: Largest texture() image, in pixels per side (SPEC §8a); checked from the
+#: image's header, before it is decoded, so a decompression bomb costs nothing.
+MAX_TEXTURE_SIDE = 8192
 
 
 def mass_properties(effect: Effect) -> list[str]:
@@ -183,12 +195,21 @@ def load_textures(effect: Effect) -> list[np.ndarray]:
     """Every texture() image as float32 [H, W, 3] in [0, 1] (display values)."""
     from PIL import Image, UnidentifiedImageError
 
+    from ..files import file_problem
+
     images = []
     for path in effect.textures:
+        problem = file_problem(Path(path))
+        if problem:
+            raise RunError(f"cannot read texture '{path}': {problem}")
         try:
             with Image.open(path) as image:
+                w, h = image.size
+                if max(w, h) > MAX_TEXTURE_SIDE:
+                    raise RunError(f"texture '{path}' is {w}x{h} pixels; at most "
+                                   f"{MAX_TEXTURE_SIDE}x{MAX_TEXTURE_SIDE} are supported")
                 images.append(np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0)
-        except (OSError, UnidentifiedImageError) as err:
+        except (OSError, UnidentifiedImageError, Image.DecompressionBombError, ValueError) as err:
             raise RunError(f"cannot read texture '{path}': {err}") from None
     return images
 
@@ -218,44 +239,85 @@ def prepare_output(out: Path) -> None:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
 
-def clear_earlier_run(out: Path) -> None:
-    """Drop an earlier run's iteration files, so the folder describes one run.
-    Called only once this run has been set up without error: a run that fails
-    early leaves the earlier results alone."""
-    try:
-        for sub in OUTPUT_FOLDERS:
-            for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9]*"):
-                stale.unlink()
-        for stale in (out / "export").glob("*/iter_[0-9][0-9][0-9][0-9]*"):
-            stale.unlink()
-        for stale in ("sequence.gif", "sequence.mp4", "strip.png"):
-            (out / "renders" / stale).unlink(missing_ok=True)
-    except OSError as err:
-        raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
-
-
-
-
 def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
     """Simulate ``effect`` with ``opts``; the standard outputs, then ``writers``,
-    receive the run's events (``events.py``).  Returns the summary."""
+    receive the run's events (``events.py``).  Returns the summary.
+
+    SIGINT and SIGTERM stop the run within a fraction of a second
+    (``interrupt.py``): the iterations completed so far stay written, with
+    ``"completed": false``, and ``RunInterrupted`` is raised.  A run that fails
+    puts the earlier run's files back (``folder.py``)."""
+    from . import folder
     from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
+    from .interrupt import Interrupted, Interruptions
     from .writers import standard_writers
 
-    session = start(effect, opts)
-    subscribers = standard_writers(session) + list(writers)
-    try:
-        with session.behind:   # leaving it waits for the writers' queued jobs
-            publish(subscribers, SetupDone(session))
-            for it in range(1, opts.iterations + 1):
-                traced = session.trace(it)
-                publish(subscribers, IterationTraced(session, it, traced))
-                rows, props, record = session.update(it, traced)
-                publish(subscribers, IterationUpdated(session, it, rows, props, record))
-            publish(subscribers, RunFinished(session, session.summary))
-    except OSError as err:
-        raise RunError(f"cannot write to '{session.out}': {err.strerror or err}") from None
+    with Interruptions() as stop:
+        session = start(effect, opts, stop)
+        subscribers = standard_writers(session) + list(writers)
+        done = session.first_iteration - 1
+        try:
+            with session.behind:   # leaving it waits for the writers' queued jobs
+                publish(subscribers, SetupDone(session))
+                for it in range(session.first_iteration, opts.iterations + 1):
+                    traced = stop.call(session.trace, it)
+                    publish(subscribers, IterationTraced(session, it, traced))
+                    rows, props, record = stop.call(session.update, it, traced)
+                    publish(subscribers, IterationUpdated(session, it, rows, props, record))
+                    done = it
+                    stop.check()
+                session.summary["completed"] = True
+                publish(subscribers, RunFinished(session, session.summary))
+            folder.drop(session.out)
+        except Interrupted as sig:
+            _interrupted(session, sig, done, stop.busy)     # raises RunInterrupted
+        except BaseException as err:
+            if not opts.resume:
+                folder.restore(session.out)      # the earlier run's files come back
+            if isinstance(err, OSError):
+                raise RunError(f"cannot write to '{session.out}': {err.strerror or err}") from None
+            raise
+        finally:
+            session.lock.__exit__()
     return session.summary
+
+
+def _direct(fn, *args, **kwargs):
+    return fn(*args, **kwargs)
+
+
+class RunInterrupted(Exception):
+    """The run stopped at a signal; its folder holds ``done`` complete iterations."""
+
+    def __init__(self, message: str, status: int, abandoned_call: bool):
+        super().__init__(message)
+        self.status = status
+        self.abandoned_call = abandoned_call   # a runtime call still runs: exit with os._exit
+
+
+def _interrupted(session: "Run", sig, done: int, busy: bool):
+    """Finish the folder of an interrupted run: complete iterations only (the
+    queued writes are done: leaving ``behind`` waited for them), summary.json
+    with ``"completed": false``; keep the earlier run's files if none is."""
+    from . import folder
+    from ..files import atomic_write
+
+    summary = session.summary
+    summary["completed"] = False
+    summary["interrupted"] = sig.name
+    del summary["iterations"][done:]
+    out = session.out
+    if done == 0 and not session.opts.resume:
+        folder.restore(out)
+        kept = "the earlier results are kept"
+    else:
+        folder.discard_after(out, done)
+        atomic_write(out / "summary.json", (__import__("json").dumps(summary, indent=2) + "\n").encode())
+        folder.drop(out)
+        kept = (f"'{out}' holds iterations 1 to {done} of {session.opts.iterations} "
+                f"(summary.json: \"completed\": false); add --resume to continue")
+    raise RunInterrupted(f"interrupted by {sig.name} during iteration {done + 1}; {kept}",
+                         sig.status, busy)
 
 
 @dataclass
@@ -281,6 +343,9 @@ class Run:
     behind: object                 # events.WriteQueue: jobs run in order behind the loop
     shapes: bool = False           # some surface's shape follows a property
     shape_where: str = ""          # FILE:LINE:COL of the first `shape` entry (for warnings)
+    first_iteration: int = 1       # 1, or where --resume continues
+    lock: object = None            # folder.OutputLock, held for the run
+    call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
 
     def trace(self, it: int) -> dict:
         """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
@@ -346,11 +411,9 @@ def static_columns(sim, surfel_surface: np.ndarray) -> dict:
     return static
 
 
-def start(effect: Effect, opts: RunOptions) -> Run:
+def start(effect: Effect, opts: RunOptions, stop=None) -> Run:
     """Check the options, load the scene, compile, build the simulation and
-    clear an earlier run's files; every user error is raised before any output."""
-    from .camera import DEFAULT_VIEW, CameraError, auto_camera
-    from .events import WriteQueue
+    set the earlier run's files aside; every user error is raised before any output."""
     from .scene import SceneError, load_scene
 
     entered = time.perf_counter()
@@ -372,16 +435,57 @@ def start(effect: Effect, opts: RunOptions) -> Run:
     if shown is not None and not any(shown in s.properties for s in present):
         raise RunError(f"--show {shown}: no surface of the scene has that property "
                        f"({', '.join(sorted({n for s in present for n in s.properties})) or 'none'})")
+    if opts.eye is not None:
+        centre = (np.asarray(scene.bounds[0], float) + np.asarray(scene.bounds[1], float)) / 2
+        problem = budget.distance_problem("--eye", opts.eye, centre, scene.diagonal)
+        if problem:
+            raise RunError(problem)
+    tons = opts.tons if opts.tons is not None else sum(src.count for src in effect.sources)
+    need = budget.run_memory(opts.surfels, effect.row_width, opts.iterations, history=shown is not None,
+                             tons=tons)
+    problem = budget.memory_problem(need, budget.available_memory())
+    if problem:
+        raise RunError(problem)
+    if need > budget.ANNOUNCE_BYTES:
+        print(f"gammac: note: this run needs about {budget.gigabytes(need)} of memory", file=sys.stderr)
+    looks = bool(effect.appearance_kernels())
+    textures = load_textures(effect) if looks else None     # before any long setup
     out = Path(opts.out)
     prepare_output(out)
+    from . import folder
+
+    call = stop.call if stop is not None else _direct
+    lock = folder.OutputLock(out)
+    try:
+        lock.__enter__()
+    except folder.FolderError as err:
+        raise RunError(str(err)) from None
+    try:
+        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered)
+    except BaseException:
+        lock.__exit__()
+        raise
+    session.lock = lock
+    return session
+
+
+def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered) -> Run:
+    """The rest of ``start``, with the output folder locked."""
+    from . import folder, resume
+    from .camera import DEFAULT_VIEW, CameraError, auto_camera
+    from .events import WriteQueue
+
+    mesh = scene.mesh
+    folder.remove_stale_temporaries(out)
+    folder.recover(out)
     t0 = time.perf_counter()
-    kernels = JitKernels(effect)
+    kernels = call(JitKernels, effect)
     compile_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
         cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
         cfg.triangle_surface = scene.triangle_surface
-        sim = rt.Simulation(mesh, cfg)
+        sim = call(rt.Simulation, mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
         message = str(err).removeprefix("config: ")
         names = list(effect.surfaces)
@@ -390,9 +494,8 @@ def start(effect: Effect, opts: RunOptions) -> Run:
                          if int(m[1]) < len(names) else m[0], message)
         raise RunError(message) from None
     setup_seconds = time.perf_counter() - t0
-    looks = bool(effect.appearance_kernels())
     if looks:
-        sim.set_textures(load_textures(effect))
+        sim.set_textures(textures)
     try:
         camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
     except CameraError as err:
@@ -402,7 +505,25 @@ def start(effect: Effect, opts: RunOptions) -> Run:
         if np.allclose(opts.eye, target):
             raise RunError("--eye must not be the centre of the scene, which the camera looks at")
         camera = (tuple(opts.eye), target, up, fov)
-    clear_earlier_run(out)
+    key = resume.run_key(str(kernels.ir), scene, opts)
+    earlier, first = None, 1
+    if opts.resume:
+        if shape_changes(effect):
+            raise RunError("--resume: an effect that changes the shape of the scene cannot be "
+                           "resumed (its geometry is not in the maps); run it again")
+        try:
+            earlier, done = resume.load(out, key, opts.iterations)
+            sim.set_rows(resume.rows_from_map(out / "maps" / f"iter_{done:04d}.ply", effect,
+                                              np.asarray(sim.surfel_surfaces()), effect.row_width))
+        except resume.ResumeError as err:
+            raise RunError(str(err)) from None
+        folder.discard_after(out, done)
+        first = done + 1
+    else:
+        try:
+            folder.set_aside(out)
+        except OSError as err:
+            raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     static = static_columns(sim, surfel_surface)
@@ -425,16 +546,33 @@ def start(effect: Effect, opts: RunOptions) -> Run:
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
         "rendered": shown,
         "appearance": looks,
+        "requested_iterations": opts.iterations,
+        "completed": False,            # true once the last iteration's outputs are written
+        "run_key": key,                # what --resume checks (resume.py)
         "iterations": [],
     }
     report = NonFiniteReport(effect, opts.progress)
     summary["nonfinite"] = report.entries
+    if earlier is not None:
+        summary["iterations"] = earlier["iterations"][:first - 1]
+        summary["resumed_at"] = first
+        for entry in earlier.get("nonfinite", []):
+            report.by_key[(entry["where"], entry["rule"])] = entry
+            report.entries.append(entry)
     shapes = shape_changes(effect)
     where = next((w for s in effect.surfaces.values() for _, _, w in s.shape.values()), "")
     if shapes:
         summary["geometry"] = sim.geometry()
-    return Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
-               surfel_surface, static, summary, report, WriteQueue(), shapes, where)
+    session = Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
+                  surfel_surface, static, summary, report, WriteQueue(), shapes, where)
+    session.first_iteration = first
+    session.call = call
+    return session
+
+
+#: The event number NonFiniteReport files appearance kernels under (the
+#: runtime reports them apart, by surface and statement).
+APPEARANCE = -2
 
 
 class NonFiniteReport:
@@ -448,11 +586,19 @@ class NonFiniteReport:
         self.kernels = {(abi.EVENTS[k.event], k.ton.index, k.surface.index): k
                         for k in effect.transport_kernels()}
         self.kernels.update({(-1, 0, k.surface.index): k for k in effect.update_kernels()})
+        self.kernels.update({(APPEARANCE, 0, k.surface.index): k for k in effect.appearance_kernels()})
+
+    def add_appearance(self, iteration: int, items) -> None:
+        """The (surface, statement, count) list of ``Simulation.last_render_stats``."""
+        self.add(iteration, [(APPEARANCE, 0, surface, statement, count)
+                             for surface, statement, count in items])
 
     def add(self, iteration: int, *lists) -> None:
         for items in lists:
             for event, ton, surface, statement, count in items:
-                kernel = self.kernels[(event, ton if event >= 0 else 0, surface)]
+                kernel = self.kernels.get((event, ton if event >= 0 else 0, surface))
+                if kernel is None:
+                    continue
                 st = kernel.statement_at(statement)
                 where = f"{st.origin}:{st.pos.line}:{st.pos.col}"
                 key = (where, kernel.label)

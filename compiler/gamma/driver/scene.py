@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from ..ir.effect import Effect
+from .budget import scene_size_problem
+from ..files import file_problem
 
 
 class SceneError(Exception):
@@ -74,9 +76,9 @@ def _rotation(degrees: np.ndarray) -> np.ndarray:
 
 
 def _load_mesh(rt, path: Path):
-    if not path.is_file():
-        what = "is a directory" if path.is_dir() else "file not found"
-        raise SceneError(f"cannot read mesh '{path}': {what}")
+    problem = file_problem(path)
+    if problem:
+        raise SceneError(f"cannot read mesh '{path}': {problem}")
     try:
         return rt.Mesh.load(str(path))
     except (ValueError, RuntimeError) as err:
@@ -91,9 +93,21 @@ class _Part:
     vertices: np.ndarray | None = None   # transformed (None: untransformed single mesh)
 
 
+#: A scene file is a small object; one larger than this is not one.
+MAX_SCENE_BYTES = 16 << 20
+
+
 def _read_scene_file(rt, path: Path, effect: Effect):
+    problem = file_problem(path)
+    if problem:
+        raise SceneError(f"cannot read scene '{path}': {problem}")
     try:
+        if path.stat().st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"cannot read scene '{path}': larger than {MAX_SCENE_BYTES >> 20} MB, "
+                             "so not a scene file")
         spec = json.loads(path.read_text(encoding="utf-8"))
+    except RecursionError:
+        raise SceneError(f"cannot read scene '{path}': nested too deeply to be a scene file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise SceneError(f"cannot read scene '{path}': {err}") from None
     if not isinstance(spec, dict) or not isinstance(spec.get("meshes"), list) or not spec["meshes"]:
@@ -198,7 +212,11 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> S
                          "became degenerate after scaling")
     counts = {name: int(np.sum(surface == s.index)) for name, s in effect.surfaces.items()}
     objects, names = _objects(parts)
-    return Scene(mesh, surface, down, mesh.bounds, counts, objects, names)
+    scene = Scene(mesh, surface, down, mesh.bounds, counts, objects, names)
+    problem = scene_size_problem(scene.diagonal)
+    if problem:
+        raise SceneError(f"scene '{path}': {problem}")
+    return scene
 
 
 def _objects(parts: list[_Part]) -> tuple[np.ndarray, list[str]]:

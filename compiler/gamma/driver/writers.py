@@ -47,6 +47,11 @@ class MapWriter(Writer):
         run.behind(_write_ply, run.out / "maps" / f"iter_{it:04d}.ply", columns, comments)
 
 
+def _write_final_summary(run, summary: dict) -> None:
+    summary["nonfinite"] = copy.deepcopy(run.summary["nonfinite"])   # with the last renders' reports
+    write_json(run.out / "summary.json", summary)
+
+
 def _write_ply(path: Path, columns: dict, comments: list[str]) -> None:
     atomic_write(path, ply_bytes(columns, comments))
 
@@ -58,6 +63,14 @@ class SummaryWriter(Writer):
         event.run.behind(write_json, event.run.out / "summary.json", copy.deepcopy(event.run.summary))
 
 
+class CompletionWriter(Writer):
+    """summary.json once more, after every other output of the run has been
+    queued: its ``"completed": true`` means the folder holds the whole run."""
+
+    def on_run_finished(self, event: RunFinished) -> None:
+        event.run.behind(_write_final_summary, event.run, copy.deepcopy(event.run.summary))
+
+
 class FalseColourWriter(Writer):
     """One false-colour PNG per iteration of ``property``, all on the scale of
     the whole run, so they are drawn once the run is finished (non-finite
@@ -66,6 +79,13 @@ class FalseColourWriter(Writer):
     def __init__(self, property: str, folder: Path):
         self.property, self.folder = property, folder
         self.history: list[np.ndarray] = []
+
+    def on_setup_done(self, event) -> None:
+        # a resumed run: the earlier iterations' values, from their maps
+        from .outputs import read_ply
+
+        for it in range(1, event.run.first_iteration):
+            self.history.append(read_ply(event.run.out / "maps" / f"iter_{it:04d}.ply")[self.property])
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         self.history.append(event.properties[self.property].copy())
@@ -80,8 +100,8 @@ class FalseColourWriter(Writer):
         eye, target, up, fov = run.camera
         for it, values in enumerate(self.history, start=1):
             values = np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin).astype(np.float32)
-            value, shade = run.sim.render(np.ascontiguousarray(values), eye, target, up,
-                                          fov, run.opts.width, run.opts.height, run.threads)
+            value, shade = run.call(run.sim.render, np.ascontiguousarray(values), eye, target, up,
+                                    fov, run.opts.width, run.opts.height, run.threads)
             run.behind(_write_false_colour, self.folder / f"iter_{it:04d}.png", value, shade,
                        vmin, vmax, shown, f"{shown}, iteration {it}")
 
@@ -97,14 +117,23 @@ class AppearanceWriter(Writer):
     def __init__(self):
         self.frames: list = []
 
+    def on_setup_done(self, event) -> None:
+        # a resumed run: the earlier iterations' pictures, for the sequence
+        from PIL import Image
+
+        for it in range(1, event.run.first_iteration):
+            with Image.open(event.run.out / "renders" / f"iter_{it:04d}.png") as picture:
+                self.frames.append(picture.convert("RGB"))
+
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         from PIL import Image
 
         run, it = event.run, event.iteration
         eye, target, up, fov = run.camera
         opts = run.opts
-        image = run.sim.render_appearance(eye, target, up, fov, opts.width, opts.height, run.threads,
-                                          opts.samples, sun_direction(run.camera), opts.ao_samples, it)
+        image = run.call(run.sim.render_appearance, eye, target, up, fov, opts.width, opts.height,
+                         run.threads, opts.samples, sun_direction(run.camera), opts.ao_samples, it)
+        run.nonfinite.add_appearance(it, run.sim.last_render_stats()["nonfinite"])
         rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
         picture = Image.fromarray((rgb * 255 + 0.5).astype(np.uint8))
         self.frames.append(picture)
@@ -265,13 +294,16 @@ class ProgressWriter(Writer):
         width = 30
         filled = int(width * done / max(1, self.total))
         line = f"[{'#' * filled}{'.' * (width - filled)}] {done}/{self.total} {note}"
-        if self.tty:
-            sys.stderr.write("\r" + line.ljust(100)[:120])
-            if done == self.total:
-                sys.stderr.write("\n")
-        else:
-            sys.stderr.write(line + "\n")
-        sys.stderr.flush()
+        try:
+            if self.tty:
+                sys.stderr.write("\r" + line.ljust(100)[:120])
+                if done == self.total:
+                    sys.stderr.write("\n")
+            else:
+                sys.stderr.write(line + "\n")
+            sys.stderr.flush()
+        except (BrokenPipeError, ValueError):
+            pass    # nobody reads stderr any more (`| head`): the run goes on
 
 
 def standard_writers(run) -> list[Writer]:
@@ -288,4 +320,5 @@ def standard_writers(run) -> list[Writer]:
         writers.append(ExportWriter(run.opts.bake_size))
     if run.opts.progress:
         writers.append(ProgressWriter(run.opts.iterations))
+    writers.append(CompletionWriter())
     return writers

@@ -30,7 +30,7 @@ from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
 from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
-                      stdlib_dir)
+                      is_file, path_problem, shown_path, stdlib_dir)
 
 __all__ = ["check", "load", "Effect", "Kernel", "Length", "Place", "Source", "Surface", "TonType",
            "UsageError", "stdlib_dir", "EVENTS"]
@@ -446,8 +446,12 @@ class _Checker:
         if not isinstance(arg, A.String):
             self.error(call.pos, 'texture() takes a file name in quotes: texture("rust.png")')
             return None
+        problem = path_problem(arg.value)
+        if problem:
+            self.error(arg.pos, f"cannot read texture '{shown_path(arg.value)}': {problem}")
+            return None
         path = (Path(self.unit.path).resolve().parent / arg.value).resolve()
-        if not path.is_file():
+        if not is_file(path):
             self.error(arg.pos, f"cannot find texture '{arg.value}' next to {Path(self.unit.path).name}")
             return None
         return self.textures.setdefault(str(path), len(self.textures))

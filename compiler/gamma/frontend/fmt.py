@@ -344,7 +344,7 @@ def _render(lines: list[_Line], after_all: list[_Comment]) -> str:
 
 def format_source(text: str, path: str = "<input>") -> str:
     """The canonical layout of a .gamma file; raises GammaError on a syntax error."""
-    text = text.replace("\r\n", "\n")
+    text = text.replace("\r\n", "\n").removeprefix("\ufeff")   # a byte-order mark is not kept
     _gamma_parser.parse(text, path)  # syntax errors, reported as the compiler reports them
     with _lock:
         _sink.clear()

@@ -90,6 +90,29 @@ def constant(report: Report, unit: Unit, expr: A.Expr, what: str) -> float | Non
     return value
 
 
+def path_problem(text: str) -> str | None:
+    """Why a file name written in an effect cannot name a file, or None."""
+    if "\0" in text:
+        return "a file name cannot contain a NUL character"
+    if any(len(part.encode("utf-8", "surrogatepass")) > 255 for part in text.split("/")) \
+            or len(text.encode("utf-8", "surrogatepass")) > 4095:
+        return "the file name is too long"
+    return None
+
+
+def shown_path(text: str) -> str:
+    """A file name as it may be printed: control characters escaped, long ones cut."""
+    shown = text.encode("unicode_escape").decode("ascii") if not text.isprintable() else text
+    return shown if len(shown) <= 80 else shown[:77] + "..."
+
+
+def is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def display_path(path: Path) -> str:
     """A path as a user would write it: relative to the working folder when inside it."""
     try:
@@ -162,9 +185,13 @@ class Program:
         self.units.append(unit)
 
     def _find_import(self, unit: Unit, d: A.ImportDecl) -> Path | None:
+        problem = path_problem(d.path)
+        if problem:
+            self.report.error(d.pos, f"cannot import '{shown_path(d.path)}': {problem}", unit.file)
+            return None
         for base in (Path(unit.path).resolve().parent, stdlib_dir()):
             candidate = (base / d.path).resolve()
-            if candidate.is_file():
+            if is_file(candidate):
                 return candidate
         self.report.error(d.pos, f"cannot find '{d.path}' next to {Path(unit.path).name} or in the "
                           "standard library", unit.file)
