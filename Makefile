@@ -9,9 +9,12 @@ DEMO_OUT ?= out/patina-bunny
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
 	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev \
-	libcgal-dev libgmp-dev libmpfr-dev libboost-dev
+	libcgal-dev libgmp-dev libmpfr-dev libboost-dev chromium $(if $(shell command -v npm),,npm)
+# chromium: the headless browser the viewer test drives (Playwright, never its own browser download);
+# npm (unless a Node.js install already brings it): three.js and the glTF validator, see web/
 # ray: the optional extra (.[ray]); installed here so its tests run in CI
-PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray coverage
+PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray coverage playwright
+WEB_MODULES := web/node_modules/.installed
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
@@ -37,7 +40,12 @@ $(VENV)/.deps: $(PY) Makefile
 
 # The package (compiler + C++ runtime) is rebuilt when any source changes;
 # scikit-build-core keeps its build folder (build/) so rebuilds are incremental.
-$(VENV)/.installed: $(VENV)/.deps $(SOURCES)
+# three.js (vendored into the package by CMake) and gltf-validator, pinned by web/package-lock.json
+$(WEB_MODULES): web/package.json web/package-lock.json | deps
+	cd web && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+$(VENV)/.installed: $(VENV)/.deps $(WEB_MODULES) $(SOURCES)
 	$(PY) -m pip install -q --no-build-isolation .
 	touch $@
 

@@ -369,7 +369,9 @@ Mesh Mesh::load(const std::string& path) {
     read_file(path).size();  // the same checks before OpenMesh sees the file
     silence_openmesh();
     OMesh om;
-    OpenMesh::IO::Options opt;
+    // Ask for texture coordinates (PLY vertex u/v); opt says afterwards whether the file had them.
+    om.request_vertex_texcoords2D();
+    OpenMesh::IO::Options opt = OpenMesh::IO::Options::VertexTexCoord;
     bool ok = false;
     try {
         ok = OpenMesh::IO::read_mesh(om, path, opt);
@@ -397,7 +399,17 @@ Mesh Mesh::load(const std::string& path) {
             tris.push_back(poly[k + 1]);
         }
     }
-    return build(std::move(verts), tris.data(), tris.size() / 3, path);
+    // Per-vertex texture coordinates become per-corner ones (build checks they are finite).
+    std::vector<float> uvs;
+    if (opt.check(OpenMesh::IO::Options::VertexTexCoord)) {
+        uvs.reserve(2 * tris.size());
+        for (int32_t v : tris) {
+            const auto& t = om.texcoord2D(OMesh::VertexHandle(v));
+            uvs.push_back(t[0]);
+            uvs.push_back(t[1]);
+        }
+    }
+    return build(std::move(verts), tris.data(), tris.size() / 3, path, nullptr, uvs.empty() ? nullptr : uvs.data());
 }
 
 Mesh Mesh::from_arrays(const float* verts, size_t n, const int32_t* tris, size_t m,

@@ -38,6 +38,8 @@ class RunOptions:
     down: tuple[float, float, float] | None = None    # None: the scene file's, else -y
     view: tuple[float, float, float] | None = None    # camera direction from the scene's centre
     eye: tuple[float, float, float] | None = None     # camera position (overrides view)
+    look_at: tuple[float, float, float] | None = None # the point looked at (None: the scene's centre)
+    up: tuple[float, float, float] | None = None      # camera up (None: against gravity)
     fov: float = 30.0                                 # vertical field of view, degrees
     iterations: int = 10
     surfels: int = 100_000
@@ -214,6 +216,16 @@ def load_textures(effect: Effect) -> list[np.ndarray]:
     return images
 
 
+def run_camera(scene, opts: "RunOptions"):
+    """The camera of a run's options (--view, --eye, --look-at, --up, --fov)."""
+    from .camera import CameraError, choose_camera
+
+    try:
+        return choose_camera(scene.bounds, scene.down, opts.view, opts.eye, opts.look_at, opts.up, opts.fov)
+    except CameraError as err:
+        raise RunError(str(err)) from None
+
+
 def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarray) -> dict:
     """One column per property name of any surface; 0 where a surfel's surface lacks it."""
     columns: dict[str, np.ndarray] = {}
@@ -239,22 +251,25 @@ def prepare_output(out: Path) -> None:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
 
-def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
+def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None,
+        standard: bool = True) -> dict:
     """Simulate ``effect`` with ``opts``; the standard outputs, then ``writers``,
     receive the run's events (``events.py``).  Returns the summary.
 
     SIGINT and SIGTERM stop the run within a fraction of a second
     (``interrupt.py``): the iterations completed so far stay written, with
     ``"completed": false``, and ``RunInterrupted`` is raised.  A run that fails
-    puts the earlier run's files back (``folder.py``)."""
+    puts the earlier run's files back (``folder.py``).  ``scene`` (a
+    ``scene.Scene``) replaces ``opts.scene``; ``standard=False`` leaves the
+    standard outputs out (the Python API, the viewer)."""
     from . import folder
     from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
     from .interrupt import Interrupted, Interruptions
     from .writers import standard_writers
 
     with Interruptions() as stop:
-        session = start(effect, opts, stop)
-        subscribers = standard_writers(session) + list(writers)
+        session = start(effect, opts, stop, scene)
+        subscribers = (standard_writers(session) if standard else []) + list(writers)
         done = session.first_iteration - 1
         try:
             with session.behind:   # leaving it waits for the writers' queued jobs
@@ -381,6 +396,17 @@ class Run:
                 record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
                                            for name, col in props.items()}
         self.summary["iterations"].append(record)
+        # one value range per property over the whole run so far (finite values, the
+        # surfels of surfaces that have the property), so iterations compare
+        ranges = self.summary.setdefault("ranges", {})
+        for surface in self.effect.surfaces.values():
+            mine = self.surfel_surface == surface.index
+            for name, slot in surface.properties.items():
+                values = rows[mine, slot]
+                values = values[np.isfinite(values)]
+                if values.size:
+                    low, high = ranges.get(name, (math.inf, -math.inf))
+                    ranges[name] = [min(low, float(values.min())), max(high, float(values.max()))]
         return rows, props, record
 
     def refresh_surfels(self) -> None:
@@ -411,7 +437,7 @@ def static_columns(sim, surfel_surface: np.ndarray) -> dict:
     return static
 
 
-def start(effect: Effect, opts: RunOptions, stop=None) -> Run:
+def start(effect: Effect, opts: RunOptions, stop=None, scene=None) -> Run:
     """Check the options, load the scene, compile, build the simulation and
     set the earlier run's files aside; every user error is raised before any output."""
     from .scene import SceneError, load_scene
@@ -423,7 +449,7 @@ def start(effect: Effect, opts: RunOptions, stop=None) -> Run:
             Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced")])
     rt = runtime_module()
     try:
-        scene = load_scene(rt, opts.scene, effect, opts.assign, opts.down)
+        scene = scene or load_scene(rt, opts.scene, effect, opts.assign, opts.down)
     except SceneError as err:
         raise RunError(str(err)) from None
     mesh = scene.mesh
@@ -472,7 +498,6 @@ def start(effect: Effect, opts: RunOptions, stop=None) -> Run:
 def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered) -> Run:
     """The rest of ``start``, with the output folder locked."""
     from . import folder, resume
-    from .camera import DEFAULT_VIEW, CameraError, auto_camera
     from .events import WriteQueue
 
     mesh = scene.mesh
@@ -496,15 +521,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     setup_seconds = time.perf_counter() - t0
     if looks:
         sim.set_textures(textures)
-    try:
-        camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
-    except CameraError as err:
-        raise RunError(str(err)) from None
-    if opts.eye is not None:
-        _, target, up, fov = camera
-        if np.allclose(opts.eye, target):
-            raise RunError("--eye must not be the centre of the scene, which the camera looks at")
-        camera = (tuple(opts.eye), target, up, fov)
+    camera = run_camera(scene, opts)
     key = resume.run_key(str(kernels.ir), scene, opts)
     earlier, first = None, 1
     if opts.resume:
@@ -549,6 +566,11 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         "requested_iterations": opts.iterations,
         "completed": False,            # true once the last iteration's outputs are written
         "run_key": key,                # what --resume checks (resume.py)
+        # what `gammac render DIR` and `gammac export DIR` need to rebuild the surfels
+        "options": {"params": dict(effect.overrides), "assign": list(opts.assign),
+                    "down": list(opts.down) if opts.down is not None else None,
+                    "surfels": opts.surfels, "seed": opts.seed, "tons": opts.tons,
+                    "iterations": opts.iterations, "max_interactions": opts.max_interactions},
         "iterations": [],
     }
     report = NonFiniteReport(effect, opts.progress)

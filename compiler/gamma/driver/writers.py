@@ -181,7 +181,9 @@ def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
         w, h = frames[0].size
         pad = ((0, h % 2), (0, w % 2), (0, 0))
         with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=1,
-                                ffmpeg_log_level="error", pixelformat="yuv420p") as writer:
+                                ffmpeg_log_level="error", pixelformat="yuv420p",
+                                # the index (moov atom) first, so a browser can start playing at once
+                                output_params=["-movflags", "+faststart"]) as writer:
             for frame in frames:
                 writer.append_data(np.pad(np.asarray(frame.convert("RGB")), pad, mode="edge"))
         os.chmod(tmp, 0o644)
@@ -225,8 +227,9 @@ class ExportWriter(Writer):
     """Per object and iteration, in export/OBJECT/: iter_NNNN.glb, .obj + .mtl,
     the baked colour (8-bit PNG) and every property (16-bit PNG)."""
 
-    def __init__(self, bake_size: int):
+    def __init__(self, bake_size: int, ranges: dict | None = None):
         self.bake_size = bake_size
+        self.ranges = ranges    # property -> (low, high) of every 16-bit map; None: each map's own
         self.pieces = None      # the scene's objects, made on first use
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
@@ -236,7 +239,7 @@ class ExportWriter(Writer):
         run, it = event.run, event.iteration
         if self.pieces is None or run.shapes:      # a changing shape is re-laid out every iteration
             scene = run.export_scene()
-            self.pieces = pieces(scene)
+            self.pieces = pieces(scene, self.bake_size)
             self.triangle_surface = np.asarray(scene.triangle_surface)
         triangle_surface = self.triangle_surface
         for piece in self.pieces:
@@ -246,11 +249,11 @@ class ExportWriter(Writer):
             texel_columns = property_columns(run.effect, texel_rows, triangle_surface[texel_tris])
             run.behind(_write_export, run.out / "export" / _safe_name(piece.name), it, piece.name,
                        self.bake_size, (positions, normals, uvs, tris, rgb), attributes, colour,
-                       texels, texel_columns)
+                       texels, texel_columns, self.ranges)
 
 
 def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, colour, texels,
-                  texel_columns) -> None:
+                  texel_columns, ranges=None) -> None:
     from .export import png16, png8, texture_from_texels, write_glb, write_obj
 
     positions, normals, uvs, tris, rgb = mesh
@@ -259,13 +262,15 @@ def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, 
     texture = png8(colour)
     atomic_write(where / f"{stem}_color.png", texture)
     for prop, column in texel_columns.items():
-        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0])
+        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0],
+                                (ranges or {}).get(prop))
         atomic_write(where / f"{stem}_{prop}.png", data)
         extras["gamma"]["properties"][prop] = {"texture": f"{stem}_{prop}.png", "min": low, "max": high}
     atomic_write(where / f"{stem}.mtl",
                  f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
     atomic_write(where / f"{stem}.glb",
-                 write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
+                 write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras,
+                           name=name))
     atomic_write(where / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
 
 
@@ -275,11 +280,14 @@ def _safe_name(name: str) -> str:
 
 
 class ProgressWriter(Writer):
-    """A one-line progress bar on a terminal; a line per iteration otherwise."""
+    """A progress bar with the elapsed time and the time left (tqdm) on stderr;
+    ``--quiet`` leaves it out."""
 
-    def __init__(self, total: int):
-        self.total = total
-        self.tty = sys.stderr.isatty()
+    def __init__(self, total: int, what: str = "iteration"):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, unit=f" {what}", file=sys.stderr, dynamic_ncols=True,
+                        bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt}{unit} [{elapsed}<{remaining}]{postfix}")
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         record = event.record
@@ -287,23 +295,12 @@ class ProgressWriter(Writer):
         # and would flatter the rate.
         hitting = record["emitted"] - record.get("missed", 0)
         rate = hitting / max(record["trace_seconds"], 1e-9)
-        self.update(event.iteration, f"iterations  {record['trace_seconds']:.2f} s trace  "
-                                     f"{rate / 1e3:.0f}k hitting γ-tons/s")
+        self.bar.set_postfix_str(f"{record['trace_seconds']:.2f} s trace, {rate / 1e3:.0f}k hitting γ-tons/s",
+                                 refresh=False)
+        self.bar.update(1)
 
-    def update(self, done: int, note: str) -> None:
-        width = 30
-        filled = int(width * done / max(1, self.total))
-        line = f"[{'#' * filled}{'.' * (width - filled)}] {done}/{self.total} {note}"
-        try:
-            if self.tty:
-                sys.stderr.write("\r" + line.ljust(100)[:120])
-                if done == self.total:
-                    sys.stderr.write("\n")
-            else:
-                sys.stderr.write(line + "\n")
-            sys.stderr.flush()
-        except (BrokenPipeError, ValueError):
-            pass    # nobody reads stderr any more (`| head`): the run goes on
+    def on_run_finished(self, event) -> None:
+        self.bar.close()
 
 
 def standard_writers(run) -> list[Writer]:

@@ -147,6 +147,8 @@ class _Checker:
         effect.params = dict(main.params)
         effect.assign = assign
         effect.textures = list(self.textures)
+        effect.files = [u.path for u in program.units]
+        effect.overrides = dict(self.overrides)
         return effect
 
     def collect_warnings(self, effect: Effect, units: list[Unit]) -> None:

@@ -141,8 +141,22 @@ class Program:
         self.main = Unit(module.path, module.source, module, main=True)
         self.unknown_overrides: list[str] = []
         self.units: list[Unit] = []
-        self._load(self.main, {n: (v, A.Pos(1, 1)) for n, v in overrides.items()},
+        # "recipe.name" overrides (--param RECIPE.NAME=VALUE) go to the imported file recipe.gamma
+        self.recipe_overrides: dict[str, dict[str, float]] = {}
+        for key, value in overrides.items():
+            recipe, dot, name = key.partition(".")
+            if dot:
+                self.recipe_overrides.setdefault(recipe, {})[name] = value
+        recipes_seen: set[str] = set()
+        self._recipes_seen = recipes_seen
+        self._load(self.main, {n: (v, A.Pos(1, 1)) for n, v in overrides.items() if "." not in n},
                    (str(Path(module.path).resolve()),))
+        for recipe, names in self.recipe_overrides.items():
+            if recipe not in recipes_seen:
+                imported = ", ".join(Path(u.path).stem for u in self.units if not u.main) or "none"
+                self.unknown_overrides.append(f"--param {recipe}.{next(iter(names))}: "
+                                              f"{Path(module.path).name} imports no recipe '{recipe}' "
+                                              f"(imported: {imported})")
 
     def _load(self, unit: Unit, overrides: dict, chain: tuple) -> None:
         from .parser import parse
@@ -181,6 +195,10 @@ class Program:
                                    for x in err.diagnostics)
                 continue
             child = Unit(display_path(found), text, module, main=False)
+            # the command line's RECIPE.NAME (pos None) wins over the import's own arguments
+            if found.stem in self.recipe_overrides:
+                self._recipes_seen.add(found.stem)
+                args.update({name: (value, None) for name, value in self.recipe_overrides[found.stem].items()})
             self._load(child, args, chain + (str(found),))
         self.units.append(unit)
 
@@ -218,9 +236,11 @@ class Program:
         for name, (_, pos) in overrides.items():
             if name not in unit.params:
                 where = Path(unit.path).name
-                if unit.main:
-                    self.unknown_overrides.append(f"--param {name}: {where} has no parameter "
-                                                  f"'{name}'{did_you_mean(name, unit.params)}")
+                if unit.main or pos is None:
+                    option = name if unit.main else f"{Path(unit.path).stem}.{name}"
+                    self.unknown_overrides.append(f"--param {option}: {where} has no parameter "
+                                                  f"'{name}'{did_you_mean(name, unit.params)}; "
+                                                  f"its parameters: {', '.join(unit.params) or 'none'}")
                 else:
                     self.report.extend([Diagnostic(pos, f"{where} has no parameter '{name}'"
                                                    f"{did_you_mean(name, unit.params)}")])

@@ -259,6 +259,8 @@ class Effect:
     params: dict = field(default_factory=dict)
     assign: list = field(default_factory=list)   # (pattern, surface) from `assign` declarations
     textures: list = field(default_factory=list) # image files read by texture(), in index order
+    files: list = field(default_factory=list)    # the effect file and every file it imports
+    overrides: dict = field(default_factory=dict) # --param values it was checked with (NAME or RECIPE.NAME)
 
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]
