@@ -119,10 +119,12 @@ fuzz: install
 	cd tests && ../$(PY) fuzz_meshes.py --seconds $(FUZZ_SECONDS)
 
 bench: install
-	$(PY) bench/bench_patina.py
+	$(PY) bench/bench_tracer.py
+	$(PY) bench/bench_endtoend.py
 	$(PY) bench/bench_stain.py
 	$(PY) bench/bench_compile.py
 	$(PY) bench/bench_render.py
+	$(PY) bench/bench_scaling.py
 	$(PY) bench/bench_erosion.py
 
 clean:

@@ -107,7 +107,7 @@ def random_value(key: int, site: int) -> float:
 SOURCE_KINDS = ("point", "spot", "rect", "disk", "directional", "sphere", "hemisphere")
 
 #: Counts ``Simulation.trace`` reports per iteration, in the order summary.json lists them.
-STATISTICS = ("emitted", "settled", "escaped", "capped", "interactions", "rays",
+STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions", "rays",
               "bounces", "flow_steps", "drips", "segments")
 
 #: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.

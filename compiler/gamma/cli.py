@@ -14,6 +14,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+
+# Start-up time reported in summary.json runs from here (the interpreter's
+# own start, before the first import of gamma, is not included).
+_STARTED = time.perf_counter()
 
 from .frontend.checker import UsageError
 from .frontend.diagnostics import GammaError
@@ -314,7 +319,7 @@ def _run_options(args):
                       progress=not getattr(args, "quiet", False),
                       samples=getattr(args, "samples", 4), ao_samples=getattr(args, "ao_samples", 8),
                       export=getattr(args, "export", False), bake_size=getattr(args, "bake_size", 1024),
-                      resume=getattr(args, "resume", False))
+                      resume=getattr(args, "resume", False), started=_STARTED)
 
 
 class _PipeTolerant:

@@ -246,6 +246,7 @@ NB_MODULE(_runtime, m) {
                  d["emitted"] = st.emitted;
                  d["settled"] = st.settled;
                  d["escaped"] = st.escaped;
+                 d["missed"] = st.missed;
                  d["capped"] = st.capped;
                  d["interactions"] = st.interactions;
                  d["rays"] = st.rays;
@@ -338,6 +339,59 @@ NB_MODULE(_runtime, m) {
                  return d;
              },
              "n_rays"_a, "threads"_a, "seed"_a)
+        .def_prop_ro("setup_seconds",
+                     [](const gammart::Simulation& s) {
+                         nb::dict d;
+                         d["sample"] = s.setup_seconds().sample;
+                         d["geometry"] = s.setup_seconds().geometry;
+                         d["surfels"] = s.setup_seconds().surfels;
+                         return d;
+                     },
+                     "Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle lookup.")
+        .def_prop_ro("lookup_stats",
+                     [](const gammart::Simulation& s) {
+                         const gammart::SceneIndex& ix = s.scene_index();
+                         nb::dict d;
+                         d["candidates"] = ix.lookup_candidates();
+                         d["fallback_triangles"] = ix.lookup_fallback_triangles();
+                         d["bytes"] = ix.lookup_bytes();
+                         return d;
+                     },
+                     "The triangle lookup: candidate entries, triangles on the kd-tree, bytes.")
+        .def("record_rays",
+             [](gammart::Simulation& s, int iteration) {
+                 std::vector<gammart::RecordedRay> rays;
+                 {
+                     nb::gil_scoped_release nogil;
+                     rays = s.record_rays(iteration);
+                 }
+                 static_assert(sizeof(gammart::RecordedRay) == 8 * sizeof(float));
+                 std::vector<float> flat(rays.size() * 8);
+                 if (!rays.empty()) std::memcpy(flat.data(), rays.data(), flat.size() * sizeof(float));
+                 return to_numpy<float>(std::move(flat), {rays.size(), 8});
+             },
+             "iteration"_a,
+             "The rays trace(iteration) casts, in order: an (n, 8) float32 array of origin, direction, "
+             "tnear, tfar.  The rows are left unchanged.")
+        .def("cast_rays",
+             [](const gammart::Simulation& s, nb::handle rays_obj, int threads) {
+                 F32 a = as_f32(rays_obj);
+                 if (a.ndim() != 2 || a.shape(1) != 8) throw Error("cast_rays: expected an (n, 8) array");
+                 std::vector<gammart::RecordedRay> rays(a.shape(0));
+                 if (!rays.empty()) std::memcpy(rays.data(), a.data(), rays.size() * sizeof(gammart::RecordedRay));
+                 gammart::RaycastStats st;
+                 {
+                     nb::gil_scoped_release nogil;
+                     st = s.cast_rays(rays, threads);
+                 }
+                 nb::dict d;
+                 d["rays"] = st.rays;
+                 d["hits"] = st.hits;
+                 d["seconds"] = st.seconds;
+                 return d;
+             },
+             "rays"_a, "threads"_a,
+             "Embree alone on rays from record_rays (converted before the clock starts): {rays, hits, seconds}.")
         .def("render",
              [](const gammart::Simulation& s, nb::handle values, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads) {

@@ -4,6 +4,7 @@
 namespace gammart {
 
 bool Walker::straight(V3 org, V3 d, float tnear, float tfar) {
+    if (record) record->push_back(RecordedRay{{org.x, org.y, org.z}, {d.x, d.y, d.z}, tnear, tfar});
     index.cast(rh, org, d, tnear, tfar);
     ++st.rays;
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;

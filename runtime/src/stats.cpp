@@ -20,6 +20,7 @@ void TraceStats::add(const TraceStats& o) {
     emitted += o.emitted;
     settled += o.settled;
     escaped += o.escaped;
+    missed += o.missed;
     capped += o.capped;
     interactions += o.interactions;
     rays += o.rays;

@@ -31,9 +31,9 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     const int64_t total = sched.total();
     const int64_t nchunks = (total + kChunkSize - 1) / kChunkSize;
     if (logs_.size() < size_t(nchunks)) logs_.resize(size_t(nchunks));
+    ray_logs_.assign(record_rays_ ? size_t(nchunks) : 0, {});
     const float* rows = state.rows.data();
     const int32_t* surf_of = state.surface.data();
-    const int32_t* tri_surf = index.tri_surface().data();
     const int max_inter = c.max_interactions;
     const uint64_t seed = c.seed;
     const uint32_t iter_u = uint32_t(iteration);
@@ -86,6 +86,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             for (size_t j = 0; j < M; ++j) (settled ? st.mass[j].dropped : st.mass[j].escaped) += carried(j, type);
         };
         Walker w(index, frame, st);
+        if (record_rays_) w.record = &ray_logs_[size_t(ci)];
 
         for (int64_t g = begin; g < end; ++g) {
             while (g >= start[a + 1]) ++a;
@@ -102,6 +103,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type);
             if (!w.straight(org, d0, 0.0f)) {
                 ++st.escaped;
+                ++st.missed;
                 end_life(type, false);
                 continue;
             }
@@ -109,7 +111,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                 ++inter;
                 const V3 p = w.p, n = w.n, dir = w.dir;
                 const float pa[3] = {p.x, p.y, p.z};
-                const uint32_t s = index.nearest_of(tri_surf[w.prim], pa);
+                const uint32_t s = index.nearest_on_triangle(w.prim, pa);
                 const int surface = surf_of[s];
                 GammaContext ctx;
                 ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
@@ -163,6 +165,44 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_, c.threads);
     total_st.trace_seconds = seconds_since(t0);
     return total_st;
+}
+
+std::vector<RecordedRay> Tracer::take_recorded_rays() {
+    size_t n = 0;
+    for (const auto& l : ray_logs_) n += l.size();
+    std::vector<RecordedRay> all;
+    all.reserve(n);
+    for (const auto& l : ray_logs_) all.insert(all.end(), l.begin(), l.end());
+    ray_logs_.clear();
+    return all;
+}
+
+RaycastStats cast_recorded(const SceneIndex& index, const std::vector<RecordedRay>& rays, int threads) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const int64_t n_rays = int64_t(rays.size());
+    const int64_t nchunks = (n_rays + kChunkSize - 1) / kChunkSize;
+    std::vector<int64_t> hits(size_t(nchunks), 0);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int64_t>(0, nchunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
+            for (int64_t ci = r.begin(); ci < r.end(); ++ci) {
+                int64_t h = 0;
+                const int64_t b = ci * kChunkSize, e = std::min(n_rays, b + kChunkSize);
+                for (int64_t i = b; i < e; ++i) {
+                    const RecordedRay& q = rays[size_t(i)];
+                    RTCRayHit rh;
+                    index.cast(rh, V3{q.org[0], q.org[1], q.org[2]}, V3{q.dir[0], q.dir[1], q.dir[2]}, q.tnear,
+                               q.tfar);
+                    if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) ++h;
+                }
+                hits[size_t(ci)] = h;
+            }
+        });
+    });
+    RaycastStats st;
+    st.rays = n_rays;
+    for (int64_t h : hits) st.hits += h;
+    st.seconds = seconds_since(t0);
+    return st;
 }
 
 RaycastStats raw_raycast(const SceneIndex& index, const SceneFrame& frame, int64_t n_rays, int threads,

@@ -56,6 +56,7 @@ class RunOptions:
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
     resume: bool = False          # continue the run in ``out`` from its last complete iteration
+    started: float | None = None  # time.perf_counter() when gammac started (start-up time)
 
 
 def runtime_module():
@@ -441,6 +442,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None) -> Run:
     set the earlier run's files aside; every user error is raised before any output."""
     from .scene import SceneError, load_scene
 
+    entered = time.perf_counter()
     check_limits(opts)
     if not effect.sources:
         raise GammaError(effect.path, effect.source, [Diagnostic(
@@ -485,7 +487,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None) -> Run:
     except folder.FolderError as err:
         raise RunError(str(err)) from None
     try:
-        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call)
+        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered)
     except BaseException:
         lock.__exit__()
         raise
@@ -493,7 +495,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None) -> Run:
     return session
 
 
-def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call) -> Run:
+def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered) -> Run:
     """The rest of ``start``, with the output folder locked."""
     from . import folder, resume
     from .events import WriteQueue
@@ -501,7 +503,9 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call) ->
     mesh = scene.mesh
     folder.remove_stale_temporaries(out)
     folder.recover(out)
+    t0 = time.perf_counter()
     kernels = call(JitKernels, effect)
+    compile_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
         cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
@@ -548,6 +552,11 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call) ->
                                                  effect.surfaces.values())},
         "surfels": sim.num_surfels, "triangles": mesh.num_triangles, "threads": threads,
         "seed": opts.seed, "down": list(scene.down), "setup_seconds": setup_seconds,
+        # start-up: gammac's imports, reading and checking the effect;
+        # compile: code generation and JIT of the kernels (or the cache)
+        "startup_seconds": None if opts.started is None else entered - opts.started,
+        "compile_seconds": compile_seconds,
+        "setup_phases": dict(getattr(sim, "setup_seconds", {})),
         "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
                      "llvm": ".".join(map(str, llvm_version())),
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),

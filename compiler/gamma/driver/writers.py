@@ -291,8 +291,11 @@ class ProgressWriter(Writer):
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         record = event.record
-        rate = record["emitted"] / max(record["trace_seconds"], 1e-9)
-        self.bar.set_postfix_str(f"{record['trace_seconds']:.2f} s trace, {rate / 1e3:.0f}k γ-tons/s",
+        # γ-tons that reached the surface: a source's misses cost one ray each
+        # and would flatter the rate.
+        hitting = record["emitted"] - record.get("missed", 0)
+        rate = hitting / max(record["trace_seconds"], 1e-9)
+        self.bar.set_postfix_str(f"{record['trace_seconds']:.2f} s trace, {rate / 1e3:.0f}k hitting γ-tons/s",
                                  refresh=False)
         self.bar.update(1)
 

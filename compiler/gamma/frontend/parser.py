@@ -8,6 +8,7 @@ line breaks so positions stay true) and parse again.
 
 from __future__ import annotations
 
+import os
 import re
 from functools import lru_cache
 from pathlib import Path
@@ -31,8 +32,12 @@ def grammar_path() -> Path:
 
 @lru_cache(maxsize=1)
 def _parser() -> lark.Lark:
+    # cache=True: lark keeps the analysed LALR tables in a temporary file keyed
+    # by the grammar's hash, so a fresh gammac skips the grammar analysis
+    # (start-up time).  GAMMA_CACHE_DIR=off turns every cache off.
     return lark.Lark(grammar_path().read_text(encoding="utf-8"), parser="lalr",
-                     propagate_positions=True, maybe_placeholders=True)
+                     propagate_positions=True, maybe_placeholders=True,
+                     cache=os.environ.get("GAMMA_CACHE_DIR") != "off")
 
 
 def _pos(tok) -> A.Pos:

@@ -61,6 +61,11 @@ public:
     // The current mesh (deformed and re-tiled once the shape changed).
     const Mesh& mesh() const { return mesh_; }
     RaycastStats raw_raycast(int64_t n_rays, int threads, uint64_t seed);
+    // The rays trace(iteration) casts from the current state, in gamma-ton
+    // order; the rows are left as they were (the trace runs on a copy).
+    std::vector<RecordedRay> record_rays(int iteration);
+    // Embree alone on those rays (the tracer-efficiency baseline).
+    RaycastStats cast_rays(const std::vector<RecordedRay>& rays, int threads) const;
     // Out arrays are height*width.
     void render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads,
@@ -100,6 +105,12 @@ public:
 
     // Filled by the Python binding after render_appearance (GIL held).
     RenderStats last_render;
+    // Wall time of the constructor's phases: surfel sampling, the BVH, the
+    // surfel kd-trees + triangle lookup.
+    struct SetupSeconds {
+        double sample = 0, geometry = 0, surfels = 0;
+    };
+    const SetupSeconds& setup_seconds() const { return setup_seconds_; }
 
     // Index of the surfel nearest to p (any surface).
     uint32_t nearest_surfel(const float p[3]) const;
@@ -127,6 +138,7 @@ private:
     std::unique_ptr<Tracer> tracer_;
     ShapeStep shape_{cfg_};
     std::vector<Texture> textures_;
+    SetupSeconds setup_seconds_;
 };
 
 }  // namespace gammart

@@ -42,6 +42,7 @@ struct MassBooks {
 struct TraceStats {
     int64_t emitted = 0, settled = 0, escaped = 0, capped = 0;
     int64_t interactions = 0, rays = 0;
+    int64_t missed = 0;  // emission ray missed the mesh (also counted in escaped)
     int64_t flow_steps = 0, bounces = 0, drips = 0, segments = 0;
     std::vector<NonFinite> nonfinite;
     std::vector<MassBooks> mass;  // per Config::mass_properties entry
