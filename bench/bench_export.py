@@ -58,7 +58,10 @@ def main() -> None:
         from gamma.driver.events import WriteQueue
 
         class Run:   # what ExportWriter reads of a run
-            pass
+            shapes = False
+
+            def export_scene(self):
+                return self.scene
 
         run = Run()
         run.sim, run.scene, run.effect, run.threads, run.out = sim, scene, effect, args.threads, Path(tmp)
