@@ -8,13 +8,17 @@ SCENES ?= examples/scenes
 DEMO_OUT ?= out/patina-bunny
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
-	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev
+	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev \
+	libcgal-dev libgmp-dev libmpfr-dev libboost-dev chromium $(if $(shell command -v npm),,npm)
+# chromium: the headless browser the viewer test drives (Playwright, never its own browser download);
+# npm (unless a Node.js install already brings it): three.js and the glTF validator, see web/
 # ray: the optional extra (.[ray]); installed here so its tests run in CI
-PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray
+PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray coverage playwright
+WEB_MODULES := web/node_modules/.installed
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
-.PHONY: all demo stain test deps install runtime-tests pytest bench clean
+.PHONY: all demo stain moss-dirt leak-stain hydrant gallery erosion test deps install runtime-tests pytest bench clean fuzz coverage
 
 all: install
 
@@ -36,7 +40,12 @@ $(VENV)/.deps: $(PY) Makefile
 
 # The package (compiler + C++ runtime) is rebuilt when any source changes;
 # scikit-build-core keeps its build folder (build/) so rebuilds are incremental.
-$(VENV)/.installed: $(VENV)/.deps $(SOURCES)
+# three.js (vendored into the package by CMake) and gltf-validator, pinned by web/package-lock.json
+$(WEB_MODULES): web/package.json web/package-lock.json | deps
+	cd web && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+$(VENV)/.installed: $(VENV)/.deps $(WEB_MODULES) $(SOURCES)
 	$(PY) -m pip install -q --no-build-isolation .
 	touch $@
 
@@ -64,6 +73,26 @@ stain: install
 	  --iterations 30 --out out/stain-bleeding
 	@echo "Rust bleeding from the chain onto the steps: $(abspath out/stain-bleeding)/renders/"
 
+# The paper's Fig. 11: wind-driven sand wears a sandstone arch (30 iterations);
+# the shape follows the stone removed and deposited, re-tiled every iteration.
+erosion: install
+	$(PY) examples/scenes/make_arch.py examples/scenes/arch.obj
+	$(VENV)/bin/gammac run examples/erosion.gamma --scene examples/scenes/arch.obj \
+	  --assign arch=Sandstone --assign ground=Ground --show stone --view -1,0.45,0.9 \
+	  --surfels 60000 --iterations 30 --out out/erosion
+	@echo "Erosion of the arch: $(abspath out/erosion)/renders/ (false colour of stone),"
+	@echo "  meshes/iter_0001.ply ... iter_0030.ply (the deformed mesh), summary.json (geometry, mass books)"
+
+# The paper's other results (examples/gallery.py holds scenes, options and
+# cameras): Fig. 9 moss suppressing dirt splatter, Fig. 10 a stain from a
+# leak (spot source), Fig. 1 rust, dust and moss around a hydrant.
+moss-dirt leak-stain hydrant: install
+	$(PY) examples/gallery.py run $@
+
+# Small pictures of every example and recipe for the README (docs/gallery/).
+gallery: install
+	$(PY) examples/gallery.py pictures
+
 # Runtime unit tests, built separately with AddressSanitizer + UBSan.
 runtime-tests: install
 	cmake -S . -B build-tests -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
@@ -77,11 +106,36 @@ pytest: install
 
 test: runtime-tests pytest
 
+# Line coverage of the command line and the run driver, measured (coverage.py)
+# over the whole Python suite, subprocesses included; fails under CLI_COVERAGE %.
+CLI_COVERAGE ?= 85
+COVERAGE_TESTS ?= tests
+coverage: install
+	echo "import coverage; coverage.process_startup()" > \
+	  "$$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/gamma-coverage.pth"
+	rm -rf .coverage-data && mkdir -p .coverage-data
+	COVERAGE_PROCESS_START=$(abspath .coveragerc) $(PY) -m coverage run --rcfile=.coveragerc -m pytest -q $(COVERAGE_TESTS)
+	$(PY) -m coverage combine --rcfile=.coveragerc -q
+	$(PY) -m coverage report --rcfile=.coveragerc --include='*/gamma/cli.py,*/gamma/driver/*'
+	$(PY) -m coverage report --rcfile=.coveragerc --include='*/gamma/cli.py' --fail-under=$(CLI_COVERAGE)
+
+# Fuzzing for longer than `make test` does: the compiler (grammar-aware
+# mutants and random bytes) and the mesh readers, FUZZ_SECONDS each.  Inputs
+# that break something are saved to tests/fuzz_regressions/ and
+# tests/mesh_regressions/; checked in, they are regression tests.
+FUZZ_SECONDS ?= 300
+fuzz: install
+	cd tests && ../$(PY) fuzz_gamma.py --seconds $(FUZZ_SECONDS)
+	cd tests && ../$(PY) fuzz_meshes.py --seconds $(FUZZ_SECONDS)
+
 bench: install
-	$(PY) bench/bench_patina.py
+	$(PY) bench/bench_tracer.py
+	$(PY) bench/bench_endtoend.py
 	$(PY) bench/bench_stain.py
 	$(PY) bench/bench_compile.py
 	$(PY) bench/bench_render.py
+	$(PY) bench/bench_scaling.py
+	$(PY) bench/bench_erosion.py
 	$(PY) bench/bench_ray.py
 
 clean:

@@ -11,7 +11,7 @@ import argparse
 import time
 from pathlib import Path
 
-from bench_patina import SCENE
+from bench_tracer import SCENE
 from report import cpu_name, report
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check

@@ -4,6 +4,7 @@ printed and, with --record, appended to bench/RESULTS.md."""
 from __future__ import annotations
 
 import datetime
+import os
 import platform
 from pathlib import Path
 
@@ -18,6 +19,14 @@ def cpu_name() -> str:
     except OSError:
         pass
     return platform.processor() or "unknown CPU"
+
+
+def load_average() -> float:
+    """The 1-minute load average (other engineers share these 2 cores)."""
+    try:
+        return os.getloadavg()[0]
+    except OSError:
+        return float("nan")
 
 
 def report(title: str, info: str, header: str, rows: list[str], record: bool) -> None:

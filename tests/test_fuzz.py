@@ -62,3 +62,29 @@ def test_mutated_valid_files(tmp_path, seed):
         original = rng.choice(VALID).read_text()
         outcomes.add(check_text(tmp_path, mutate(original, rng).encode("utf-8", "surrogatepass")))
     assert 1 in outcomes          # the mutations do produce errors
+
+
+# ---- the shipped fuzzer (tests/fuzz_gamma.py; `make fuzz` runs it longer) ----
+
+import fuzz_gamma  # noqa: E402
+
+
+def test_grammar_aware_fuzzer_fixed_budget(tmp_path):
+    """A fixed number of grammar-aware mutants and random byte strings; a
+    quarter of those that check also go through emit --ir and fmt."""
+    failures = fuzz_gamma.fuzz(cases=300, seconds=None, seed=2026, folder=tmp_path)
+    assert not failures, failures[0][1] + "\n" + repr(failures[0][0][:500])
+
+
+REGRESSION_FILES = sorted(fuzz_gamma.REGRESSIONS.glob("*.gamma"))
+
+
+def test_regressions_exist():
+    assert len(REGRESSION_FILES) >= 5
+
+
+@pytest.mark.parametrize("path", REGRESSION_FILES, ids=lambda p: p.name)
+def test_fuzz_regression(tmp_path, path):
+    """Every input the fuzzer (or a user) once broke the compiler with."""
+    problem = fuzz_gamma.examine(tmp_path / "case.gamma", path.read_bytes(), deep=True)
+    assert problem is None, problem

@@ -126,6 +126,8 @@ def test_appearance_renders_sequence_and_false_colour(tmp_path):
 
     video = imageio.get_reader(out / "renders" / "sequence.mp4")
     assert video.count_frames() == 3 and video.get_data(0).shape == (64, 64, 3)
+    mp4 = (out / "renders" / "sequence.mp4").read_bytes()
+    assert 0 < mp4.index(b"moov") < mp4.index(b"mdat")     # +faststart: the index first, so it streams
     assert Image.open(out / "renders" / "strip.png").size == (64 * 3, 64)
     pixels = np.asarray(Image.open(out / "renders" / "iter_0001.png").convert("RGB")).reshape(-1, 3).astype(int)
     assert np.any(pixels[:, 0] > pixels[:, 2] + 40)     # the red texture shows somewhere

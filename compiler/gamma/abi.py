@@ -107,7 +107,7 @@ def random_value(key: int, site: int) -> float:
 SOURCE_KINDS = ("point", "spot", "rect", "disk", "directional", "sphere", "hemisphere")
 
 #: Counts ``Simulation.trace`` reports per iteration, in the order summary.json lists them.
-STATISTICS = ("emitted", "settled", "escaped", "capped", "interactions", "rays",
+STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions", "rays",
               "bounces", "flow_steps", "drips", "segments")
 
 #: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.
@@ -117,10 +117,11 @@ BINDING = {
              "vertices", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
     "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",
                "triangle_surface", "add_ton_type", "add_source", "set_transport", "set_update",
-               "set_appearance"),
+               "set_appearance", "add_shape_rate", "add_mass_property"),
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
-                   "render_appearance", "set_rows", "num_chunks", "trace_chunks", "merge_chunks"),
+                   "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
+                   "set_rows", "num_chunks", "trace_chunks", "merge_chunks"),
 }
 
 

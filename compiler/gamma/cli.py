@@ -1,11 +1,12 @@
-"""The ``gammac`` command: ``check``, ``emit``, ``fmt`` and ``run``.
+"""The ``gammac`` command: ``check``, ``emit``, ``fmt``, ``recipes`` and ``run``.
 
 Only argument parsing and reporting live here: the front end checks, the
 back ends compile, the driver runs; this module turns their errors into
 diagnostics or one line and an exit status.
 
-Exit status: 0 success, 1 an error in the user's input (effect file, mesh),
-2 a usage error.  A user mistake is reported as diagnostics or a one-line
+Exit status (SPEC §16.2): 0 success, 1 an error in the user's input (effect
+file, mesh), 2 a usage error, 130 interrupted by SIGINT (Ctrl-C), 143 stopped
+by SIGTERM.  A user mistake is reported as diagnostics or a one-line
 ``gammac: error: ...``, never as a Python traceback.
 """
 
@@ -13,6 +14,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+
+# Start-up time reported in summary.json runs from here (the interpreter's
+# own start, before the first import of gamma, is not included).
+_STARTED = time.perf_counter()
 
 from .frontend.checker import UsageError
 from .frontend.diagnostics import GammaError
@@ -20,8 +26,18 @@ from .frontend.diagnostics import GammaError
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
 
+def _float(text: str) -> float:
+    """A number written in ASCII: Python's float() also reads other scripts'
+    digits ('٣'), which no user means on a command line."""
+    if not text.isascii():
+        raise ValueError(text)
+    return float(text)
+
+
 def _bounded_int(text: str) -> int:
     try:
+        if not text.isascii():
+            raise ValueError(text)
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
@@ -34,7 +50,7 @@ def _vector3(text: str) -> tuple[float, float, float]:
     import math
 
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(_float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values) or not any(values):
@@ -47,19 +63,27 @@ def _param(text: str) -> tuple[str, float]:
 
     name, sep, value = text.partition("=")
     try:
-        number = float(value)
+        number = _float(value)
     except ValueError:
         number = math.nan
-    if not sep or not name.isidentifier() or not math.isfinite(number):
-        raise argparse.ArgumentTypeError(f"'{text}' is not NAME=NUMBER")
+    parts = name.split(".")
+    if not sep or len(parts) > 2 or not all(x.isidentifier() for x in parts) or not math.isfinite(number):
+        raise argparse.ArgumentTypeError(f"'{text}' is not NAME=NUMBER or RECIPE.NAME=NUMBER")
     return name, number
+
+
+def _fov(text: str) -> float:
+    try:
+        return _float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
 
 
 def _point3(text: str) -> tuple[float, float, float]:
     import math
 
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(_float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
@@ -67,9 +91,58 @@ def _point3(text: str) -> tuple[float, float, float]:
     return values
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Shows each option's default in --help (where it has a meaningful one)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if ("%(default)" in text or not action.option_strings or default in (None, False, [], "")
+                or default is argparse.SUPPRESS):
+            return text
+        return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"
+
+
+#: Options whose value is a vector and may start with a minus sign.
+VECTOR_OPTIONS = ("--view", "--eye", "--down", "--look-at", "--up")
+
+
+def _join_negative_vectors(argv: list[str]) -> list[str]:
+    """``--view -0.6,0.2,1`` as ``--view=-0.6,0.2,1``: argparse would otherwise
+    take the value for an option (it knows only plain negative numbers)."""
+    import re
+
+    out, i = [], 0
+    while i < len(argv):
+        arg = argv[i]
+        if (arg in VECTOR_OPTIONS and i + 1 < len(argv)
+                and re.fullmatch(r"-[0-9.][0-9.eE+-]*(,[^,]*)*", argv[i + 1])):
+            out.append(f"{arg}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(arg)
+        i += 1
+    return out
+
+
+def _version() -> str:
+    from . import __version__
+
+    return f"gammac {__version__}"
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gammac", description="Compile and run .gamma weathering effects.")
+    p = argparse.ArgumentParser(prog="gammac", description="Compile and run .gamma weathering effects.",
+                                epilog="Exit status: 0 success, 1 an error in the input (effect, mesh, "
+                                       "files), 2 a usage error (options, --param, --assign), 130 interrupted.")
+    p.add_argument("--version", action="version", version=_version())
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub_parser = sub.add_parser
+
+    def add_parser(*args, **kwargs):
+        return sub_parser(*args, formatter_class=_HelpFormatter, **kwargs)
+
+    sub.add_parser = add_parser
     c = sub.add_parser("check", help="parse and check an effect; report every error")
     c.add_argument("file")
     c.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
@@ -90,6 +163,8 @@ def _parser() -> argparse.ArgumentParser:
     how = f.add_mutually_exclusive_group()
     how.add_argument("--write", "-w", action="store_true", help="rewrite the file in place")
     how.add_argument("--check", action="store_true", help="exit 1 if the file is not formatted")
+    rc = sub.add_parser("recipes", help="list the standard library's recipes, their parameters and defaults")
+    rc.add_argument("--verbose", "-v", action="store_true", help="print each recipe's whole description")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
     _add_run_options(r)
@@ -100,6 +175,9 @@ def _parser() -> argparse.ArgumentParser:
                             "(same result; optional extra: pip install '.[ray]')")
     where.add_argument("--ray-address", metavar="ADDRESS",
                        help="trace each iteration's gamma-tons on the Ray cluster at ADDRESS")
+    r.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its last complete iteration (same command; "
+                        "--iterations may grow)")
     s = sub.add_parser("sweep", help="run every combination of a parameter grid (a Ray task each)",
                        description="Run the effect once per combination of the --grid values (each a "
                                    "'gammac run' with the other options, as a Ray task) into "
@@ -116,43 +194,95 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", action="store_true", help="no progress")
     _add_run_options(s)
     s.set_defaults(threads=1)
+    v = sub.add_parser("render", help="a picture of a saved run's iteration, without simulating")
+    v.add_argument("dir", help="the --out folder of a gammac run")
+    v.add_argument("--iteration", type=_bounded_int, help="iteration to show (default: the last saved)")
+    _camera_options(v)
+    _picture_options(v)
+    v.add_argument("--output", "-o", metavar="FILE",
+                   help="PNG to write (default: DIR/renders/view_iter_NNNN[_PROPERTY].png)")
+    v.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
+    x = sub.add_parser("export", help="glTF/OBJ + baked textures of a saved run, without simulating")
+    x.add_argument("dir", help="the --out folder of a gammac run")
+    which = x.add_mutually_exclusive_group()
+    which.add_argument("--iteration", type=_bounded_int, help="iteration to export (default: the last saved)")
+    which.add_argument("--all", action="store_true", help="every saved iteration")
+    x.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
+    x.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
+    x.add_argument("--quiet", action="store_true", help="no progress bar")
+    w = sub.add_parser("watch", help="run an effect again on every save and show it in the browser")
+    w.add_argument("file")
+    _simulation_options(w)
+    w.add_argument("--port", type=_bounded_int, default=8000, help="port on 127.0.0.1 (0: any free one)")
+    w.add_argument("--preview", type=float, default=0.25,
+                   help="fraction of the gamma-tons of the quick first pass after a save (1: none)")
     return p
 
 
 def _add_run_options(r: argparse.ArgumentParser) -> None:
     """The options of ``gammac run`` that ``gammac sweep`` passes on to each cell."""
-    r.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (default: all cores)")
-    r.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
-                   help="override a parameter of the effect (repeatable)")
-    r.add_argument("--scene", required=True, help="OBJ or PLY mesh, or a JSON scene file")
+    _simulation_options(r)
     r.add_argument("--out", required=True, help="output folder")
+    _picture_options(r)
+    r.add_argument("--export", action="store_true",
+                   help="write DIR/export/OBJECT/iter_NNNN.glb and .obj with baked textures")
+    r.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
+
+
+def _simulation_options(r: argparse.ArgumentParser) -> None:
+    """What a simulation needs: ``run``, ``sweep`` and ``watch``."""
+    r.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
+    r.add_argument("--param", type=_param, action="append", default=[], metavar="[RECIPE.]NAME=VALUE",
+                   help="override a parameter of the effect, or of an imported recipe "
+                        "(RECIPE = its file name without .gamma); repeatable")
+    r.add_argument("--scene", required=True, help="OBJ, PLY, glTF (.gltf, .glb) mesh, or a JSON scene file")
     r.add_argument("--assign", action="append", default=[], metavar="[PATTERN=]SURFACE",
-                   help="bind the parts whose object, group, material or file name matches "
+                   help="bind the parts whose object, group, material, node or file name matches "
                         "PATTERN (default *) to SURFACE; repeatable, first match wins")
-    r.add_argument("--down", type=_vector3, metavar="X,Y,Z", help="gravity direction (default 0,-1,0)")
-    r.add_argument("--view", type=_vector3, metavar="X,Y,Z",
-                   help="direction from the scene's centre toward the camera (default -0.6,0.35,1)")
-    r.add_argument("--eye", type=_point3, metavar="X,Y,Z",
-                   help="camera position in scene units (looks at the scene's centre; overrides --view)")
-    r.add_argument("--fov", type=float, default=30.0, help="vertical field of view in degrees")
-    r.add_argument("--iterations", type=_bounded_int, default=10)
-    r.add_argument("--surfels", type=_bounded_int, default=100_000)
-    r.add_argument("--tons", type=_bounded_int, help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
-    r.add_argument("--seed", type=_bounded_int, default=1)
-    r.add_argument("--max-interactions", type=_bounded_int, default=100, help="bound on interactions per gamma-ton")
+    r.add_argument("--down", type=_vector3, metavar="X,Y,Z", help="gravity direction (default: 0,-1,0)")
+    _camera_options(r)
+    r.add_argument("--iterations", type=_bounded_int, default=10, help="iterations to simulate")
+    r.add_argument("--surfels", type=_bounded_int, default=100_000, help="surfels on the scene")
+    r.add_argument("--tons", type=_bounded_int,
+                   help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
+    r.add_argument("--seed", type=_bounded_int, default=1, help="random seed (same seed, same maps)")
+    r.add_argument("--max-interactions", type=_bounded_int, default=100,
+                   help="bound on interactions per gamma-ton")
+
+
+def _picture_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
     r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
-    r.add_argument("--export", action="store_true",
-                   help="write DIR/export/iter_NNNN.glb and .obj (+ baked textures when the mesh has UVs)")
-    r.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
     r.add_argument("--samples", type=_bounded_int, default=4,
                    help="camera rays per pixel of appearance renders (anti-aliasing)")
     r.add_argument("--ao", type=_bounded_int, default=8, dest="ao_samples",
                    help="ambient-occlusion rays per pixel sample (0: none)")
 
 
+def _camera_options(p: argparse.ArgumentParser) -> None:
+    from .driver.camera import DEFAULT_VIEW
+
+    p.add_argument("--view", type=_vector3, metavar="X,Y,Z",
+                   help="direction from the scene's centre toward the camera "
+                        f"(default: {','.join(f'{c:g}' for c in DEFAULT_VIEW)})")
+    p.add_argument("--eye", type=_point3, metavar="X,Y,Z",
+                   help="camera position in scene units (overrides --view)")
+    p.add_argument("--look-at", type=_point3, metavar="X,Y,Z", dest="look_at",
+                   help="point the camera looks at (default: the scene's centre)")
+    p.add_argument("--up", type=_vector3, metavar="X,Y,Z",
+                   help="the camera's up direction (default: against gravity)")
+    p.add_argument("--fov", type=_fov, default=30.0, help="vertical field of view in degrees")
+
+
 def _read(path: str) -> str:
     """The text of a user's file, or a one-line error."""
+    from pathlib import Path
+
+    from .files import file_problem
+
+    problem = file_problem(Path(path))
+    if problem:
+        raise _Fail(f"cannot read '{path}': {problem}")
     try:
         with open(path, encoding="utf-8") as f:
             return f.read()
@@ -184,6 +314,66 @@ class _Fail(Exception):
     pass
 
 
+def _run_options(args):
+    """RunOptions from the parsed options of ``run`` or ``watch``."""
+    from .driver.runner import RunOptions
+
+    size = getattr(args, "size", 512)
+    return RunOptions(scene=args.scene, out=getattr(args, "out", ""), assign=args.assign, down=args.down,
+                      view=args.view, eye=args.eye, look_at=args.look_at, up=args.up, fov=args.fov,
+                      iterations=args.iterations, surfels=args.surfels, tons=args.tons,
+                      seed=args.seed, threads=args.threads, max_interactions=args.max_interactions,
+                      show=getattr(args, "show", None), width=size, height=size,
+                      progress=not getattr(args, "quiet", False),
+                      samples=getattr(args, "samples", 4), ao_samples=getattr(args, "ao_samples", 8),
+                      export=getattr(args, "export", False), bake_size=getattr(args, "bake_size", 1024),
+                      resume=getattr(args, "resume", False), started=_STARTED,
+                      ray=getattr(args, "ray", False), ray_address=getattr(args, "ray_address", None))
+
+
+class _PipeTolerant:
+    """A text stream that stops writing, without an error, once its reader
+    has gone (``gammac run ... | head``): the run finishes its work."""
+
+    def __init__(self, stream):
+        self._stream = stream
+        self.closed_pipe = False
+
+    def _gone(self) -> None:
+        import os
+
+        self.closed_pipe = True
+        try:   # the interpreter's own flush at exit must not fail either
+            os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+        except (OSError, ValueError):
+            pass
+
+    def write(self, text: str) -> int:
+        if not self.closed_pipe:
+            try:
+                self._stream.write(text)
+            except (BrokenPipeError, ValueError):
+                self._gone()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.closed_pipe:
+            try:
+                self._stream.flush()
+            except (BrokenPipeError, ValueError):
+                self._gone()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _tolerate_closed_pipes() -> None:
+    if not isinstance(sys.stdout, _PipeTolerant):
+        sys.stdout = _PipeTolerant(sys.stdout)
+    if not isinstance(sys.stderr, _PipeTolerant):
+        sys.stderr = _PipeTolerant(sys.stderr)
+
+
 def _fmt(args) -> int:
     from pathlib import Path
 
@@ -199,9 +389,65 @@ def _fmt(args) -> int:
         return EXIT_OK
     if args.write:
         if formatted != text:
-            atomic_write(Path(args.file), formatted.encode("utf-8"))
+            import os
+
+            path = Path(args.file)
+            if not os.access(path, os.W_OK) or not path.stat().st_mode & 0o222:
+                raise _Fail(f"cannot write '{args.file}': the file is read-only")
+            try:
+                atomic_write(path, formatted.encode("utf-8"), mode=path.stat().st_mode & 0o7777)
+            except OSError as err:
+                raise _Fail(f"cannot write '{args.file}': {err.strerror or err}") from None
         return EXIT_OK
     sys.stdout.write(formatted)
+    return EXIT_OK
+
+
+def _watch(args) -> int:
+    """The effect's errors are shown in the page (and on stderr), not fatal."""
+    from .driver.runner import RunError
+    from .viewer.watch import watch
+
+    if not 0.0 < args.preview <= 1.0:
+        raise UsageError(f"--preview must be a fraction in (0, 1], not {args.preview:g}")
+    overrides = {}
+    for name, value in args.param:
+        if name in overrides:
+            raise UsageError(f"--param {name} is given twice")
+        overrides[name] = value
+    try:
+        return watch(args.file, overrides, _run_options(args), args.port, args.preview)
+    except RunError as err:
+        raise _Fail(str(err)) from None
+
+
+def _saved(args) -> int:
+    """``render`` and ``export`` of a saved run's maps."""
+    from .driver.runner import LIMITS, RunError
+    from .driver.saved import export_saved, render_saved
+
+    try:
+        if args.command == "render":
+            low, high = LIMITS["--size"]
+            if not low <= args.size <= high:
+                raise UsageError(f"--size must be between {low} and {high:,}, not {args.size}")
+            path = render_saved(args.dir, args.iteration, args.show, args.output, args.size, args.samples,
+                                args.ao_samples, view=args.view, eye=args.eye, look_at=args.look_at,
+                                up=args.up, fov=args.fov, threads=args.threads)
+            print(f"gammac: wrote {path}", file=sys.stderr)
+        else:
+            iterations = None
+            if args.all:
+                from pathlib import Path
+
+                iterations = sorted(int(p.stem[5:]) for p in Path(args.dir, "maps").glob("iter_[0-9][0-9][0-9][0-9].ply"))
+            elif args.iteration is not None:
+                iterations = [args.iteration]
+            done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=not args.quiet)
+            print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
+                  f"{', '.join(map(str, done))} to {args.dir}/export", file=sys.stderr)
+    except RunError as err:
+        raise _Fail(str(err)) from None
     return EXIT_OK
 
 
@@ -269,10 +515,19 @@ def _sweep(args) -> int:
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
+    args = _parser().parse_args(_join_negative_vectors(list(sys.argv[1:] if argv is None else argv)))
     try:
         if args.command == "fmt":
             return _fmt(args)
+        if args.command == "watch":
+            return _watch(args)
+        if args.command in ("render", "export"):
+            return _saved(args)
+        if args.command == "recipes":
+            from .frontend.recipes import describe, stdlib_recipes
+
+            sys.stdout.write(describe(stdlib_recipes(), verbose=args.verbose))
+            return EXIT_OK
         if args.command == "sweep":
             return _sweep(args)
         effect = _load(args.file, getattr(args, "param", ()))
@@ -302,20 +557,42 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .driver.runner import RunError, RunOptions, run
+        from .driver.runner import RunError, RunInterrupted
 
-        opts = RunOptions(scene=args.scene, out=args.out, assign=args.assign, down=args.down, view=args.view, eye=args.eye, fov=args.fov,
-                          iterations=args.iterations, surfels=args.surfels, tons=args.tons,
-                          seed=args.seed, threads=args.threads,
-                          max_interactions=args.max_interactions, show=args.show,
-                          width=args.size, height=args.size, progress=not args.quiet,
-                          samples=args.samples, ao_samples=args.ao_samples,
-                          export=args.export, bake_size=args.bake_size,
-                          ray=args.ray, ray_address=args.ray_address)
+        if not args.out.strip():
+            print("gammac: error: --out must name a folder (it is empty)", file=sys.stderr)
+            return EXIT_USAGE
+
+        opts = _run_options(args)
+        from dataclasses import asdict
+
+        from . import api
+
+        fields = asdict(opts)
+        scene, out = fields.pop("scene"), fields.pop("out")
+        fields["show_progress"] = fields.pop("progress")
+        streams = sys.stdout, sys.stderr
+        _tolerate_closed_pipes()
         try:
-            summary = run(effect, opts)
+            summary = api.run(effect, scene, out=out, **fields).summary
         except RunError as err:
             raise _Fail(str(err)) from None
+        except RunInterrupted as stop:
+            print(f"\ngammac: {stop}", file=sys.stderr)
+            if stop.abandoned_call:
+                # a runtime call still runs on another thread: leave without
+                # the interpreter's shutdown (which would wait for it)
+                sys.stdout.flush()
+                sys.stderr.flush()
+                import os
+
+                os._exit(stop.status)
+            return stop.status
+        finally:
+            if isinstance(sys.stdout, _PipeTolerant) and not sys.stdout.closed_pipe:
+                sys.stdout = streams[0]
+            if isinstance(sys.stderr, _PipeTolerant) and not sys.stderr.closed_pipe:
+                sys.stderr = streams[1]
         renders = f"{args.out}/renders, " if summary["rendered"] else ""
         print(f"gammac: wrote {args.out}/maps, {renders}{args.out}/summary.json", file=sys.stderr)
         return EXIT_OK
@@ -330,6 +607,10 @@ def main(argv=None) -> int:
     except UsageError as err:
         print(f"gammac: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except MemoryError:
+        print("gammac: error: out of memory (use fewer --surfels or --tons, or a smaller --size)",
+              file=sys.stderr)
+        return EXIT_INPUT
     except KeyboardInterrupt:
         print("gammac: interrupted", file=sys.stderr)
         return 130

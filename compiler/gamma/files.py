@@ -1,5 +1,8 @@
-"""Writing a file so that it is either complete or absent.
+"""The user's files: checked before they are read, written so that each is
+either complete or absent.
 
+``file_problem`` refuses a directory, a FIFO or a device with a one-line
+reason instead of an OS error or a read that never returns.
 ``atomic_write`` writes to a temporary name in the same folder, then renames
 it into place: an interrupted run, a full disk or two processes sharing a
 kernel cache never leave a half-written file.  Every file the package writes
@@ -9,11 +12,27 @@ kernel cache never leave a half-written file.  Every file the package writes
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 import threading
 from pathlib import Path
 
 _umask_lock = threading.Lock()
+
+
+def file_problem(path: Path | str) -> str | None:
+    """Why ``path`` cannot be read as a file, or None when it can be opened."""
+    try:
+        mode = Path(path).stat().st_mode
+    except FileNotFoundError:
+        return "file not found"
+    except (OSError, ValueError) as err:
+        return getattr(err, "strerror", None) or str(err)
+    if stat.S_ISDIR(mode):
+        return "is a directory"
+    if not stat.S_ISREG(mode):
+        return "not a regular file (a pipe or a device)"
+    return None
 
 
 def _umask() -> int:
@@ -25,13 +44,15 @@ def _umask() -> int:
     return mask
 
 
-def atomic_write(path: Path, data: bytes) -> None:
+def atomic_write(path: Path, data: bytes, mode: int | None = None) -> None:
+    """Write ``data`` to ``path``; the file gets ``mode`` (default: 0666 less
+    the umask)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual mode
+        os.chmod(tmp, (0o666 & ~_umask()) if mode is None else mode)  # mkstemp creates 0600
         os.replace(tmp, path)
     except BaseException:
         try:

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 STEPS, RISE, RUN, WIDTH = 5, 0.15, 0.30, 1.2
+FALL = 0.02  # treads slope 1:50 toward their nosing, as outdoor steps do, so water runs off
 
 
 class Obj:
@@ -42,10 +43,11 @@ def staircase(obj):
     for i in range(STEPS):
         z0, z1 = i * RUN, (i + 1) * RUN
         top = (STEPS - i) * RISE
-        obj.quad((x0, top, z1), (x1, top, z1), (x1, top, z0), (x0, top, z0))             # tread
+        front = top - FALL * RUN
+        obj.quad((x0, front, z1), (x1, front, z1), (x1, top, z0), (x0, top, z0))         # tread
         below = (STEPS - i - 1) * RISE
-        obj.quad((x0, below, z1), (x1, below, z1), (x1, top, z1), (x0, top, z1))         # riser
-        obj.quad((x1, 0, z0), (x1, 0, z1), (x1, top, z1), (x1, top, z0))                  # right side
+        obj.quad((x0, below, z1), (x1, below, z1), (x1, front, z1), (x0, front, z1))     # riser
+        obj.quad((x1, 0, z0), (x1, 0, z1), (x1, front, z1), (x1, top, z0))                # right side
     top = STEPS * RISE
     obj.quad((x1, 0, 0), (x0, 0, 0), (x0, top, 0), (x1, top, 0))                        # back
 

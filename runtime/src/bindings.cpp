@@ -13,6 +13,8 @@
 #include "gamma/error.h"
 #include "gamma/mesh.h"
 #include "gamma/sampling.h"
+#include "gamma/remesh.h"
+#include "gamma/shape_step.h"
 #include "gamma/simulation.h"
 #include "gamma_abi.h"
 
@@ -43,6 +45,16 @@ I32 as_i32(nb::handle obj) { return nb::cast<I32>(numpy_asarray(obj, "int32")); 
 }  // namespace
 
 namespace {
+nb::dict geometry_dict(const gammart::MeshMeasures& g) {
+    nb::dict d;
+    d["volume"] = g.closed ? nb::cast(g.volume) : nb::none();
+    d["area"] = g.area;
+    d["triangles"] = g.triangles;
+    d["min_angle_deg"] = g.min_angle_deg;
+    d["closed"] = g.closed;
+    return d;
+}
+
 nb::list nonfinite_list(const std::vector<gammart::NonFinite>& items) {
     nb::list out;
     for (const auto& nf : items)
@@ -57,6 +69,7 @@ nb::dict trace_stats_dict(const gammart::TraceStats& st) {
     d["emitted"] = st.emitted;
     d["settled"] = st.settled;
     d["escaped"] = st.escaped;
+    d["missed"] = st.missed;
     d["capped"] = st.capped;
     d["interactions"] = st.interactions;
     d["rays"] = st.rays;
@@ -66,6 +79,19 @@ nb::dict trace_stats_dict(const gammart::TraceStats& st) {
     d["segments"] = st.segments;
     d["trace_seconds"] = st.trace_seconds;
     d["nonfinite"] = nonfinite_list(st.nonfinite);
+    nb::list mass;
+    for (const gammart::MassBooks& b : st.mass) {
+        nb::dict m;
+        m["removed"] = b.removed;
+        m["deposited"] = b.deposited;
+        m["escaped"] = b.escaped;
+        m["in_flight"] = b.in_flight;
+        m["emitted"] = b.emitted;
+        m["created"] = b.created;
+        m["dropped"] = b.dropped;
+        mass.append(m);
+    }
+    d["mass"] = mass;
     return d;
 }
 
@@ -75,6 +101,7 @@ gammart::TraceStats trace_stats_from(nb::handle obj) {
     st.emitted = nb::cast<int64_t>(d["emitted"]);
     st.settled = nb::cast<int64_t>(d["settled"]);
     st.escaped = nb::cast<int64_t>(d["escaped"]);
+    st.missed = nb::cast<int64_t>(d["missed"]);
     st.capped = nb::cast<int64_t>(d["capped"]);
     st.interactions = nb::cast<int64_t>(d["interactions"]);
     st.rays = nb::cast<int64_t>(d["rays"]);
@@ -86,6 +113,20 @@ gammart::TraceStats trace_stats_from(nb::handle obj) {
         auto t = nb::cast<nb::tuple>(item);
         gammart::count_nonfinite(st.nonfinite, nb::cast<int>(t[0]), nb::cast<int>(t[1]), nb::cast<int>(t[2]),
                                  nb::cast<int>(t[3]), nb::cast<int64_t>(t[4]));
+    }
+    // Doubles pass through Python floats unchanged, so the merged books are
+    // the ones trace() forms.
+    for (nb::handle item : nb::cast<nb::list>(d["mass"])) {
+        nb::dict m = nb::cast<nb::dict>(item);
+        gammart::MassBooks b;
+        b.removed = nb::cast<double>(m["removed"]);
+        b.deposited = nb::cast<double>(m["deposited"]);
+        b.escaped = nb::cast<double>(m["escaped"]);
+        b.in_flight = nb::cast<double>(m["in_flight"]);
+        b.emitted = nb::cast<double>(m["emitted"]);
+        b.created = nb::cast<double>(m["created"]);
+        b.dropped = nb::cast<double>(m["dropped"]);
+        st.mass.push_back(b);
     }
     return st;
 }
@@ -194,12 +235,12 @@ NB_MODULE(_runtime, m) {
             "down", [](const gammart::Config& c) { return c.down; },
             [](gammart::Config& c, std::array<float, 3> d) { c.down = d; })
         .def("add_ton_type", &gammart::Config::add_ton_type, "ks"_a, "kp"_a, "kf"_a, "initial_carry"_a,
-             "bounce_distance"_a, "flow_step"_a)
+             "bounce_distance"_a, "flow_step"_a, "drip_angle_deg"_a = 10.0f)
         .def(
             "add_source",
             [](gammart::Config& c, std::string kind, int ton_type, int64_t count, std::array<float, 3> position,
                std::array<float, 3> direction, float angle_deg, float falloff, std::array<float, 2> size,
-               float radius, std::string emission, int first_iteration, int last_iteration) {
+               float radius, std::string emission, int first_iteration, int last_iteration, float strength) {
                 gammart::Source s;
                 s.kind = std::move(kind);
                 s.ton_type = ton_type;
@@ -213,16 +254,24 @@ NB_MODULE(_runtime, m) {
                 s.emission = std::move(emission);
                 s.first_iteration = first_iteration;
                 s.last_iteration = last_iteration;
+                s.strength = strength;
                 return c.add_source(std::move(s));
             },
             "kind"_a, "ton_type"_a, "count"_a, "position"_a = std::array<float, 3>{0, 0, 0},
             "direction"_a = std::array<float, 3>{0, -1, 0}, "angle_deg"_a = 0.0f, "falloff"_a = 0.0f,
             "size"_a = std::array<float, 2>{0, 0}, "radius"_a = 0.0f, "emission"_a = "parallel",
-            "first_iteration"_a = 1, "last_iteration"_a = 0)
+            "first_iteration"_a = 1, "last_iteration"_a = 0, "strength"_a = 0.0f)
         .def("set_transport", &gammart::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
              "writes_surface"_a)
         .def("set_update", &gammart::Config::set_update, "surface"_a, "address"_a)
         .def("set_appearance", &gammart::Config::set_appearance, "surface"_a, "address"_a)
+        .def("add_shape_rate", &gammart::Config::add_shape_rate, "surface"_a, "column"_a, "metres_per_unit"_a,
+             "The surface's shape follows row column `column` (SPEC §19).")
+        .def("add_mass_property", &gammart::Config::add_mass_property, "columns"_a, "carry"_a,
+             "Account pick-up of a property: its row column per surface and carry index per ton type (-1: none).")
+        .def_rw("retile_edge_factor", &gammart::Config::retile_edge_factor)
+        .def_rw("retile_iterations", &gammart::Config::retile_iterations)
+        .def_rw("max_step_factor", &gammart::Config::max_step_factor)
         .def_prop_ro("num_ton_types", [](const gammart::Config& c) { return c.ton_types.size(); })
         .def_prop_ro("num_sources", [](const gammart::Config& c) { return c.sources.size(); });
 
@@ -330,6 +379,43 @@ NB_MODULE(_runtime, m) {
              },
              "iteration"_a,
              "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
+        .def("shape",
+             [](gammart::Simulation& s, int iteration) {
+                 gammart::ShapeStats st;
+                 {
+                     nb::gil_scoped_release nogil;
+                     st = s.shape(iteration);
+                 }
+                 nb::dict d;
+                 d["changed"] = st.changed;
+                 d["moved_vertices"] = st.moved_vertices;
+                 d["clamped_vertices"] = st.clamped_vertices;
+                 d["inversion_limited"] = st.inversion_limited;
+                 d["nonfinite_surfels"] = st.nonfinite_surfels;
+                 d["max_displacement"] = st.max_displacement;
+                 d["displace_seconds"] = st.displace_seconds;
+                 d["retile_seconds"] = st.retile_seconds;
+                 d["resample_seconds"] = st.resample_seconds;
+                 d["rebuild_seconds"] = st.rebuild_seconds;
+                 d["geometry"] = geometry_dict(st.geometry);
+                 return d;
+             },
+             "iteration"_a, "The shape step after the update pass (SPEC §19): a dict of counters, timings and geometry.")
+        .def("geometry", [](const gammart::Simulation& s) { return geometry_dict(gammart::measure(s.mesh())); },
+             "{volume (None if open), area, triangles, min_angle_deg, closed} of the current mesh.")
+        .def("mesh_arrays",
+             [](const gammart::Simulation& s) {
+                 const gammart::Mesh& m = s.mesh();
+                 return nb::make_tuple(to_numpy<float>(m.vertices, {m.num_vertices(), 3}),
+                                       to_numpy<int32_t>(m.triangles, {m.num_triangles(), 3}));
+             },
+             "The current (possibly deformed and re-tiled) mesh: (vertices float32[n,3], triangles int32[m,3]).")
+        .def("triangle_surfaces",
+             [](const gammart::Simulation& s) {
+                 const std::vector<int32_t>& t = s.scene_index().tri_surface();
+                 return to_numpy<int32_t>(t, {t.size()});
+             })
+        .def_prop_ro("shape_rebuilds", &gammart::Simulation::shape_rebuilds)
         .def("raw_raycast",
              [](gammart::Simulation& s, int64_t n_rays, int threads, uint64_t seed) {
                  gammart::RaycastStats st;
@@ -344,6 +430,59 @@ NB_MODULE(_runtime, m) {
                  return d;
              },
              "n_rays"_a, "threads"_a, "seed"_a)
+        .def_prop_ro("setup_seconds",
+                     [](const gammart::Simulation& s) {
+                         nb::dict d;
+                         d["sample"] = s.setup_seconds().sample;
+                         d["geometry"] = s.setup_seconds().geometry;
+                         d["surfels"] = s.setup_seconds().surfels;
+                         return d;
+                     },
+                     "Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle lookup.")
+        .def_prop_ro("lookup_stats",
+                     [](const gammart::Simulation& s) {
+                         const gammart::SceneIndex& ix = s.scene_index();
+                         nb::dict d;
+                         d["candidates"] = ix.lookup_candidates();
+                         d["fallback_triangles"] = ix.lookup_fallback_triangles();
+                         d["bytes"] = ix.lookup_bytes();
+                         return d;
+                     },
+                     "The triangle lookup: candidate entries, triangles on the kd-tree, bytes.")
+        .def("record_rays",
+             [](gammart::Simulation& s, int iteration) {
+                 std::vector<gammart::RecordedRay> rays;
+                 {
+                     nb::gil_scoped_release nogil;
+                     rays = s.record_rays(iteration);
+                 }
+                 static_assert(sizeof(gammart::RecordedRay) == 8 * sizeof(float));
+                 std::vector<float> flat(rays.size() * 8);
+                 if (!rays.empty()) std::memcpy(flat.data(), rays.data(), flat.size() * sizeof(float));
+                 return to_numpy<float>(std::move(flat), {rays.size(), 8});
+             },
+             "iteration"_a,
+             "The rays trace(iteration) casts, in order: an (n, 8) float32 array of origin, direction, "
+             "tnear, tfar.  The rows are left unchanged.")
+        .def("cast_rays",
+             [](const gammart::Simulation& s, nb::handle rays_obj, int threads) {
+                 F32 a = as_f32(rays_obj);
+                 if (a.ndim() != 2 || a.shape(1) != 8) throw Error("cast_rays: expected an (n, 8) array");
+                 std::vector<gammart::RecordedRay> rays(a.shape(0));
+                 if (!rays.empty()) std::memcpy(rays.data(), a.data(), rays.size() * sizeof(gammart::RecordedRay));
+                 gammart::RaycastStats st;
+                 {
+                     nb::gil_scoped_release nogil;
+                     st = s.cast_rays(rays, threads);
+                 }
+                 nb::dict d;
+                 d["rays"] = st.rays;
+                 d["hits"] = st.hits;
+                 d["seconds"] = st.seconds;
+                 return d;
+             },
+             "rays"_a, "threads"_a,
+             "Embree alone on rays from record_rays (converted before the clock starts): {rays, hits, seconds}.")
         .def("render",
              [](const gammart::Simulation& s, nb::handle values, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads) {

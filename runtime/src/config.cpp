@@ -73,6 +73,33 @@ std::vector<int32_t> validate_config(const Config& c, const Mesh& mesh) {
             fail(at + "bounce_distance must be positive and finite");
         if (!std::isfinite(tt.flow_step) || !(tt.flow_step > 0))
             fail(at + "flow_step must be positive and finite");
+        if (!(tt.drip_angle_deg >= 0 && tt.drip_angle_deg <= 90))
+            fail(at + "drip_angle_deg must be in [0, 90]");
+    }
+    for (size_t i = 0; i < c.shape_rates.size(); ++i) {
+        const ShapeRate& r = c.shape_rates[i];
+        const std::string at = "config: shape rate " + std::to_string(i) + ": ";
+        if (r.surface < 0 || r.surface >= nsurf) fail(at + "surface index out of range");
+        if (r.column < GAMMA_ROW_HEADER || r.column >= W) fail(at + "column must be a property column");
+        if (!std::isfinite(r.metres_per_unit)) fail(at + "metres per unit must be finite");
+    }
+    if (!c.shape_rates.empty()) {
+        if (!(c.retile_edge_factor > 0) || !std::isfinite(c.retile_edge_factor))
+            fail("config: retile_edge_factor must be positive");
+        if (c.retile_iterations < 1 || c.retile_iterations > 100) fail("config: retile_iterations must be in 1..100");
+        if (!(c.max_step_factor > 0) || !std::isfinite(c.max_step_factor))
+            fail("config: max_step_factor must be positive");
+    }
+    for (size_t i = 0; i < c.mass_properties.size(); ++i) {
+        const MassProperty& mp = c.mass_properties[i];
+        const std::string at = "config: mass property " + std::to_string(i) + ": ";
+        if (mp.column.size() != size_t(nsurf)) fail(at + "needs one column per surface");
+        for (int col : mp.column)
+            if (col != -1 && (col < GAMMA_ROW_HEADER || col >= W)) fail(at + "column must be a property column or -1");
+        if (mp.carry.size() != c.ton_types.size()) fail(at + "needs one carry index per ton type");
+        for (size_t t = 0; t < mp.carry.size(); ++t)
+            if (mp.carry[t] < -1 || mp.carry[t] >= int(c.ton_types[t].initial_carry.size()))
+                fail(at + "carry index out of range for ton type " + std::to_string(t));
     }
     return tri_surface;
 }

@@ -117,83 +117,31 @@ std::string lower_ext(const std::string& path) {
     return ext;
 }
 
-// ---- PLY header (OpenMesh reads the body) -------------------------------------
-
-struct PlyHeader {
-    bool ok = false, ascii = false;
-    int64_t vertices = -1, faces = -1;
-    std::vector<std::string> vertex_props;  // scalar property names; "" for a list
-    size_t header_lines = 0;
-};
-
-PlyHeader read_ply_header(const std::string& path) {
-    PlyHeader h;
-    std::ifstream in(path, std::ios::binary);
-    std::string line;
-    if (!std::getline(in, line) || line.compare(0, 3, "ply") != 0) return h;
-    h.header_lines = 1;
-    std::string current;
-    while (std::getline(in, line)) {
-        ++h.header_lines;
-        if (!line.empty() && line.back() == '\r') line.pop_back();
-        std::istringstream ls(line);
-        std::string kw;
-        ls >> kw;
-        if (kw == "format") {
-            std::string f;
-            ls >> f;
-            h.ascii = (f == "ascii");
-        } else if (kw == "element") {
-            int64_t count = -1;
-            ls >> current >> count;
-            if (current == "vertex") h.vertices = count;
-            if (current == "face") h.faces = count;
-        } else if (kw == "property" && current == "vertex") {
-            std::string type, pname;
-            ls >> type;
-            if (type == "list") { h.vertex_props.push_back(""); continue; }
-            ls >> pname;
-            h.vertex_props.push_back(pname);
-        } else if (kw == "end_header") {
-            h.ok = true;
-            return h;
-        }
-    }
-    return h;
-}
-
-// OpenMesh's ASCII reader stops at numbers it cannot parse (nan, inf,
-// 1e999); report them as non-finite coordinates instead.
-void check_ascii_ply_coordinates(const std::string& path, const PlyHeader& h) {
-    if (!h.ok || !h.ascii || h.vertices <= 0) return;
-    int cols[3] = {-1, -1, -1};
-    for (size_t i = 0; i < h.vertex_props.size(); ++i) {
-        if (h.vertex_props[i].empty()) return;  // list property on vertices: leave to OpenMesh
-        if (h.vertex_props[i] == "x") cols[0] = int(i);
-        if (h.vertex_props[i] == "y") cols[1] = int(i);
-        if (h.vertex_props[i] == "z") cols[2] = int(i);
-    }
-    if (cols[0] < 0 || cols[1] < 0 || cols[2] < 0) return;
-    std::ifstream in(path, std::ios::binary);
-    std::string line;
-    for (size_t i = 0; i < h.header_lines && std::getline(in, line); ++i) {}
-    for (int64_t v = 0; v < h.vertices && std::getline(in, line); ++v) {
-        const char* p = line.c_str();
-        for (int col = 0; col <= std::max({cols[0], cols[1], cols[2]}); ++col) {
-            char* endp = nullptr;
-            double c = std::strtod(p, &endp);
-            if (endp == p) return;  // malformed: leave it to OpenMesh
-            if ((col == cols[0] || col == cols[1] || col == cols[2]) &&
-                (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX)))
-                throw Error(non_finite_vertex(path, size_t(v)));
-            p = endp;
-        }
-    }
-}
-
 // ---- OBJ -------------------------------------------------------------------
 
 inline bool is_space(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
+
+// Names reach Python (and summary.json) as str: they must be UTF-8.
+bool valid_utf8(const std::string& s) {
+    const size_t n = s.size();
+    for (size_t i = 0; i < n;) {
+        const unsigned char c = static_cast<unsigned char>(s[i]);
+        size_t len;
+        unsigned char lo = 0x80, hi = 0xBF;  // range of the second byte
+        if (c < 0x80) len = 1;
+        else if (c >= 0xC2 && c <= 0xDF) len = 2;
+        else if (c >= 0xE0 && c <= 0xEF) { len = 3; if (c == 0xE0) lo = 0xA0; if (c == 0xED) hi = 0x9F; }
+        else if (c >= 0xF0 && c <= 0xF4) { len = 4; if (c == 0xF0) lo = 0x90; if (c == 0xF4) hi = 0x8F; }
+        else return false;
+        if (i + len > n) return false;
+        for (size_t k = 1; k < len; ++k) {
+            const unsigned char d = static_cast<unsigned char>(s[i + k]);
+            if (k == 1 ? (d < lo || d > hi) : (d & 0xC0) != 0x80) return false;
+        }
+        i += len;
+    }
+    return true;
+}
 
 std::string trim(const std::string& s, size_t a = 0) {
     while (a < s.size() && is_space(s[a])) ++a;
@@ -224,8 +172,13 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
     std::vector<int32_t> tris;
     Labels labels;
     std::unordered_map<std::string, int32_t> name_id;
-    auto intern = [&](const std::string& s) -> int32_t {
+    size_t line_no = 0, pos = 0;
+    const std::string where = "mesh " + q(name) + ": ";
+    auto intern = [&](const std::string& s, const char* kind) -> int32_t {
         if (s.empty()) return -1;
+        if (!valid_utf8(s))
+            throw Error(where + "line " + std::to_string(line_no) + ": the " + kind +
+                        " name is not UTF-8 text (re-save the file as UTF-8)");
         auto it = name_id.find(s);
         if (it != name_id.end()) return it->second;
         int32_t id = int32_t(labels.names.size());
@@ -246,8 +199,6 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
     std::vector<int64_t> tri_vt, face_vt;
     std::vector<Pending> vt_src, face_vt_src;
     bool all_corners_have_vt = true;
-    size_t line_no = 0, pos = 0;
-    const std::string where = "mesh " + q(name) + ": ";
     while (pos < text.size()) {
         size_t eol = text.find('\n', pos);
         if (eol == std::string::npos) eol = text.size();
@@ -358,11 +309,11 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
                 labels.material.push_back(cur_material);
             }
         } else if (kw == "o") {
-            cur_object = intern(trim(line, b));
+            cur_object = intern(trim(line, b), "object");
         } else if (kw == "g") {
-            cur_group = intern(trim(line, b));
+            cur_group = intern(trim(line, b), "group");
         } else if (kw == "usemtl") {
-            cur_material = intern(trim(line, b));
+            cur_material = intern(trim(line, b), "material");
         }
         // Everything else (vn, s, mtllib, l, p, ...) is ignored.
     }
@@ -389,28 +340,38 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
     return build(std::move(verts), tris.data(), tris.size() / 3, name, &labels, uvs.empty() ? nullptr : uvs.data());
 }
 
-Mesh Mesh::load(const std::string& path) {
+namespace {
+
+// The whole file, if it is a regular file we can read.
+std::string read_file(const std::string& path) {
     std::error_code ec;
-    if (!std::filesystem::exists(path, ec))
+    const auto status = std::filesystem::status(path, ec);
+    if (ec || !std::filesystem::exists(status))
         throw Error("cannot read mesh " + q(path) + ": file not found");
-    if (std::filesystem::is_directory(path, ec))
+    if (std::filesystem::is_directory(status))
         throw Error("cannot read mesh " + q(path) + ": is a directory");
+    if (!std::filesystem::is_regular_file(status))
+        throw Error("cannot read mesh " + q(path) + ": not a regular file (a pipe or a device)");
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw Error("cannot read mesh " + q(path) + ": cannot open file");
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    if (in.bad()) throw Error("cannot read mesh " + q(path) + ": read error");
+    return ss.str();
+}
+
+}  // namespace
+
+Mesh Mesh::load(const std::string& path) {
     const std::string ext = lower_ext(path);
-    if (ext == ".obj") {
-        std::ifstream in(path, std::ios::binary);
-        if (!in) throw Error("cannot read mesh " + q(path) + ": cannot open file");
-        std::ostringstream ss;
-        ss << in.rdbuf();
-        return parse_obj(ss.str(), path);
-    }
+    if (ext == ".obj") return parse_obj(read_file(path), path);
+    if (ext == ".ply") return parse_ply(read_file(path), path);
+    read_file(path).size();  // the same checks before OpenMesh sees the file
     silence_openmesh();
-    PlyHeader ply;
-    if (ext == ".ply") {
-        ply = read_ply_header(path);
-        check_ascii_ply_coordinates(path, ply);
-    }
     OMesh om;
-    OpenMesh::IO::Options opt;
+    // Ask for texture coordinates (PLY vertex u/v); opt says afterwards whether the file had them.
+    om.request_vertex_texcoords2D();
+    OpenMesh::IO::Options opt = OpenMesh::IO::Options::VertexTexCoord;
     bool ok = false;
     try {
         ok = OpenMesh::IO::read_mesh(om, path, opt);
@@ -426,9 +387,6 @@ Mesh Mesh::load(const std::string& path) {
             verts[3 * size_t(vh.idx()) + k] = p[k];
         }
     }
-    if (ply.ok && ply.faces >= 0 && int64_t(om.n_faces()) < ply.faces)
-        throw Error("mesh " + q(path) + ": " + std::to_string(ply.faces - int64_t(om.n_faces())) +
-                    " faces could not be read");
     std::vector<int32_t> tris;
     tris.reserve(3 * om.n_faces());
     std::vector<int32_t> poly;
@@ -441,7 +399,17 @@ Mesh Mesh::load(const std::string& path) {
             tris.push_back(poly[k + 1]);
         }
     }
-    return build(std::move(verts), tris.data(), tris.size() / 3, path);
+    // Per-vertex texture coordinates become per-corner ones (build checks they are finite).
+    std::vector<float> uvs;
+    if (opt.check(OpenMesh::IO::Options::VertexTexCoord)) {
+        uvs.reserve(2 * tris.size());
+        for (int32_t v : tris) {
+            const auto& t = om.texcoord2D(OMesh::VertexHandle(v));
+            uvs.push_back(t[0]);
+            uvs.push_back(t[1]);
+        }
+    }
+    return build(std::move(verts), tris.data(), tris.size() / 3, path, nullptr, uvs.empty() ? nullptr : uvs.data());
 }
 
 Mesh Mesh::from_arrays(const float* verts, size_t n, const int32_t* tris, size_t m,

@@ -1,9 +1,14 @@
 // The motion model's steps (see gamma/motion.h and SPEC §14).
 #include "gamma/motion.h"
 
+#include <cmath>
+
+#include "gamma/flow.h"
+
 namespace gammart {
 
 bool Walker::straight(V3 org, V3 d, float tnear, float tfar) {
+    if (record) record->push_back(RecordedRay{{org.x, org.y, org.z}, {d.x, d.y, d.z}, tnear, tfar});
     index.cast(rh, org, d, tnear, tfar);
     ++st.rays;
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
@@ -52,29 +57,30 @@ FlightEnd bounce_step(Walker& w, PhiloxStream& rng, const TonType& tt) {
     return w.flight(w.p + w.n * w.frame.eps, ld * float(launch_speed(D)), flight_dt(D));
 }
 
-FlightEnd flow_step(Walker& w, PhiloxStream&, const TonType& tt) {
+FlightEnd flow_step(Walker& w, PhiloxStream& rng, const TonType& tt) {
     ++w.st.flow_steps;
-    const float step = tt.flow_step, eps = w.frame.eps;
-    const V3 down = w.frame.down;
-    const V3 p = w.p, n = w.n;
-    const V3 gt = down - n * dot(down, n);
-    if (dot(n, w.frame.up) < 0) {
-        ++w.st.drips;  // overhang: gravity pulls it off
-        return w.flight(p + n * eps, V3{0, 0, 0}, flight_dt(tt.bounce_distance));
-    }
-    if (length(gt) < 1e-3f) {
-        w.dir = V3{0, 0, 0};  // horizontal: no drift, interact again here
+    const float sin_drip = std::sin(tt.drip_angle_deg * 0.017453292519943295f);
+    auto probe = [&](V3 org, V3 d, float tfar, FlowHit& h) {
+        w.index.cast(w.rh, org, d, 0.0f, tfar);
+        ++w.st.rays;
+        if (w.rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+        h.p = org + d * w.rh.ray.tfar;
+        h.n = normalize(V3{w.rh.hit.Ng_x, w.rh.hit.Ng_y, w.rh.hit.Ng_z});
+        if (dot(h.n, d) > 0) h.n = h.n * -1.0f;
+        h.prim = w.rh.hit.primID;
+        return true;
+    };
+    const FlowResult r = flow_move(w.p, w.n, w.dir, w.frame.down, tt.flow_step, w.frame.eps, sin_drip, probe,
+                                   [&] { return rng.next(); });
+    if (r.end == FlowEnd::Moved) {
+        w.p = r.hit.p;
+        w.n = r.hit.n;
+        w.prim = r.hit.prim;
+        w.dir = r.dir;
         return FlightEnd::Landed;
     }
-    const V3 t = normalize(gt);
-    const V3 q = p + t * step;
-    if (w.straight(p + n * eps, t, 0.0f, step)) return FlightEnd::Landed;  // concave corner: where the ray hit
-    if (w.straight(q + n * (0.5f * step), n * -1.0f, 0.0f, step)) {
-        w.dir = t;  // re-attached (flat or convex bend)
-        return FlightEnd::Landed;
-    }
-    ++w.st.drips;  // the surface fell away: an edge
-    return w.flight(q, V3{0, 0, 0}, flight_dt(tt.bounce_distance));
+    ++w.st.drips;  // an overhang, or the surface fell away beneath it
+    return w.flight(r.drip_from, V3{0, 0, 0}, flight_dt(tt.bounce_distance));
 }
 
 }  // namespace gammart

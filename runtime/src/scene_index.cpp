@@ -2,6 +2,8 @@
 #include "gamma/scene_index.h"
 
 #include <nanoflann.hpp>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <cmath>
@@ -9,6 +11,7 @@
 #include <stdexcept>
 
 #include "gamma/error.h"
+#include "gamma/threads.h"
 
 namespace gammart {
 
@@ -111,6 +114,26 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     if (!vb || !ib) throw std::runtime_error("internal error: embree cannot allocate geometry buffers");
     std::memcpy(vb, mesh.vertices.data(), sizeof(float) * mesh.vertices.size());
     for (size_t i = 0; i < 3 * m; ++i) ib[i] = uint32_t(mesh.triangles[i]);
+    // Bounding sphere of each triangle (centroid, farthest vertex) for the
+    // triangle lookup; the reach is padded so a hit point a rounding error
+    // off the triangle still counts as on it.
+    lookup_tri_.assign(m, TriangleLookup{0, 0, 0, 0, 0, 0});
+    const float pad = 1e-6f * mesh.diagonal();
+    for (size_t t = 0; t < m; ++t) {
+        const float* v[3];
+        for (int k = 0; k < 3; ++k) v[k] = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + k])];
+        double c[3];
+        for (int d = 0; d < 3; ++d) c[d] = (double(v[0][d]) + v[1][d] + v[2][d]) / 3.0;
+        double r2 = 0;
+        for (int k = 0; k < 3; ++k) {
+            const double dx = v[k][0] - c[0], dy = v[k][1] - c[1], dz = v[k][2] - c[2];
+            r2 = std::max(r2, dx * dx + dy * dy + dz * dz);
+        }
+        const double reach = std::sqrt(r2) * (1.0 + 1e-5) + pad;
+        lookup_tri_[t] = TriangleLookup{float(c[0]), float(c[1]), float(c[2]), float(reach * reach), 0, 0};
+    }
+    lookup_cand_.clear();
+    lookup_ids_.clear();
     rtcCommitGeometry(geom);
     rtcAttachGeometry(scene_, geom);
     rtcReleaseGeometry(geom);
@@ -118,9 +141,13 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     if (rtcGetDeviceError(device_) != RTC_ERROR_NONE)
         throw std::runtime_error("internal error: embree scene build failed");
     ++geometry_builds_;
+    // The candidates depend on both halves: refresh them if the surfels are
+    // already indexed for these surfaces.
+    if (n_surfels_ > 0 && trees_->surface.size() == size_t(n_surfaces_)) build_lookup(0);
 }
 
-void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma) {
+void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
+                               int threads) {
     Trees& T = *trees_;
     n_surfels_ = n;
     sigma_ = sigma;
@@ -138,6 +165,133 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
     }
     for (PointTree& t : T.surface) t.build();
     ++surfel_builds_;
+    build_lookup(threads);
+}
+
+// For triangle t of surface s with bounding sphere (c, reach) and q the
+// surfel of s nearest to c (distance d0): a point p with |p - c| <= reach has
+// its nearest surfel y* within |p - q| <= reach + d0 of p, so
+// |c - y*| <= 2 reach + d0.  The candidates are the surfels of s in that ball
+// (padded for rounding), so the scan finds the kd-tree's answer.
+void SceneIndex::build_lookup(int threads) {
+    const Trees& T = *trees_;
+    const size_t m = lookup_tri_.size();
+    constexpr size_t kBlock = 2048;  // triangles per work item (fixed: the result is thread-count free)
+    const size_t nblocks = (m + kBlock - 1) / kBlock;
+    std::vector<std::vector<Candidate>> block_cand(nblocks);
+    std::vector<std::vector<uint32_t>> block_ids(nblocks);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
+            std::vector<std::pair<uint32_t, float>> found;
+            for (size_t b = r.begin(); b < r.end(); ++b) {
+                std::vector<Candidate>& out = block_cand[b];
+                std::vector<uint32_t>& out_ids = block_ids[b];
+                for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t) {
+                    TriangleLookup& L = lookup_tri_[t];
+                    L.begin = 0;
+                    L.count = 0;
+                    const int s = tri_surface_[t];
+                    if (!has_surfels(s)) continue;
+                    const PointTree& tree = T.surface[size_t(s)];
+                    const float c[3] = {L.cx, L.cy, L.cz};
+                    uint32_t q = 0;
+                    float q2 = 0;
+                    nanoflann::KNNResultSet<float, uint32_t> rs(1);
+                    rs.init(&q, &q2);
+                    tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
+                    const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
+                    found.clear();
+                    tree.kd->radiusSearch(c, float(R * R), found, nanoflann::SearchParams(32, 0.0f, false));
+                    if (found.size() > kMaxCandidates || found.empty()) continue;
+                    L.count = uint32_t(found.size());
+                    L.begin = uint32_t(out.size());  // block-relative until the offsets are known
+                    const size_t first = out.size();
+                    for (const auto& f : found) {
+                        const float* pp = &tree.pos[3 * size_t(f.first)];
+                        const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
+                        out.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
+                        out_ids.push_back(tree.index[f.first]);
+                    }
+                    // Sort this triangle's entries by (distance from the centre, index).
+                    std::vector<uint32_t> order(found.size());
+                    for (uint32_t k = 0; k < order.size(); ++k) order[k] = k;
+                    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b2) {
+                        const float ra = out[first + a].from_centre, rb = out[first + b2].from_centre;
+                        return ra < rb || (ra == rb && out_ids[first + a] < out_ids[first + b2]);
+                    });
+                    std::vector<Candidate> sc(order.size());
+                    std::vector<uint32_t> si(order.size());
+                    for (size_t k = 0; k < order.size(); ++k) {
+                        sc[k] = out[first + order[k]];
+                        si[k] = out_ids[first + order[k]];
+                    }
+                    std::copy(sc.begin(), sc.end(), out.begin() + std::ptrdiff_t(first));
+                    std::copy(si.begin(), si.end(), out_ids.begin() + std::ptrdiff_t(first));
+                }
+            }
+        });
+    });
+    size_t total = 0;
+    std::vector<size_t> offset(nblocks);
+    for (size_t b = 0; b < nblocks; ++b) {
+        offset[b] = total;
+        total += block_cand[b].size();
+    }
+    if (total > size_t(UINT32_MAX)) throw Error("scene index: too many surfel candidates for the triangle lookup");
+    lookup_cand_.resize(total);
+    lookup_ids_.resize(total);
+    for (size_t b = 0; b < nblocks; ++b) {
+        std::copy(block_cand[b].begin(), block_cand[b].end(), lookup_cand_.begin() + std::ptrdiff_t(offset[b]));
+        std::copy(block_ids[b].begin(), block_ids[b].end(), lookup_ids_.begin() + std::ptrdiff_t(offset[b]));
+        for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t)
+            if (lookup_tri_[t].count) lookup_tri_[t].begin += uint32_t(offset[b]);
+    }
+}
+
+uint32_t SceneIndex::nearest_on_triangle(uint32_t prim, const float p[3]) const {
+    if (prim < lookup_tri_.size()) {
+        const TriangleLookup& L = lookup_tri_[prim];
+        const float dx = p[0] - L.cx, dy = p[1] - L.cy, dz = p[2] - L.cz;
+        const float to_centre2 = dx * dx + dy * dy + dz * dz;
+        if (L.count && to_centre2 <= L.reach2) {
+            const Candidate* c = lookup_cand_.data() + L.begin;
+            const uint32_t* ids = lookup_ids_.data() + L.begin;
+            const float to_centre = std::sqrt(to_centre2);
+            float best = std::numeric_limits<float>::infinity(), cut = best;
+            uint32_t id = UINT32_MAX;
+            for (uint32_t k = 0; k < L.count; ++k) {
+                // |p - y| >= |c - y| - |p - c|: once that exceeds the best
+                // distance (padded for rounding), no later entry can win or tie.
+                if (c[k].from_centre > cut) break;
+                // The kd-tree's metric, term by term: the same float distances.
+                float a = p[0] - c[k].x;
+                float d2 = 0.0f;
+                d2 += a * a;
+                a = p[1] - c[k].y;
+                d2 += a * a;
+                a = p[2] - c[k].z;
+                d2 += a * a;
+                if (d2 < best || (d2 == best && ids[k] < id)) {
+                    best = d2;
+                    id = ids[k];
+                    cut = (to_centre + std::sqrt(best)) * 1.0001f + 1e-30f;
+                }
+            }
+            return id;
+        }
+    }
+    return nearest_of(prim < tri_surface_.size() ? tri_surface_[prim] : -1, p);
+}
+
+size_t SceneIndex::lookup_fallback_triangles() const {
+    size_t n = 0;
+    for (const TriangleLookup& L : lookup_tri_) n += L.count == 0;
+    return n;
+}
+
+size_t SceneIndex::lookup_bytes() const {
+    return lookup_tri_.capacity() * sizeof(TriangleLookup) + lookup_cand_.capacity() * sizeof(Candidate) +
+           lookup_ids_.capacity() * sizeof(uint32_t);
 }
 
 void SceneIndex::cast(RTCRayHit& rh, V3 org, V3 dir, float tnear, float tfar) const {

@@ -3,6 +3,7 @@
 #include "gamma/simulation.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -57,12 +58,22 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
     kernels_ = KernelTable::from_config(c);
     const int nsurf = int(c.surface_rows.size());
 
+    auto t0 = std::chrono::steady_clock::now();
     state_ = SurfelState::sample(mesh_, tri_surface, size_t(c.surfels), c.seed, c.surface_rows);
+    setup_seconds_.sample = seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
     index_ = std::make_unique<SceneIndex>();
     index_->build_geometry(mesh_, std::move(tri_surface), nsurf);
+    setup_seconds_.geometry = seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
     index_->build_surfels(state_.surf.position.data(), state_.surface.data(), state_.size(),
-                          float(std::sqrt(mesh_.area() / double(state_.size()))));
+                          float(std::sqrt(mesh_.area() / double(state_.size()))), c.threads);
+    setup_seconds_.surfels = seconds_since(t0);
     require_surfels_on_every_surface(mesh_, *index_, c.surfels);
+    run_with_threads(c.threads, [&] {
+        state_.splat = build_splat_kernel(state_.surf.position.data(), state_.surf.normal.data(),
+                                          state_.surface.data(), state_.size(), index_->sigma());
+    });
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
 }
 
@@ -75,7 +86,12 @@ void Simulation::set_rows(const float* data) {
 uint32_t Simulation::nearest_surfel(const float p[3]) const { return index_->nearest(p); }
 uint32_t Simulation::nearest_surfel_of(int surface, const float p[3]) const { return index_->nearest_of(surface, p); }
 
-TraceStats Simulation::trace(int iteration) { return tracer_->trace(iteration, *index_, frame_, state_); }
+TraceStats Simulation::trace(int iteration) {
+    shape_.begin_iteration(state_);
+    return tracer_->trace(iteration, *index_, frame_, state_);
+}
+
+ShapeStats Simulation::shape(int iteration) { return shape_.apply(iteration, mesh_, state_, index_, frame_); }
 
 UpdateStats Simulation::update(int iteration) {
     return run_update_pass(kernels_, frame_, state_, iteration, cfg_.seed, cfg_.threads);
@@ -83,6 +99,25 @@ UpdateStats Simulation::update(int iteration) {
 
 RaycastStats Simulation::raw_raycast(int64_t n_rays, int threads, uint64_t seed) {
     return gammart::raw_raycast(*index_, frame_, n_rays, threads, seed);
+}
+
+std::vector<RecordedRay> Simulation::record_rays(int iteration) {
+    const std::vector<float> saved = state_.rows;
+    tracer_->set_record_rays(true);
+    try {
+        tracer_->trace(iteration, *index_, frame_, state_);
+    } catch (...) {
+        tracer_->set_record_rays(false);
+        state_.rows = saved;
+        throw;
+    }
+    tracer_->set_record_rays(false);
+    state_.rows = saved;
+    return tracer_->take_recorded_rays();
+}
+
+RaycastStats Simulation::cast_rays(const std::vector<RecordedRay>& rays, int threads) const {
+    return cast_recorded(*index_, rays, threads);
 }
 
 void Simulation::render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,

@@ -20,6 +20,7 @@ void TraceStats::add(const TraceStats& o) {
     emitted += o.emitted;
     settled += o.settled;
     escaped += o.escaped;
+    missed += o.missed;
     capped += o.capped;
     interactions += o.interactions;
     rays += o.rays;
@@ -29,6 +30,8 @@ void TraceStats::add(const TraceStats& o) {
     segments += o.segments;
     for (const NonFinite& nf : o.nonfinite)
         count_nonfinite(nonfinite, nf.event, nf.ton_type, nf.surface, nf.statement, nf.count);
+    if (mass.size() < o.mass.size()) mass.resize(o.mass.size());
+    for (size_t j = 0; j < o.mass.size(); ++j) mass[j].add(o.mass[j]);
 }
 
 }  // namespace gammart

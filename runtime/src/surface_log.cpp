@@ -1,6 +1,7 @@
 // Applying the chunk logs to the rows (see gamma/surface_log.h).
 #include "gamma/surface_log.h"
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -10,7 +11,7 @@
 namespace gammart {
 
 void apply_chunk_logs(const std::vector<ChunkLog>& logs, int64_t nchunks, size_t n, int header, int P, float* rows,
-                      std::vector<float>& scratch, int threads) {
+                      std::vector<float>& scratch, int threads, const SplatKernel* splat) {
     bool any = false;
     for (int64_t ci = 0; ci < nchunks; ++ci) any = any || !logs[size_t(ci)].surfel.empty();
     if (!any || P <= 0) return;
@@ -20,8 +21,10 @@ void apply_chunk_logs(const std::vector<ChunkLog>& logs, int64_t nchunks, size_t
     // any partition.
     const size_t nranges = size_t(resolve_threads(threads));
     const size_t per = (n + nranges - 1) / nranges;
-    scratch.resize(n * size_t(P));
+    const bool spread = splat && splat->offset.size() == n + 1;
+    scratch.resize((spread ? 2 : 1) * n * size_t(P));
     float* D = scratch.data();
+    float* S = spread ? D + n * size_t(P) : D;
     run_with_threads(threads, [&] {
         tbb::parallel_for(size_t(0), nranges, [&](size_t ri) {
             const uint32_t lo = uint32_t(std::min(n, ri * per)), hi = uint32_t(std::min(n, (ri + 1) * per));
@@ -39,8 +42,15 @@ void apply_chunk_logs(const std::vector<ChunkLog>& logs, int64_t nchunks, size_t
                     for (int j = 0; j < P; ++j) d[j] += rec[j];
                 }
             }
-            for (size_t s = lo; s < hi; ++s)
-                for (int j = 0; j < P; ++j) rows[s * W + header + j] += D[s * P + j];
+            if (!spread)
+                for (size_t s = lo; s < hi; ++s)
+                    for (int j = 0; j < P; ++j) rows[s * W + header + j] += D[s * P + j];
+        });
+        if (!spread) return;
+        apply_splat(*splat, D, S, n, P);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t s = r.begin(); s < r.end(); ++s)
+                for (int j = 0; j < P; ++j) rows[s * W + header + j] += S[s * P + j];
         });
     });
 }

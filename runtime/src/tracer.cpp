@@ -29,11 +29,13 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     const auto t0 = std::chrono::steady_clock::now();
     const int64_t nchunks = num_chunks(iteration);
     if (logs_.size() < size_t(nchunks)) logs_.resize(size_t(nchunks));
-    run_chunks(iteration, 0, nchunks, index, frame, state, logs_.data());
+    ray_logs_.assign(record_rays_ ? size_t(nchunks) : 0, {});
+    run_chunks(iteration, 0, nchunks, index, frame, state, logs_.data(), record_rays_ ? ray_logs_.data() : nullptr);
     TraceStats total_st;
+    total_st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
     for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
     apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, state.width - GAMMA_ROW_HEADER,
-                     state.rows.data(), merge_scratch_, cfg_.threads);
+                     state.rows.data(), merge_scratch_, cfg_.threads, &state.splat);
     total_st.trace_seconds = seconds_since(t0);
     return total_st;
 }
@@ -46,7 +48,7 @@ std::vector<ChunkLog> Tracer::trace_chunks(int iteration, int64_t first, int64_t
                     ") are not within the " + std::to_string(nchunks) + " chunks of iteration " +
                     std::to_string(iteration));
     std::vector<ChunkLog> logs(size_t(last - first));
-    run_chunks(iteration, first, last, index, frame, state, logs.data());
+    run_chunks(iteration, first, last, index, frame, state, logs.data(), nullptr);
     return logs;
 }
 
@@ -58,21 +60,28 @@ TraceStats Tracer::merge_chunks(int iteration, const std::vector<ChunkLog>& logs
         throw Error("merge_chunks: iteration " + std::to_string(iteration) + " has " + std::to_string(nchunks) +
                     " chunks, not " + std::to_string(logs.size()));
     TraceStats total_st;
+    total_st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
     for (const ChunkLog& log : logs) {
         if (log.delta.size() != log.surfel.size() * size_t(std::max(P, 0)))
             throw Error("merge_chunks: a chunk's deltas do not match its surfels");
+        if (log.st.mass.size() != cfg_.mass_properties.size())
+            throw Error("merge_chunks: a chunk has mass books for " + std::to_string(log.st.mass.size()) +
+                        " properties, not " + std::to_string(cfg_.mass_properties.size()));
         for (uint32_t s : log.surfel)
             if (s >= state.size()) throw Error("merge_chunks: surfel " + std::to_string(s) + " out of range");
         total_st.add(log.st);
     }
+    // The splat spreads each deposit exactly as trace() does (state.splat is
+    // the driver's own; workers only trace).
     apply_chunk_logs(logs, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_,
-                     cfg_.threads);
+                     cfg_.threads, &state.splat);
     total_st.trace_seconds = seconds_since(t0);
     return total_st;
 }
 
 void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
-                        const SceneFrame& frame, const SurfelState& state, ChunkLog* out) const {
+                        const SceneFrame& frame, const SurfelState& state, ChunkLog* out,
+                        std::vector<RecordedRay>* rays_out) const {
     const Config& c = cfg_;
     const KernelTable& K = kernels_;
     const int W = state.width;
@@ -82,11 +91,18 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
     const int64_t total = sched.total();
     const float* rows = state.rows.data();
     const int32_t* surf_of = state.surface.data();
-    const int32_t* tri_surf = index.tri_surface().data();
     const int max_inter = c.max_interactions;
     const uint64_t seed = c.seed;
     const uint32_t iter_u = uint32_t(iteration);
     const V3 up = frame.up;
+    // Weight of each active source's gamma-tons (SPEC §13.2): strength * n / N.
+    std::vector<float> weight;
+    for (size_t k = 0; k < sched.active.size(); ++k) {
+        const Source& so = c.sources[sched.active[k]];
+        weight.push_back(so.strength > 0 && so.count > 0
+                             ? float(double(so.strength) * double(state.size()) / double(so.count))
+                             : 1.0f);
+    }
 
     auto run_chunk = [&](int64_t ci) {
         ChunkLog& log = out[size_t(ci - first)];
@@ -98,25 +114,55 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         size_t a = size_t(std::upper_bound(start.begin(), start.end(), begin) - start.begin()) - 1;
         // interaction_key: mixed from (seed, iteration, gamma-ton, interaction);
         // each event's kernel gets its own random() key from it.
+        // Mass books (only when properties are accounted): per kernel call,
+        // the change of the surface column and of the carried attribute.
+        const std::vector<MassProperty>& MP = c.mass_properties;
+        const size_t M = MP.size();
+        st.mass.assign(M, MassBooks{});
+        std::vector<float> carried_before(M, 0.0f);
+        auto carried = [&](size_t j, int type) -> double {
+            const int ci = MP[j].carry[size_t(type)];
+            return ci >= 0 ? double(carry[size_t(ci)]) : 0.0;
+        };
+        float ton_weight = 1.0f;
         auto call = [&](const TransportSlot& sl, uint32_t s, GammaContext& ctx, uint64_t interaction_key) {
             set_random_key(ctx, mix64(interaction_key ^ uint64_t(sl.event)));
+            for (size_t j = 0; j < M; ++j) carried_before[j] = float(carried(j, sl.ton_type));
             int32_t bad;
             if (!sl.writes) {
                 bad = sl.fn(carry.data(), rows + size_t(s) * W, scratch.data(), &ctx);
             } else {
                 std::fill(delta.begin() + GAMMA_ROW_HEADER, delta.end(), 0.0f);
                 bad = sl.fn(carry.data(), rows + size_t(s) * W, delta.data(), &ctx);
+                if (ton_weight != 1.0f)
+                    for (int j = GAMMA_ROW_HEADER; j < W; ++j) delta[size_t(j)] *= ton_weight;
                 log.record(s, delta.data() + GAMMA_ROW_HEADER, P);
+            }
+            for (size_t j = 0; j < M; ++j) {
+                const int col = MP[j].column[size_t(sl.surface)];
+                const double ds = sl.writes && col >= 0 ? double(delta[size_t(col)]) : 0.0;
+                // a gamma-ton stands for ton_weight of its source's strength (SPEC §13.2): so does what it carries
+                const double dt = (carried(j, sl.ton_type) - double(carried_before[j])) * ton_weight;
+                MassBooks& b = st.mass[j];
+                if (ds < 0) b.removed -= ds;
+                else b.deposited += ds;
+                b.created += ds + dt;
             }
             if (bad) count_nonfinite(st.nonfinite, sl.event, sl.ton_type, sl.surface, bad);
         };
+        // A gamma-ton's life ends: what it still carries escapes or is dropped.
+        auto end_life = [&](int type, bool settled) {
+            for (size_t j = 0; j < M; ++j) (settled ? st.mass[j].dropped : st.mass[j].escaped) += carried(j, type) * ton_weight;
+        };
         Walker w(index, frame, st);
+        if (rays_out) w.record = &rays_out[size_t(ci - first)];
 
         for (int64_t g = begin; g < end; ++g) {
             while (g >= start[a + 1]) ++a;
             const size_t src = sched.active[a];
             const int type = c.sources[src].ton_type;
             const TonType& tt = c.ton_types[size_t(type)];
+            ton_weight = weight[a];
             PhiloxStream rng(seed, iter_u, uint64_t(g));
             float ks = tt.ks, kp = tt.kp, kf = tt.kf;
             std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
@@ -124,15 +170,18 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             emit(sources_[src], rng, org, d0);
             int inter = 0;
             ++st.emitted;
+            for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type) * ton_weight;
             if (!w.straight(org, d0, 0.0f)) {
                 ++st.escaped;
+                ++st.missed;
+                end_life(type, false);
                 continue;
             }
             for (;;) {
                 ++inter;
                 const V3 p = w.p, n = w.n, dir = w.dir;
                 const float pa[3] = {p.x, p.y, p.z};
-                const uint32_t s = index.nearest_of(tri_surf[w.prim], pa);
+                const uint32_t s = index.nearest_on_triangle(w.prim, pa);
                 const int surface = surf_of[s];
                 GammaContext ctx;
                 ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
@@ -156,8 +205,8 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                     if (hit.fn) call(hit, s, ctx, key);
                     if (ev.fn) call(ev, s, ctx, key);
                 }
-                if (event == GAMMA_EVENT_SETTLE) { ++st.settled; break; }
-                if (inter >= max_inter) { ++st.capped; break; }
+                if (event == GAMMA_EVENT_SETTLE) { ++st.settled; end_life(type, true); break; }
+                if (inter >= max_inter) { ++st.capped; end_life(type, false); break; }
                 const float* row = rows + size_t(s) * W;
                 const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
                             df = row[GAMMA_ROW_REFLECTANCE_FLOW];
@@ -166,8 +215,8 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 kf = std::max(kf + kp_left - df, 0.0f);
                 kp = kp_left;
                 const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
-                if (fe == FlightEnd::Escaped) { ++st.escaped; break; }
-                if (fe == FlightEnd::Capped) { ++st.capped; break; }
+                if (fe == FlightEnd::Escaped) { ++st.escaped; end_life(type, false); break; }
+                if (fe == FlightEnd::Capped) { ++st.capped; end_life(type, false); break; }
             }
             st.interactions += inter;
         }
@@ -179,6 +228,44 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             for (int64_t ci = r.begin(); ci < r.end(); ++ci) run_chunk(ci);
         });
     });
+}
+
+std::vector<RecordedRay> Tracer::take_recorded_rays() {
+    size_t n = 0;
+    for (const auto& l : ray_logs_) n += l.size();
+    std::vector<RecordedRay> all;
+    all.reserve(n);
+    for (const auto& l : ray_logs_) all.insert(all.end(), l.begin(), l.end());
+    ray_logs_.clear();
+    return all;
+}
+
+RaycastStats cast_recorded(const SceneIndex& index, const std::vector<RecordedRay>& rays, int threads) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const int64_t n_rays = int64_t(rays.size());
+    const int64_t nchunks = (n_rays + kChunkSize - 1) / kChunkSize;
+    std::vector<int64_t> hits(size_t(nchunks), 0);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int64_t>(0, nchunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
+            for (int64_t ci = r.begin(); ci < r.end(); ++ci) {
+                int64_t h = 0;
+                const int64_t b = ci * kChunkSize, e = std::min(n_rays, b + kChunkSize);
+                for (int64_t i = b; i < e; ++i) {
+                    const RecordedRay& q = rays[size_t(i)];
+                    RTCRayHit rh;
+                    index.cast(rh, V3{q.org[0], q.org[1], q.org[2]}, V3{q.dir[0], q.dir[1], q.dir[2]}, q.tnear,
+                               q.tfar);
+                    if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) ++h;
+                }
+                hits[size_t(ci)] = h;
+            }
+        });
+    });
+    RaycastStats st;
+    st.rays = n_rays;
+    for (int64_t h : hits) st.hits += h;
+    st.seconds = seconds_since(t0);
+    return st;
 }
 
 RaycastStats raw_raycast(const SceneIndex& index, const SceneFrame& frame, int64_t n_rays, int threads,

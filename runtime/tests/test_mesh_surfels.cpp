@@ -178,10 +178,9 @@ TEST(Mesh, ExtentErrors) {
     EXPECT_NEAR(m.diag / 1e25, std::sqrt(2.0), 1e-6);
 }
 
-TEST(Mesh, PlyDroppedFacesAndNonFinite) {
+TEST(Mesh, PlyOutOfRangeAndNonFinite) {
     const char* path = "gamma_test_nm.ply";
-    // A face with an out-of-range vertex index: OpenMesh drops it silently.
-    // (Non-manifold faces are kept: OpenMesh duplicates their vertices.)
+    // A face with an out-of-range vertex index is an error (never dropped silently).
     {
         std::ofstream f(path);
         f << "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
@@ -189,7 +188,7 @@ TEST(Mesh, PlyDroppedFacesAndNonFinite) {
              "0 0 0\n1 0 0\n0 1 0\n0 -1 0\n0 0 1\n3 0 1 2\n3 1 0 3\n3 0 1 9\n";
     }
     std::string msg = gamma_test::expect_error([&] { Mesh::load(path); });
-    EXPECT_EQ(msg, "mesh 'gamma_test_nm.ply': 1 faces could not be read");
+    EXPECT_EQ(msg, "mesh 'gamma_test_nm.ply': face 2 has vertex index 9 out of range (5 vertices)");
     {
         std::ofstream f(path);
         f << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"

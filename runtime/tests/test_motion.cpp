@@ -312,30 +312,7 @@ TEST(Flow, InclinedPlaneDownhillAndDrips) {
         }
 }
 
-// 5b. Flow on a horizontal plane: no drift.
-TEST(Flow, HorizontalNoDrift) {
-    Builder b;
-    floor_quad(b, -1, 1, -1, 1);
-    Mesh m = b.mesh();
-    Config c = cfg1(3, 0, 0, 0.1f);
-    c.max_interactions = 1000;
-    int t = c.add_ton_type(0, 0, 1, {}, 0.5f, 0.05f);
-    c.add_source(make_source("directional", t, 1000));
-    c.set_transport(GAMMA_EVENT_HIT, t, 0, addr(rec_hit), false);
-    clear_recs();
-    Simulation sim(m, c);
-    TraceStats st = sim.trace(1);
-    EXPECT_EQ(st.settled, 1000);
-    EXPECT_GT(st.flow_steps, 3000);  // ~3.7 flow steps per gamma-ton (kf = 1, 0.9, 0.8, ...)
-    EXPECT_EQ(st.drips, 0);
-    const auto& R = g_recs[GAMMA_EVENT_HIT];
-    for (size_t k = 1; k < R.size(); ++k)
-        if (R[k].inter > 1) {
-            EXPECT_EQ(std::memcmp(R[k].p, R[k - 1].p, sizeof(R[k].p)), 0);
-            EXPECT_EQ(R[k].dir[0], 0.0f);
-            EXPECT_EQ(R[k].dir[1], 0.0f);
-        }
-}
+// 5b. Flat faces, edges and risers: test_flow.cpp.
 
 // Flow on the underside of a surface (an overhang) drips.
 TEST(Flow, OverhangDrips) {

@@ -33,7 +33,9 @@ struct FloorScene {
 };
 }  // namespace
 
-TEST(MotionTable, FlowOnAFlatFloorStaysPut) {
+// A flat floor and a straight fall onto it: one step in a random direction
+// (one number drawn), on the floor (SPEC §14.3).
+TEST(MotionTable, FlowOnAFlatFloorSpreads) {
     FloorScene s(0.0f);
     TraceStats st;
     Walker w(s.index, s.frame, st);
@@ -43,9 +45,10 @@ TEST(MotionTable, FlowOnAFlatFloorStaysPut) {
     tt.flow_step = 0.1f;
     PhiloxStream rng(1, 1, 0);
     EXPECT_EQ(kMotionTable.step[GAMMA_EVENT_FLOW](w, rng, tt), FlightEnd::Landed);
-    EXPECT_EQ(w.p, p);
-    EXPECT_EQ(w.dir, V3(0, 0, 0));
-    EXPECT_EQ(rng.draws(), 0u);  // flow draws nothing
+    EXPECT_NEAR(length(w.p - p), 0.1f, 1e-5f);
+    EXPECT_NEAR(w.p.y, p.y, 1e-6f);
+    EXPECT_NEAR(length(w.dir), 1.0f, 1e-5f);
+    EXPECT_EQ(rng.draws(), 1u);  // the direction
     EXPECT_EQ(st.flow_steps, 1);
 }
 

@@ -83,25 +83,63 @@ def cache_key(ir_text: str) -> str:
     return hashlib.sha256("\0".join(parts).encode("utf-8")).hexdigest()
 
 
+#: Cached object files start with this, then the ABI version (4 bytes, little
+#: endian), the cache key (64 hex digits) and the SHA-256 of the machine code:
+#: a truncated, corrupted or foreign file is detected and compiled again,
+#: never handed to the JIT linker.
+CACHE_MAGIC = b"gamma-kernels\0"
+
+
+def pack_cached(key: str, code: bytes) -> bytes:
+    from .. import abi
+
+    return (CACHE_MAGIC + abi.ABI_VERSION.to_bytes(4, "little") + key.encode("ascii")
+            + hashlib.sha256(code).digest() + code)
+
+
+def unpack_cached(key: str, blob: bytes) -> bytes | None:
+    """The machine code of a cache file, or None if it is not intact and ours."""
+    from .. import abi
+
+    head = CACHE_MAGIC + abi.ABI_VERSION.to_bytes(4, "little") + key.encode("ascii")
+    if not blob.startswith(head) or len(blob) < len(head) + 32:
+        return None
+    digest, code = blob[len(head):len(head) + 32], blob[len(head) + 32:]
+    return code if code and hashlib.sha256(code).digest() == digest else None
+
+
 class JitKernels:
     """The effect's kernels compiled in this process; ``address[symbol]``.
 
     The machine code is cached on disk (``cache_dir()``), keyed by
-    ``cache_key``: a later run of the same effect on the same machine skips
-    LLVM's optimisation and code generation (``from_cache`` says which)."""
+    ``cache_key`` and verified on reading (``unpack_cached``): a later run
+    of the same effect on the same machine skips LLVM's optimisation and code
+    generation (``from_cache`` says which); a damaged cache file is replaced."""
 
     def __init__(self, effect: Effect, cache: Path | None | str = "default"):
         self.ir = generate(effect)
         folder = cache_dir() if cache == "default" else cache
         text = str(self.ir)
-        path = folder / f"{cache_key(text)}.o" if folder is not None else None
+        key = cache_key(text)
+        path = folder / f"{key}.o" if folder is not None else None
         cached = None
         if path is not None and path.is_file():
             try:
-                cached = path.read_bytes()
+                cached = unpack_cached(key, path.read_bytes())
             except OSError:
                 cached = None
+            if cached is None:
+                try:
+                    path.unlink()
+                except OSError:
+                    pass
         self.from_cache = cached is not None
+        self._build(effect, path, key, cached)
+        if self.from_cache and not all(self.address.values()):
+            self.from_cache = False           # a cached object without our symbols
+            self._build(effect, path, key, None)
+
+    def _build(self, effect: Effect, path: Path | None, key: str, cached: bytes | None) -> None:
         # With cached machine code the IR is only parsed (MCJIT takes the object).
         self.module = compile_ir(self.ir, optimise=cached is None)
         self.engine = llvm.create_mcjit_compiler(self.module, _target_machine())
@@ -112,7 +150,7 @@ class JitKernels:
             try:
                 from ..files import atomic_write
 
-                atomic_write(path, bytes(data))
+                atomic_write(path, pack_cached(key, bytes(data)))
             except OSError:
                 pass  # an unwritable cache only costs time
 

@@ -40,3 +40,25 @@ def sun_direction(camera) -> tuple[float, float, float]:
     left = np.cross(up, view)
     sun = 1.0 * up + 0.45 * view + 0.5 * left
     return tuple(sun / np.linalg.norm(sun))
+
+
+def choose_camera(bounds, down, view=None, eye=None, look_at=None, up=None, fov_deg: float = 30.0):
+    """The camera of the command-line options: ``view`` (or ``eye``) around
+    ``look_at`` (default the scene's centre), ``up`` (default against gravity)."""
+    eye0, target, up0, fov = auto_camera(bounds, view or DEFAULT_VIEW, down, fov_deg)
+    if look_at is not None:     # the same view direction and distance, around the new target
+        shift = np.asarray(look_at, float) - np.asarray(target, float)
+        target = tuple(float(c) for c in look_at)
+        eye0 = tuple(np.asarray(eye0, float) + shift)
+    if eye is not None:
+        eye0 = tuple(float(c) for c in eye)
+    if np.allclose(eye0, target):
+        raise CameraError("--eye must not be the point the camera looks at "
+                          f"({', '.join(f'{c:g}' for c in target)})")
+    if up is not None:
+        forward = np.asarray(target, float) - np.asarray(eye0, float)
+        up = np.asarray(up, float)
+        if np.linalg.norm(np.cross(forward, up)) <= 1e-6 * np.linalg.norm(forward) * np.linalg.norm(up):
+            raise CameraError("--up must not point along the viewing direction")
+        up0 = tuple(up / np.linalg.norm(up))
+    return tuple(eye0), tuple(target), tuple(up0), fov

@@ -31,6 +31,49 @@ def ply_bytes(columns: dict[str, np.ndarray], comments: list[str] = ()) -> bytes
     return ("\n".join(header) + "\n").encode("ascii") + table.tobytes()
 
 
+def mesh_ply_bytes(vertex_columns: dict[str, np.ndarray], triangles: np.ndarray,
+                   comments: list[str] = ()) -> bytes:
+    """A binary little-endian PLY triangle mesh: float32 vertex properties
+    (x y z nx ny nz, then any others) and faces as uchar-counted int lists."""
+    names = list(vertex_columns)
+    n = len(next(iter(vertex_columns.values())))
+    tris = np.asarray(triangles, np.int64).reshape(-1, 3)
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {ascii(c)[1:-1]}" for c in comments]
+    header.append(f"element vertex {n}")
+    header += [f"property float {name}" for name in names]
+    header += [f"element face {len(tris)}", "property list uchar int vertex_indices", "end_header"]
+    table = np.empty((n, len(names)), dtype="<f4")
+    for j, name in enumerate(names):
+        table[:, j] = vertex_columns[name]
+    faces = np.empty(len(tris), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    faces["n"] = 3
+    faces["v"] = tris
+    return ("\n".join(header) + "\n").encode("ascii") + table.tobytes() + faces.tobytes()
+
+
+def read_mesh_ply(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Read back a PLY written by ``mesh_ply_bytes``: (vertex columns, triangles)."""
+    data = Path(path).read_bytes()
+    names, n, m, end = [], 0, 0, 0
+    while True:
+        nl = data.index(b"\n", end)
+        parts = data[end:nl].decode("ascii").split()
+        end = nl + 1
+        if parts == ["end_header"]:
+            break
+        if parts[:2] == ["element", "vertex"]:
+            n = int(parts[2])
+        elif parts[:2] == ["element", "face"]:
+            m = int(parts[2])
+        elif parts[:2] == ["property", "float"]:
+            names.append(parts[2])
+    size = n * len(names) * 4
+    table = np.frombuffer(data[end:end + size], dtype="<f4").reshape(n, len(names))
+    faces = np.frombuffer(data[end + size:], dtype=[("n", "u1"), ("v", "<i4", (3,))], count=m)
+    return {name: table[:, j].copy() for j, name in enumerate(names)}, faces["v"].astype(np.int64)
+
+
 def read_ply(path: Path) -> dict[str, np.ndarray]:
     """Read back a PLY written by ``ply_bytes`` (tests and tools)."""
     data = Path(path).read_bytes()

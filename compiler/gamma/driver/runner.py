@@ -10,6 +10,7 @@ output is a writer, so adding one never touches the loop.
 from __future__ import annotations
 
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import abi, __version__
+from . import budget
 from ..frontend.ast import Pos
 from ..backends.jit import JitKernels
 from ..ir.effect import Effect, Length, Source
@@ -36,6 +38,8 @@ class RunOptions:
     down: tuple[float, float, float] | None = None    # None: the scene file's, else -y
     view: tuple[float, float, float] | None = None    # camera direction from the scene's centre
     eye: tuple[float, float, float] | None = None     # camera position (overrides view)
+    look_at: tuple[float, float, float] | None = None # the point looked at (None: the scene's centre)
+    up: tuple[float, float, float] | None = None      # camera up (None: against gravity)
     fov: float = 30.0                                 # vertical field of view, degrees
     iterations: int = 10
     surfels: int = 100_000
@@ -51,6 +55,8 @@ class RunOptions:
     samples: int = 4            # camera rays per pixel (appearance renders)
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
+    resume: bool = False          # continue the run in ``out`` from its last complete iteration
+    started: float | None = None  # time.perf_counter() when gammac started (start-up time)
     ray: bool = False           # trace on a local Ray (distributed.py)
     ray_address: str | None = None   # trace on the Ray cluster there
 
@@ -69,6 +75,7 @@ def runtime_module():
 #: Defaults for ton types that do not say, as fractions of the scene diagonal.
 DEFAULT_BOUNCE = Length(0.02, relative=True)
 DEFAULT_STEP = Length(0.005, relative=True)
+DEFAULT_DRIP_DEGREES = 10.0  # SPEC §4: water clings to walls and slight overhangs
 #: Upper bounds on options, so a typo cannot ask for terabytes.
 LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
           "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
@@ -109,7 +116,7 @@ def _direction(value, down) -> tuple[float, float, float]:
 def source_arguments(src: Source, lo, hi, diagonal: float, down) -> dict:
     """The runtime's ``add_source`` keyword arguments, in scene units."""
     p = src.params
-    args = {"first_iteration": src.first, "last_iteration": src.last}
+    args = {"first_iteration": src.first, "last_iteration": src.last, "strength": src.strength or 0.0}
     if "position" in p:
         args["position"] = p["position"].resolve(lo, hi)
     if "direction" in p:
@@ -143,12 +150,18 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
     for ton in effect.tons.values():
         bounce = (ton.bounce or DEFAULT_BOUNCE).resolve(diagonal)
         step = (ton.step or DEFAULT_STEP).resolve(diagonal)
-        cfg.add_ton_type(*ton.motion, ton.initial, bounce, step)
+        drip = DEFAULT_DRIP_DEGREES if ton.drip is None else ton.drip
+        cfg.add_ton_type(*ton.motion, ton.initial, bounce, step, drip)
     counts = [s.count for s in effect.sources]
     if opts.tons is not None:
         counts = split_counts(counts, opts.tons)
     for src, count in zip(effect.sources, counts):
-        cfg.add_source(src.kind, src.ton, count, **source_arguments(src, lo, hi, diagonal, down))
+        args = source_arguments(src, lo, hi, diagonal, down)
+        if "position" in args:
+            problem = budget.distance_problem(f"source '{src.name}'", args["position"], (lo + hi) / 2, diagonal)
+            if problem:
+                raise RunError(problem)
+        cfg.add_source(src.kind, src.ton, count, **args)
     for k in effect.transport_kernels():
         cfg.set_transport(abi.EVENTS[k.event], k.ton.index, k.surface.index,
                           kernels.address[k.symbol], k.writes_surface)
@@ -156,21 +169,65 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
         cfg.set_update(k.surface.index, kernels.address[k.symbol])
     for k in effect.appearance_kernels():
         cfg.set_appearance(k.surface.index, kernels.address[k.symbol])
+    for surface in effect.surfaces.values():
+        for slot, rate, _ in surface.shape.values():
+            cfg.add_shape_rate(surface.index, slot, rate)
+    for name in mass_properties(effect):
+        cfg.add_mass_property([s.properties.get(name, -1) for s in effect.surfaces.values()],
+                              [t.carry.get(name, -1) for t in effect.tons.values()])
     return cfg
+
+
+#: Largest texture() image, in pixels per side (SPEC §8a); checked from the
+#: image's header, before it is decoded, so a decompression bomb costs nothing.
+MAX_TEXTURE_SIDE = 8192
+
+
+def mass_properties(effect: Effect) -> list[str]:
+    """Properties whose pick-up is accounted (SPEC §19): a name that is both a
+    surface property and an attribute some ton type carries."""
+    carried = {name for t in effect.tons.values() for name in t.carry}
+    names = []
+    for s in effect.surfaces.values():
+        names += [n for n in s.properties if n in carried and n not in names]
+    return names
+
+
+def shape_changes(effect: Effect) -> bool:
+    return any(s.shape for s in effect.surfaces.values())
 
 
 def load_textures(effect: Effect) -> list[np.ndarray]:
     """Every texture() image as float32 [H, W, 3] in [0, 1] (display values)."""
     from PIL import Image, UnidentifiedImageError
 
+    from ..files import file_problem
+
     images = []
     for path in effect.textures:
+        problem = file_problem(Path(path))
+        if problem:
+            raise RunError(f"cannot read texture '{path}': {problem}")
         try:
             with Image.open(path) as image:
+                w, h = image.size
+                if max(w, h) > MAX_TEXTURE_SIDE:
+                    raise RunError(f"texture '{path}' is {w}x{h} pixels; at most "
+                                   f"{MAX_TEXTURE_SIDE}x{MAX_TEXTURE_SIDE} are supported")
                 images.append(np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0)
-        except (OSError, UnidentifiedImageError) as err:
+        except (OSError, UnidentifiedImageError, Image.DecompressionBombError, ValueError) as err:
             raise RunError(f"cannot read texture '{path}': {err}") from None
     return images
+
+
+def run_camera(scene, opts: "RunOptions"):
+    """The camera of a run's options (--view, --eye, --look-at, --up, --fov)."""
+    from .camera import CameraError, choose_camera
+
+    try:
+        return choose_camera(scene.bounds, scene.down, opts.view, opts.eye, opts.look_at, opts.up, opts.fov)
+    except CameraError as err:
+        raise RunError(str(err)) from None
 
 
 def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarray) -> dict:
@@ -186,7 +243,7 @@ def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarra
     return columns
 
 
-OUTPUT_FOLDERS = ("maps", "renders", "renders/false_colour", "export")
+OUTPUT_FOLDERS = ("maps", "renders", "renders/false_colour", "export", "meshes")
 
 
 def prepare_output(out: Path) -> None:
@@ -198,47 +255,90 @@ def prepare_output(out: Path) -> None:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
 
 
-def clear_earlier_run(out: Path) -> None:
-    """Drop an earlier run's iteration files, so the folder describes one run.
-    Called only once this run has been set up without error: a run that fails
-    early leaves the earlier results alone."""
-    try:
-        for sub in OUTPUT_FOLDERS:
-            for stale in (out / sub).glob("iter_[0-9][0-9][0-9][0-9]*"):
-                stale.unlink()
-        for stale in (out / "export").glob("*/iter_[0-9][0-9][0-9][0-9]*"):
-            stale.unlink()
-        for stale in ("sequence.gif", "sequence.mp4", "strip.png"):
-            (out / "renders" / stale).unlink(missing_ok=True)
-    except OSError as err:
-        raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
-
-
-
-
-def run(effect: Effect, opts: RunOptions, writers: list | tuple = ()) -> dict:
+def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None,
+        standard: bool = True) -> dict:
     """Simulate ``effect`` with ``opts``; the standard outputs, then ``writers``,
-    receive the run's events (``events.py``).  Returns the summary."""
+    receive the run's events (``events.py``).  Returns the summary.
+
+    SIGINT and SIGTERM stop the run within a fraction of a second
+    (``interrupt.py``): the iterations completed so far stay written, with
+    ``"completed": false``, and ``RunInterrupted`` is raised.  A run that fails
+    puts the earlier run's files back (``folder.py``).  ``scene`` (a
+    ``scene.Scene``) replaces ``opts.scene``; ``standard=False`` leaves the
+    standard outputs out (the Python API, the viewer)."""
+    from . import folder
     from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
+    from .interrupt import Interrupted, Interruptions
     from .writers import standard_writers
 
-    session = start(effect, opts)
-    subscribers = standard_writers(session) + list(writers)
-    try:
-        with session.behind:   # leaving it waits for the writers' queued jobs
-            publish(subscribers, SetupDone(session))
-            for it in range(1, opts.iterations + 1):
-                traced = session.trace(it)
-                publish(subscribers, IterationTraced(session, it, traced))
-                rows, props, record = session.update(it, traced)
-                publish(subscribers, IterationUpdated(session, it, rows, props, record))
-            publish(subscribers, RunFinished(session, session.summary))
-    except OSError as err:
-        raise RunError(f"cannot write to '{session.out}': {err.strerror or err}") from None
-    finally:
-        if session.tracer is not None:
-            session.tracer.close()
+    with Interruptions() as stop:
+        session = start(effect, opts, stop, scene)
+        subscribers = (standard_writers(session) if standard else []) + list(writers)
+        done = session.first_iteration - 1
+        try:
+            with session.behind:   # leaving it waits for the writers' queued jobs
+                publish(subscribers, SetupDone(session))
+                for it in range(session.first_iteration, opts.iterations + 1):
+                    traced = stop.call(session.trace, it)
+                    publish(subscribers, IterationTraced(session, it, traced))
+                    rows, props, record = stop.call(session.update, it, traced)
+                    publish(subscribers, IterationUpdated(session, it, rows, props, record))
+                    done = it
+                    stop.check()
+                session.summary["completed"] = True
+                publish(subscribers, RunFinished(session, session.summary))
+            folder.drop(session.out)
+        except Interrupted as sig:
+            _interrupted(session, sig, done, stop.busy)     # raises RunInterrupted
+        except BaseException as err:
+            if not opts.resume:
+                folder.restore(session.out)      # the earlier run's files come back
+            if isinstance(err, OSError):
+                raise RunError(f"cannot write to '{session.out}': {err.strerror or err}") from None
+            raise
+        finally:
+            session.lock.__exit__()
+            if session.tracer is not None:
+                session.tracer.close()
     return session.summary
+
+
+def _direct(fn, *args, **kwargs):
+    return fn(*args, **kwargs)
+
+
+class RunInterrupted(Exception):
+    """The run stopped at a signal; its folder holds ``done`` complete iterations."""
+
+    def __init__(self, message: str, status: int, abandoned_call: bool):
+        super().__init__(message)
+        self.status = status
+        self.abandoned_call = abandoned_call   # a runtime call still runs: exit with os._exit
+
+
+def _interrupted(session: "Run", sig, done: int, busy: bool):
+    """Finish the folder of an interrupted run: complete iterations only (the
+    queued writes are done: leaving ``behind`` waited for them), summary.json
+    with ``"completed": false``; keep the earlier run's files if none is."""
+    from . import folder
+    from ..files import atomic_write
+
+    summary = session.summary
+    summary["completed"] = False
+    summary["interrupted"] = sig.name
+    del summary["iterations"][done:]
+    out = session.out
+    if done == 0 and not session.opts.resume:
+        folder.restore(out)
+        kept = "the earlier results are kept"
+    else:
+        folder.discard_after(out, done)
+        atomic_write(out / "summary.json", (__import__("json").dumps(summary, indent=2) + "\n").encode())
+        folder.drop(out)
+        kept = (f"'{out}' holds iterations 1 to {done} of {session.opts.iterations} "
+                f"(summary.json: \"completed\": false); add --resume to continue")
+    raise RunInterrupted(f"interrupted by {sig.name} during iteration {done + 1}; {kept}",
+                         sig.status, busy)
 
 
 @dataclass
@@ -262,6 +362,11 @@ class Run:
     summary: dict                  # what summary.json holds (grows per iteration)
     nonfinite: "NonFiniteReport"
     behind: object                 # events.WriteQueue: jobs run in order behind the loop
+    shapes: bool = False           # some surface's shape follows a property
+    shape_where: str = ""          # FILE:LINE:COL of the first `shape` entry (for warnings)
+    first_iteration: int = 1       # 1, or where --resume continues
+    lock: object = None            # folder.OutputLock, held for the run
+    call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
     tracer: object = None          # distributed.RayTracer with --ray / --ray-address
 
     def trace(self, it: int) -> dict:
@@ -283,24 +388,84 @@ class Run:
         record["update_seconds"] = updated["seconds"]
         if "bytes_moved" in traced:
             record["ray"] = traced["bytes_moved"]
+        names = mass_properties(self.effect)
+        if names:
+            record["mass"] = {name: books for name, books in zip(names, traced["mass"])}
+        if self.shapes:
+            shaped = self.sim.shape(it)
+            record["geometry"] = shaped["geometry"]
+            record["shape"] = {k: v for k, v in shaped.items() if k != "geometry"}
+            for key, count in (("clamped_vertices", "was cut to the per-iteration bound"),
+                               ("inversion_limited", "was shortened so that no triangle turns over")):
+                if shaped[key]:
+                    print(f"\ngammac: warning: {self.shape_where}: the displacement of {shaped[key]} "
+                          f"vertices {count} in iteration {it}", file=sys.stderr)
+            if shaped["changed"]:
+                rows = self.sim.rows()
+                self.refresh_surfels()
+                props = property_columns(self.effect, rows, self.surfel_surface)
+                record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
+                                           for name, col in props.items()}
         self.summary["iterations"].append(record)
+        # one value range per property over the whole run so far (finite values, the
+        # surfels of surfaces that have the property), so iterations compare
+        ranges = self.summary.setdefault("ranges", {})
+        for surface in self.effect.surfaces.values():
+            mine = self.surfel_surface == surface.index
+            for name, slot in surface.properties.items():
+                values = rows[mine, slot]
+                values = values[np.isfinite(values)]
+                if values.size:
+                    low, high = ranges.get(name, (math.inf, -math.inf))
+                    ranges[name] = [min(low, float(values.min())), max(high, float(values.max()))]
         return rows, props, record
 
+    def refresh_surfels(self) -> None:
+        """Surfel positions, normals and surfaces after the shape changed."""
+        self.surfel_surface = np.asarray(self.sim.surfel_surfaces())
+        self.static_columns = static_columns(self.sim, self.surfel_surface)
 
-def start(effect: Effect, opts: RunOptions) -> Run:
+    def export_scene(self):
+        """The scene as export sees it: the deformed mesh as one object once the
+        shape has changed, else the loaded scene."""
+        if not self.shapes:
+            return self.scene
+        from types import SimpleNamespace
+
+        vertices, triangles = self.sim.mesh_arrays()
+        mesh = self.rt.Mesh.from_arrays(vertices, triangles)
+        return SimpleNamespace(mesh=mesh, object_names=[Path(self.opts.scene).stem],
+                               triangle_object=np.zeros(len(triangles), np.int64),
+                               triangle_surface=np.asarray(self.sim.triangle_surfaces()))
+
+
+def static_columns(sim, surfel_surface: np.ndarray) -> dict:
+    """x y z nx ny nz surface per surfel."""
+    pos, nrm = sim.surfel_positions(), sim.surfel_normals()
+    static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
+    static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
+    static["surface"] = surfel_surface.astype(np.float32)
+    return static
+
+
+def start(effect: Effect, opts: RunOptions, stop=None, scene=None) -> Run:
     """Check the options, load the scene, compile, build the simulation and
-    clear an earlier run's files; every user error is raised before any output."""
-    from .camera import DEFAULT_VIEW, CameraError, auto_camera
-    from .events import WriteQueue
+    set the earlier run's files aside; every user error is raised before any output."""
     from .scene import SceneError, load_scene
 
+    entered = time.perf_counter()
     check_limits(opts)
+    if (opts.ray or opts.ray_address) and shape_changes(effect):
+        where = next((w for s in effect.surfaces.values() for _, _, w in s.shape.values()), "")
+        raise RunError(f"--ray{'-address' if opts.ray_address else ''}: {where}: an effect that changes "
+                       "the shape of the scene cannot be traced on Ray (the workers keep the scene as it "
+                       "was loaded, the shape step re-tiles it); run it without Ray")
     if not effect.sources:
         raise GammaError(effect.path, effect.source, [Diagnostic(
             Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced")])
     rt = runtime_module()
     try:
-        scene = load_scene(rt, opts.scene, effect, opts.assign, opts.down)
+        scene = scene or load_scene(rt, opts.scene, effect, opts.assign, opts.down)
     except SceneError as err:
         raise RunError(str(err)) from None
     mesh = scene.mesh
@@ -312,29 +477,67 @@ def start(effect: Effect, opts: RunOptions) -> Run:
     if shown is not None and not any(shown in s.properties for s in present):
         raise RunError(f"--show {shown}: no surface of the scene has that property "
                        f"({', '.join(sorted({n for s in present for n in s.properties})) or 'none'})")
+    if opts.eye is not None:
+        centre = (np.asarray(scene.bounds[0], float) + np.asarray(scene.bounds[1], float)) / 2
+        problem = budget.distance_problem("--eye", opts.eye, centre, scene.diagonal)
+        if problem:
+            raise RunError(problem)
+    tons = opts.tons if opts.tons is not None else sum(src.count for src in effect.sources)
+    need = budget.run_memory(opts.surfels, effect.row_width, opts.iterations, history=shown is not None,
+                             tons=tons)
+    problem = budget.memory_problem(need, budget.available_memory())
+    if problem:
+        raise RunError(problem)
+    if need > budget.ANNOUNCE_BYTES:
+        print(f"gammac: note: this run needs about {budget.gigabytes(need)} of memory", file=sys.stderr)
+    looks = bool(effect.appearance_kernels())
+    textures = load_textures(effect) if looks else None     # before any long setup
     out = Path(opts.out)
     prepare_output(out)
-    kernels = JitKernels(effect)
+    from . import folder
+
+    call = stop.call if stop is not None else _direct
+    lock = folder.OutputLock(out)
+    try:
+        lock.__enter__()
+    except folder.FolderError as err:
+        raise RunError(str(err)) from None
+    try:
+        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered)
+    except BaseException:
+        lock.__exit__()
+        raise
+    session.lock = lock
+    return session
+
+
+def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered) -> Run:
+    """The rest of ``start``, with the output folder locked."""
+    from . import folder
+    from .events import WriteQueue
+
+    mesh = scene.mesh
+    folder.remove_stale_temporaries(out)
+    folder.recover(out)
+    t0 = time.perf_counter()
+    kernels = call(JitKernels, effect)
+    compile_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
         cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
         cfg.triangle_surface = scene.triangle_surface
-        sim = rt.Simulation(mesh, cfg)
+        sim = call(rt.Simulation, mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
-        raise RunError(str(err).removeprefix("config: ")) from None
+        message = str(err).removeprefix("config: ")
+        names = list(effect.surfaces)
+        # The runtime knows surfaces by index: name them.
+        message = re.sub(r"^surface (\d+) ", lambda m: f"surface {names[int(m[1])]} "
+                         if int(m[1]) < len(names) else m[0], message)
+        raise RunError(message) from None
     setup_seconds = time.perf_counter() - t0
-    looks = bool(effect.appearance_kernels())
     if looks:
-        sim.set_textures(load_textures(effect))
-    try:
-        camera = auto_camera(scene.bounds, opts.view or DEFAULT_VIEW, scene.down, opts.fov)
-    except CameraError as err:
-        raise RunError(str(err)) from None
-    if opts.eye is not None:
-        _, target, up, fov = camera
-        if np.allclose(opts.eye, target):
-            raise RunError("--eye must not be the centre of the scene, which the camera looks at")
-        camera = (tuple(opts.eye), target, up, fov)
+        sim.set_textures(textures)
+    camera = run_camera(scene, opts)
     tracer = None
     if opts.ray or opts.ray_address:
         from . import distributed
@@ -344,13 +547,15 @@ def start(effect: Effect, opts: RunOptions) -> Run:
             tracer = distributed.start(rt, effect, kernels, opts, scene, sim, build_config)
         except RayUnavailable as err:
             raise RunError(str(err)) from None
-    clear_earlier_run(out)
+    try:
+        key, earlier, first = _resume_or_set_aside(effect, opts, scene, kernels, sim, out)
+    except BaseException:
+        if tracer is not None:
+            tracer.close()
+        raise
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
-    pos, nrm = sim.surfel_positions(), sim.surfel_normals()
-    static = {axis: pos[:, j] for j, axis in enumerate("xyz")}
-    static.update({axis: nrm[:, j] for j, axis in enumerate(("nx", "ny", "nz"))})
-    static["surface"] = surfel_surface.astype(np.float32)
+    static = static_columns(sim, surfel_surface)
     threads = min(opts.threads or _cpu_count(), LIMITS["--threads"][1])
     summary = {
         "effect": str(effect.path), "scene": str(opts.scene),
@@ -359,12 +564,25 @@ def start(effect: Effect, opts: RunOptions) -> Run:
                                                  effect.surfaces.values())},
         "surfels": sim.num_surfels, "triangles": mesh.num_triangles, "threads": threads,
         "seed": opts.seed, "down": list(scene.down), "setup_seconds": setup_seconds,
+        # start-up: gammac's imports, reading and checking the effect;
+        # compile: code generation and JIT of the kernels (or the cache)
+        "startup_seconds": None if opts.started is None else entered - opts.started,
+        "compile_seconds": compile_seconds,
+        "setup_phases": dict(getattr(sim, "setup_seconds", {})),
         "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
                      "llvm": ".".join(map(str, llvm_version())),
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
         "rendered": shown,
         "appearance": looks,
+        "requested_iterations": opts.iterations,
+        "completed": False,            # true once the last iteration's outputs are written
+        "run_key": key,                # what --resume checks (resume.py)
+        # what `gammac render DIR` and `gammac export DIR` need to rebuild the surfels
+        "options": {"params": dict(effect.overrides), "assign": list(opts.assign),
+                    "down": list(opts.down) if opts.down is not None else None,
+                    "surfels": opts.surfels, "seed": opts.seed, "tons": opts.tons,
+                    "iterations": opts.iterations, "max_interactions": opts.max_interactions},
         "iterations": [],
     }
     if tracer is not None:
@@ -372,8 +590,54 @@ def start(effect: Effect, opts: RunOptions) -> Run:
                           "job_bytes": tracer.job_bytes}
     report = NonFiniteReport(effect, opts.progress)
     summary["nonfinite"] = report.entries
-    return Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
-               surfel_surface, static, summary, report, WriteQueue(), tracer)
+    if earlier is not None:
+        summary["iterations"] = earlier["iterations"][:first - 1]
+        summary["resumed_at"] = first
+        for entry in earlier.get("nonfinite", []):
+            report.by_key[(entry["where"], entry["rule"])] = entry
+            report.entries.append(entry)
+    shapes = shape_changes(effect)
+    where = next((w for s in effect.surfaces.values() for _, _, w in s.shape.values()), "")
+    if shapes:
+        summary["geometry"] = sim.geometry()
+    session = Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
+                  surfel_surface, static, summary, report, WriteQueue(), shapes, where, tracer=tracer)
+    session.first_iteration = first
+    session.call = call
+    return session
+
+
+def _resume_or_set_aside(effect, opts, scene, kernels, sim, out) -> tuple:
+    """The run key; with --resume the earlier summary and the first iteration
+    to run (the rows of the last complete one loaded), else the earlier run's
+    files set aside: (key, earlier summary or None, first iteration)."""
+    from . import folder, resume
+
+    key = resume.run_key(str(kernels.ir), scene, opts)
+    earlier, first = None, 1
+    if opts.resume:
+        if shape_changes(effect):
+            raise RunError("--resume: an effect that changes the shape of the scene cannot be "
+                           "resumed (its geometry is not in the maps); run it again")
+        try:
+            earlier, done = resume.load(out, key, opts.iterations)
+            sim.set_rows(resume.rows_from_map(out / "maps" / f"iter_{done:04d}.ply", effect,
+                                              np.asarray(sim.surfel_surfaces()), effect.row_width))
+        except resume.ResumeError as err:
+            raise RunError(str(err)) from None
+        folder.discard_after(out, done)
+        first = done + 1
+    else:
+        try:
+            folder.set_aside(out)
+        except OSError as err:
+            raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
+    return key, earlier, first
+
+
+#: The event number NonFiniteReport files appearance kernels under (the
+#: runtime reports them apart, by surface and statement).
+APPEARANCE = -2
 
 
 class NonFiniteReport:
@@ -387,11 +651,19 @@ class NonFiniteReport:
         self.kernels = {(abi.EVENTS[k.event], k.ton.index, k.surface.index): k
                         for k in effect.transport_kernels()}
         self.kernels.update({(-1, 0, k.surface.index): k for k in effect.update_kernels()})
+        self.kernels.update({(APPEARANCE, 0, k.surface.index): k for k in effect.appearance_kernels()})
+
+    def add_appearance(self, iteration: int, items) -> None:
+        """The (surface, statement, count) list of ``Simulation.last_render_stats``."""
+        self.add(iteration, [(APPEARANCE, 0, surface, statement, count)
+                             for surface, statement, count in items])
 
     def add(self, iteration: int, *lists) -> None:
         for items in lists:
             for event, ton, surface, statement, count in items:
-                kernel = self.kernels[(event, ton if event >= 0 else 0, surface)]
+                kernel = self.kernels.get((event, ton if event >= 0 else 0, surface))
+                if kernel is None:
+                    continue
                 st = kernel.statement_at(statement)
                 where = f"{st.origin}:{st.pos.line}:{st.pos.col}"
                 key = (where, kernel.label)

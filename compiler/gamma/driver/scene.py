@@ -1,11 +1,13 @@
 """Scenes: what ``--scene`` names, assembled into one mesh whose every triangle
 is bound to a surface of the effect.
 
-``--scene`` is a mesh file (OBJ, PLY) or a JSON scene file listing several
-meshes with transforms (format in language/SPEC.md, "Scenes").  Triangles are
+``--scene`` is a mesh file (OBJ, PLY), a glTF 2.0 scene (``.gltf``, ``.glb``:
+one part per node, transforms applied, see ``gltf.py``) or a JSON scene file
+listing several meshes with transforms (format in language/SPEC.md, "Scenes").  Triangles are
 bound to surfaces by assignment rules ``PATTERN=SURFACE``: a pattern (shell
 wildcards) matches a triangle when it matches its OBJ object, group or
-material name or its mesh's file name without extension.  Rules from the
+material name or its mesh's file name without extension (for glTF: its node,
+mesh or material name).  Rules from the
 command line (``--assign``) come first, in the order given, then the rules of
 the scene file's mesh entry, then the effect's own ``assign`` declarations;
 the first rule that matches wins.  ``--assign SURFACE`` alone means
@@ -23,6 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from ..ir.effect import Effect
+from .budget import scene_size_problem
+from ..files import file_problem
 
 
 class SceneError(Exception):
@@ -38,6 +42,7 @@ class Scene:
     triangles_per_surface: dict[str, int]
     triangle_object: np.ndarray = None    # int32 index into object_names per triangle
     object_names: list = None             # OBJ object, else group, else the mesh file's name
+    triangle_has_uv: np.ndarray = None    # bool per triangle: its part has texture coordinates
 
     @property
     def diagonal(self) -> float:
@@ -74,9 +79,9 @@ def _rotation(degrees: np.ndarray) -> np.ndarray:
 
 
 def _load_mesh(rt, path: Path):
-    if not path.is_file():
-        what = "is a directory" if path.is_dir() else "file not found"
-        raise SceneError(f"cannot read mesh '{path}': {what}")
+    problem = file_problem(path)
+    if problem:
+        raise SceneError(f"cannot read mesh '{path}': {problem}")
     try:
         return rt.Mesh.load(str(path))
     except (ValueError, RuntimeError) as err:
@@ -89,11 +94,48 @@ class _Part:
     stem: str
     rules: list[tuple[str, str]]
     vertices: np.ndarray | None = None   # transformed (None: untransformed single mesh)
+    names: tuple = ()                    # more names --assign patterns match (glTF mesh, material)
+
+
+def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
+    """The parts of one mesh file: one, or one per node of a glTF scene."""
+    from .gltf import GltfError, is_gltf, read_gltf
+
+    if not is_gltf(path):
+        return [_Part(_load_mesh(rt, path), path.stem, list(rules))]
+    if not path.is_file():
+        what = "is a directory" if path.is_dir() else "file not found"
+        raise SceneError(f"cannot read mesh '{path}': {what}")
+    try:
+        pieces = read_gltf(path)
+    except GltfError as err:
+        raise SceneError(str(err)) from None
+    parts = []
+    for piece in pieces:
+        try:
+            mesh = rt.Mesh.from_arrays(piece.vertices, piece.faces, piece.uvs)
+        except (ValueError, RuntimeError) as err:
+            raise SceneError(f"glTF '{path}', node '{piece.node}': {err}") from None
+        names = tuple(n for n in (piece.mesh, piece.material, path.stem) if n)
+        parts.append(_Part(mesh, piece.node, list(rules), np.asarray(mesh.vertices(), float), names))
+    return parts
+
+
+#: A scene file is a small object; one larger than this is not one.
+MAX_SCENE_BYTES = 16 << 20
 
 
 def _read_scene_file(rt, path: Path, effect: Effect):
+    problem = file_problem(path)
+    if problem:
+        raise SceneError(f"cannot read scene '{path}': {problem}")
     try:
+        if path.stat().st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"cannot read scene '{path}': larger than {MAX_SCENE_BYTES >> 20} MB, "
+                             "so not a scene file")
         spec = json.loads(path.read_text(encoding="utf-8"))
+    except RecursionError:
+        raise SceneError(f"cannot read scene '{path}': nested too deeply to be a scene file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise SceneError(f"cannot read scene '{path}': {err}") from None
     if not isinstance(spec, dict) or not isinstance(spec.get("meshes"), list) or not spec["meshes"]:
@@ -111,7 +153,6 @@ def _read_scene_file(rt, path: Path, effect: Effect):
         if unknown:
             raise SceneError(f"{where}: unknown key '{sorted(unknown)[0]}' "
                              "(keys: file, translate, rotate, scale, assign)")
-        mesh = _load_mesh(rt, path.parent / entry["file"])
         scale = entry.get("scale", 1.0)
         if isinstance(scale, (int, float)):
             scale = [scale] * 3
@@ -120,7 +161,6 @@ def _read_scene_file(rt, path: Path, effect: Effect):
             raise SceneError(f"{where}.scale must not be zero")
         rotate = _vector(entry.get("rotate", [0, 0, 0]), 3, f"{where}.rotate")
         translate = _vector(entry.get("translate", [0, 0, 0]), 3, f"{where}.translate")
-        verts = (np.asarray(mesh.vertices(), float) * scale) @ _rotation(rotate).T + translate
         assign = entry.get("assign", {})
         if not isinstance(assign, dict) or not all(isinstance(v, str) for v in assign.values()):
             raise SceneError(f"{where}.assign must map patterns to surface names")
@@ -129,7 +169,10 @@ def _read_scene_file(rt, path: Path, effect: Effect):
             if surface not in effect.surfaces:
                 raise SceneError(f"{where}.assign: no surface '{surface}' in {effect.path}")
             rules.append((pattern, surface))
-        parts.append(_Part(mesh, Path(entry["file"]).stem, rules, verts))
+        for part in _file_parts(rt, path.parent / entry["file"], rules):
+            verts = part.vertices if part.vertices is not None else np.asarray(part.mesh.vertices(), float)
+            part.vertices = (verts * scale) @ _rotation(rotate).T + translate
+            parts.append(part)
     return parts, down
 
 
@@ -143,7 +186,7 @@ def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect) -> np.ndarr
     keys, inverse = np.unique(labels, axis=0, return_inverse=True)
     chosen = np.full(len(keys), -1, np.int32)
     for k, key in enumerate(keys):
-        candidates = [part.stem] + [names[i] for i in key if i >= 0]
+        candidates = [part.stem, *part.names] + [names[i] for i in key if i >= 0]
         for pattern, surface in rules:
             if any(fnmatch.fnmatchcase(c, pattern) for c in candidates):
                 chosen[k] = effect.surfaces[surface].index
@@ -161,16 +204,36 @@ def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect) -> np.ndarr
     return chosen[inverse.reshape(-1)]
 
 
-def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> Scene:
+def arrays_scene(rt, vertices, faces, uvs, effect: Effect, assign: list[str], down=None,
+                 name: str = "mesh") -> Scene:
+    """A scene of one mesh given as arrays: vertices (n, 3), faces (m, 3) and
+    optionally texture coordinates per vertex (n, 2) or per corner (m, 3, 2)."""
+    verts = np.asarray(vertices, np.float32)
+    tris = np.asarray(faces, np.int32)
+    corner_uvs = None
+    if uvs is not None:
+        uvs = np.asarray(uvs, np.float32)
+        corner_uvs = uvs[tris] if uvs.ndim == 2 else uvs
+    try:
+        mesh = rt.Mesh.from_arrays(verts, tris, corner_uvs)
+    except (ValueError, RuntimeError, TypeError) as err:
+        raise SceneError(str(err)) from None
+    return load_scene(rt, name, effect, assign, down, parts=[_Part(mesh, name, [])])
+
+
+def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None, parts=None) -> Scene:
+    """The scene of ``path`` (or of ``parts`` already loaded, ``path`` then only names it)."""
     cli_rules = parse_assign(assign, effect)
     file_rules = list(effect.assign)       # the effect's own `assign` declarations come last
     if not cli_rules and not file_rules and len(effect.surfaces) == 1:
         file_rules = [("*", next(iter(effect.surfaces)))]
     scene_path = Path(path)
-    if scene_path.suffix.lower() == ".json":
+    if parts is not None:
+        file_down = None
+    elif scene_path.suffix.lower() == ".json":
         parts, file_down = _read_scene_file(rt, scene_path, effect)
     else:
-        parts, file_down = [_Part(_load_mesh(rt, scene_path), scene_path.stem, [])], None
+        parts, file_down = _file_parts(rt, scene_path), None
     down = tuple(down) if down is not None else file_down or (0.0, -1.0, 0.0)
     if not any(down):
         raise SceneError("the down direction must not be the zero vector")
@@ -183,9 +246,16 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> S
             verts.append(p.vertices)
             tris.append(np.asarray(p.mesh.triangles(), np.int64) + base)
             base += len(p.vertices)
-        # texture coordinates survive only if every part has them
+        # each part keeps its texture coordinates; those without get (0, 0), and a warning
         uvs = (np.concatenate([np.asarray(p.mesh.triangle_uvs(), np.float32) for p in parts])
-               if all(p.mesh.has_uvs for p in parts) else None)
+               if any(p.mesh.has_uvs for p in parts) else None)
+        bare = [p.stem for p in parts if not p.mesh.has_uvs]
+        if uvs is not None and bare:
+            import sys
+
+            print(f"gammac: warning: {len(bare)} part{'s' if len(bare) != 1 else ''} of '{path}' "
+                  f"without texture coordinates ({', '.join(bare[:8])}{', ...' if len(bare) > 8 else ''}): "
+                  "texture() reads (0, 0) there and export makes them an atlas", file=sys.stderr)
         try:
             mesh = rt.Mesh.from_arrays(np.concatenate(verts).astype(np.float32),
                                        np.concatenate(tris).astype(np.int32), uvs)
@@ -198,7 +268,12 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None) -> S
                          "became degenerate after scaling")
     counts = {name: int(np.sum(surface == s.index)) for name, s in effect.surfaces.items()}
     objects, names = _objects(parts)
-    return Scene(mesh, surface, down, mesh.bounds, counts, objects, names)
+    has_uv = np.concatenate([np.full(p.mesh.num_triangles, p.mesh.has_uvs) for p in parts])
+    scene = Scene(mesh, surface, down, mesh.bounds, counts, objects, names, has_uv)
+    problem = scene_size_problem(scene.diagonal)
+    if problem:
+        raise SceneError(f"scene '{path}': {problem}")
+    return scene
 
 
 def _objects(parts: list[_Part]) -> tuple[np.ndarray, list[str]]:

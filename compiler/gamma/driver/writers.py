@@ -5,6 +5,7 @@
     FalseColourWriter    renders[/false_colour]/iter_NNNN.png of one property, one scale
     AppearanceWriter     renders/iter_NNNN.png as the appearance blocks paint it,
                          then sequence.gif, sequence.mp4, strip.png
+    MeshWriter           meshes/iter_NNNN.ply when the shape changes (SPEC §19)
     ExportWriter         export/OBJECT/iter_NNNN.{glb,obj,mtl} + baked textures
     ProgressWriter       the progress bar on stderr
 
@@ -31,7 +32,7 @@ from .. import abi, __version__
 from ..files import atomic_write
 from .camera import sun_direction
 from .events import IterationUpdated, RunFinished, Writer
-from .outputs import false_colour_png, ply_bytes, write_json
+from .outputs import false_colour_png, mesh_ply_bytes, ply_bytes, write_json
 
 
 class MapWriter(Writer):
@@ -46,6 +47,11 @@ class MapWriter(Writer):
         run.behind(_write_ply, run.out / "maps" / f"iter_{it:04d}.ply", columns, comments)
 
 
+def _write_final_summary(run, summary: dict) -> None:
+    summary["nonfinite"] = copy.deepcopy(run.summary["nonfinite"])   # with the last renders' reports
+    write_json(run.out / "summary.json", summary)
+
+
 def _write_ply(path: Path, columns: dict, comments: list[str]) -> None:
     atomic_write(path, ply_bytes(columns, comments))
 
@@ -57,6 +63,14 @@ class SummaryWriter(Writer):
         event.run.behind(write_json, event.run.out / "summary.json", copy.deepcopy(event.run.summary))
 
 
+class CompletionWriter(Writer):
+    """summary.json once more, after every other output of the run has been
+    queued: its ``"completed": true`` means the folder holds the whole run."""
+
+    def on_run_finished(self, event: RunFinished) -> None:
+        event.run.behind(_write_final_summary, event.run, copy.deepcopy(event.run.summary))
+
+
 class FalseColourWriter(Writer):
     """One false-colour PNG per iteration of ``property``, all on the scale of
     the whole run, so they are drawn once the run is finished (non-finite
@@ -65,6 +79,13 @@ class FalseColourWriter(Writer):
     def __init__(self, property: str, folder: Path):
         self.property, self.folder = property, folder
         self.history: list[np.ndarray] = []
+
+    def on_setup_done(self, event) -> None:
+        # a resumed run: the earlier iterations' values, from their maps
+        from .outputs import read_ply
+
+        for it in range(1, event.run.first_iteration):
+            self.history.append(read_ply(event.run.out / "maps" / f"iter_{it:04d}.ply")[self.property])
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         self.history.append(event.properties[self.property].copy())
@@ -79,8 +100,8 @@ class FalseColourWriter(Writer):
         eye, target, up, fov = run.camera
         for it, values in enumerate(self.history, start=1):
             values = np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin).astype(np.float32)
-            value, shade = run.sim.render(np.ascontiguousarray(values), eye, target, up,
-                                          fov, run.opts.width, run.opts.height, run.threads)
+            value, shade = run.call(run.sim.render, np.ascontiguousarray(values), eye, target, up,
+                                    fov, run.opts.width, run.opts.height, run.threads)
             run.behind(_write_false_colour, self.folder / f"iter_{it:04d}.png", value, shade,
                        vmin, vmax, shown, f"{shown}, iteration {it}")
 
@@ -96,14 +117,23 @@ class AppearanceWriter(Writer):
     def __init__(self):
         self.frames: list = []
 
+    def on_setup_done(self, event) -> None:
+        # a resumed run: the earlier iterations' pictures, for the sequence
+        from PIL import Image
+
+        for it in range(1, event.run.first_iteration):
+            with Image.open(event.run.out / "renders" / f"iter_{it:04d}.png") as picture:
+                self.frames.append(picture.convert("RGB"))
+
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         from PIL import Image
 
         run, it = event.run, event.iteration
         eye, target, up, fov = run.camera
         opts = run.opts
-        image = run.sim.render_appearance(eye, target, up, fov, opts.width, opts.height, run.threads,
-                                          opts.samples, sun_direction(run.camera), opts.ao_samples, it)
+        image = run.call(run.sim.render_appearance, eye, target, up, fov, opts.width, opts.height,
+                         run.threads, opts.samples, sun_direction(run.camera), opts.ao_samples, it)
+        run.nonfinite.add_appearance(it, run.sim.last_render_stats()["nonfinite"])
         rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
         picture = Image.fromarray((rgb * 255 + 0.5).astype(np.uint8))
         self.frames.append(picture)
@@ -151,7 +181,9 @@ def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
         w, h = frames[0].size
         pad = ((0, h % 2), (0, w % 2), (0, 0))
         with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=1,
-                                ffmpeg_log_level="error", pixelformat="yuv420p") as writer:
+                                ffmpeg_log_level="error", pixelformat="yuv420p",
+                                # the index (moov atom) first, so a browser can start playing at once
+                                output_params=["-movflags", "+faststart"]) as writer:
             for frame in frames:
                 writer.append_data(np.pad(np.asarray(frame.convert("RGB")), pad, mode="edge"))
         os.chmod(tmp, 0o644)
@@ -162,12 +194,42 @@ def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
         raise
 
 
+class MeshWriter(Writer):
+    """meshes/iter_NNNN.ply: the deformed mesh with per-vertex normals and
+    every property (smoothed from the surfels at each vertex)."""
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        from .export import vertex_normals
+        from .runner import property_columns
+
+        run, it = event.run, event.iteration
+        vertices, triangles = run.sim.mesh_arrays()
+        vertices = np.asarray(vertices, np.float32)
+        triangles = np.asarray(triangles, np.int64)
+        normals = vertex_normals(vertices.astype(np.float64), triangles)
+        owner = np.zeros(len(vertices), np.int32)          # a triangle of each vertex
+        owner[triangles.reshape(-1)] = np.repeat(np.arange(len(triangles), dtype=np.int32), 3)
+        rows, _ = run.sim.bake_points(vertices, normals, owner, np.zeros((len(vertices), 2), np.float32),
+                                      it, run.threads)
+        surface = np.asarray(run.sim.triangle_surfaces())[owner]
+        columns = {"x": vertices[:, 0], "y": vertices[:, 1], "z": vertices[:, 2],
+                   "nx": normals[:, 0], "ny": normals[:, 1], "nz": normals[:, 2]}
+        columns.update(property_columns(run.effect, rows, surface))
+        comments = [f"gamma {__version__}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
+        run.behind(_write_mesh, run.out / "meshes" / f"iter_{it:04d}.ply", columns, triangles, comments)
+
+
+def _write_mesh(path: Path, columns: dict, triangles, comments: list[str]) -> None:
+    atomic_write(path, mesh_ply_bytes(columns, triangles, comments))
+
+
 class ExportWriter(Writer):
     """Per object and iteration, in export/OBJECT/: iter_NNNN.glb, .obj + .mtl,
     the baked colour (8-bit PNG) and every property (16-bit PNG)."""
 
-    def __init__(self, bake_size: int):
+    def __init__(self, bake_size: int, ranges: dict | None = None):
         self.bake_size = bake_size
+        self.ranges = ranges    # property -> (low, high) of every 16-bit map; None: each map's own
         self.pieces = None      # the scene's objects, made on first use
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
@@ -175,9 +237,11 @@ class ExportWriter(Writer):
         from .runner import property_columns
 
         run, it = event.run, event.iteration
-        if self.pieces is None:
-            self.pieces = pieces(run.scene)
-        triangle_surface = np.asarray(run.scene.triangle_surface)
+        if self.pieces is None or run.shapes:      # a changing shape is re-laid out every iteration
+            scene = run.export_scene()
+            self.pieces = pieces(scene, self.bake_size)
+            self.triangle_surface = np.asarray(scene.triangle_surface)
+        triangle_surface = self.triangle_surface
         for piece in self.pieces:
             positions, normals, uvs, tris, rows, rgb, owner = vertex_data(run.sim, piece, it, run.threads)
             attributes = property_columns(run.effect, rows, triangle_surface[owner])
@@ -185,11 +249,11 @@ class ExportWriter(Writer):
             texel_columns = property_columns(run.effect, texel_rows, triangle_surface[texel_tris])
             run.behind(_write_export, run.out / "export" / _safe_name(piece.name), it, piece.name,
                        self.bake_size, (positions, normals, uvs, tris, rgb), attributes, colour,
-                       texels, texel_columns)
+                       texels, texel_columns, self.ranges)
 
 
 def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, colour, texels,
-                  texel_columns) -> None:
+                  texel_columns, ranges=None) -> None:
     from .export import png16, png8, texture_from_texels, write_glb, write_obj
 
     positions, normals, uvs, tris, rgb = mesh
@@ -198,13 +262,15 @@ def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, 
     texture = png8(colour)
     atomic_write(where / f"{stem}_color.png", texture)
     for prop, column in texel_columns.items():
-        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0])
+        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0],
+                                (ranges or {}).get(prop))
         atomic_write(where / f"{stem}_{prop}.png", data)
         extras["gamma"]["properties"][prop] = {"texture": f"{stem}_{prop}.png", "min": low, "max": high}
     atomic_write(where / f"{stem}.mtl",
                  f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
     atomic_write(where / f"{stem}.glb",
-                 write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras))
+                 write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras,
+                           name=name))
     atomic_write(where / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
 
 
@@ -214,34 +280,34 @@ def _safe_name(name: str) -> str:
 
 
 class ProgressWriter(Writer):
-    """A one-line progress bar on a terminal; a line per iteration otherwise."""
+    """A progress bar with the elapsed time and the time left (tqdm) on stderr;
+    ``--quiet`` leaves it out."""
 
-    def __init__(self, total: int):
-        self.total = total
-        self.tty = sys.stderr.isatty()
+    def __init__(self, total: int, what: str = "iteration"):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, unit=f" {what}", file=sys.stderr, dynamic_ncols=True,
+                        bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt}{unit} [{elapsed}<{remaining}]{postfix}")
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         record = event.record
-        rate = record["emitted"] / max(record["trace_seconds"], 1e-9)
-        self.update(event.iteration, f"iterations  {record['trace_seconds']:.2f} s trace  "
-                                     f"{rate / 1e3:.0f}k γ-tons/s")
+        # γ-tons that reached the surface: a source's misses cost one ray each
+        # and would flatter the rate.
+        hitting = record["emitted"] - record.get("missed", 0)
+        rate = hitting / max(record["trace_seconds"], 1e-9)
+        self.bar.set_postfix_str(f"{record['trace_seconds']:.2f} s trace, {rate / 1e3:.0f}k hitting γ-tons/s",
+                                 refresh=False)
+        self.bar.update(1)
 
-    def update(self, done: int, note: str) -> None:
-        width = 30
-        filled = int(width * done / max(1, self.total))
-        line = f"[{'#' * filled}{'.' * (width - filled)}] {done}/{self.total} {note}"
-        if self.tty:
-            sys.stderr.write("\r" + line.ljust(100)[:120])
-            if done == self.total:
-                sys.stderr.write("\n")
-        else:
-            sys.stderr.write(line + "\n")
-        sys.stderr.flush()
+    def on_run_finished(self, event) -> None:
+        self.bar.close()
 
 
 def standard_writers(run) -> list[Writer]:
     """The outputs ``gammac run`` writes for ``run.opts``, in writing order."""
     writers: list[Writer] = [MapWriter(), SummaryWriter()]
+    if run.shapes:
+        writers.append(MeshWriter())
     if run.shown is not None:
         folder = run.out / "renders" / ("false_colour" if run.looks else "")
         writers.append(FalseColourWriter(run.shown, folder))
@@ -251,4 +317,5 @@ def standard_writers(run) -> list[Writer]:
         writers.append(ExportWriter(run.opts.bake_size))
     if run.opts.progress:
         writers.append(ProgressWriter(run.opts.iterations))
+    writers.append(CompletionWriter())
     return writers

@@ -138,7 +138,8 @@ class TonDecl:
     carry: list[Init] = field(default_factory=list)
     bounce: Expr | None = None
     step: Expr | None = None
-    repeated: list[tuple[str, Expr]] = field(default_factory=list)  # 2nd 'bounce'/'step'
+    drip: Expr | None = None        # drip angle, degrees
+    repeated: list[tuple[str, Expr]] = field(default_factory=list)  # 2nd 'bounce'/'step'/'drip'
 
 
 @dataclass
@@ -147,6 +148,7 @@ class SurfaceDecl:
     pos: Pos
     reflectance: list[Init] = field(default_factory=list)
     properties: list[Init] = field(default_factory=list)
+    shape: list[Init] = field(default_factory=list)   # property = metres per unit (SPEC §19)
 
 
 @dataclass
@@ -169,6 +171,8 @@ class SourceDecl:
     first: Expr | None = None   # `from N`
     last: Expr | None = None    # `until N`
     repeated_window: list[Expr] = field(default_factory=list)
+    strength: Expr | None = None  # `strength S`
+    repeated_strength: list[Expr] = field(default_factory=list)
 
 
 @dataclass

@@ -30,7 +30,7 @@ from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
 from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
-                      stdlib_dir)
+                      is_file, path_problem, shown_path, stdlib_dir)
 
 __all__ = ["check", "load", "Effect", "Kernel", "Length", "Place", "Source", "Surface", "TonType",
            "UsageError", "stdlib_dir", "EVENTS"]
@@ -147,6 +147,8 @@ class _Checker:
         effect.params = dict(main.params)
         effect.assign = assign
         effect.textures = list(self.textures)
+        effect.files = [u.path for u in program.units]
+        effect.overrides = dict(self.overrides)
         return effect
 
     def collect_warnings(self, effect: Effect, units: list[Unit]) -> None:
@@ -207,8 +209,14 @@ class _Checker:
             self.error(expr.pos, f"'{key}' is given twice in ton {d.name}")
         bounce = self.length(d.bounce, "the bounce distance") if d.bounce is not None else None
         step = self.length(d.step, "the flow step") if d.step is not None else None
+        drip = None
+        if d.drip is not None:
+            drip = self.constant(d.drip, "the drip angle")
+            if drip is not None and not (0.0 <= drip <= 90.0):
+                self.error(d.drip.pos, f"the drip angle must be between 0 and 90 degrees, not {drip:g}")
+                drip = None
         return TonType(d.name, index, values, {n: i for i, n in enumerate(carry)},
-                       [v for v, _ in carry.values()], bounce, step, d)
+                       [v for v, _ in carry.values()], bounce, step, drip, d)
 
     def surface(self, d: A.SurfaceDecl, index: int) -> Surface:
         refl = self.inits(d.reflectance, "reflectance", MOTION_NAMES, unit=True)
@@ -219,7 +227,16 @@ class _Checker:
                            "(it names a column of the output maps or a built-in field)")
         row = [refl.get(n, (0.0, None))[0] for n in MOTION_NAMES] + [v for v, _ in props.values()]
         slots = {n: abi.ROW_HEADER + i for i, n in enumerate(props)}
-        return Surface(d.name, index, slots, row, d)
+        shape = {}
+        for name, (rate, init) in self.inits(d.shape, "shape rate").items():
+            if name not in slots:
+                self.error(init.pos, f"shape follows '{name}', which is not a property of {d.name}"
+                           f"{did_you_mean(name, slots)}")
+            elif not math.isfinite(rate):
+                self.error(init.value.pos, f"shape rate of '{name}' must be finite")
+            else:
+                shape[name] = (slots[name], rate, f"{self.module.path}:{init.pos.line}:{init.pos.col}")
+        return Surface(d.name, index, slots, row, d, shape)
 
     # -- scene values (source arguments, bounce distance, flow step) --
 
@@ -382,6 +399,14 @@ class _Checker:
             ok = False
         for extra in d.repeated_window:
             self.error(extra.pos, "'from' or 'until' is given twice")
+        for extra in d.repeated_strength:
+            self.error(extra.pos, "'strength' is given twice")
+        strength = None
+        if d.strength is not None:
+            strength = self.constant(d.strength, "the strength of a source")
+            if strength is not None and not (math.isfinite(strength) and strength > 0):
+                self.error(d.strength.pos, f"the strength of a source must be a positive number, not {strength:g}")
+                ok = False
         first = self.iteration_number(d.first, "'from'")
         last = self.iteration_number(d.last, "'until'")
         if first and last and last < first:
@@ -395,7 +420,7 @@ class _Checker:
         if not ok or params is None or count is None or first is None or last is None:
             return None
         kind = params.get("shape", d.kind) if d.kind in SHAPED_KINDS else d.kind
-        return Source(d.name, kind, ton.index, int(count), params, first or 1, last, d)
+        return Source(d.name, kind, ton.index, int(count), params, first or 1, last, d, strength)
 
 
     # -- rules --
@@ -437,8 +462,12 @@ class _Checker:
         if not isinstance(arg, A.String):
             self.error(call.pos, 'texture() takes a file name in quotes: texture("rust.png")')
             return None
+        problem = path_problem(arg.value)
+        if problem:
+            self.error(arg.pos, f"cannot read texture '{shown_path(arg.value)}': {problem}")
+            return None
         path = (Path(self.unit.path).resolve().parent / arg.value).resolve()
-        if not path.is_file():
+        if not is_file(path):
             self.error(arg.pos, f"cannot find texture '{arg.value}' next to {Path(self.unit.path).name}")
             return None
         return self.textures.setdefault(str(path), len(self.textures))

@@ -31,7 +31,9 @@ class Diagnostic:
     file: SourceFile | None = None     # None: the file the GammaError is about
 
     def format(self, path: str, source: str) -> str:
-        lines = source.splitlines()
+        # Lines as the parser counts them: only '\n' ends a line (a form feed
+        # or U+2028 inside a comment does not).
+        lines = [line.removesuffix("\r") for line in source.split("\n")]
         head = f"{path}:{self.pos.line}:{self.pos.col}: {self.severity}: {self.message}"
         if not 1 <= self.pos.line <= len(lines):
             return head

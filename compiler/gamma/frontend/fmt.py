@@ -190,13 +190,13 @@ class _Layout:
                 shown.append(_expr(a.children[0]))
         text = f"source {name} = {kind}({', '.join(shown)}) emits {ton} count {_expr(count)}"
         for w in windows:
-            word = "from" if w.data == "window_from" else "until"
+            word = {"window_from": "from", "window_until": "until", "window_strength": "strength"}[w.data]
             text += f" {word} {_expr(w.children[0])}"
         return text
 
     def item(self, node, indent):
         """One item of a ton or surface block."""
-        word = node.data  # motion, carry, bounce, step, reflectance, property
+        word = node.data  # motion, carry, bounce, step, drip, reflectance, property
         value = node.children[0]
         shown = _inits(value.children) if isinstance(value, Tree) and value.data == "init_list" \
             else _expr(value)
@@ -344,7 +344,7 @@ def _render(lines: list[_Line], after_all: list[_Comment]) -> str:
 
 def format_source(text: str, path: str = "<input>") -> str:
     """The canonical layout of a .gamma file; raises GammaError on a syntax error."""
-    text = text.replace("\r\n", "\n")
+    text = text.replace("\r\n", "\n").removeprefix("\ufeff")   # a byte-order mark is not kept
     _gamma_parser.parse(text, path)  # syntax errors, reported as the compiler reports them
     with _lock:
         _sink.clear()

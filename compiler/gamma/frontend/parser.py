@@ -8,6 +8,7 @@ line breaks so positions stay true) and parse again.
 
 from __future__ import annotations
 
+import os
 import re
 from functools import lru_cache
 from pathlib import Path
@@ -31,8 +32,12 @@ def grammar_path() -> Path:
 
 @lru_cache(maxsize=1)
 def _parser() -> lark.Lark:
+    # cache=True: lark keeps the analysed LALR tables in a temporary file keyed
+    # by the grammar's hash, so a fresh gammac skips the grammar analysis
+    # (start-up time).  GAMMA_CACHE_DIR=off turns every cache off.
     return lark.Lark(grammar_path().read_text(encoding="utf-8"), parser="lalr",
-                     propagate_positions=True, maybe_placeholders=True)
+                     propagate_positions=True, maybe_placeholders=True,
+                     cache=os.environ.get("GAMMA_CACHE_DIR") != "off")
 
 
 def _pos(tok) -> A.Pos:
@@ -129,11 +134,17 @@ class _ToAst(Transformer):
     def step(self, meta, c):
         return ("step", c[0])
 
+    def drip(self, meta, c):
+        return ("drip", c[0])
+
     def reflectance(self, meta, c):
         return ("reflectance", c[0])
 
     def property(self, meta, c):
         return ("properties", c[0])
+
+    def shape(self, meta, c):
+        return ("shape", c[0])
 
     def param_decl(self, meta, c):
         return A.ParamDecl(str(c[0]), c[1], _pos(c[0]))
@@ -175,6 +186,9 @@ class _ToAst(Transformer):
     def window_until(self, meta, c):
         return ("last", c[0])
 
+    def window_strength(self, meta, c):
+        return ("strength", c[0])
+
     def source_decl(self, meta, c):
         name, kind = c[0], c[1]
         rest = list(c[2:])
@@ -188,6 +202,8 @@ class _ToAst(Transformer):
         for key, expr in windows:
             if getattr(decl, key) is None:
                 setattr(decl, key, expr)
+            elif key == "strength":
+                decl.repeated_strength.append(expr)
             else:
                 decl.repeated_window.append(expr)
         return decl
@@ -211,6 +227,26 @@ class _ToAst(Transformer):
         return list(c)
 
 
+#: How deep the syntax tree of a declaration may be.  Every later phase
+#: (checker, code generator, interpreter, formatter) walks the tree
+#: recursively; this bound keeps them far from Python's recursion limit.  It
+#: allows about 75 nested `if` blocks or 150 operators in one expression
+#: (parentheses cost nothing), far beyond any hand-written effect (SPEC §1).
+MAX_TREE_DEPTH = 160
+
+
+def _too_deep_at(tree) -> A.Pos | None:
+    """Where the tree first exceeds MAX_TREE_DEPTH (found without recursion)."""
+    stack = [(tree, 0)]
+    while stack:
+        node, depth = stack.pop()
+        if depth > MAX_TREE_DEPTH:
+            meta = node.meta
+            return A.Pos(getattr(meta, "line", 1), getattr(meta, "column", 1))
+        stack.extend((c, depth + 1) for c in node.children if isinstance(c, lark.Tree))
+    return None
+
+
 def _describe(token: Token) -> str:
     if token.type == "$END":
         return "end of file"
@@ -224,7 +260,8 @@ def _syntax_diagnostic(err: lark.exceptions.LarkError) -> Diagnostic:
         names = {"NAME": "a name", "NUMBER": "a number", "STRING": "a string", "ASSIGN_OP": "'=' or '+='",
                  "RBRACE": "'}'", "LBRACE": "'{'", "LPAR": "'('", "RPAR": "')'",
                  "COMMA": "','", "COLON": "':'", "EQUAL": "'='", "SEMICOLON": "';'",
-                 "MINUS": "'-'", "PLUS": "'+'", "STAR": "'*'", "SLASH": "'/'", "DOT": "'.'"}
+                 "MINUS": "'-'", "PLUS": "'+'", "STAR": "'*'", "SLASH": "'/'", "DOT": "'.'",
+                 "$END": "end of file"}
         shown = [names.get(e, f"'{e.lower()}'")
                  for e in expected if not e.startswith("__")]
         hint = f"; expected {', '.join(sorted(set(shown))[:8])}" if shown else ""
@@ -252,7 +289,8 @@ def _blank(text: str, start: int, end: int) -> str:
 def parse(source: str, path: str = "<input>") -> A.Module:
     """Parse a whole file; raise GammaError with every syntax error found."""
     report = Report()
-    text = source
+    # A byte-order mark is not part of the text (editors on Windows write one).
+    text = source = source.removeprefix("\ufeff")
     for _ in range(100):
         try:
             tree = _parser().parse(text)
@@ -278,6 +316,9 @@ def parse(source: str, path: str = "<input>") -> A.Module:
     else:
         tree = None
     report.raise_errors(path, source)
+    deep = _too_deep_at(tree)
+    if deep is not None:
+        raise too_deep(path, source, deep)
     try:
         decls = _ToAst().transform(tree)
     except RecursionError:
@@ -285,7 +326,7 @@ def parse(source: str, path: str = "<input>") -> A.Module:
     return A.Module(path, source, decls)
 
 
-def too_deep(path: str, source: str) -> GammaError:
-    return GammaError(path, source, [Diagnostic(A.Pos(1, 1), "expressions are nested too deeply "
-                                                "for the compiler; split them with intermediate "
-                                                "ton attributes")])
+def too_deep(path: str, source: str, pos: A.Pos = A.Pos(1, 1)) -> GammaError:
+    return GammaError(path, source, [Diagnostic(pos, "nesting too deep: the compiler accepts "
+                                                "about 75 nested blocks or 150 operators in one "
+                                                "expression; split it with 'let'")])

@@ -90,6 +90,29 @@ def constant(report: Report, unit: Unit, expr: A.Expr, what: str) -> float | Non
     return value
 
 
+def path_problem(text: str) -> str | None:
+    """Why a file name written in an effect cannot name a file, or None."""
+    if "\0" in text:
+        return "a file name cannot contain a NUL character"
+    if any(len(part.encode("utf-8", "surrogatepass")) > 255 for part in text.split("/")) \
+            or len(text.encode("utf-8", "surrogatepass")) > 4095:
+        return "the file name is too long"
+    return None
+
+
+def shown_path(text: str) -> str:
+    """A file name as it may be printed: control characters escaped, long ones cut."""
+    shown = text.encode("unicode_escape").decode("ascii") if not text.isprintable() else text
+    return shown if len(shown) <= 80 else shown[:77] + "..."
+
+
+def is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def display_path(path: Path) -> str:
     """A path as a user would write it: relative to the working folder when inside it."""
     try:
@@ -118,8 +141,22 @@ class Program:
         self.main = Unit(module.path, module.source, module, main=True)
         self.unknown_overrides: list[str] = []
         self.units: list[Unit] = []
-        self._load(self.main, {n: (v, A.Pos(1, 1)) for n, v in overrides.items()},
+        # "recipe.name" overrides (--param RECIPE.NAME=VALUE) go to the imported file recipe.gamma
+        self.recipe_overrides: dict[str, dict[str, float]] = {}
+        for key, value in overrides.items():
+            recipe, dot, name = key.partition(".")
+            if dot:
+                self.recipe_overrides.setdefault(recipe, {})[name] = value
+        recipes_seen: set[str] = set()
+        self._recipes_seen = recipes_seen
+        self._load(self.main, {n: (v, A.Pos(1, 1)) for n, v in overrides.items() if "." not in n},
                    (str(Path(module.path).resolve()),))
+        for recipe, names in self.recipe_overrides.items():
+            if recipe not in recipes_seen:
+                imported = ", ".join(Path(u.path).stem for u in self.units if not u.main) or "none"
+                self.unknown_overrides.append(f"--param {recipe}.{next(iter(names))}: "
+                                              f"{Path(module.path).name} imports no recipe '{recipe}' "
+                                              f"(imported: {imported})")
 
     def _load(self, unit: Unit, overrides: dict, chain: tuple) -> None:
         from .parser import parse
@@ -158,13 +195,21 @@ class Program:
                                    for x in err.diagnostics)
                 continue
             child = Unit(display_path(found), text, module, main=False)
+            # the command line's RECIPE.NAME (pos None) wins over the import's own arguments
+            if found.stem in self.recipe_overrides:
+                self._recipes_seen.add(found.stem)
+                args.update({name: (value, None) for name, value in self.recipe_overrides[found.stem].items()})
             self._load(child, args, chain + (str(found),))
         self.units.append(unit)
 
     def _find_import(self, unit: Unit, d: A.ImportDecl) -> Path | None:
+        problem = path_problem(d.path)
+        if problem:
+            self.report.error(d.pos, f"cannot import '{shown_path(d.path)}': {problem}", unit.file)
+            return None
         for base in (Path(unit.path).resolve().parent, stdlib_dir()):
             candidate = (base / d.path).resolve()
-            if candidate.is_file():
+            if is_file(candidate):
                 return candidate
         self.report.error(d.pos, f"cannot find '{d.path}' next to {Path(unit.path).name} or in the "
                           "standard library", unit.file)
@@ -191,9 +236,11 @@ class Program:
         for name, (_, pos) in overrides.items():
             if name not in unit.params:
                 where = Path(unit.path).name
-                if unit.main:
-                    self.unknown_overrides.append(f"--param {name}: {where} has no parameter "
-                                                  f"'{name}'{did_you_mean(name, unit.params)}")
+                if unit.main or pos is None:
+                    option = name if unit.main else f"{Path(unit.path).stem}.{name}"
+                    self.unknown_overrides.append(f"--param {option}: {where} has no parameter "
+                                                  f"'{name}'{did_you_mean(name, unit.params)}; "
+                                                  f"its parameters: {', '.join(unit.params) or 'none'}")
                 else:
                     self.report.extend([Diagnostic(pos, f"{where} has no parameter '{name}'"
                                                    f"{did_you_mean(name, unit.params)}")])

@@ -56,6 +56,7 @@ class TonType:
     initial: list[float]
     bounce: Length | None          # None: the runner's default
     step: Length | None
+    drip: float | None             # drip angle in degrees (SPEC §4); None: the runner's default
     decl: object                   # ast.TonDecl (positions for warnings)
 
 
@@ -66,6 +67,8 @@ class Surface:
     properties: dict[str, int]     # property -> slot in the surfel row
     initial_row: list[float]       # reflectance then properties
     decl: object                   # ast.SurfaceDecl
+    # `shape` (SPEC §19): property -> (slot, metres per unit, "FILE:LINE:COL" of the entry)
+    shape: dict[str, tuple[int, float, str]] = field(default_factory=dict)
 
 
 @dataclass
@@ -78,6 +81,7 @@ class Source:
     first: int                     # first iteration it emits in (1-based)
     last: int                      # last iteration it emits in; 0 = no end
     decl: object                   # ast.SourceDecl
+    strength: float | None = None  # SPEC §13.2; None: every gamma-ton weighs 1
 
 
 # ---- rule bodies ----------------------------------------------------------------------
@@ -257,6 +261,8 @@ class Effect:
     params: dict = field(default_factory=dict)
     assign: list = field(default_factory=list)   # (pattern, surface) from `assign` declarations
     textures: list = field(default_factory=list) # image files read by texture(), in index order
+    files: list = field(default_factory=list)    # the effect file and every file it imports
+    overrides: dict = field(default_factory=dict) # --param values it was checked with (NAME or RECIPE.NAME)
 
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]

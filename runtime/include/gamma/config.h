@@ -17,6 +17,7 @@ struct TonType {
     std::vector<float> initial_carry;
     float bounce_distance = 1;  // scene units: range of a 45-degree launch on flat ground
     float flow_step = 1;        // scene units: length of one flow step
+    float drip_angle_deg = 10;  // flow clings to faces turned down at most this far past vertical
 };
 
 struct Source {
@@ -32,6 +33,7 @@ struct Source {
     std::string emission = "parallel";  // rect/disk: parallel | uniform | cosine
     int first_iteration = 1;          // active in first..last (inclusive)
     int last_iteration = 0;           // 0 = no end
+    float strength = 0;               // > 0: gamma-tons weigh strength * surfels / count (SPEC 13.2); 0: weight 1
 };
 
 struct TransportEntry {
@@ -50,6 +52,23 @@ struct AppearanceEntry {
     uint64_t address = 0;  // GammaAppearanceKernel; 0 = none (neutral albedo)
 };
 
+// A surface's shape follows a property: each iteration the surface moves
+// along its outward normal by metres_per_unit x the change of row column
+// `column` during the iteration (SPEC §19, "Shape change").
+struct ShapeRate {
+    int surface = 0;
+    int column = 0;              // row index (>= GAMMA_ROW_HEADER)
+    float metres_per_unit = 0;
+};
+
+// A property whose pick-up is accounted (mass books): its row column on each
+// surface and, per ton type, the index of the carried attribute of the same
+// name (-1 where the surface lacks it / the ton type does not carry it).
+struct MassProperty {
+    std::vector<int> column;     // [surface]
+    std::vector<int> carry;      // [ton type]
+};
+
 struct Config {
     int64_t surfels = 100000;
     uint64_t seed = 1;
@@ -64,10 +83,15 @@ struct Config {
     std::vector<TransportEntry> transports;
     std::vector<UpdateEntry> updates;
     std::vector<AppearanceEntry> appearances;
+    std::vector<ShapeRate> shape_rates;        // empty: the shape never changes
+    float retile_edge_factor = 2.0f;           // target edge length = factor x surfel spacing sqrt(A/N)
+    int retile_iterations = 3;                 // CGAL remeshing rounds per shape step
+    float max_step_factor = 0.5f;              // |displacement| per iteration <= factor x target edge length
+    std::vector<MassProperty> mass_properties;
 
     int add_ton_type(float ks, float kp, float kf, std::vector<float> carry, float bounce_distance = 1.0f,
-                     float flow_step = 1.0f) {
-        ton_types.push_back({ks, kp, kf, std::move(carry), bounce_distance, flow_step});
+                     float flow_step = 1.0f, float drip_angle_deg = 10.0f) {
+        ton_types.push_back({ks, kp, kf, std::move(carry), bounce_distance, flow_step, drip_angle_deg});
         return int(ton_types.size()) - 1;
     }
     int add_source(Source s) {
@@ -88,6 +112,12 @@ struct Config {
     }
     void set_update(int surface, uint64_t address) { updates.push_back({surface, address}); }
     void set_appearance(int surface, uint64_t address) { appearances.push_back({surface, address}); }
+    void add_shape_rate(int surface, int column, float metres_per_unit) {
+        shape_rates.push_back({surface, column, metres_per_unit});
+    }
+    void add_mass_property(std::vector<int> column, std::vector<int> carry) {
+        mass_properties.push_back({std::move(column), std::move(carry)});
+    }
 };
 
 // Checks the run-wide settings, the surface rows and the ton types (throws

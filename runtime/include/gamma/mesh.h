@@ -34,11 +34,15 @@ struct Mesh {
     float diagonal() const { return float(diag); }
     double area() const;  // total area of kept triangles
 
-    // OBJ: own reader (objects, groups, materials kept); other formats
-    // (PLY, ...): OpenMesh.  Throws gammart::Error.
+    // OBJ and PLY: own readers (OBJ objects, groups, materials kept; every
+    // declared size checked against the file before anything is allocated);
+    // other formats (OFF, STL, ...): OpenMesh.  Only regular files are read
+    // (not FIFOs or devices).  Throws gammart::Error.
     static Mesh load(const std::string& path);
     // Parses OBJ text; `name` is used in messages (exposed for tests).
     static Mesh parse_obj(const std::string& text, const std::string& name);
+    // Parses the bytes of a PLY file (ASCII or binary; runtime/src/ply.cpp).
+    static Mesh parse_ply(const std::string& data, const std::string& name);
     // Validates and builds from raw arrays; `uvs` (optional) holds m*6 floats,
     // the texture coordinates of each input triangle's 3 corners.  Throws
     // gammart::Error.

@@ -7,6 +7,7 @@
 #pragma once
 #include <cstdint>
 #include <limits>
+#include <vector>
 
 #include <embree3/rtcore.h>
 
@@ -20,6 +21,12 @@
 
 namespace gammart {
 
+// One ray the tracer cast, as it was cast (for the benchmark that replays
+// the tracer's own rays through Embree alone).
+struct RecordedRay {
+    float org[3], dir[3], tnear, tfar;
+};
+
 // One gamma-ton's position on the surface and the ray queries that move it.
 struct Walker {
     const SceneIndex& index;
@@ -28,6 +35,7 @@ struct Walker {
     V3 p, n, dir;       // interaction point, normal facing the arriving ray, arriving direction
     uint32_t prim = 0;  // triangle of the interaction point
     RTCRayHit rh;
+    std::vector<RecordedRay>* record = nullptr;  // if set, every cast ray is appended
 
     Walker(const SceneIndex& i, const SceneFrame& f, TraceStats& s) : index(i), frame(f), st(s) {}
 
@@ -44,7 +52,7 @@ using MotionStep = FlightEnd (*)(Walker& w, PhiloxStream& rng, const TonType& tt
 
 FlightEnd reflect_step(Walker& w, PhiloxStream& rng, const TonType& tt);  // §14.1 straight
 FlightEnd bounce_step(Walker& w, PhiloxStream& rng, const TonType& tt);   // §14.2 parabolic
-FlightEnd flow_step(Walker& w, PhiloxStream& rng, const TonType& tt);     // §14.3 flow
+FlightEnd flow_step(Walker& w, PhiloxStream& rng, const TonType& tt);     // §14.3 flow (gamma/flow.h)
 
 // The step of each event, indexed by GAMMA_EVENT_*; nullptr for events that
 // do not move (hit, settle).

@@ -3,6 +3,9 @@
 //   with the surface id of every triangle;
 // - one nanoflann kd-tree over all surfels and one per surface id (the
 //   surfel an interaction touches, the renders' property smoothing);
+// - the triangle lookup: per triangle, the surfels of its surface that can be
+//   nearest to a point on it (precomputed from the kd-trees), so the tracer's
+//   nearest-surfel query is a scan of a few contiguous entries;
 // - the scene frame: constants derived from the mesh's bounds and gravity.
 // Both halves are rebuildable on their own: build_geometry after the mesh
 // changed, build_surfels after the surfels changed.
@@ -46,7 +49,10 @@ public:
     void build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces);
     // (Re)builds the kd-trees over n surfels (positions n*3, surface ids n;
     // copied).  sigma = the smoothing width (mean surfel spacing).
-    void build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma);
+    // Also rebuilds the triangle lookup (with `threads` threads, <= 0: all;
+    // the result does not depend on the count).
+    void build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
+                       int threads = 0);
 
     // Closest hit along org + t*dir, t in [tnear, tfar]; rh.hit.geomID is
     // RTC_INVALID_GEOMETRY_ID on a miss.
@@ -62,6 +68,16 @@ public:
     // (callers that run rules must not rely on this: see Simulation).
     uint32_t nearest_of(int surface, const float p[3]) const;
     bool has_surfels(int surface) const;
+    // The surfel nearest_of(tri_surface()[prim], p) finds, for p on or near
+    // triangle prim (anywhere else it falls back to the kd-tree): a scan of
+    // the triangle's candidates.  Equidistant surfels go to the lower index.
+    uint32_t nearest_on_triangle(uint32_t prim, const float p[3]) const;
+    // Size of the triangle lookup: candidate entries in all, and triangles
+    // that use the kd-tree instead (too many candidates or no surfels).
+    size_t lookup_candidates() const { return lookup_cand_.size(); }
+    size_t lookup_fallback_triangles() const;
+    // Bytes held by the triangle lookup.
+    size_t lookup_bytes() const;
     // Number of surfels of each surface.
     std::vector<size_t> surfels_per_surface() const;
 
@@ -83,8 +99,25 @@ public:
     int surfel_builds() const { return surfel_builds_; }
 
     struct Trees;
+    // One lookup entry: a candidate surfel's position and its distance from
+    // the triangle's centre (entries sorted by it, so a scan stops early);
+    // its global index is in lookup_ids_ at the same place.
+    struct Candidate {
+        float x, y, z, from_centre;
+    };
+    // Per triangle: bounding sphere (centre, squared reach) and its
+    // candidates lookup_cand_[begin, begin + count); count 0 = kd-tree.
+    struct TriangleLookup {
+        float cx, cy, cz, reach2;
+        uint32_t begin, count;
+    };
+    // More candidates than this (a triangle much larger than the surfel
+    // spacing) and the triangle uses the kd-tree.
+    static constexpr uint32_t kMaxCandidates = 48;
 
 private:
+    void build_lookup(int threads);
+
     RTCDevice device_ = nullptr;
     RTCScene scene_ = nullptr;
     std::vector<int32_t> tri_surface_;
@@ -92,6 +125,9 @@ private:
     size_t n_surfels_ = 0;
     float sigma_ = 1;
     std::unique_ptr<Trees> trees_;
+    std::vector<TriangleLookup> lookup_tri_;
+    std::vector<Candidate> lookup_cand_;
+    std::vector<uint32_t> lookup_ids_;
     int geometry_builds_ = 0, surfel_builds_ = 0;
 };
 

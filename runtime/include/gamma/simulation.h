@@ -10,6 +10,7 @@
 //   update_pass.h   the update rules
 //   renderer.h      false-colour and appearance renders
 //   baker.h         rows and colours at surface points
+//   shape_step.h    displacement, re-tiling (remesh.h), surfel transfer, rebuild
 #pragma once
 #include <array>
 #include <cstdint>
@@ -23,6 +24,7 @@
 #include "gamma/render.h"
 #include "gamma/renderer.h"
 #include "gamma/scene_index.h"
+#include "gamma/shape_step.h"
 #include "gamma/sources.h"
 #include "gamma/stats.h"
 #include "gamma/surfel_state.h"
@@ -58,10 +60,22 @@ public:
         return tracer_->trace_chunks(iteration, first, last, *index_, frame_, state_);
     }
     TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs) {
+        shape_.begin_iteration(state_);  // as trace(): the rows before this iteration's deposits
         return tracer_->merge_chunks(iteration, logs, state_);
     }
     UpdateStats update(int iteration);
+    // The shape step (after update): nothing happens unless some surface's
+    // shape follows a property (Config::shape_rates).
+    ShapeStats shape(int iteration);
+    int shape_rebuilds() const { return shape_.rebuilds(); }
+    // The current mesh (deformed and re-tiled once the shape changed).
+    const Mesh& mesh() const { return mesh_; }
     RaycastStats raw_raycast(int64_t n_rays, int threads, uint64_t seed);
+    // The rays trace(iteration) casts from the current state, in gamma-ton
+    // order; the rows are left as they were (the trace runs on a copy).
+    std::vector<RecordedRay> record_rays(int iteration);
+    // Embree alone on those rays (the tracer-efficiency baseline).
+    RaycastStats cast_rays(const std::vector<RecordedRay>& rays, int threads) const;
     // Out arrays are height*width.
     void render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads,
@@ -101,6 +115,12 @@ public:
 
     // Filled by the Python binding after render_appearance (GIL held).
     RenderStats last_render;
+    // Wall time of the constructor's phases: surfel sampling, the BVH, the
+    // surfel kd-trees + triangle lookup.
+    struct SetupSeconds {
+        double sample = 0, geometry = 0, surfels = 0;
+    };
+    const SetupSeconds& setup_seconds() const { return setup_seconds_; }
 
     // Index of the surfel nearest to p (any surface).
     uint32_t nearest_surfel(const float p[3]) const;
@@ -126,7 +146,9 @@ private:
     SurfelState state_;
     std::unique_ptr<SceneIndex> index_;
     std::unique_ptr<Tracer> tracer_;
+    ShapeStep shape_{cfg_};
     std::vector<Texture> textures_;
+    SetupSeconds setup_seconds_;
 };
 
 }  // namespace gammart

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "gamma/splat.h"
 #include "gamma/stats.h"
 
 namespace gammart {
@@ -29,10 +30,12 @@ struct ChunkLog {
     }
 };
 
-// rows[s][header + j] += the sum of the records of surfel s over logs
-// [0, nchunks) in chunk order (j < P; rows are n x (header + P)).  Parallel
-// over surfel ranges; `scratch` (n*P floats) is reused between calls.
+// D[s] = the sum of the records of surfel s over logs [0, nchunks) in chunk
+// order; then, with a splat kernel, D is spread over each surfel's
+// neighbourhood (SPEC §13.2); rows[s][header + j] += the result (j < P;
+// rows are n x (header + P)).  Parallel over surfel ranges; `scratch` (2*n*P
+// floats) is reused between calls.
 void apply_chunk_logs(const std::vector<ChunkLog>& logs, int64_t nchunks, size_t n, int header, int P, float* rows,
-                      std::vector<float>& scratch, int threads);
+                      std::vector<float>& scratch, int threads, const SplatKernel* splat = nullptr);
 
 }  // namespace gammart

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "gamma/mesh.h"
+#include "gamma/splat.h"
 #include "gamma/surfels.h"
 
 namespace gammart {
@@ -15,6 +16,7 @@ struct SurfelState {
     std::vector<int32_t> surface;  // N: surface id of each surfel
     std::vector<float> rows;       // N*W
     int width = 0;                 // W
+    SplatKernel splat;             // where a surfel's deltas spread (SPEC §13.2); built at setup
 
     size_t size() const { return surface.size(); }
     float* row(size_t i) { return rows.data() + i * size_t(width); }

@@ -4,7 +4,7 @@
 // motion probabilities deteriorated by that surfel's row, and moves by the
 // motion table (motion.h) until it settles, escapes or is capped.  Rules'
 // writes go through the chunk logs (surface_log.h).  Also the raw-ray
-// benchmark and the parabola check against a plane.
+// benchmarks (environment rays; the tracer's own recorded rays) and the parabola check against a plane.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -12,6 +12,7 @@
 
 #include "gamma/config.h"
 #include "gamma/kernel_table.h"
+#include "gamma/motion.h"
 #include "gamma/scene_index.h"
 #include "gamma/sources.h"
 #include "gamma/stats.h"
@@ -43,10 +44,16 @@ public:
                                        const SceneFrame& frame, const SurfelState& state) const;
     TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state);
 
+    // While on, trace() keeps every ray it casts (in gamma-ton order, the
+    // same at any thread count); take_recorded_rays() hands them over.
+    void set_record_rays(bool on) { record_rays_ = on; }
+    std::vector<RecordedRay> take_recorded_rays();
+
 private:
-    // Traces chunks [first, last) into out[0 .. last - first).
+    // Traces chunks [first, last) into out[0 .. last - first); with
+    // rays_out, also keeps each chunk's cast rays in rays_out[0 .. last - first).
     void run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index, const SceneFrame& frame,
-                    const SurfelState& state, ChunkLog* out) const;
+                    const SurfelState& state, ChunkLog* out, std::vector<RecordedRay>* rays_out) const;
 
     const Config& cfg_;
     const KernelTable& kernels_;
@@ -54,12 +61,18 @@ private:
     size_t max_carry_ = 1;
     std::vector<ChunkLog> logs_;
     std::vector<float> merge_scratch_;
+    bool record_rays_ = false;
+    std::vector<std::vector<RecordedRay>> ray_logs_;  // per chunk
 };
 
 // Throughput benchmark of the BVH alone: n_rays environment-sphere rays
 // (Philox stream 0 of `seed`), counting hits.
 RaycastStats raw_raycast(const SceneIndex& index, const SceneFrame& frame, int64_t n_rays, int threads,
                          uint64_t seed);
+
+// The raw rate for the tracer's own rays: casts `rays` (generated before the
+// clock starts) with rtcIntersect1 and nothing else, counting hits.
+RaycastStats cast_recorded(const SceneIndex& index, const std::vector<RecordedRay>& rays, int threads);
 
 // Landing of a parabolic flight (g = 1, launch speed sqrt(D) along unit d) on
 // the plane dot(x, up) = floor_height, up = -normalize(down): `traced` as the

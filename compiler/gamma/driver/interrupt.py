@@ -1,0 +1,88 @@
+"""SIGINT and SIGTERM during a run: noticed within a fraction of a second,
+even while the runtime is busy for minutes in one call.
+
+Python runs a signal handler only on the main thread, between bytecodes;
+a long C++ call (a tracing pass, surfel placement, a render) would hold it
+off until it returns.  ``Interruptions.call`` therefore runs such a call on
+a helper thread (the runtime releases the GIL) while the main thread waits
+in short steps and raises ``Interrupted`` as soon as a signal came.  The
+call then still runs: whoever catches ``Interrupted`` must not touch the
+simulation again and ends the process with ``os._exit`` once its files are
+written (the CLI does).
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+
+SIGNAL_NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
+
+
+class Interrupted(Exception):
+    """A SIGINT or SIGTERM arrived; ``status`` is the exit status SPEC §16.2
+    gives for it (128 + the signal number: 130, 143)."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        self.name = SIGNAL_NAMES.get(signum, f"signal {signum}")
+        self.status = 128 + signum
+        super().__init__(f"interrupted by {self.name}")
+
+
+class Interruptions:
+    """Context manager: SIGINT and SIGTERM are recorded (not raised where they
+    land) while it is active, and ``check``/``call`` raise ``Interrupted``.
+    Outside the main thread (a program running ``run`` from a thread) signals
+    cannot be caught and ``call`` simply calls."""
+
+    STEP = 0.05   # seconds between looks at the flag
+
+    def __init__(self):
+        self.signum: int | None = None
+        self.busy = False              # a call was abandoned while running
+        self._previous: dict = {}
+
+    def __enter__(self) -> "Interruptions":
+        if threading.current_thread() is threading.main_thread():
+            for sig in SIGNAL_NAMES:
+                self._previous[sig] = signal.signal(sig, self._record)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+
+    def _record(self, signum, frame) -> None:
+        if self.signum is None:
+            self.signum = signum
+
+    def check(self) -> None:
+        if self.signum is not None:
+            raise Interrupted(self.signum)
+
+    def call(self, fn, *args, **kwargs):
+        """``fn(*args, **kwargs)``, abandoned (Interrupted) if a signal comes first."""
+        self.check()
+        if not self._previous:
+            return fn(*args, **kwargs)
+        outcome: dict = {}
+
+        def work():
+            try:
+                outcome["value"] = fn(*args, **kwargs)
+            except BaseException as err:  # noqa: BLE001 - re-raised on the main thread
+                outcome["error"] = err
+
+        worker = threading.Thread(target=work, name="gamma-runtime-call", daemon=True)
+        worker.start()
+        while worker.is_alive():
+            worker.join(self.STEP)
+            if self.signum is not None and worker.is_alive():
+                self.busy = True
+                raise Interrupted(self.signum)
+        if "error" in outcome:
+            raise outcome["error"]
+        self.check()
+        return outcome.get("value")

@@ -1,0 +1,177 @@
+"""Saved results reused: ``gammac render DIR`` and ``gammac export DIR``.
+
+A run's folder holds, per iteration, every surfel's row (``maps/iter_NNNN.ply``)
+and in ``summary.json`` what placed the surfels (effect, scene, assignment,
+surfel count, seed).  ``reopen`` rebuilds the simulation with the same
+surfels (placement is deterministic: same mesh, count and seed, same
+surfels), checks they are the saved ones, and loads an iteration's rows into
+it; pictures and textures then come from the runtime as in the run, with no
+γ-ton traced.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import abi
+from .runner import RunError, RunOptions, start
+
+
+def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: float = 30.0,
+           threads: int = 0):
+    """(run session, summary, the iterations saved) of the run in ``folder``."""
+    from ..frontend.checker import load
+
+    folder = Path(folder)
+    try:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+        options = summary["options"]
+    except FileNotFoundError:
+        raise RunError(f"'{folder}' holds no run (no summary.json)") from None
+    except (OSError, ValueError, KeyError) as err:
+        raise RunError(f"cannot read '{folder / 'summary.json'}': {err}") from None
+    saved = sorted(int(p.stem[5:]) for p in (folder / "maps").glob("iter_[0-9][0-9][0-9][0-9].ply"))
+    if not saved:
+        raise RunError(f"'{folder}' holds no maps (maps/iter_NNNN.ply)")
+    effect_path = Path(summary["effect"])
+    if not effect_path.is_file():
+        raise RunError(f"the run's effect '{effect_path}' is not there any more (paths are relative "
+                       "to the folder gammac run was started in)")
+    effect = load(str(effect_path), options.get("params") or {})
+    opts = RunOptions(scene=summary["scene"], out="", assign=options.get("assign", []),
+                      down=tuple(options["down"]) if options.get("down") else None,
+                      view=view, eye=eye, look_at=look_at, up=up, fov=fov,
+                      surfels=options["surfels"], seed=options["seed"], tons=options.get("tons"),
+                      threads=threads, max_interactions=options.get("max_interactions", 100),
+                      iterations=max(saved), progress=False)
+    import tempfile
+
+    scratch = tempfile.TemporaryDirectory(prefix="gamma-saved-")   # start() wants a folder of its own
+    session = start(effect, replace(opts, out=scratch.name))
+    session.lock.__exit__()
+    session.scratch = scratch
+    return session, summary, saved
+
+
+def load_iteration(session, folder: str | Path, iteration: int) -> dict:
+    """Put the saved rows of ``iteration`` into the simulation; returns the map's columns."""
+    from .outputs import read_ply
+
+    path = Path(folder) / "maps" / f"iter_{iteration:04d}.ply"
+    if not path.is_file():
+        raise RunError(f"no map of iteration {iteration} in '{folder}'")
+    columns = read_ply(path)
+    sim = session.sim
+    positions = np.asarray(sim.surfel_positions())
+    saved = np.column_stack([columns[a] for a in "xyz"]) if "x" in columns else None
+    if saved is None or saved.shape != positions.shape or not np.array_equal(saved, positions):
+        raise RunError(f"the surfels of '{path}' are not those the scene gives now "
+                       "(the mesh, the assignment or the gamma version changed)")
+    rows = np.zeros((sim.num_surfels, sim.row_width), np.float32)
+    for j, name in enumerate(abi.REFLECTANCE_SLOTS):
+        rows[:, j] = columns[f"reflectance_{name}"]
+    for surface in session.effect.surfaces.values():
+        mine = session.surfel_surface == surface.index
+        for name, slot in surface.properties.items():
+            if name not in columns:
+                raise RunError(f"'{path}' has no column '{name}' (the effect changed since the run)")
+            rows[mine, slot] = columns[name][mine]
+    sim.set_rows(np.ascontiguousarray(rows))
+    return columns
+
+
+def run_ranges(summary: dict, folder: Path, saved: list[int], names) -> dict:
+    """The run's value range per property: summary.json's, else from the maps."""
+    from .outputs import read_ply
+
+    ranges = {k: tuple(v) for k, v in (summary.get("ranges") or {}).items()}
+    missing = [n for n in names if n not in ranges]
+    for it in saved if missing else ():
+        columns = read_ply(folder / "maps" / f"iter_{it:04d}.ply")
+        for name in missing:
+            values = columns[name][np.isfinite(columns[name])]
+            if values.size:
+                low, high = ranges.get(name, (np.inf, -np.inf))
+                ranges[name] = (min(low, float(values.min())), max(high, float(values.max())))
+    return ranges
+
+
+def render_saved(folder, iteration: int | None, show: str | None, output: str | None, size: int,
+                 samples: int, ao: int, **camera) -> Path:
+    """One picture of a saved iteration: the appearance, or ``show`` in false
+    colour on the run's range.  Returns the file written."""
+    import io
+
+    from PIL import Image
+
+    from ..files import atomic_write
+    from .camera import sun_direction
+    from .outputs import false_colour_png
+
+    folder = Path(folder)
+    session, summary, saved = reopen(folder, **camera)
+    it = iteration or saved[-1]
+    load_iteration(session, folder, it)
+    sim, (eye, target, up, fov) = session.sim, session.camera
+    names = sorted({n for s in session.effect.surfaces.values() for n in s.properties})
+    if show is not None and show not in names:
+        raise RunError(f"--show {show}: the effect has no such property ({', '.join(names) or 'none'})")
+    if show is None and not session.looks:
+        show = session.shown
+    suffix = f"_{show}" if show else ""
+    target_path = Path(output) if output else folder / "renders" / f"view_iter_{it:04d}{suffix}.png"
+    if show:
+        low, high = run_ranges(summary, folder, saved, [show]).get(show, (0.0, 1.0))
+        if high <= low:
+            high = low + 1.0
+        values = np.ascontiguousarray(np.nan_to_num(_column(session, show), nan=low, posinf=high,
+                                                    neginf=low), np.float32)
+        value, shade = sim.render(values, eye, target, up, fov, size, size, session.threads)
+        data = false_colour_png(value, shade, low, high, show, f"{show}, iteration {it}")
+    else:
+        image = sim.render_appearance(eye, target, up, fov, size, size, session.threads, samples,
+                                      sun_direction(session.camera), ao, it)
+        rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
+        buffer = io.BytesIO()
+        Image.fromarray((rgb * 255 + 0.5).astype(np.uint8)).save(buffer, format="PNG")
+        data = buffer.getvalue()
+    atomic_write(target_path, data)
+    return target_path
+
+
+def _column(session, name: str) -> np.ndarray:
+    from .runner import property_columns
+
+    rows = np.asarray(session.sim.rows())
+    return property_columns(session.effect, rows, session.surfel_surface)[name]
+
+
+def export_saved(folder, iterations: list[int] | None, bake_size: int, threads: int = 0,
+                 progress: bool = False) -> list[int]:
+    """export/OBJECT/iter_NNNN.* of saved iterations (the last by default),
+    every 16-bit property map on the run's range.  Returns the iterations."""
+    from .events import IterationUpdated, WriteQueue
+    from .writers import ExportWriter
+
+    folder = Path(folder)
+    session, summary, saved = reopen(folder, threads=threads)
+    chosen = iterations or [saved[-1]]
+    for it in chosen:
+        if it not in saved:
+            raise RunError(f"no map of iteration {it} in '{folder}' (saved: {saved[0]}..{saved[-1]})")
+    names = sorted({n for s in session.effect.surfaces.values() for n in s.properties})
+    writer = ExportWriter(bake_size, run_ranges(summary, folder, saved, names))
+    session.out = folder
+    session.behind = WriteQueue()
+    from tqdm import tqdm
+
+    with session.behind:
+        for it in tqdm(chosen, unit=" iteration", file=sys.stderr, disable=not progress, desc="export"):
+            load_iteration(session, folder, it)
+            writer.on_iteration_updated(IterationUpdated(session, it, None, {}, {}))
+    return chosen

@@ -1,0 +1,230 @@
+// The `gammac watch` page: the weathered scene in 3D (three.js, orbit and
+// zoom), a switch between the appearance and each property (false colour
+// with its colour bar and the run's range), an iteration slider, the run's
+// numbers and compile errors.  The server tells the page about every new
+// result over server-sent events (/api/events); the page then fetches the
+// state (/api/state), the mesh when it changed (/api/mesh) and the per-vertex
+// values of the shown iteration (/api/frame).
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+
+const $ = (id) => document.getElementById(id);
+
+// matplotlib's viridis, the polynomial fit the PNG renders use (outputs.py)
+const VIRIDIS = [
+  [0.2777273272234177, 0.005407344544966578, 0.3340998053353061],
+  [0.1050930431085774, 1.404613529898575, 1.384590162594685],
+  [-0.3308618287255563, 0.214847559468213, 0.09509516302823659],
+  [-4.634230498983486, -5.799100973351585, -19.33244095627987],
+  [6.228269936347081, 14.17993336680509, 56.69055260068105],
+  [4.776384997670288, -13.74514537774601, -65.35303263337234],
+  [-5.435455855934631, 4.645852612178535, 26.3124352495832],
+];
+function viridis(t, out, k) {
+  t = Math.min(1, Math.max(0, t));
+  for (let c = 0; c < 3; c++) {
+    let v = VIRIDIS[6][c];
+    for (let i = 5; i >= 0; i--) v = VIRIDIS[i][c] + t * v;
+    out[k + c] = Math.min(1, Math.max(0, v));
+  }
+}
+
+// ---- three.js scene -------------------------------------------------------
+const container = $("view");
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true, alpha: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+container.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+const camera = new THREE.PerspectiveCamera(30, 1, 0.01, 100);
+const controls = new OrbitControls(camera, renderer.domElement);
+controls.addEventListener("change", draw);
+scene.add(new THREE.HemisphereLight(0xffffff, 0x808080, 1.6));
+const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+scene.add(sun);
+const material = new THREE.MeshStandardMaterial({ vertexColors: true, roughness: 0.85, metalness: 0 });
+let mesh = null;
+
+function resize() {
+  const w = container.clientWidth, h = container.clientHeight;
+  renderer.setSize(w, h);
+  camera.aspect = w / Math.max(1, h);
+  camera.updateProjectionMatrix();
+  draw();
+}
+window.addEventListener("resize", resize);
+
+function draw() {
+  sun.position.copy(camera.position).add(camera.up.clone().multiplyScalar(camera.position.length()));
+  renderer.render(scene, camera);
+}
+
+// ---- state ----------------------------------------------------------------
+const viewer = (window.gammaViewer = {
+  state: null,        // the last /api/state
+  meshVersion: -1,    // the mesh on screen
+  shown: null,        // {generation, iteration, show} on screen
+  frames: 0,          // frames drawn (tests wait on it)
+  vertices: 0,
+});
+
+async function loadMesh(state) {
+  const bytes = await (await fetch(`/api/mesh?version=${state.mesh.version}`)).arrayBuffer();
+  const head = new Uint32Array(bytes, 0, 2);
+  const n = head[0], m = head[1];
+  const positions = new Float32Array(bytes, 8, 3 * n);
+  const normals = new Float32Array(bytes, 8 + 12 * n, 3 * n);
+  const index = new Uint32Array(bytes, 8 + 24 * n, 3 * m);
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
+  geometry.setAttribute("normal", new THREE.BufferAttribute(normals, 3));
+  geometry.setAttribute("color", new THREE.BufferAttribute(new Float32Array(3 * n).fill(0.8), 3));
+  geometry.setIndex(new THREE.BufferAttribute(index, 1));
+  geometry.computeBoundingSphere();
+  const firstMesh = mesh === null;
+  if (mesh) { scene.remove(mesh); mesh.geometry.dispose(); }
+  mesh = new THREE.Mesh(geometry, material);
+  scene.add(mesh);
+  viewer.meshVersion = state.mesh.version;
+  viewer.vertices = n;
+  if (firstMesh) {
+    const c = state.camera;
+    camera.position.fromArray(c.eye);
+    camera.up.fromArray(c.up);
+    camera.fov = c.fov;
+    const r = geometry.boundingSphere.radius;
+    camera.near = r / 100; camera.far = r * 100;
+    controls.target.fromArray(c.target);
+    camera.updateProjectionMatrix();
+    controls.update();
+  }
+}
+
+async function showFrame() {
+  const state = viewer.state;
+  if (!state || !mesh || state.iterations < 1) return;
+  const slider = $("iteration");
+  const iteration = Math.min(Number(slider.value), state.iterations);
+  const show = $("show").value;
+  const key = `${state.generation}/${state.quality}/${iteration}/${show}`;
+  if (viewer.shownKey === key) return;
+  const response = await fetch(`/api/frame?generation=${state.generation}&iteration=${iteration}`);
+  if (!response.ok || viewer.state !== state) return;   // a newer result arrived meanwhile
+  const bytes = await response.arrayBuffer();
+  if (bytes.byteLength < 4 * 3 * viewer.vertices) return;
+  const n = viewer.vertices;
+  const colours = mesh.geometry.getAttribute("color");
+  const out = colours.array;
+  const property = state.properties.findIndex((p) => p.name === show);
+  if (property < 0) {
+    out.set(new Float32Array(bytes, 0, 3 * n));
+    $("colourbar").hidden = true;
+  } else {
+    const values = new Float32Array(bytes, 4 * (3 * n + property * n), n);
+    const { min, max } = state.properties[property];
+    const span = max > min ? max - min : 1;
+    for (let i = 0; i < n; i++) viridis((values[i] - min) / span, out, 3 * i);
+    $("colourbar").hidden = false;
+    $("range-min").textContent = fmt(min);
+    $("range-max").textContent = fmt(max);
+  }
+  colours.needsUpdate = true;
+  viewer.shownKey = key;
+  viewer.shown = { generation: state.generation, iteration, show, quality: state.quality };
+  $("iteration-label").textContent = `${iteration} / ${state.iterations}`;
+  draw();
+  viewer.frames++;
+}
+
+const fmt = (x) => (Math.abs(x) >= 1e4 || (Math.abs(x) < 1e-3 && x !== 0) ? x.toExponential(2) : Number(x.toPrecision(4)).toString());
+
+function drawRamp() {
+  const canvas = $("ramp"), ctx = canvas.getContext("2d");
+  const rgb = [0, 0, 0];
+  for (let x = 0; x < canvas.width; x++) {
+    viridis(x / (canvas.width - 1), rgb, 0);
+    ctx.fillStyle = `rgb(${rgb.map((v) => Math.round(v * 255)).join(",")})`;
+    ctx.fillRect(x, 0, 1, canvas.height);
+  }
+}
+
+function showNumbers(state) {
+  const rows = [["generation", state.generation], ["quality", state.quality]];
+  const r = state.run;
+  if (r) {
+    rows.push(["surfels", r.surfels.toLocaleString()], ["triangles", r.triangles.toLocaleString()],
+              ["γ-tons per iteration", r.tons_per_iteration.toLocaleString()],
+              ["compile + surfels", `${r.setup_seconds.toFixed(2)} s`],
+              ["since the save", `${r.seconds_since_save.toFixed(2)} s`],
+              ["simulation", `${r.run_seconds.toFixed(2)} s`]);
+    const it = r.records[Math.min(Number($("iteration").value), r.records.length) - 1];
+    if (it) {
+      rows.push(["emitted", it.emitted.toLocaleString()], ["settled", it.settled.toLocaleString()],
+                ["escaped", it.escaped.toLocaleString()], ["interactions", it.interactions.toLocaleString()]);
+      for (const [name, sum] of Object.entries(it.property_sums)) rows.push([`Σ ${name}`, fmt(sum)]);
+    }
+  }
+  $("numbers").innerHTML = "";
+  for (const [k, v] of rows) {
+    const tr = $("numbers").insertRow();
+    tr.insertCell().textContent = k;
+    tr.insertCell().textContent = v;
+  }
+}
+
+function showErrors(state) {
+  const box = $("errors");
+  if (!state.error) { box.hidden = true; box.textContent = ""; return; }
+  box.hidden = false;
+  box.textContent = state.error.text;
+}
+
+async function refresh() {
+  const state = await (await fetch("/api/state")).json();
+  viewer.state = state;
+  const status = $("status");
+  status.textContent = state.status === "running" ? `running (${state.quality})` : state.status;
+  status.className = `status ${state.status}`;
+  $("files").textContent = `${state.effect} on ${state.scene}`;
+  $("quality-state").textContent = state.iterations ? `showing: ${state.quality} result` : "";
+  if (!viewer.qualityShown) {          // the page starts with the server's --preview
+    viewer.qualityShown = true;
+    const choice = Array.from($("quality").options).find((o) => Math.abs(Number(o.value) - state.preview) < 1e-9);
+    if (choice) $("quality").value = choice.value;
+    else $("quality").add(new Option(`${state.preview} of the γ-tons (--preview), then refine`, state.preview), 0), ($("quality").value = String(state.preview));
+  }
+  showErrors(state);
+  const select = $("show");
+  const wanted = ["appearance", ...state.properties.map((p) => p.name)];
+  const current = Array.from(select.options).map((o) => o.value);
+  if (wanted.join() !== current.join()) {
+    const keep = select.value;
+    select.innerHTML = "";
+    for (const name of wanted) select.add(new Option(name, name));
+    // until the user picks: the appearance if the effect has one, else its first property
+    const fallback = state.appearance ? "appearance" : wanted[1] || "appearance";
+    select.value = viewer.picked && wanted.includes(keep) ? keep : fallback;
+  }
+  const slider = $("iteration");
+  const atEnd = Number(slider.value) >= Number(slider.max);
+  slider.max = Math.max(1, state.iterations);
+  if (atEnd) slider.value = slider.max;          // follow the newest iteration unless the user looks back
+  showNumbers(state);
+  if (state.mesh && state.mesh.version !== viewer.meshVersion) await loadMesh(state);
+  await showFrame();
+}
+
+let pending = Promise.resolve();
+const queueRefresh = () => (pending = pending.then(refresh).catch((e) => console.error(e)));
+
+$("show").addEventListener("change", () => { viewer.picked = true; viewer.shownKey = null; showFrame(); });
+$("iteration").addEventListener("input", () => { showNumbers(viewer.state); showFrame(); });
+$("quality").addEventListener("change", async () => {
+  await fetch("/api/preview", { method: "POST", body: $("quality").value });
+});
+
+drawRamp();
+resize();
+const events = new EventSource("/api/events");
+events.onmessage = queueRefresh;
+events.onopen = () => { $("status").textContent = "connected"; queueRefresh(); };
+events.onerror = () => { $("status").textContent = "disconnected"; $("status").className = "status error"; };

@@ -1,0 +1,269 @@
+"""``gammac watch``: run an effect, then run it again whenever the effect
+file or a file it imports is saved, and show each result in the browser.
+
+Each save is answered twice: first a preview (the same iterations with a
+fraction of the γ-tons, chosen in the page), published as soon as it is
+done, then the full-quality run, published when it completes.  A save
+during a run abandons it at the next iteration.  The scene is read once per
+effect whose surfaces or assignment rules change; the kernels of an
+unchanged effect come from the compiler's cache.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import sys
+import threading
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..frontend.checker import UsageError
+from ..frontend.diagnostics import GammaError
+from ..driver.events import Writer
+from ..driver.runner import RunError, RunOptions, property_columns, run_camera, runtime_module
+from .server import ViewerState, serve
+
+
+class Superseded(Exception):
+    """The files changed (or the preview level did) while a run was going on."""
+
+
+@dataclass
+class ViewerMesh:
+    """The scene as the page draws it: vertices welded per (vertex, uv), each
+    with the scene triangle its values are evaluated on."""
+
+    positions: np.ndarray   # float32 (n, 3)
+    normals: np.ndarray     # float32 (n, 3)
+    triangles: np.ndarray   # uint32 (m, 3)
+    owner: np.ndarray       # int32 (n,) scene triangle per vertex
+    uvs: np.ndarray         # float32 (n, 2) texture coordinates for texture() lookups
+
+    def to_bytes(self) -> bytes:
+        n, m = len(self.positions), len(self.triangles)
+        return (struct.pack("<II", n, m) + self.positions.astype("<f4").tobytes()
+                + self.normals.astype("<f4").tobytes() + self.triangles.astype("<u4").tobytes())
+
+
+def viewer_mesh(mesh) -> ViewerMesh:
+    from ..driver.export import vertex_normals
+
+    verts = np.asarray(mesh.vertices(), np.float32)
+    tris = np.asarray(mesh.triangles(), np.int64)
+    if mesh.has_uvs:
+        uvs = np.asarray(mesh.triangle_uvs(), np.float32).reshape(-1, 2)
+        corners = np.column_stack([tris.reshape(-1).astype(np.float64), uvs.astype(np.float64)])
+        keys, inverse = np.unique(corners, axis=0, return_inverse=True)
+        source, vertex_uvs = keys[:, 0].astype(np.int64), keys[:, 1:].astype(np.float32)
+        faces = inverse.reshape(-1, 3)
+    else:
+        source, faces = np.arange(len(verts)), tris
+        vertex_uvs = np.zeros((len(verts), 2), np.float32)
+    positions = verts[source]
+    normals = vertex_normals(positions.astype(np.float64), faces)
+    owner = np.zeros(len(positions), np.int32)
+    owner[faces.reshape(-1)] = np.repeat(np.arange(len(faces), dtype=np.int32), 3)
+    return ViewerMesh(positions, normals, faces.astype(np.uint32), owner, vertex_uvs)
+
+
+class Watcher:
+    """The watch loop; ``stop`` (a threading.Event) ends it."""
+
+    def __init__(self, path: str, overrides: dict, opts: RunOptions, state: ViewerState,
+                 stop: threading.Event | None = None, poll: float = 0.05, log=None):
+        self.path, self.overrides, self.opts, self.state = path, overrides, opts, state
+        self.stop = stop or threading.Event()
+        self.poll = poll
+        self.log = log or (lambda text: print(text, file=sys.stderr, flush=True))
+        self.files = [path]
+        self.stamps: dict[str, float | None] = {}
+        self.generation = 0
+        self.scene_key = None
+        self.scene = None
+        self.mesh = None
+        import tempfile
+
+        self.scratch = tempfile.TemporaryDirectory(prefix="gamma-watch-")   # the runs' folder (nothing kept)
+
+    # -- files --
+
+    def _stamp(self) -> dict:
+        out = {}
+        for f in self.files:
+            try:
+                st = os.stat(f)
+                out[f] = (st.st_mtime_ns, st.st_size)
+            except OSError:
+                out[f] = None
+        return out
+
+    def changed(self) -> bool:
+        return self._stamp() != self.stamps
+
+    def _check(self) -> None:
+        if self.stop.is_set() or self.changed() or self.state.preview_changed.is_set():
+            raise Superseded
+
+    # -- the loop --
+
+    def run_forever(self) -> None:
+        while not self.stop.is_set():
+            self.stamps = self._stamp()
+            self.state.preview_changed.clear()
+            self.generation += 1
+            try:
+                self.once()
+            except Superseded:
+                continue
+            while not self.stop.is_set() and not self.changed() and not self.state.preview_changed.is_set():
+                self.stop.wait(self.poll)
+
+    def once(self) -> None:
+        from ..frontend.checker import check
+        from ..frontend.parser import parse
+
+        started = time.perf_counter()
+        # the generation changes with the result, so the page never takes the old one for the new
+        self.state.publish(status="running", progress="compiling")
+        try:
+            source = Path(self.path).read_text(encoding="utf-8")
+            effect = check(parse(source, self.path), self.overrides)
+        except (GammaError, UsageError, OSError, UnicodeDecodeError) as err:
+            self._fail(err)
+            return
+        self.files = [self.path] + [str(Path(f)) for f in effect.files if Path(f) != Path(self.path)]
+        self.stamps.update({f: s for f, s in self._stamp().items() if f not in self.stamps})
+        try:
+            fraction = self.state.preview
+            if fraction < 1.0:
+                self.simulate(effect, fraction, started)
+            self.simulate(effect, 1.0, started)
+        except (RunError, GammaError) as err:
+            self._fail(err)
+
+    def _fail(self, err) -> None:
+        if isinstance(err, GammaError):
+            text = err.render()
+            n = len(err.diagnostics)
+            where = [{"file": str(d.file.path if d.file else err.path), "line": d.pos.line, "col": d.pos.col,
+                      "message": d.message} for d in err.diagnostics]
+            text += f"\n{n} error{'s' if n != 1 else ''} in {err.path}"
+        else:
+            text, where = f"gammac: error: {err}", []
+        self.log(text)
+        self.state.publish(status="error", generation=self.generation, frames=[],
+                           error={"text": text, "diagnostics": where}, progress=None)
+
+    def simulate(self, effect, fraction: float, started: float) -> None:
+        """One run on the driver's loop (``driver.runner``), the viewer a writer on it."""
+        from ..driver.runner import run
+        from ..driver.scene import SceneError, load_scene
+
+        opts = self.opts
+        key = (tuple(effect.surfaces), tuple(effect.assign))
+        if self.scene_key != key:
+            try:
+                self.scene = load_scene(runtime_module(), opts.scene, effect, opts.assign, opts.down)
+            except SceneError as err:
+                raise RunError(str(err)) from None
+            self.scene_key = key
+            self.mesh = viewer_mesh(self.scene.mesh)
+            self._publish_mesh(run_camera(self.scene, opts))
+        total = opts.tons if opts.tons is not None else sum(s.count for s in effect.sources)
+        tons = max(1, round(total * fraction)) if fraction < 1.0 else total
+        quality = "final" if fraction >= 1.0 else "preview"
+        writer = ViewerWriter(self, self.mesh, quality)
+        t0 = time.perf_counter()
+        run(effect, replace(opts, tons=tons, out=self.scratch.name, progress=False), [writer],
+            scene=self.scene, standard=False)
+        session = writer.session
+        setup_seconds = writer.setup_seconds - t0            # compilation (or the cache) and surfels
+        run_seconds = time.perf_counter() - writer.setup_seconds
+        info = {"surfels": int(session.sim.num_surfels), "triangles": int(self.scene.mesh.num_triangles),
+                "tons_per_iteration": int(tons), "setup_seconds": setup_seconds, "run_seconds": run_seconds,
+                "seconds_since_save": time.perf_counter() - started, "records": writer.records}
+        done = quality == "final"
+        self.state.publish(frames=writer.frames, status="ready" if done else "running", quality=quality,
+                           error=None, generation=self.generation, properties=writer.properties(),
+                           appearance=session.looks, run=info, progress=None if done else "refining")
+        self.log(f"gammac watch: {quality} result {self.generation} "
+                 f"({info['seconds_since_save']:.2f} s after the change, {tons:,} γ-tons per iteration)")
+
+    def _publish_mesh(self, camera) -> None:
+        self.state.publish(mesh_bytes=self.mesh.to_bytes(), frames=[],
+                           mesh={"version": self.generation, "vertices": len(self.mesh.positions),
+                                 "triangles": len(self.mesh.triangles)},
+                           camera={"eye": [float(c) for c in camera[0]], "target": [float(c) for c in camera[1]],
+                                   "up": [float(c) for c in camera[2]], "fov": float(camera[3])})
+
+
+class ViewerWriter(Writer):
+    """The page's frames, one per iteration: the appearance colour and every
+    property at the viewer mesh's vertices (the surfels' smoothed values),
+    with each property's range over the run.  Stops the run (``Superseded``)
+    as soon as the files change."""
+
+    def __init__(self, watcher: "Watcher", mesh: ViewerMesh, quality: str):
+        self.watcher, self.mesh, self.quality = watcher, mesh, quality
+        self.frames: list[bytes] = []
+        self.records: list[dict] = []
+        self.ranges: dict[str, tuple[float, float]] = {}
+        self.names: list[str] = []
+
+    def on_setup_done(self, event) -> None:
+        self.session = event.run
+        self.setup_seconds = time.perf_counter()
+
+    def on_iteration_traced(self, event) -> None:
+        self.watcher._check()
+
+    def on_iteration_updated(self, event) -> None:
+        run, it, mesh = event.run, event.iteration, self.mesh
+        record = event.record
+        self.records.append({k: record[k] for k in ("emitted", "settled", "escaped", "interactions",
+                                                     "property_sums")})
+        rows, rgb = run.sim.bake_points(mesh.positions, mesh.normals, mesh.owner, mesh.uvs, it, run.threads)
+        columns = property_columns(run.effect, np.asarray(rows), np.asarray(run.scene.triangle_surface)[mesh.owner])
+        self.names = list(columns)
+        parts = [np.asarray(rgb, "<f4").reshape(-1)]
+        for name, values in columns.items():
+            finite = values[np.isfinite(values)]
+            if finite.size:
+                low, high = self.ranges.get(name, (np.inf, -np.inf))
+                self.ranges[name] = (min(low, float(finite.min())), max(high, float(finite.max())))
+            parts.append(np.asarray(values, "<f4"))
+        self.frames.append(b"".join(p.tobytes() for p in parts))
+        if self.quality == "final":
+            self.watcher.state.publish(progress=f"refining: iteration {it}/{run.opts.iterations}")
+        self.watcher._check()
+
+    def properties(self) -> list[dict]:
+        return [{"name": n, "min": self.ranges.get(n, (0.0, 1.0))[0], "max": self.ranges.get(n, (0.0, 1.0))[1]}
+                for n in self.names]
+
+
+def watch(path: str, overrides: dict, opts: RunOptions, port: int = 8000, preview: float = 0.25,
+          stop: threading.Event | None = None, on_ready=None) -> int:
+    """Serve the viewer and run the watch loop until ``stop`` is set (or ^C)."""
+    state = ViewerState(path, opts.scene, preview)
+    try:
+        server = serve(state, port)
+    except OSError as err:
+        raise RunError(f"cannot serve on 127.0.0.1:{port}: {err.strerror or err}") from None
+    url = f"http://127.0.0.1:{server.server_address[1]}/"
+    print(f"gammac watch: viewer at {url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+    if on_ready is not None:
+        on_ready(url)
+    watcher = Watcher(path, overrides, opts, state, stop)
+    try:
+        watcher.run_forever()
+    finally:
+        state.close()
+        server.shutdown()
+        server.server_close()
+    return 0
+

@@ -1,0 +1,46 @@
+// Re-tiling of a deformed surface (CGAL Polygon Mesh Processing isotropic
+// remeshing) and the geometric measures reported per iteration.  CGAL is
+// confined to remesh.cpp.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "gamma/mesh.h"
+
+namespace gammart {
+
+// The smallest triangle angle re-tiling is tested to keep (SPEC §13.12).
+constexpr double kMinRetiledAngleDeg = 15.0;
+
+// Edges whose faces' normals differ by more than this are kept by re-tiling.
+constexpr double kSharpEdgeDeg = 60.0;
+
+struct Retiled {
+    Mesh mesh;                       // validated (degenerate triangles dropped)
+    std::vector<int32_t> tri_surface; // surface id of every kept triangle
+};
+
+// Isotropic remeshing towards `target_edge_length` (`iterations` rounds of
+// split / collapse / flip / tangential relaxation with projection onto the
+// deformed surface).  Each surface id is a patch: the borders between
+// surfaces, the mesh's open boundaries and its sharp edges (kSharpEdgeDeg)
+// are kept as polylines (their edges may be split or collapsed, never
+// flipped, their vertices not relaxed), and every new triangle keeps the
+// surface id of the triangle it came from.  Deterministic (single-threaded).
+// Texture coordinates and part labels do not survive (the result has none).
+// Throws gammart::Error if the input is not a valid triangle mesh for CGAL.
+Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
+               int iterations);
+
+struct MeshMeasures {
+    double area = 0;
+    double volume = 0;       // enclosed volume (divergence theorem); NaN when not closed
+    bool closed = false;     // every edge has exactly two triangles, consistently oriented
+    double min_angle_deg = 0;
+    size_t triangles = 0;
+};
+
+MeshMeasures measure(const Mesh& mesh);
+
+}  // namespace gammart

@@ -1,0 +1,75 @@
+// The shape step (SPEC §19, "Shape change"): after the update pass, surfaces
+// whose shape follows a property move along their outward normal by
+// metres-per-unit x the property's change in the iteration; the mesh is
+// re-tiled (remesh.h), the surfels are re-sampled on the new surface with
+// every property's area integral conserved, and the scene index is rebuilt.
+// Nothing is rebuilt in an iteration where no vertex moved.
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "gamma/config.h"
+#include "gamma/mesh.h"
+#include "gamma/remesh.h"
+#include "gamma/scene_index.h"
+#include "gamma/surfel_state.h"
+
+namespace gammart {
+
+struct ShapeStats {
+    bool changed = false;              // the geometry moved (and was re-tiled, re-sampled, rebuilt)
+    int64_t moved_vertices = 0;
+    int64_t clamped_vertices = 0;      // |displacement| cut to the per-iteration bound
+    int64_t inversion_limited = 0;     // vertices whose move was shortened so that no triangle flips
+    int64_t nonfinite_surfels = 0;     // surfels whose displacement was NaN/inf (taken as 0)
+    double max_displacement = 0;       // largest |vertex move| applied (scene units)
+    double displace_seconds = 0, retile_seconds = 0, resample_seconds = 0, rebuild_seconds = 0;
+    MeshMeasures geometry;             // after the step
+};
+
+// Per-surfel displacement along the outward normal in this iteration:
+// sum over the surfel's surface's shape rates of metres_per_unit x
+// (row[column] - before[column]).  Non-finite results are 0 (counted).
+std::vector<float> surfel_displacement(const Config& c, const SurfelState& state, const std::vector<float>& before,
+                                       int64_t& nonfinite);
+
+// Area-weighted unit vertex normals (outward for a consistently oriented
+// closed mesh).
+std::vector<V3> vertex_normals(const Mesh& mesh);
+
+// Transfers rows from `old_state` (on a surface of area old_area) to the
+// surfels of `state` (area new_area): every old surfel scatters its amount
+// value x (old_area / N_old) to the new surfels of its own surface with the
+// smoothing weights of `index` (built over the new surfels; they sum to 1),
+// and a new surfel's value is its amount / (new_area / N_new): the area
+// integral of every property column is conserved per surface (to float
+// rounding).  Header columns (gamma-reflectance) are taken from the nearest
+// old surfel of the same surface (`old_index`).  Sequential in old-surfel
+// order: the same result at any thread count.
+void transfer_rows(const SurfelState& old_state, double old_area, const SceneIndex& old_index,
+                   SurfelState& state, double new_area, const SceneIndex& index, int threads);
+
+class ShapeStep {
+public:
+    explicit ShapeStep(const Config& c) : cfg_(c) {}
+    bool active() const { return !cfg_.shape_rates.empty(); }
+
+    // Remembers the rows at the start of the iteration (before tracing).
+    void begin_iteration(const SurfelState& state);
+
+    // Displaces, re-tiles, re-samples, transfers and rebuilds.  mesh, state,
+    // index (a new one) and frame are replaced when the geometry changed.
+    // Throws gammart::Error if a surface loses all its surfels.
+    ShapeStats apply(int iteration, Mesh& mesh, SurfelState& state, std::unique_ptr<SceneIndex>& index,
+                     SceneFrame& frame);
+    // How many times apply() rebuilt the geometry.
+    int rebuilds() const { return rebuilds_; }
+
+private:
+    const Config& cfg_;
+    std::vector<float> before_;
+    int rebuilds_ = 0;
+};
+
+}  // namespace gammart

@@ -1,0 +1,33 @@
+// The splat kernel (SPEC §13.2): a rule's surface deltas at a surfel are
+// spread over its neighbourhood -- surfels of the same surface within 2σ
+// whose normals are within 60° and that lie within σ/2 of its tangent plane
+// -- with Gaussian weights of width σ
+// normalised to 1, so amounts are conserved and cover about the same
+// number of surfels at any resolution.  Built once at setup; applied to the
+// merged per-surfel deltas after every tracing pass.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace gammart {
+
+struct SplatKernel {
+    // Gather form: the deltas reaching surfel j come from the surfels
+    // source[offset[j] .. offset[j+1]) with those weights, in ascending
+    // source order (a fixed summation order: bit-identical at any thread
+    // count).
+    std::vector<uint32_t> offset, source;
+    std::vector<float> weight;
+    double mean_neighbours = 0;  // average neighbourhood size (for reports and tests)
+};
+
+// `position`, `normal`: n*3 floats; `surface`: n surface numbers; `sigma`:
+// the mean surfel spacing.  Runs on the calling thread's TBB arena.
+SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
+                               float sigma);
+
+// out[j*P + c] = sum over sources s of weight * in[s*P + c] (n rows of P).
+void apply_splat(const SplatKernel& k, const float* in, float* out, size_t n, int P);
+
+}  // namespace gammart

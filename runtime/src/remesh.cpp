@@ -1,0 +1,132 @@
+// CGAL isotropic remeshing and mesh measures (see gamma/remesh.h).
+#include "gamma/remesh.h"
+
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Polygon_mesh_processing/detect_features.h>
+#include <CGAL/Polygon_mesh_processing/remesh.h>
+#include <CGAL/Surface_mesh.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <string>
+#include <utility>
+
+#include "gamma/error.h"
+
+namespace gammart {
+
+namespace {
+
+using Kernel = CGAL::Exact_predicates_inexact_constructions_kernel;
+using Point = Kernel::Point_3;
+using SurfaceMesh = CGAL::Surface_mesh<Point>;
+using VertexIndex = SurfaceMesh::Vertex_index;
+using FaceIndex = SurfaceMesh::Face_index;
+using EdgeIndex = SurfaceMesh::Edge_index;
+namespace PMP = CGAL::Polygon_mesh_processing;
+
+double angle_deg(const float* a, const float* b, const float* c) {  // angle at a
+    double u[3], v[3];
+    for (int k = 0; k < 3; ++k) {
+        u[k] = double(b[k]) - a[k];
+        v[k] = double(c[k]) - a[k];
+    }
+    const double uv = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    const double cx = u[1] * v[2] - u[2] * v[1], cy = u[2] * v[0] - u[0] * v[2], cz = u[0] * v[1] - u[1] * v[0];
+    return std::atan2(std::sqrt(cx * cx + cy * cy + cz * cz), uv) * 180.0 / M_PI;
+}
+
+}  // namespace
+
+Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
+               int iterations) {
+    if (!(target_edge_length > 0) || !std::isfinite(target_edge_length))
+        throw Error("retile: target edge length must be positive");
+    SurfaceMesh sm;
+    std::vector<VertexIndex> vi(mesh.num_vertices());
+    for (size_t i = 0; i < mesh.num_vertices(); ++i)
+        vi[i] = sm.add_vertex(Point(mesh.vertices[3 * i], mesh.vertices[3 * i + 1], mesh.vertices[3 * i + 2]));
+    auto patch = sm.add_property_map<FaceIndex, int32_t>("f:surface", 0).first;
+    for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+        const FaceIndex f = sm.add_face(vi[size_t(mesh.triangles[3 * t])], vi[size_t(mesh.triangles[3 * t + 1])],
+                                        vi[size_t(mesh.triangles[3 * t + 2])]);
+        if (f == SurfaceMesh::null_face())
+            throw Error("retile: " + mesh.name + " is not an oriented 2-manifold (triangle " + std::to_string(t) +
+                        " cannot be added); re-tiling needs a manifold mesh");
+        patch[f] = tri_surface[t];
+    }
+    // Sharp edges (faces meeting at more than kSharpEdgeDeg), borders between
+    // surfaces and open boundaries stay where they are (as polylines):
+    // otherwise flips and relaxation would cut creases and shrink the solid.
+    auto constrained = sm.add_property_map<EdgeIndex, bool>("e:constrained", false).first;
+    PMP::detect_sharp_edges(sm, kSharpEdgeDeg, constrained);
+    for (EdgeIndex e : sm.edges()) {
+        const auto h = sm.halfedge(e), o = sm.opposite(h);
+        if (sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)]) constrained[e] = true;
+    }
+    PMP::isotropic_remeshing(sm.faces(), target_edge_length, sm,
+                             CGAL::parameters::number_of_iterations(unsigned(std::max(iterations, 1)))
+                                 .face_patch_map(patch)
+                                 .edge_is_constrained_map(constrained)
+                                 .relax_constraints(false));
+    sm.collect_garbage();
+    std::vector<float> v;
+    v.reserve(3 * sm.number_of_vertices());
+    std::map<VertexIndex, int32_t> id;
+    int32_t next = 0;
+    for (VertexIndex x : sm.vertices()) {
+        const Point& p = sm.point(x);
+        v.push_back(float(p.x()));
+        v.push_back(float(p.y()));
+        v.push_back(float(p.z()));
+        id[x] = next++;
+    }
+    std::vector<int32_t> t;
+    std::vector<int32_t> surf;
+    t.reserve(3 * sm.number_of_faces());
+    for (FaceIndex f : sm.faces()) {
+        for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) t.push_back(id[x]);
+        surf.push_back(patch[f]);
+    }
+    Retiled out;
+    out.mesh = Mesh::from_arrays(v.data(), v.size() / 3, t.data(), t.size() / 3, mesh.name);
+    out.tri_surface.resize(out.mesh.num_triangles());
+    for (size_t k = 0; k < out.tri_surface.size(); ++k)
+        out.tri_surface[k] = surf[size_t(out.mesh.original_triangle[k])];
+    return out;
+}
+
+MeshMeasures measure(const Mesh& mesh) {
+    MeshMeasures m;
+    m.triangles = mesh.num_triangles();
+    m.area = mesh.area();
+    m.min_angle_deg = m.triangles ? 180.0 : 0.0;
+    // Closed: every directed edge (a, b) appears once and its reverse once.
+    std::map<std::pair<int32_t, int32_t>, int> directed;
+    double vol = 0;
+    for (size_t t = 0; t < m.triangles; ++t) {
+        const int32_t* tri = &mesh.triangles[3 * t];
+        const float* a = &mesh.vertices[3 * size_t(tri[0])];
+        const float* b = &mesh.vertices[3 * size_t(tri[1])];
+        const float* c = &mesh.vertices[3 * size_t(tri[2])];
+        m.min_angle_deg = std::min({m.min_angle_deg, angle_deg(a, b, c), angle_deg(b, c, a), angle_deg(c, a, b)});
+        vol += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
+                double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
+                double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6.0;
+        for (int k = 0; k < 3; ++k) ++directed[{tri[k], tri[(k + 1) % 3]}];
+    }
+    m.closed = m.triangles > 0;
+    for (const auto& [edge, count] : directed) {
+        auto rev = directed.find({edge.second, edge.first});
+        if (count != 1 || rev == directed.end() || rev->second != 1) {
+            m.closed = false;
+            break;
+        }
+    }
+    m.volume = m.closed ? vol : std::numeric_limits<double>::quiet_NaN();
+    return m;
+}
+
+}  // namespace gammart

@@ -1,0 +1,241 @@
+// The shape step (see gamma/shape_step.h).
+#include "gamma/shape_step.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <string>
+
+#include "gamma/error.h"
+#include "gamma/kernel_table.h"
+#include "gamma/render.h"
+#include "gamma/splat.h"
+#include "gamma/surfels.h"
+#include "gamma/threads.h"
+
+namespace gammart {
+
+std::vector<float> surfel_displacement(const Config& c, const SurfelState& state, const std::vector<float>& before,
+                                       int64_t& nonfinite) {
+    const size_t n = state.size();
+    const size_t W = size_t(state.width);
+    std::vector<float> d(n, 0.0f);
+    for (size_t i = 0; i < n; ++i) {
+        double acc = 0;
+        for (const ShapeRate& r : c.shape_rates) {
+            if (r.surface != state.surface[i]) continue;
+            const size_t k = i * W + size_t(r.column);
+            acc += double(r.metres_per_unit) * (double(state.rows[k]) - double(before[k]));
+        }
+        if (!std::isfinite(acc)) {
+            ++nonfinite;
+            acc = 0;
+        }
+        d[i] = float(acc);
+    }
+    return d;
+}
+
+std::vector<V3> vertex_normals(const Mesh& mesh) {
+    std::vector<V3> n(mesh.num_vertices(), V3{0, 0, 0});
+    for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+        const int32_t* tri = &mesh.triangles[3 * t];
+        const V3 a = {mesh.vertices[3 * size_t(tri[0])], mesh.vertices[3 * size_t(tri[0]) + 1],
+                      mesh.vertices[3 * size_t(tri[0]) + 2]};
+        const V3 b = {mesh.vertices[3 * size_t(tri[1])], mesh.vertices[3 * size_t(tri[1]) + 1],
+                      mesh.vertices[3 * size_t(tri[1]) + 2]};
+        const V3 c = {mesh.vertices[3 * size_t(tri[2])], mesh.vertices[3 * size_t(tri[2]) + 1],
+                      mesh.vertices[3 * size_t(tri[2]) + 2]};
+        const V3 fn = cross(b - a, c - a);  // length = 2 x area: area-weighted
+        for (int k = 0; k < 3; ++k) n[size_t(tri[k])] = n[size_t(tri[k])] + fn;
+    }
+    for (V3& v : n) v = normalize(v);
+    return n;
+}
+
+void transfer_rows(const SurfelState& old_state, double old_area, const SceneIndex& old_index,
+                   SurfelState& state, double new_area, const SceneIndex& index, int threads) {
+    constexpr size_t K = kSmoothingNeighbours;
+    const size_t n_old = old_state.size(), n_new = state.size();
+    const size_t W = size_t(state.width);
+    // Neighbours (parallel queries, stored), then a sequential scatter.
+    std::vector<uint32_t> nb_idx(n_old * K);
+    std::vector<double> nb_w(n_old * K);
+    std::vector<uint8_t> nb_count(n_old);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, n_old, 2048), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i < r.end(); ++i)
+                nb_count[i] = uint8_t(index.smooth(old_state.surface[i], &old_state.surf.position[3 * i],
+                                                   &nb_idx[i * K], &nb_w[i * K]));
+        });
+    });
+    const double a_old = old_area / double(n_old), a_new = new_area / double(n_new);
+    std::vector<double> amount(n_new * W, 0.0);
+    for (size_t i = 0; i < n_old; ++i) {
+        const float* row = old_state.row(i);
+        for (size_t j = 0; j < nb_count[i]; ++j) {
+            double* dst = &amount[size_t(nb_idx[i * K + j]) * W];
+            const double w = nb_w[i * K + j] * a_old;
+            for (size_t c = GAMMA_ROW_HEADER; c < W; ++c) dst[c] += w * double(row[c]);
+        }
+    }
+    for (size_t j = 0; j < n_new; ++j) {
+        float* row = state.row(j);
+        const uint32_t src = old_index.nearest_of(state.surface[j], &state.surf.position[3 * j]);
+        std::memcpy(row, old_state.row(src), sizeof(float) * GAMMA_ROW_HEADER);
+        for (size_t c = GAMMA_ROW_HEADER; c < W; ++c) row[c] = float(amount[j * W + c] / a_new);
+    }
+}
+
+void ShapeStep::begin_iteration(const SurfelState& state) {
+    if (active()) before_ = state.rows;
+}
+
+namespace {
+
+// Refuses a surface that has triangles but no surfel (see Simulation).
+void require_surfels(const SceneIndex& index, int iteration) {
+    const std::vector<size_t> per = index.surfels_per_surface();
+    std::vector<size_t> triangles(per.size(), 0);
+    for (int32_t s : index.tri_surface()) ++triangles[size_t(s)];
+    for (size_t s = 0; s < per.size(); ++s)
+        if (triangles[s] > 0 && per[s] == 0)
+            throw Error("shape: after re-tiling in iteration " + std::to_string(iteration) + ", surface " +
+                        std::to_string(s) + " has " + std::to_string(triangles[s]) +
+                        " triangle(s) but received no surfel; raise the surfel count");
+}
+
+V3 vertex(const Mesh& m, size_t i) { return {m.vertices[3 * i], m.vertices[3 * i + 1], m.vertices[3 * i + 2]}; }
+
+}  // namespace
+
+ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::unique_ptr<SceneIndex>& index,
+                            SceneFrame& frame) {
+    ShapeStats st;
+    if (!active()) return st;
+    auto t0 = std::chrono::steady_clock::now();
+    const Config& c = cfg_;
+    if (before_.size() != state.rows.size()) before_ = state.rows;  // no begin_iteration: no change
+    const std::vector<float> d_surfel = surfel_displacement(c, state, before_, st.nonfinite_surfels);
+    const double spacing = std::sqrt(mesh.area() / double(state.size()));
+    const double target = double(c.retile_edge_factor) * spacing;
+    const double max_step = double(c.max_step_factor) * target;
+
+    // Surfel -> vertex: the smoothing of the renders over all surfels
+    // (Gaussian, k = 8), along the area-weighted vertex normal.
+    const size_t nv = mesh.num_vertices();
+    const std::vector<V3> normal = vertex_normals(mesh);
+    std::vector<float> dv(nv, 0.0f);
+    run_with_threads(c.threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 1024), [&](const tbb::blocked_range<size_t>& r) {
+            uint32_t idx[kSmoothingNeighbours];
+            double w[kSmoothingNeighbours];
+            for (size_t v = r.begin(); v < r.end(); ++v) {
+                const size_t k = index->smooth(-1, &mesh.vertices[3 * v], idx, w);
+                double acc = 0;
+                for (size_t j = 0; j < k; ++j) acc += w[j] * double(d_surfel[idx[j]]);
+                dv[v] = float(acc);
+            }
+        });
+    });
+    // Vertices used by no triangle do not move.
+    std::vector<uint8_t> used(nv, 0);
+    for (int32_t x : mesh.triangles) used[size_t(x)] = 1;
+    for (size_t v = 0; v < nv; ++v) {
+        if (!used[v] || !(dot(normal[v], normal[v]) > 0)) dv[v] = 0.0f;
+        if (std::fabs(double(dv[v])) > max_step) {
+            dv[v] = float(std::copysign(max_step, double(dv[v])));
+            ++st.clamped_vertices;
+        }
+    }
+    // No triangle may flip: shorten the moves of the vertices of a triangle
+    // whose normal would turn by more than 90 degrees (halving, up to 8 times, then 0).
+    const size_t m = mesh.num_triangles();
+    std::vector<V3> face_normal(m);
+    for (size_t t = 0; t < m; ++t) {
+        const int32_t* tri = &mesh.triangles[3 * t];
+        face_normal[t] = cross(vertex(mesh, size_t(tri[1])) - vertex(mesh, size_t(tri[0])),
+                               vertex(mesh, size_t(tri[2])) - vertex(mesh, size_t(tri[0])));
+    }
+    std::vector<uint8_t> limited(nv, 0);
+    auto moved = [&](size_t v) { return vertex(mesh, v) + normal[v] * dv[v]; };
+    for (int round = 0; round <= 8; ++round) {
+        bool flipped = false;
+        for (size_t t = 0; t < m; ++t) {
+            const int32_t* tri = &mesh.triangles[3 * t];
+            const V3 a = moved(size_t(tri[0])), b = moved(size_t(tri[1])), cc = moved(size_t(tri[2]));
+            if (dot(cross(b - a, cc - a), face_normal[t]) > 0) continue;
+            flipped = true;
+            for (int k = 0; k < 3; ++k) {
+                const size_t v = size_t(tri[k]);
+                dv[v] = round < 8 ? 0.5f * dv[v] : 0.0f;
+                limited[v] = 1;
+            }
+        }
+        if (!flipped) break;
+    }
+    for (size_t v = 0; v < nv; ++v) {
+        st.inversion_limited += limited[v];
+        if (dv[v] != 0.0f) {
+            ++st.moved_vertices;
+            st.max_displacement = std::max(st.max_displacement, std::fabs(double(dv[v])));
+        }
+    }
+    st.displace_seconds = seconds_since(t0);
+    if (st.moved_vertices == 0) {
+        st.geometry = measure(mesh);
+        return st;
+    }
+    st.changed = true;
+    ++rebuilds_;
+
+    // Displace and re-tile.
+    t0 = std::chrono::steady_clock::now();
+    Mesh displaced = mesh;
+    for (size_t v = 0; v < nv; ++v) {
+        const V3 p = moved(v);
+        displaced.vertices[3 * v] = p.x;
+        displaced.vertices[3 * v + 1] = p.y;
+        displaced.vertices[3 * v + 2] = p.z;
+    }
+    Retiled rt = retile(displaced, index->tri_surface(), target, c.retile_iterations);
+    st.retile_seconds = seconds_since(t0);
+
+    // Re-sample surfels (a new seed per iteration) and transfer the rows.
+    t0 = std::chrono::steady_clock::now();
+    const double old_area = mesh.area(), new_area = rt.mesh.area();
+    std::vector<std::vector<float>> zero_rows(size_t(index->n_surfaces()), std::vector<float>(size_t(state.width), 0));
+    SurfelState fresh = SurfelState::sample(rt.mesh, rt.tri_surface, state.size(),
+                                            mix64(c.seed ^ (uint64_t(uint32_t(iteration)) << 32)), zero_rows);
+    st.resample_seconds = seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    auto rebuilt = std::make_unique<SceneIndex>();
+    rebuilt->build_geometry(rt.mesh, rt.tri_surface, index->n_surfaces());
+    rebuilt->build_surfels(fresh.surf.position.data(), fresh.surface.data(), fresh.size(),
+                           float(std::sqrt(new_area / double(fresh.size()))));
+    require_surfels(*rebuilt, iteration);
+    st.rebuild_seconds = seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    transfer_rows(state, old_area, *index, fresh, new_area, *rebuilt, c.threads);
+    st.resample_seconds += seconds_since(t0);
+
+    mesh = std::move(rt.mesh);
+    state = std::move(fresh);
+    index = std::move(rebuilt);
+    // The new surfels need their own splat neighbourhoods (SPEC §13.2); the old
+    // kernel's offsets no longer match and would silently switch spreading off.
+    run_with_threads(c.threads, [&] {
+        state.splat = build_splat_kernel(state.surf.position.data(), state.surf.normal.data(),
+                                         state.surface.data(), state.size(), index->sigma());
+    });
+    frame = SceneFrame::of(mesh, c.down);
+    before_ = state.rows;
+    st.geometry = measure(mesh);
+    return st;
+}
+
+}  // namespace gammart

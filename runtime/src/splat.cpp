@@ -1,0 +1,106 @@
+#include "gamma/splat.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <nanoflann.hpp>
+#include <utility>
+
+namespace gammart {
+
+namespace {
+struct Points {
+    const float* p = nullptr;
+    size_t n = 0;
+    size_t kdtree_get_point_count() const { return n; }
+    float kdtree_get_pt(size_t i, size_t d) const { return p[3 * i + d]; }
+    template <class BBOX>
+    bool kdtree_get_bbox(BBOX&) const { return false; }
+};
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Points>, Points, 3, uint32_t>;
+constexpr float kRadiusInSigmas = 2.0f;
+constexpr float kMinNormalDot = 0.5f;  // cos 60°
+constexpr float kMaxPlaneOffsetInSigmas = 0.5f;  // a neighbour lies on the surfel's tangent plane
+}  // namespace
+
+SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
+                               float sigma) {
+    SplatKernel k;
+    k.offset.assign(n + 1, 0);
+    if (n == 0) return k;
+    Points pts{position, n};
+    Tree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+    tree.buildIndex();
+    const float r = kRadiusInSigmas * sigma;
+    const float r2 = r * r;
+    const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
+    // Scatter lists per source surfel: (target, weight), computed in parallel.
+    std::vector<std::vector<std::pair<uint32_t, float>>> scatter(n);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& range) {
+        std::vector<std::pair<uint32_t, float>> found;
+        nanoflann::SearchParams params;
+        params.sorted = false;
+        for (size_t s = range.begin(); s < range.end(); ++s) {
+            found.clear();
+            const float* ps = position + 3 * s;
+            const float* ns = normal + 3 * s;
+            if (r2 > 0) tree.radiusSearch(ps, r2, found, params);
+            auto& out = scatter[s];
+            double sum = 0;
+            std::vector<double> w;
+            for (const auto& [j, d2] : found) {
+                if (j == s || surface[j] != surface[s]) continue;
+                const float* nj = normal + 3 * size_t(j);
+                if (ns[0] * nj[0] + ns[1] * nj[1] + ns[2] * nj[2] < kMinNormalDot) continue;
+                // Not on a parallel face nearby (the top of a step over the floor of a joint).
+                const float* pj = position + 3 * size_t(j);
+                const float off = (pj[0] - ps[0]) * ns[0] + (pj[1] - ps[1]) * ns[1] + (pj[2] - ps[2]) * ns[2];
+                if (std::fabs(off) > kMaxPlaneOffsetInSigmas * sigma) continue;
+                out.emplace_back(j, float(d2));
+            }
+            out.emplace_back(uint32_t(s), 0.0f);  // always in its own neighbourhood
+            std::sort(out.begin(), out.end());
+            w.resize(out.size());
+            for (size_t i = 0; i < out.size(); ++i) sum += (w[i] = std::exp(-double(out[i].second) * inv2s2));
+            for (size_t i = 0; i < out.size(); ++i) out[i].second = float(w[i] / sum);
+        }
+    });
+    // Transpose into gather form; iterating sources in ascending order keeps
+    // every target's list sorted by source.
+    size_t total = 0;
+    for (size_t s = 0; s < n; ++s) {
+        total += scatter[s].size();
+        for (const auto& e : scatter[s]) ++k.offset[size_t(e.first) + 1];
+    }
+    for (size_t j = 0; j < n; ++j) k.offset[j + 1] += k.offset[j];
+    k.source.resize(total);
+    k.weight.resize(total);
+    std::vector<uint32_t> fill(k.offset.begin(), k.offset.end() - 1);
+    for (size_t s = 0; s < n; ++s)
+        for (const auto& [j, w] : scatter[s]) {
+            const uint32_t at = fill[j]++;
+            k.source[at] = uint32_t(s);
+            k.weight[at] = w;
+        }
+    k.mean_neighbours = double(total) / double(n);
+    return k;
+}
+
+void apply_splat(const SplatKernel& k, const float* in, float* out, size_t n, int P) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
+        for (size_t j = range.begin(); j < range.end(); ++j) {
+            float* o = out + j * size_t(P);
+            std::fill(o, o + P, 0.0f);
+            for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e) {
+                const float w = k.weight[e];
+                const float* src = in + size_t(k.source[e]) * size_t(P);
+                for (int c = 0; c < P; ++c) o[c] += w * src[c];
+            }
+        }
+    });
+}
+
+}  // namespace gammart

@@ -1,0 +1,234 @@
+// The shape step: displacement from a property, re-tiling, transfer of the
+// rows, rebuild, and the mass books of pick-up.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+
+#include "gamma/shape_step.h"
+#include "gamma/simulation.h"
+#include "helpers.h"
+
+using namespace gammart;
+
+namespace {
+
+uint64_t addr(const void* f) { return uint64_t(reinterpret_cast<uintptr_t>(f)); }
+
+extern "C" int32_t k_erode_one(float* surf, const GammaContext*) {
+    surf[3] += 1.0f;  // one unit of `eroded` everywhere, every iteration
+    return 0;
+}
+extern "C" int32_t k_erode_x(float* surf, const GammaContext* ctx) {
+    surf[3] += 1.0f + ctx->position[0];  // more on +x
+    return 0;
+}
+
+// Rows: header (3), eroded (3), dye (4).
+Config sphere_config(int64_t surfels, float metres_per_unit, const void* update) {
+    Config c;
+    c.surfels = surfels;
+    c.seed = 11;
+    c.row_width = 5;
+    c.surface_rows = {{0, 0, 0, 0, 0}};
+    c.set_update(0, addr(update));
+    c.add_shape_rate(0, 3, metres_per_unit);
+    return c;
+}
+
+void run_iterations(Simulation& sim, int n) {
+    for (int it = 1; it <= n; ++it) {
+        sim.trace(it);
+        sim.update(it);
+        sim.shape(it);
+    }
+}
+
+}  // namespace
+
+TEST(ShapeStep, UniformRemovalShrinksASphereByTheStatedAmount) {
+    const Mesh m = gamma_test::icosphere(4, 1.0f);
+    const double v0 = measure(m).volume;
+    ASSERT_GT(v0, 0.0);  // outward-wound
+    Simulation sim(m, sphere_config(6000, -0.01f, reinterpret_cast<const void*>(&k_erode_one)));
+    run_iterations(sim, 5);
+    const MeshMeasures g = measure(sim.mesh());
+    EXPECT_TRUE(g.closed);
+    // Radius 1 - 5 x 0.01 = 0.95: the volume scales by 0.95^3 (within 1 %).
+    EXPECT_NEAR(g.volume / v0, std::pow(0.95, 3), 0.01 * std::pow(0.95, 3));
+    // Every vertex is at radius 0.95 (the faceted sphere's vertices were at 1).
+    for (size_t v = 0; v < sim.mesh().num_vertices(); ++v) {
+        const float* p = &sim.mesh().vertices[3 * v];
+        EXPECT_NEAR(std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]), 0.95, 0.004);
+    }
+    EXPECT_EQ(sim.shape_rebuilds(), 5);
+}
+
+TEST(ShapeStep, RetilingKeepsTrianglesWellShapedAndTheMeshClosed) {
+    const Mesh m = gamma_test::icosphere(4, 1.0f);
+    Simulation sim(m, sphere_config(6000, -0.02f, reinterpret_cast<const void*>(&k_erode_x)));
+    for (int it = 1; it <= 4; ++it) {
+        sim.trace(it);
+        sim.update(it);
+        const ShapeStats s = sim.shape(it);
+        ASSERT_TRUE(s.changed);
+        EXPECT_TRUE(s.geometry.closed) << "iteration " << it;
+        EXPECT_GE(s.geometry.min_angle_deg, kMinRetiledAngleDeg) << "iteration " << it;
+        for (float x : sim.mesh().vertices) ASSERT_TRUE(std::isfinite(x));
+    }
+    // Uneven erosion: the +x side lost more than the -x side.
+    float xmin = 1e9f, xmax = -1e9f;
+    for (size_t v = 0; v < sim.mesh().num_vertices(); ++v) {
+        xmin = std::min(xmin, sim.mesh().vertices[3 * v]);
+        xmax = std::max(xmax, sim.mesh().vertices[3 * v]);
+    }
+    EXPECT_LT(xmax, -xmin - 0.02f);
+}
+
+TEST(ShapeStep, PropertyIntegralsSurviveTransfer) {
+    const Mesh m = gamma_test::icosphere(4, 1.0f);
+    Config c = sphere_config(5000, -0.01f, reinterpret_cast<const void*>(&k_erode_x));
+    c.row_width = 6;
+    c.surface_rows = {{0.1f, 0.2f, 0.3f, 0, 0}};
+    c.surface_rows[0].push_back(0);
+    Simulation sim(m, c);
+    // A dye that varies over the surface: its integral is sum(value) x area / N.
+    std::vector<float> rows = sim.rows();
+    for (size_t i = 0; i < sim.num_surfels(); ++i) rows[6 * i + 5] = 2.0f + sim.surfels().position[3 * i + 1];
+    sim.set_rows(rows.data());
+    auto integral = [&](int col) {
+        double s = 0;
+        for (size_t i = 0; i < sim.num_surfels(); ++i) s += sim.rows()[6 * i + size_t(col)];
+        return s * sim.mesh().area() / double(sim.num_surfels());
+    };
+    for (int it = 1; it <= 3; ++it) {
+        sim.trace(it);
+        sim.update(it);
+        const double eroded_before = integral(3), dye_before = integral(5);
+        ASSERT_TRUE(sim.shape(it).changed);
+        EXPECT_NEAR(integral(3) / eroded_before, 1.0, 1e-5);
+        EXPECT_NEAR(integral(5) / dye_before, 1.0, 1e-5);
+        // Header columns are copied, not scaled.
+        for (size_t i = 0; i < sim.num_surfels(); ++i) {
+            EXPECT_EQ(sim.rows()[6 * i + 0], 0.1f);
+            EXPECT_EQ(sim.rows()[6 * i + 2], 0.3f);
+        }
+    }
+}
+
+TEST(ShapeStep, DeterministicAcrossThreadsWithRetiling) {
+    const Mesh m = gamma_test::icosphere(3, 1.0f);
+    std::vector<float> verts[2], rows[2];
+    for (int k = 0; k < 2; ++k) {
+        Config c = sphere_config(3000, -0.02f, reinterpret_cast<const void*>(&k_erode_x));
+        c.threads = k + 1;
+        int t = c.add_ton_type(0.5f, 0.3f, 0.1f, {});
+        c.add_source("sphere", t, 20000);
+        Simulation sim(m, c);
+        run_iterations(sim, 3);
+        verts[k] = sim.mesh().vertices;
+        rows[k] = sim.rows();
+    }
+    ASSERT_EQ(verts[0].size(), verts[1].size());
+    EXPECT_EQ(0, std::memcmp(verts[0].data(), verts[1].data(), sizeof(float) * verts[0].size()));
+    ASSERT_EQ(rows[0].size(), rows[1].size());
+    EXPECT_EQ(0, std::memcmp(rows[0].data(), rows[1].data(), sizeof(float) * rows[0].size()));
+}
+
+TEST(ShapeStep, AnInvertingDisplacementIsClampedNotApplied) {
+    const Mesh m = gamma_test::icosphere(3, 1.0f);
+    // -5 m per unit: 5 m inward in one iteration would turn the sphere inside out.
+    Simulation sim(m, sphere_config(3000, -5.0f, reinterpret_cast<const void*>(&k_erode_one)));
+    sim.trace(1);
+    sim.update(1);
+    const ShapeStats s = sim.shape(1);
+    EXPECT_GT(s.clamped_vertices, 0);
+    EXPECT_TRUE(s.geometry.closed);
+    EXPECT_GT(s.geometry.volume, 0.0);
+    for (float x : sim.mesh().vertices) ASSERT_TRUE(std::isfinite(x));
+}
+
+TEST(ShapeStep, NothingIsRebuiltWhenNothingMoves) {
+    const Mesh m = gamma_test::icosphere(3, 1.0f);
+    Config c = sphere_config(2000, -0.01f, reinterpret_cast<const void*>(&k_erode_one));
+    c.updates.clear();  // the property never changes
+    Simulation sim(m, c);
+    for (int it = 1; it <= 2; ++it) {
+        sim.trace(it);
+        sim.update(it);
+        const ShapeStats s = sim.shape(it);
+        EXPECT_FALSE(s.changed);
+        EXPECT_EQ(s.moved_vertices, 0);
+    }
+    EXPECT_EQ(sim.shape_rebuilds(), 0);
+    EXPECT_EQ(sim.scene_index().geometry_builds(), 1);
+}
+
+namespace {
+// Pick-up: a grain takes 10 % of the surfel's `stone` on every hit and
+// leaves everything it carries where it settles.
+extern "C" int32_t k_pick(float* ton, const float* surf, float* delta, const GammaContext*) {
+    const float take = 0.1f * surf[3];
+    delta[3] -= take;
+    ton[0] += take;
+    return 0;
+}
+extern "C" int32_t k_drop(float* ton, const float*, float* delta, const GammaContext*) {
+    delta[3] += ton[0];
+    ton[0] = 0.0f;
+    return 0;
+}
+extern "C" int32_t k_make(float* ton, const float*, float*, const GammaContext*) {
+    ton[0] += 0.5f;  // creates material from nothing
+    return 0;
+}
+}  // namespace
+
+TEST(MassBooks, PickUpBalancesAndCreationIsReported) {
+    gamma_test::Builder b;
+    gamma_test::floor_quad(b, -1, 1, -1, 1);
+    b.quad({-1, 0, -1}, {1, 0, -1}, {1, 1, -1}, {-1, 1, -1});  // a wall
+    const Mesh m = b.mesh();
+    Config c;
+    c.surfels = 2000;
+    c.row_width = 4;
+    c.surface_rows = {{0, 0, 0, 1.0f}};
+    c.threads = 2;
+    const int t = c.add_ton_type(0.3f, 0.3f, 0.2f, {0.0f});
+    c.add_source("hemisphere", t, 30000);
+    c.set_transport(GAMMA_EVENT_HIT, t, 0, addr(reinterpret_cast<const void*>(&k_pick)), true);
+    c.set_transport(GAMMA_EVENT_SETTLE, t, 0, addr(reinterpret_cast<const void*>(&k_drop)), true);
+    c.add_mass_property({3}, {0});
+    Simulation sim(m, c);
+    double before = 0;
+    for (size_t i = 0; i < sim.num_surfels(); ++i) before += sim.rows()[4 * i + 3];
+    const TraceStats st = sim.trace(1);
+    ASSERT_EQ(st.mass.size(), 1u);
+    const MassBooks& k = st.mass[0];
+    EXPECT_GT(k.removed, 100.0);
+    EXPECT_GT(k.deposited, 10.0);
+    EXPECT_GT(k.escaped, 0.0);
+    EXPECT_EQ(k.emitted, 0.0);
+    EXPECT_EQ(k.in_flight, 0.0);
+    EXPECT_NEAR(k.created, 0.0, 1e-6 * k.removed);  // a conserving rule creates nothing
+    EXPECT_NEAR(k.removed + k.emitted + k.created, k.deposited + k.escaped + k.dropped + k.in_flight,
+                1e-9 * k.removed);
+    // The surfaces lost exactly what was removed and gained what was deposited.
+    double after = 0;
+    for (size_t i = 0; i < sim.num_surfels(); ++i) after += sim.rows()[4 * i + 3];
+    EXPECT_NEAR(after - before, k.deposited - k.removed, 1e-4 * k.removed);
+
+    // A rule that makes material from nothing shows up as `created`.
+    c.set_transport(GAMMA_EVENT_REFLECT, t, 0, addr(reinterpret_cast<const void*>(&k_make)), false);
+    Simulation sim2(m, c);
+    const MassBooks k2 = sim2.trace(1).mass[0];
+    EXPECT_GT(k2.created, 1000.0);
+    EXPECT_NEAR(k2.removed + k2.emitted + k2.created, k2.deposited + k2.escaped + k2.dropped, 1e-9 * k2.created);
+    // The same books at 1 thread.
+    c.threads = 1;
+    Simulation sim3(m, c);
+    const MassBooks k3 = sim3.trace(1).mass[0];
+    EXPECT_EQ(k3.removed, k2.removed);
+    EXPECT_EQ(k3.created, k2.created);
+    EXPECT_EQ(k3.escaped, k2.escaped);
+}

@@ -1,0 +1,146 @@
+// The scene index's triangle lookup (nearest_on_triangle): for every point on
+// a triangle it finds the surfel the per-surface kd-tree finds; it falls back
+// to the kd-tree off the triangle, on triangles far larger than the surfel
+// spacing, and is refreshed when either half of the index is rebuilt.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <random>
+
+#include "gamma/scene_index.h"
+#include "gamma/surfel_state.h"
+#include "helpers.h"
+
+using namespace gammart;
+
+namespace {
+
+double d2(const SurfelState& st, uint32_t i, const float p[3]) {
+    double s = 0;
+    for (int c = 0; c < 3; ++c) s += std::pow(double(st.surf.position[3 * i + c]) - p[c], 2);
+    return s;
+}
+
+// Points on triangle t: its vertices, edge midpoints and random barycentric
+// points (rng).
+std::vector<std::array<float, 3>> points_on(const Mesh& m, size_t t, std::mt19937& rng, int random_points) {
+    const float* v[3];
+    for (int k = 0; k < 3; ++k) v[k] = &m.vertices[3 * size_t(m.triangles[3 * t + k])];
+    std::vector<std::array<float, 3>> pts;
+    auto at = [&](float a, float b) {
+        const float c = 1.0f - a - b;
+        pts.push_back({a * v[0][0] + b * v[1][0] + c * v[2][0], a * v[0][1] + b * v[1][1] + c * v[2][1],
+                       a * v[0][2] + b * v[1][2] + c * v[2][2]});
+    };
+    at(1, 0), at(0, 1), at(0, 0), at(0.5f, 0.5f), at(0.5f, 0), at(0, 0.5f);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    for (int k = 0; k < random_points; ++k) {
+        float a = u(rng), b = u(rng);
+        if (a + b > 1) a = 1 - a, b = 1 - b;
+        at(a, b);
+    }
+    return pts;
+}
+
+// Every point of every triangle: the lookup's surfel is as near as the
+// kd-tree's (and the same one unless two are exactly equidistant), and on
+// the triangle's surface.
+void expect_lookup_matches_kdtree(const Mesh& m, const std::vector<int32_t>& ts, const SurfelState& st,
+                                  const SceneIndex& index, int random_points) {
+    std::mt19937 rng(7);
+    int64_t checked = 0, same = 0;
+    for (size_t t = 0; t < m.num_triangles(); ++t) {
+        for (const auto& q : points_on(m, t, rng, random_points)) {
+            const float p[3] = {q[0], q[1], q[2]};
+            const uint32_t a = index.nearest_on_triangle(uint32_t(t), p);
+            const uint32_t b = index.nearest_of(ts[t], p);
+            ASSERT_EQ(st.surface[a], ts[t]) << "triangle " << t;
+            ASSERT_EQ(d2(st, a, p), d2(st, b, p)) << "triangle " << t;
+            ++checked;
+            same += a == b;
+        }
+    }
+    EXPECT_GT(checked, 0);
+    EXPECT_GE(double(same), 0.999 * double(checked));
+}
+
+}  // namespace
+
+TEST(TriangleLookup, FindsTheKdTreesSurfelOnEveryTriangle) {
+    // A sphere split into two surfaces by the sign of z (a seam where the
+    // nearest surfel overall is often on the other surface).
+    const Mesh m = gamma_test::icosphere(4);
+    std::vector<int32_t> ts(m.num_triangles());
+    for (size_t t = 0; t < ts.size(); ++t) ts[t] = m.vertices[3 * size_t(m.triangles[3 * t]) + 2] > 0 ? 1 : 0;
+    const SurfelState st = SurfelState::sample(m, ts, 8000, 5, {{0, 0, 0}, {0, 0, 0}});
+    SceneIndex index;
+    index.build_geometry(m, ts, 2);
+    index.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), 0.02f, 2);
+    EXPECT_EQ(index.lookup_fallback_triangles(), 0u);  // triangles about the surfel spacing: all precomputed
+    EXPECT_GT(index.lookup_candidates(), m.num_triangles());
+    EXPECT_LE(index.lookup_candidates(), size_t(SceneIndex::kMaxCandidates) * m.num_triangles());
+    expect_lookup_matches_kdtree(m, ts, st, index, 20);
+}
+
+TEST(TriangleLookup, TheSameAtAnyThreadCount) {
+    const Mesh m = gamma_test::icosphere(3);
+    const std::vector<int32_t> ts(m.num_triangles(), 0);
+    const SurfelState st = SurfelState::sample(m, ts, 3000, 9, {{0, 0, 0}});
+    SceneIndex one, two;
+    one.build_geometry(m, ts, 1);
+    two.build_geometry(m, ts, 1);
+    one.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), 0.05f, 1);
+    two.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), 0.05f, 2);
+    EXPECT_EQ(one.lookup_candidates(), two.lookup_candidates());
+    std::mt19937 rng(3);
+    for (size_t t = 0; t < m.num_triangles(); ++t)
+        for (const auto& q : points_on(m, t, rng, 3)) {
+            const float p[3] = {q[0], q[1], q[2]};
+            ASSERT_EQ(one.nearest_on_triangle(uint32_t(t), p), two.nearest_on_triangle(uint32_t(t), p));
+        }
+}
+
+TEST(TriangleLookup, LargeTrianglesAndPointsOffTheTriangleUseTheKdTree) {
+    // Two unit squares (four triangles) under 2,000 surfels: far more
+    // candidates per triangle than kMaxCandidates.
+    gamma_test::Builder b;
+    b.quad({0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0});
+    b.quad({1, 0, 0}, {2, 0, 0}, {2, 1, 0}, {1, 1, 0});
+    const Mesh m = b.mesh("two squares");
+    const std::vector<int32_t> ts = {0, 0, 1, 1};
+    const SurfelState st = SurfelState::sample(m, ts, 2000, 3, {{0, 0, 0}, {0, 0, 0}});
+    SceneIndex index;
+    index.build_geometry(m, ts, 2);
+    index.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), 0.02f);
+    EXPECT_EQ(index.lookup_fallback_triangles(), m.num_triangles());
+    expect_lookup_matches_kdtree(m, ts, st, index, 50);
+
+    // A fine sphere: a point far from triangle 0 still gets its surface's
+    // nearest surfel (the kd-tree answers).
+    const Mesh s = gamma_test::icosphere(3);
+    const std::vector<int32_t> one(s.num_triangles(), 0);
+    const SurfelState sst = SurfelState::sample(s, one, 3000, 4, {{0, 0, 0}});
+    SceneIndex sphere;
+    sphere.build_geometry(s, one, 1);
+    sphere.build_surfels(sst.surf.position.data(), sst.surface.data(), sst.size(), 0.05f);
+    const float far[3] = {0.0f, 0.0f, -1.0f};
+    EXPECT_EQ(sphere.nearest_on_triangle(0, far), sphere.nearest_of(0, far));
+}
+
+TEST(TriangleLookup, FollowsARebuildOfEitherHalf) {
+    const Mesh m = gamma_test::icosphere(3);
+    const std::vector<int32_t> ts(m.num_triangles(), 0);
+    const SurfelState a = SurfelState::sample(m, ts, 3000, 1, {{0, 0, 0}});
+    const SurfelState c = SurfelState::sample(m, ts, 2000, 2, {{0, 0, 0}});
+    SceneIndex index;
+    index.build_geometry(m, ts, 1);
+    index.build_surfels(a.surf.position.data(), a.surface.data(), a.size(), 0.05f);
+    index.build_surfels(c.surf.position.data(), c.surface.data(), c.size(), 0.05f);  // new surfels
+    expect_lookup_matches_kdtree(m, ts, c, index, 5);
+    // The same surfels on a larger sphere's triangles: the geometry rebuild
+    // refreshes the triangles' candidates (the points are off the old ones).
+    const Mesh big = gamma_test::icosphere(3, 1.001f);
+    index.build_geometry(big, ts, 1);
+    expect_lookup_matches_kdtree(big, ts, c, index, 5);
+}

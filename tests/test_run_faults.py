@@ -1,0 +1,171 @@
+"""Faults and interruption of `gammac run` (issue 13): --resume continues
+bit-identically, SIGINT/SIGTERM stop promptly with SPEC's status and a
+consistent folder, a failed rerun keeps the earlier results, a killed run's
+temporary files are cleaned, one run per folder, a closed pipe does not stop
+a run, NaN from an appearance program is reported with its position."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from conftest import ROOT, run_gammac
+from gamma.driver.outputs import read_ply
+
+PATINA = ROOT / "examples" / "patina.gamma"
+BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
+
+
+def args(out, iterations, *extra, tons=3000):
+    return [PATINA, "--scene", BUNNY, "--surfels", 500, "--tons", tons, "--iterations", iterations,
+            "--size", 16, "--quiet", "--out", out, *extra]
+
+
+def summary(out):
+    return json.loads((out / "summary.json").read_text())
+
+
+def maps(out):
+    return sorted(p.name for p in (out / "maps").glob("iter_*.ply"))
+
+
+def test_summary_says_requested_and_completed(tmp_path):
+    assert run_gammac("run", *args(tmp_path / "o", 2)).returncode == 0
+    s = summary(tmp_path / "o")
+    assert s["requested_iterations"] == 2 and s["completed"] is True and len(s["iterations"]) == 2
+
+
+def test_resume_is_bit_identical_to_an_uninterrupted_run(tmp_path):
+    whole, part = tmp_path / "whole", tmp_path / "part"
+    assert run_gammac("run", *args(whole, 4)).returncode == 0
+    assert run_gammac("run", *args(part, 2)).returncode == 0
+    r = run_gammac("run", *args(part, 4, "--resume"))
+    assert r.returncode == 0, r.stderr
+    assert maps(part) == maps(whole) == [f"iter_000{i}.ply" for i in range(1, 5)]
+    for name in maps(whole):
+        assert (part / "maps" / name).read_bytes() == (whole / "maps" / name).read_bytes(), name
+    for name in ("iter_0001.png", "iter_0004.png"):    # one colour scale over all four
+        assert (part / "renders" / name).read_bytes() == (whole / "renders" / name).read_bytes()
+    s, w = summary(part), summary(whole)
+    assert s["completed"] is True and s["resumed_at"] == 3
+    assert [i["settled"] for i in s["iterations"]] == [i["settled"] for i in w["iterations"]]
+
+
+def test_resume_refuses_another_run(tmp_path):
+    assert run_gammac("run", *args(tmp_path / "o", 1)).returncode == 0
+    r = run_gammac("run", *args(tmp_path / "o", 2, "--resume", "--seed", "7"))
+    assert r.returncode == 1 and "another effect, scene or options" in r.stderr
+    assert maps(tmp_path / "o") == ["iter_0001.ply"]
+    r = run_gammac("run", *args(tmp_path / "o", 1, "--resume"))
+    assert r.returncode == 1 and "already holds 1 iterations" in r.stderr
+    r = run_gammac("run", *args(tmp_path / "none", 2, "--resume"))
+    assert r.returncode == 1 and "no run to resume" in r.stderr
+
+
+@pytest.mark.parametrize("sig,status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_stops_promptly_with_a_consistent_folder(tmp_path, sig, status):
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "gamma.cli", "run", *map(str, args(out, 50, tons=400_000))]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / "maps" / "iter_0001.ply").exists() and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stderr.read()
+            time.sleep(0.05)
+        time.sleep(0.2)                          # into the next tracing pass
+        proc.send_signal(sig)
+        sent = time.monotonic()
+        proc.wait(timeout=60)
+        waited = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = proc.stderr.read()
+    assert proc.returncode == status, err
+    assert waited < 10, waited                   # ~0.3 s unloaded; slack for a busy machine
+    assert f"interrupted by {signal.Signals(sig).name}" in err and "Traceback" not in err
+    s = summary(out)
+    assert s["completed"] is False and s["requested_iterations"] == 50
+    done = len(s["iterations"])
+    assert done >= 1 and maps(out) == [f"iter_{i:04d}.ply" for i in range(1, done + 1)]
+    for name in maps(out):                       # complete maps only
+        assert len(read_ply(out / "maps" / name)["x"]) == s["surfels"]
+    assert not list(out.rglob(".*"))           # no temporary file, no lock, nothing set aside
+
+
+def test_failed_rerun_keeps_the_earlier_results(tmp_path):
+    from gamma.driver.events import CallbackWriter, IterationUpdated
+    from gamma.driver.runner import RunOptions, run
+    from gamma.frontend.checker import load
+
+    out = tmp_path / "o"
+    assert run_gammac("run", *args(out, 2)).returncode == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def fail(event):
+        if event.iteration == 1:
+            raise RuntimeError("disk on fire")
+
+    opts = RunOptions(scene=str(BUNNY), out=str(out), surfels=300, tons=100, iterations=3,
+                      width=16, height=16, progress=False)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        run(load(str(PATINA)), opts, writers=[CallbackWriter(fail, events=(IterationUpdated,))])
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+
+
+def test_killed_run_leaves_nothing_stale(tmp_path):
+    out = tmp_path / "o"
+    assert run_gammac("run", *args(out, 1)).returncode == 0
+    stale = [out / "maps" / ".iter_0001.ply.k2j3h4", out / ".summary.json.x7y8z9",
+             out / "renders" / ".sequence.abc.mp4"]
+    for path in stale:
+        path.write_bytes(b"half")
+    (out / ".previous-run" / "maps").mkdir(parents=True)
+    (out / ".previous-run" / "maps" / "iter_0009.ply").write_bytes(b"old")
+    assert run_gammac("run", *args(out, 1)).returncode == 0
+    assert not any(p.exists() for p in stale)
+    assert not (out / ".previous-run").exists()
+    assert maps(out) == ["iter_0001.ply"]
+
+
+def test_one_run_per_folder(tmp_path):
+    from gamma.driver.folder import OutputLock
+
+    out = tmp_path / "o"
+    out.mkdir()
+    with OutputLock(out):
+        r = run_gammac("run", *args(out, 1))
+    assert r.returncode == 1 and "another gammac run is writing to" in r.stderr
+    assert run_gammac("run", *args(out, 1)).returncode == 0
+
+
+def test_closed_pipe_does_not_stop_the_run(tmp_path):
+    out = tmp_path / "o"
+    command = " ".join(f"'{a}'" for a in [sys.executable, "-m", "gamma.cli", "run",
+                                            *[str(a) for a in args(out, 3) if a != "--quiet"]])
+    # progress lines on stderr into a reader that leaves after the first byte
+    r = subprocess.run(["bash", "-c", f"set -o pipefail; {command} 2>&1 | head -c 1; "
+                                      "echo; echo status=${PIPESTATUS[0]}"],
+                       capture_output=True, text=True, timeout=600)
+    assert "status=0" in r.stdout, r.stdout + r.stderr
+    s = summary(out)
+    assert s["completed"] is True and len(s["iterations"]) == 3
+
+
+def test_appearance_nan_is_reported_with_its_position(tmp_path):
+    effect = tmp_path / "e.gamma"
+    effect.write_text(PATINA.read_text() + "\nappearance(s: Copper) {\n"
+                      "    color = rgb(1, 1, 1) * log(s.patina - 1)\n}\n")
+    r = run_gammac("run", effect, "--scene", BUNNY, "--surfels", 300, "--tons", 300,
+                   "--iterations", 1, "--size", 16, "--samples", 1, "--ao", 0, "--quiet",
+                   "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    line = next(l for l in r.stderr.splitlines() if "NaN or infinity" in l)
+    assert "e.gamma:" in line and "appearance(Copper)" in line
+    entries = summary(tmp_path / "o")["nonfinite"]
+    assert any(e["rule"] == "appearance(Copper)" and e["count"] > 0 for e in entries), entries

@@ -1,0 +1,133 @@
+"""`gammac watch` in a real headless browser: Debian's chromium, driven by
+Playwright's Python API (never Playwright's own browser download).  The page
+loads, shows the mesh, follows an edit of the effect and shows a compile
+error after a broken edit."""
+
+import os
+import queue
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from io import BytesIO
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import ROOT
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+playwright_api = pytest.importorskip("playwright.sync_api")
+
+EFFECT = """\
+ton Weather {
+    motion straight = 1.0
+    carry patina = 1.0
+}
+
+surface Copper {
+    reflectance straight = 0.5
+    property patina = 0.0
+}
+
+source air = environment(sphere) emits Weather count 20000
+
+on settle(t: Weather, s: Copper) {
+    s.patina += RATE * t.patina
+}
+"""
+
+
+@pytest.fixture()
+def watched(tmp_path, bumpy_obj):
+    """A running `gammac watch` on an effect in tmp_path: (url, effect path, process)."""
+    effect = tmp_path / "effect.gamma"
+    effect.write_text(EFFECT.replace("RATE", "0.05"))
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "gamma.cli", "watch", str(effect), "--scene", str(bumpy_obj),
+                             "--surfels", "4000", "--iterations", "3", "--port", "0", "--threads", "2"],
+                            stderr=subprocess.PIPE, text=True, env=env)
+    lines: queue.Queue = queue.Queue()
+    log: list[str] = []
+
+    def pump():
+        for line in proc.stderr:
+            log.append(line)
+            lines.put(line)
+
+    threading.Thread(target=pump, daemon=True).start()
+    url, deadline = None, time.monotonic() + 60
+    while url is None and time.monotonic() < deadline:
+        try:
+            match = re.search(r"viewer at (http://127\.0\.0\.1:\d+/)", lines.get(timeout=1))
+        except queue.Empty:
+            if proc.poll() is not None:
+                break
+            continue
+        url = match and match.group(1)
+    assert url, "".join(log)
+    yield url, effect, log
+    proc.terminate()
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def coloured_fraction(png: bytes) -> float:
+    """Share of pixels that are not grey (the page's background is grey)."""
+    rgb = np.asarray(Image.open(BytesIO(png)).convert("RGB"), np.int16)
+    return float(np.mean(rgb.max(axis=2) - rgb.min(axis=2) > 25))
+
+
+def wait_for(page, expression: str, timeout: float = 60_000):
+    page.wait_for_function(expression, timeout=timeout)
+
+
+def test_page_shows_the_mesh_follows_edits_and_shows_errors(watched):
+    url, effect, log = watched
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True,
+                                    args=["--enable-unsafe-swiftshader", "--use-angle=swiftshader",
+                                          "--no-sandbox"])
+        try:
+            page = browser.new_page(viewport={"width": 900, "height": 600})
+            page.goto(url)
+            # the first full-quality result, drawn
+            wait_for(page, "window.gammaViewer && gammaViewer.shown && gammaViewer.shown.quality === 'final'")
+            viewer = page.evaluate("({v: gammaViewer.vertices, g: gammaViewer.shown.generation,"
+                                   " sums: gammaViewer.state.run.records.map(r => r.property_sums.patina)})")
+            assert viewer["v"] > 100
+            assert page.locator("#status").inner_text() == "ready"
+            shot = page.locator("#view canvas").screenshot()
+            assert coloured_fraction(shot) > 0.05, "the mesh is not on the canvas"
+            # the property switch shows the colour bar and the run's range
+            page.select_option("#show", "patina")
+            wait_for(page, "gammaViewer.shown.show === 'patina'")
+            assert page.locator("#colourbar").is_visible()
+            low, high = float(page.locator("#range-min").inner_text()), float(page.locator("#range-max").inner_text())
+            assert 0 <= low < high
+            # the iteration slider shows earlier iterations
+            page.locator("#iteration").fill("1")
+            wait_for(page, "gammaViewer.shown.iteration === 1")
+
+            # an edit: twice the rate, twice the patina, without a reload
+            effect.write_text(EFFECT.replace("RATE", "0.1"))
+            wait_for(page, f"gammaViewer.shown.generation > {viewer['g']} && gammaViewer.shown.quality === 'final'")
+            after = page.evaluate("gammaViewer.state.run.records.map(r => r.property_sums.patina)")
+            assert after == pytest.approx([2 * s for s in viewer["sums"]], rel=1e-4)
+            assert page.locator("#errors").is_hidden()
+
+            # a broken edit: the error with file:line:col and the source line
+            effect.write_text(EFFECT.replace("RATE", "0.1 +"))
+            wait_for(page, "!document.getElementById('errors').hidden")
+            text = page.locator("#errors").inner_text()
+            assert re.search(r"effect\.gamma:14:23: error: syntax error", text), text
+            assert "s.patina += 0.1 +" in text
+            assert page.locator("#status").inner_text() == "error"
+        finally:
+            browser.close()
