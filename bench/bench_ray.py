@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from report import cpu_name, report
+from report import cpu_name, load_average, report
 
 from gamma.backends.jit import JitKernels
 from gamma.driver import cluster, distributed
@@ -55,6 +55,7 @@ def main() -> None:
         cfg.triangle_surface = scene.triangle_surface
         return rt.Simulation(scene.mesh, cfg)
 
+    load_before = load_average()
     # Ray first: its start-up is what fails on an overloaded machine.
     t0 = time.perf_counter()
     with cluster.connect(num_cpus=2) as conn:
@@ -72,37 +73,39 @@ def main() -> None:
             sim = simulation(2)
             job = distributed.make_job(rt, effect, kernels, opts, scene, sim, build_config)
             tracer = distributed.RayTracer(sim, job, conn, workers=workers)
-            times, moved = [], []
+            times, moved, merges = [], [], []
             for it in range(1, args.iterations + 1):
                 stats = tracer.trace(it)
                 if not np.array_equal(sim.rows(), reference[it - 1]):
                     raise SystemExit(f"Ray with {workers} worker(s): iteration {it} differs from the local run")
                 times.append(stats["trace_seconds"])
+                merges.append(stats["merge_seconds"])
                 moved.append(stats["bytes_moved"])
             # the first iteration also builds the simulation on each worker
             first = times[0]
             results[f"Ray, {workers} worker{'s' * (workers > 1)}"] = (statistics.median(times[1:] or times),
-                                                                      (moved, first))
+                                                                      (moved, first, statistics.median(merges)))
     base1 = results["local, 1 thread"][0]
     base2 = results["local, 2 threads"][0]
     rows = []
     for name, (seconds, extra) in results.items():
         baseline = base1 if name.endswith(("1 thread", "1 worker")) else base2
         if extra is None:
-            rows.append(f"| {name} | {seconds:.3f} | | | | {seconds / baseline:.2f} |")
+            rows.append(f"| {name} | {seconds:.3f} | | | | | {seconds / baseline:.2f} |")
             continue
-        moved, first = extra
+        moved, first, merge = extra
         state = moved[-1]["state"] / 1e6
         deltas = statistics.median(m["deltas"] for m in moved) / 1e6
         job = moved[0]["job"] / 1e6
-        rows.append(f"| {name} | {seconds:.3f} (first {first:.2f}) | {state:.2f} | {deltas:.2f} | {job:.2f} | "
-                    f"{seconds / baseline:.2f} |")
-    header = ("| tracing | s per iteration (median) | state sent MB | deltas back MB | job MB (once) | "
-              "time / local at same parallelism |\n|---|---|---|---|---|---|")
+        rows.append(f"| {name} | {seconds:.3f} (first {first:.2f}) | {merge:.3f} | {state:.2f} | {deltas:.2f} | "
+                    f"{job:.2f} | {seconds / baseline:.2f} |")
+    header = ("| tracing | s per iteration (median) | of it, driver merge s | state sent MB | deltas back MB | "
+              "job MB (once) | time / local at same parallelism |\n|---|---|---|---|---|---|---|")
     info = (f"patina on the bunny {scene.mesh.num_triangles:,} triangles, {args.surfels:,} surfels, "
             f"{args.tons:,} γ-tons per iteration, {args.iterations} iterations, rows bit-identical to the "
             f"local run checked every iteration; local Ray start-up {start_seconds:.1f} s; "
-            f"{cpu_name()}, {os.cpu_count()} cores")
+            f"{cpu_name()}, {os.cpu_count()} cores, load average {load_before:.1f} before, "
+            f"{load_average():.1f} after (other engineers share the machine)")
     report("tracing on Ray", info, header, rows, args.record)
 
 

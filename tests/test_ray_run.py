@@ -49,6 +49,7 @@ def test_ray_run_is_bit_identical_to_a_local_run(ray_local, tmp_path, bumpy_obj)
     local_summary = json.loads((local / "summary.json").read_text())
     for mine, theirs in zip(summary["iterations"], local_summary["iterations"]):
         assert mine["property_sums"] == theirs["property_sums"]
+        assert mine["mass"] == theirs["mass"] and set(mine["mass"]) == {"patina", "grime"}
         assert mine["emitted"] == theirs["emitted"] == 7500
         moved = mine["ray"]
         assert moved["chunks"] == 8                     # 7,500 gamma-tons in chunks of 1,024

@@ -162,6 +162,12 @@ TEST(Trace, MergeRefusesLogsThatDoNotFit) {
     EXPECT_NE(gamma_test::expect_error([&] { sim.merge_chunks(1, two); }).find("has 3 chunks, not 2"), std::string::npos);
     logs[0].surfel.push_back(uint32_t(sim.num_surfels()));
     EXPECT_NE(gamma_test::expect_error([&] { sim.merge_chunks(1, logs); }).find("do not match"), std::string::npos);
+    logs[0].surfel.pop_back();
+    logs[1].st.mass.push_back(MassBooks{});  // books of a property this config does not account
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_chunks(1, logs); }).find("mass books for 1 properties, not 0"),
+              std::string::npos);
+    logs[1].st.mass.clear();
+    EXPECT_EQ(sim.merge_chunks(1, logs).emitted, 3000);
 }
 
 TEST(Trace, BitIdenticalAcrossThreadCounts) {
