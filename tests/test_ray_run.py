@@ -104,3 +104,13 @@ def test_ray_run_with_flow_strength_and_appearance_is_bit_identical(ray_local, t
     for mine, theirs in zip(summary["iterations"], local_summary["iterations"], strict=True):
         assert mine["flow_steps"] == theirs["flow_steps"] > 0
         assert mine["mass"] == theirs["mass"] and mine["mass"]["grime"]["deposited"] > 0
+
+
+def test_a_local_run_resumed_on_ray_equals_a_whole_local_run(ray_local, tmp_path, bumpy_obj):
+    """Where the tracing happens does not change the results, so it is not
+    part of the run's key: a run can be continued on Ray (or off it)."""
+    whole = run(tmp_path, bumpy_obj, "whole", "--threads", "2")
+    part = run(tmp_path, bumpy_obj, "part", "--iterations", "2")
+    resumed = run(tmp_path, bumpy_obj, "part", "--ray", "--resume")
+    assert resumed == part and json.loads((part / "summary.json").read_text())["resumed_at"] == 3
+    assert outputs(part) == outputs(whole)
