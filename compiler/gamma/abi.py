@@ -120,7 +120,8 @@ BINDING = {
                "set_appearance", "add_shape_rate", "add_mass_property"),
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
-                   "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces"),
+                   "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
+                   "set_shading", "corner_normals"),
 }
 
 

@@ -429,6 +429,27 @@ NB_MODULE(_runtime, m) {
                  s.set_textures(std::move(tex));
              },
              "textures"_a, "Textures (float32[H, W, 3], row 0 = top) for the appearance kernels, in order.")
+        .def("set_shading",
+             [](gammart::Simulation& s, nb::handle flat, float crease_deg) {
+                 std::vector<uint8_t> flags;
+                 if (!flat.is_none()) {
+                     I32 f = as_i32(flat);
+                     if (f.ndim() != 1) throw Error("set_shading: flat must be one flag per triangle");
+                     flags.reserve(f.shape(0));
+                     for (size_t t = 0; t < f.shape(0); ++t) flags.push_back(f.data()[t] != 0 ? 1 : 0);
+                 }
+                 s.set_shading(std::move(flags), crease_deg);
+             },
+             "flat"_a.none(), "crease_deg"_a,
+             "Render shading: flat (int32[m] flags, or None) triangles and every triangle when crease_deg <= 0 "
+             "render flat; the others smooth, with edges sharper than crease_deg kept sharp.")
+        .def("corner_normals",
+             [](const gammart::Simulation& s) {
+                 std::vector<float> c = s.corner_normals();
+                 const size_t m = c.size() / 9;
+                 return to_numpy<float>(std::move(c), {m, 3, 3});
+             },
+             "The renders' shading normals: float32[m, 3 corners, 3].")
         .def_prop_ro("num_textures", [](const gammart::Simulation& s) { return s.textures().size(); })
         .def("bake_points",
              [](const gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,

@@ -1,6 +1,8 @@
 // False-colour and appearance renders (see gamma/renderer.h).
 #include "gamma/renderer.h"
 
+#include "gamma/shading.h"
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -146,7 +148,9 @@ void render_false_colour(const RenderScene& rs, const float* values, std::array<
                     double sv = 0;
                     for (size_t j = 0; j < k; ++j) sv += w[j] * values[idx[j]];
                     out_value[px] = float(sv);
-                    const V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+                    V3 ng = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+                    if (dot(ng, dir) > 0) ng = ng * -1.0f;
+                    const V3 n = shading_normal(rs.corner_normals, rh.hit.primID, rh.hit.u, rh.hit.v, ng);
                     out_shade[px] = 0.25f + 0.75f * std::fabs(dot(n, light));
                 }
         });
@@ -222,6 +226,8 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
                         const V3 p = cam.eye + dir * rh.ray.tfar;
                         V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
                         if (dot(n, dir) > 0) n = n * -1.0f;
+                        // Shading normal for the sun's cosine; occlusion rays use the geometric one.
+                        const V3 ns = shading_normal(rs.corner_normals, prim, rh.hit.u, rh.hit.v, n);
                         const int surface = tri_surface[prim];
                         // Albedo.
                         float albedo[3];
@@ -254,8 +260,8 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
                             light = ambient * (float(open) / float(A));
                         }
                         if (sun_on) {
-                            const float cs = dot(n, sun);
-                            if (cs > 0) {
+                            const float cs = dot(ns, sun);
+                            if (cs > 0 && dot(n, sun) > 0) {
                                 ++rays;
                                 if (!I.occluded(p + n * eps, sun, eps, std::numeric_limits<float>::infinity()))
                                     light += kSunIntensity * cs;

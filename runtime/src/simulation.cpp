@@ -75,9 +75,28 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
                                           state_.surface.data(), state_.size(), index_->sigma());
     });
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    update_corner_normals();
 }
 
 Simulation::~Simulation() = default;
+
+void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
+    if (!flat.empty() && flat.size() != mesh_.num_triangles())
+        throw Error("set_shading: flat has " + std::to_string(flat.size()) + " flags for " +
+                    std::to_string(mesh_.num_triangles()) + " triangles");
+    if (!std::isfinite(crease_deg)) throw Error("set_shading: crease_deg must be finite");
+    shading_flat_ = std::move(flat);
+    crease_deg_ = crease_deg;
+    // A surface is flat after a re-tiling when all of its triangles are now.
+    const std::vector<int32_t>& tri_surface = index_->tri_surface();
+    flat_surface_.assign(size_t(index_->n_surfaces()), shading_flat_.empty() ? 0 : 1);
+    if (!shading_flat_.empty())
+        for (size_t t = 0; t < tri_surface.size(); ++t)
+            if (!shading_flat_[t]) flat_surface_[size_t(tri_surface[t])] = 0;
+    update_corner_normals();
+}
+
+void Simulation::update_corner_normals() { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); }
 
 void Simulation::set_rows(const float* data) {
     std::memcpy(state_.rows.data(), data, sizeof(float) * state_.rows.size());
@@ -91,7 +110,18 @@ TraceStats Simulation::trace(int iteration) {
     return tracer_->trace(iteration, *index_, frame_, state_);
 }
 
-ShapeStats Simulation::shape(int iteration) { return shape_.apply(iteration, mesh_, state_, index_, frame_); }
+ShapeStats Simulation::shape(int iteration) {
+    ShapeStats st = shape_.apply(iteration, mesh_, state_, index_, frame_);
+    if (st.changed) {
+        if (!shading_flat_.empty()) {
+            const std::vector<int32_t>& tri_surface = index_->tri_surface();
+            shading_flat_.resize(tri_surface.size());
+            for (size_t t = 0; t < tri_surface.size(); ++t) shading_flat_[t] = flat_surface_[size_t(tri_surface[t])];
+        }
+        update_corner_normals();
+    }
+    return st;
+}
 
 UpdateStats Simulation::update(int iteration) {
     return run_update_pass(kernels_, frame_, state_, iteration, cfg_.seed, cfg_.threads);

@@ -57,6 +57,8 @@ class RunOptions:
     progress: bool = True
     resume: bool = False          # continue the run in ``out`` from its last complete iteration
     started: float | None = None  # time.perf_counter() when gammac started (start-up time)
+    shading: str = "smooth"       # renders: "smooth" (up to the crease angle) or "flat"
+    crease: float = 60.0          # degrees; sharper edges stay sharp in smooth shading
 
 
 def runtime_module():
@@ -521,6 +523,9 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                          if int(m[1]) < len(names) else m[0], message)
         raise RunError(message) from None
     setup_seconds = time.perf_counter() - t0
+    flat = scene.triangle_flat
+    sim.set_shading(flat.astype(np.int32) if flat is not None and flat.any() else None,
+                    0.0 if opts.shading == "flat" else float(opts.crease))
     if looks:
         sim.set_textures(textures)
     camera = run_camera(scene, opts)
@@ -572,7 +577,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         "options": {"params": dict(effect.overrides), "assign": list(opts.assign),
                     "down": list(opts.down) if opts.down is not None else None,
                     "surfels": opts.surfels, "seed": opts.seed, "tons": opts.tons,
-                    "iterations": opts.iterations, "max_interactions": opts.max_interactions},
+                    "iterations": opts.iterations, "max_interactions": opts.max_interactions,
+                    "shading": opts.shading, "crease": opts.crease},
         "iterations": [],
     }
     report = NonFiniteReport(effect, opts.progress)

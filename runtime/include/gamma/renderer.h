@@ -30,6 +30,7 @@ struct RenderScene {
     const KernelTable& kernels;
     const std::vector<Texture>& textures;
     const Mesh& mesh;
+    const std::vector<float>& corner_normals;  // shading.h; empty: flat shading
 };
 
 // Checks textures (positive size, height*width*3 finite floats); throws

@@ -25,6 +25,7 @@
 #include "gamma/renderer.h"
 #include "gamma/scene_index.h"
 #include "gamma/shape_step.h"
+#include "gamma/shading.h"
 #include "gamma/sources.h"
 #include "gamma/stats.h"
 #include "gamma/surfel_state.h"
@@ -70,6 +71,14 @@ public:
     void render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads,
                 float* out_value, float* out_shade) const;
+
+    // Shading of the renders (shading.h): flat[t] != 0 renders triangle t
+    // flat (empty: none), crease_deg <= 0 renders every triangle flat.  After
+    // a re-tiling, a triangle is flat when every triangle of its surface was.
+    // Throws gammart::Error if flat has the wrong size or crease_deg is not
+    // finite.
+    void set_shading(std::vector<uint8_t> flat, float crease_deg);
+    const std::vector<float>& corner_normals() const { return corner_normals_; }
 
     // Textures for the appearance kernels (kernel argument `textures`, 3
     // floats per texture in this order).  Throws gammart::Error.
@@ -125,7 +134,7 @@ public:
 
 private:
     RenderScene render_scene() const {
-        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_};
+        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals_};
     }
 
     Mesh mesh_;
@@ -138,6 +147,11 @@ private:
     std::unique_ptr<Tracer> tracer_;
     ShapeStep shape_{cfg_};
     std::vector<Texture> textures_;
+    std::vector<uint8_t> shading_flat_;   // per triangle of mesh_, or empty
+    std::vector<uint8_t> flat_surface_;   // per surface: all its triangles flat
+    float crease_deg_ = kDefaultCreaseDeg;
+    std::vector<float> corner_normals_;
+    void update_corner_normals();
     SetupSeconds setup_seconds_;
 };
 
