@@ -96,6 +96,31 @@ void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
     update_corner_normals();
 }
 
+void Simulation::set_base_colours(BaseColours base) {
+    auto fail = [](const std::string& m) { throw Error("set_base_colours: " + m); };
+    if (!base.triangle_material.empty() && base.triangle_material.size() != mesh_.num_triangles())
+        fail("one material per triangle is needed");
+    if (base.texture.size() != base.factor.size()) fail("one texture index per material is needed");
+    for (int32_t m : base.triangle_material)
+        if (m < -1 || m >= int32_t(base.factor.size())) fail("material " + std::to_string(m) + " out of range");
+    for (int32_t t : base.texture)
+        if (t < -1 || t >= int32_t(base.images.size())) fail("texture " + std::to_string(t) + " out of range");
+    for (const auto& f : base.factor)
+        for (float x : f)
+            if (!std::isfinite(x)) fail("a factor is not finite");
+    validate_textures(base.images);
+    const std::vector<int32_t>& tri_surface = index_->tri_surface();
+    constexpr int32_t kUnset = -2;
+    surface_material_.assign(size_t(index_->n_surfaces()), kUnset);
+    for (size_t t = 0; t < base.triangle_material.size(); ++t) {
+        int32_t& sm = surface_material_[size_t(tri_surface[t])];
+        sm = sm == kUnset || sm == base.triangle_material[t] ? base.triangle_material[t] : -1;
+    }
+    for (int32_t& sm : surface_material_)
+        if (sm == kUnset) sm = -1;
+    base_ = std::move(base);
+}
+
 void Simulation::update_corner_normals() { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); }
 
 void Simulation::set_rows(const float* data) {
@@ -113,6 +138,12 @@ TraceStats Simulation::trace(int iteration) {
 ShapeStats Simulation::shape(int iteration) {
     ShapeStats st = shape_.apply(iteration, mesh_, state_, index_, frame_);
     if (st.changed) {
+        if (!base_.triangle_material.empty()) {
+            const std::vector<int32_t>& tri_surface = index_->tri_surface();
+            base_.triangle_material.resize(tri_surface.size());
+            for (size_t t = 0; t < tri_surface.size(); ++t)
+                base_.triangle_material[t] = surface_material_[size_t(tri_surface[t])];
+        }
         if (!shading_flat_.empty()) {
             const std::vector<int32_t>& tri_surface = index_->tri_surface();
             shading_flat_.resize(tri_surface.size());

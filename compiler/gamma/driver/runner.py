@@ -526,6 +526,14 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     flat = scene.triangle_flat
     sim.set_shading(flat.astype(np.int32) if flat is not None and flat.any() else None,
                     0.0 if opts.shading == "flat" else float(opts.crease))
+    if scene.materials:
+        images = [image for _, image in scene.materials if image is not None]
+        numbered = iter(range(len(images)))
+        sim.set_base_colours(scene.triangle_material,
+                             np.asarray([factor for factor, _ in scene.materials], np.float32),
+                             np.asarray([-1 if image is None else next(numbered) for _, image in scene.materials],
+                                        np.int32),
+                             [np.ascontiguousarray(image, np.float32) for image in images])
     if looks:
         sim.set_textures(textures)
     camera = run_camera(scene, opts)

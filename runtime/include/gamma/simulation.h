@@ -84,6 +84,12 @@ public:
     // floats per texture in this order).  Throws gammart::Error.
     void set_textures(std::vector<Texture> textures);
     const std::vector<Texture>& textures() const { return textures_; }
+    // The scene's own base colours (glTF materials): what surfaces without an
+    // appearance render with and what `base_color()` reads.  After a
+    // re-tiling a triangle keeps a material when its surface had only that
+    // one.  Throws gammart::Error on sizes or indices out of range and on
+    // non-finite factors or texels.
+    void set_base_colours(BaseColours base);
     // Physically plausible preview: appearance kernels per camera sample,
     // sky ambient x AO + sun with shadows.  out_rgba: height*width*4.
     // Throws gammart::Error on bad parameters.
@@ -134,7 +140,7 @@ public:
 
 private:
     RenderScene render_scene() const {
-        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals_};
+        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals_, base_};
     }
 
     Mesh mesh_;
@@ -149,6 +155,8 @@ private:
     std::vector<Texture> textures_;
     std::vector<uint8_t> shading_flat_;   // per triangle of mesh_, or empty
     std::vector<uint8_t> flat_surface_;   // per surface: all its triangles flat
+    BaseColours base_;
+    std::vector<int32_t> surface_material_;  // per surface: its one material, else -1
     float crease_deg_ = kDefaultCreaseDeg;
     std::vector<float> corner_normals_;
     void update_corner_normals();
