@@ -57,6 +57,8 @@ class RunOptions:
     progress: bool = True
     resume: bool = False          # continue the run in ``out`` from its last complete iteration
     started: float | None = None  # time.perf_counter() when gammac started (start-up time)
+    shading: str = "smooth"       # renders: "smooth" (up to the crease angle) or "flat"
+    crease: float = 60.0          # degrees; sharper edges stay sharp in smooth shading
     ray: bool = False           # trace on a local Ray (distributed.py)
     ray_address: str | None = None   # trace on the Ray cluster there
 
@@ -535,6 +537,17 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                          if int(m[1]) < len(names) else m[0], message)
         raise RunError(message) from None
     setup_seconds = time.perf_counter() - t0
+    flat = scene.triangle_flat
+    sim.set_shading(flat.astype(np.int32) if flat is not None and flat.any() else None,
+                    0.0 if opts.shading == "flat" else float(opts.crease))
+    if scene.materials:
+        images = [image for _, image in scene.materials if image is not None]
+        numbered = iter(range(len(images)))
+        sim.set_base_colours(scene.triangle_material,
+                             np.asarray([factor for factor, _ in scene.materials], np.float32),
+                             np.asarray([-1 if image is None else next(numbered) for _, image in scene.materials],
+                                        np.int32),
+                             [np.ascontiguousarray(image, np.float32) for image in images])
     if looks:
         sim.set_textures(textures)
     camera = run_camera(scene, opts)
@@ -582,7 +595,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         "options": {"params": dict(effect.overrides), "assign": list(opts.assign),
                     "down": list(opts.down) if opts.down is not None else None,
                     "surfels": opts.surfels, "seed": opts.seed, "tons": opts.tons,
-                    "iterations": opts.iterations, "max_interactions": opts.max_interactions},
+                    "iterations": opts.iterations, "max_interactions": opts.max_interactions,
+                    "shading": opts.shading, "crease": opts.crease},
         "iterations": [],
     }
     if tracer is not None:
