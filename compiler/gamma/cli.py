@@ -345,7 +345,7 @@ def _run_options(args):
                       samples=getattr(args, "samples", 4), ao_samples=getattr(args, "ao_samples", 8),
                       export=getattr(args, "export", False), bake_size=getattr(args, "bake_size", 1024),
                       resume=getattr(args, "resume", False), started=_STARTED,
-                      ray=getattr(args, "ray", False), ray_address=getattr(args, "ray_address", None,
+                      ray=getattr(args, "ray", False), ray_address=getattr(args, "ray_address", None),
                       shading=getattr(args, "shading", "smooth"), crease=getattr(args, "crease", 60.0))
 
 
