@@ -289,6 +289,10 @@ NB_MODULE(_runtime, m) {
              },
              "iteration"_a,
              "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
+        .def("reconfigure", &gammart::Simulation::reconfigure, "config"_a,
+             "Take another effect's config for the next run, keeping surfels, scene index and splat kernel "
+             "(same surfel count, seed and surface binding, shape never changed; else an error, nothing "
+             "changed).")
         .def("shape",
              [](gammart::Simulation& s, int iteration) {
                  gammart::ShapeStats st;

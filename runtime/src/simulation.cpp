@@ -80,6 +80,33 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
 
 Simulation::~Simulation() = default;
 
+void Simulation::reconfigure(const Config& config) {
+    auto refuse = [](const std::string& why) { throw Error("reconfigure: " + why); };
+    if (shape_.rebuilds() > 0) refuse("the shape of the scene changed");
+    if (config.surfels != cfg_.surfels || config.seed != cfg_.seed) refuse("another surfel count or seed");
+    if (config.surface_rows.size() != cfg_.surface_rows.size()) refuse("another number of surfaces");
+    std::vector<int32_t> tri_surface = validate_config(config, mesh_);
+    if (tri_surface != index_->tri_surface()) refuse("another binding of triangles to surfaces");
+    // Everything below is what the constructor derives from the config; the
+    // surfels, the scene index and the splat kernel depend only on what was
+    // just checked to be the same.
+    SceneFrame frame = SceneFrame::of(mesh_, config.down);
+    std::vector<SourceRt> sources = build_sources(config, frame);
+    KernelTable kernels = KernelTable::from_config(config);
+    const int W = config.surface_rows.empty() ? 0 : int(config.surface_rows[0].size());
+    std::vector<float> rows(state_.size() * size_t(W));
+    for (size_t i = 0; i < state_.size(); ++i)
+        std::memcpy(&rows[i * size_t(W)], config.surface_rows[size_t(state_.surface[i])].data(),
+                    sizeof(float) * size_t(W));
+    cfg_ = config;
+    frame_ = frame;
+    sources_ = std::move(sources);
+    kernels_ = std::move(kernels);
+    state_.rows = std::move(rows);
+    state_.width = W;
+    tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+}
+
 void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
     if (!flat.empty() && flat.size() != mesh_.num_triangles())
         throw Error("set_shading: flat has " + std::to_string(flat.size()) + " flags for " +

@@ -46,6 +46,14 @@ public:
     Simulation(const Simulation&) = delete;
     Simulation& operator=(const Simulation&) = delete;
 
+    // Takes another effect (kernels, sources, initial rows, options) for the
+    // next run, keeping the surfels, the scene index and the splat kernel:
+    // the state is then what Simulation(mesh, config) would give, without
+    // its setup.  Throws gammart::Error (nothing changed) unless the surfel
+    // count, the seed and the binding of triangles to surfaces are the same
+    // and the shape never changed.
+    void reconfigure(const Config& config);
+
     size_t num_surfels() const { return state_.size(); }
     int row_width() const { return state_.width; }
     const SurfelSet& surfels() const { return state_.surf; }
