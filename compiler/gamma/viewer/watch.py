@@ -229,7 +229,9 @@ class ViewerWriter(Writer):
         record = event.record
         self.records.append({k: record[k] for k in ("emitted", "settled", "escaped", "interactions",
                                                      "property_sums")})
-        rows, rgb = run.sim.bake_points(mesh.positions, mesh.normals, mesh.owner, mesh.uvs, it, run.threads)
+        if run.sim.num_prepared_points != len(mesh.owner):   # once per set of surfels: kept over saves
+            run.sim.prepare_points(mesh.positions, mesh.normals, mesh.owner, mesh.uvs, run.threads)
+        rows, rgb = run.sim.bake_prepared(it, run.threads)
         columns = property_columns(run.effect, np.asarray(rows), np.asarray(run.scene.triangle_surface)[mesh.owner])
         self.names = list(columns)
         parts = [np.asarray(rgb, "<f4").reshape(-1)]
