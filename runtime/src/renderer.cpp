@@ -94,6 +94,14 @@ void interpolate_row(const RenderScene& rs, int surface, const float p[3], float
 int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
                   const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]) {
     const int surface = rs.index.tri_surface()[triangle];
+    if (rs.kernels.appearance[size_t(surface)]) interpolate_row(rs, surface, p, row);
+    return albedo_of_row(rs, triangle, p, n, dir, uv, iteration, random_key, row, tex, out_rgb);
+}
+
+int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
+                      const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
+                      float* tex, float out_rgb[3]) {
+    const int surface = rs.index.tri_surface()[triangle];
     GammaAppearanceKernel fn = rs.kernels.appearance[size_t(surface)];
     const size_t T = rs.textures.size();
     rs.base.at(triangle, uv, tex + 3 * T);      // base_color() reads the slot after the effect's textures
@@ -101,7 +109,6 @@ int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], co
         for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(tex[3 * T + size_t(c)]);
         return 0;
     }
-    interpolate_row(rs, surface, p, row);
     GammaContext ctx;
     for (int c = 0; c < 3; ++c) {
         ctx.position[c] = p[c];

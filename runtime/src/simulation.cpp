@@ -75,10 +75,40 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
                                           state_.surface.data(), state_.size(), index_->sigma());
     });
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    tracer_->set_cancel_flag(&cancel_);
     update_corner_normals();
 }
 
 Simulation::~Simulation() = default;
+
+void Simulation::reconfigure(const Config& config) {
+    auto refuse = [](const std::string& why) { throw Error("reconfigure: " + why); };
+    if (shape_.rebuilds() > 0) refuse("the shape of the scene changed");
+    if (config.surfels != cfg_.surfels || config.seed != cfg_.seed) refuse("another surfel count or seed");
+    if (config.surface_rows.size() != cfg_.surface_rows.size()) refuse("another number of surfaces");
+    std::vector<int32_t> tri_surface = validate_config(config, mesh_);
+    if (tri_surface != index_->tri_surface()) refuse("another binding of triangles to surfaces");
+    // Everything below is what the constructor derives from the config; the
+    // surfels, the scene index and the splat kernel depend only on what was
+    // just checked to be the same.
+    SceneFrame frame = SceneFrame::of(mesh_, config.down);
+    std::vector<SourceRt> sources = build_sources(config, frame);
+    KernelTable kernels = KernelTable::from_config(config);
+    const int W = config.surface_rows.empty() ? 0 : int(config.surface_rows[0].size());
+    std::vector<float> rows(state_.size() * size_t(W));
+    for (size_t i = 0; i < state_.size(); ++i)
+        std::memcpy(&rows[i * size_t(W)], config.surface_rows[size_t(state_.surface[i])].data(),
+                    sizeof(float) * size_t(W));
+    cfg_ = config;
+    frame_ = frame;
+    sources_ = std::move(sources);
+    kernels_ = std::move(kernels);
+    state_.rows = std::move(rows);
+    state_.width = W;
+    tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    tracer_->set_cancel_flag(&cancel_);
+    cancel_.store(false);
+}
 
 void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
     if (!flat.empty() && flat.size() != mesh_.num_triangles())
@@ -121,6 +151,16 @@ void Simulation::set_base_colours(BaseColours base) {
     base_ = std::move(base);
 }
 
+void Simulation::prepare_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
+                                const float* uvs, int threads) {
+    prepared_ = BakePoints::prepare(render_scene(), k, positions, normals, triangles, uvs, threads);
+}
+
+void Simulation::bake_prepared(int iteration, int threads, float* rows_out, float* rgb_out) const {
+    if (prepared_.size() == 0) throw Error("bake_prepared: no points prepared (or the shape changed since)");
+    gammart::bake_prepared(render_scene(), prepared_, iteration, threads, rows_out, rgb_out);
+}
+
 void Simulation::update_corner_normals() { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); }
 
 void Simulation::set_rows(const float* data) {
@@ -150,6 +190,7 @@ ShapeStats Simulation::shape(int iteration) {
             for (size_t t = 0; t < tri_surface.size(); ++t) shading_flat_[t] = flat_surface_[size_t(tri_surface[t])];
         }
         update_corner_normals();
+        prepared_ = BakePoints{};      // new surfels and triangles: the caller prepares its points again
     }
     return st;
 }

@@ -104,7 +104,12 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                              : 1.0f);
     }
 
+    std::atomic<bool> cancelled{false};
     auto run_chunk = [&](int64_t ci) {
+        if (cancel_ != nullptr && cancel_->load(std::memory_order_relaxed)) {
+            cancelled.store(true, std::memory_order_relaxed);
+            return;
+        }
         ChunkLog& log = out[size_t(ci - first)];
         log.clear();
         TraceStats st;
@@ -228,6 +233,11 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             for (int64_t ci = r.begin(); ci < r.end(); ++ci) run_chunk(ci);
         });
     });
+
+    if (cancelled.load()) {
+        cancel_->store(false);   // one request stops one trace (the caller merges nothing)
+        throw Error("cancelled: the iteration was stopped before its end (Simulation.cancel)");
+    }
 }
 
 std::vector<RecordedRay> Tracer::take_recorded_rays() {
