@@ -216,9 +216,9 @@ class Watcher:
         while not finished.wait(self.CANCEL_POLL):
             if self.stop.is_set() or self.changed() or self.state.preview_changed.is_set():
                 session = getattr(writer, "session", None)
-                if session is not None:
+                if session is not None:      # before the setup is done, on_setup_done stops the run
                     session.sim.cancel()
-                return
+                    return
 
     def _publish_mesh(self, camera) -> None:
         self.state.publish(mesh_bytes=self.mesh.to_bytes(), frames=[],
@@ -244,6 +244,7 @@ class ViewerWriter(Writer):
     def on_setup_done(self, event) -> None:
         self.session = event.run
         self.setup_seconds = time.perf_counter()
+        self.watcher._check()
 
     def on_iteration_traced(self, event) -> None:
         self.watcher._check()
