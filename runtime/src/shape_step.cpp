@@ -271,15 +271,16 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
         displaced.vertices[3 * v + 2] = p.z;
     }
     // Re-tile only when the triangles need it (SPEC §13.12): the first time
-    // (the input's own tiling), when the share of slivers (an angle under
-    // kSliverDeg) grew by more than half a per cent of the triangles since
-    // the last re-tiling, when the area drifted by more than 10 % from it,
+    // (the input's own tiling), when a sliver (an angle under kSliverDeg)
+    // appeared on a mesh the last re-tiling left without any, or their share
+    // grew by more than half a per cent of the triangles where it could not
+    // avoid them (constrained boundaries), when the area drifted by more than 10 % from it,
     // or after kMaxIterationsWithoutRetiling.  Otherwise the vertices move
     // and the surfels ride on their triangles.
     const MeshMeasures q = measure(displaced);
     const double slivers = sliver_fraction(displaced, kSliverDeg);
     const bool keep_tiling = rebuilds_ > 1 && kept_iterations_ < kMaxIterationsWithoutRetiling &&
-                             slivers <= retiled_slivers_ + 0.005 &&
+                             slivers <= retiled_slivers_ + (retiled_slivers_ > 0 ? 0.005 : 0.0) &&
                              std::fabs(q.area - retiled_area_) <= 0.1 * retiled_area_;
     if (keep_tiling) {
         ++kept_iterations_;
