@@ -1,16 +1,19 @@
 """Benchmark: tracing on Ray workers (``gammac run --ray``) against a local
 trace, and what distribution moves per iteration.
 
-    .venv/bin/python bench/bench_ray.py [--tons 1000000] [--iterations 3] [--record]
+    .venv/bin/python bench/bench_ray.py [--tons 1000000] [--iterations 5] [--record]
 
 Patina on the bunny (100k surfels).  In one process: the local tracer at 1
-and 2 threads (the baseline), then a local Ray with 2 CPUs tracing the same
-iterations with 1 worker (one task at a time) and with 2 workers.  Every
-configuration traces the same iterations from the same start, and the rows
-after each are checked to be bit-identical to the local run's.  Reported per
-iteration: seconds (median), bytes moved (surfel state sent to the workers,
-chunk deltas returned, the job sent once), and the cost of distribution as
-the ratio of Ray's time to the local time at the same parallelism.
+and 2 threads (the baseline), and a local Ray with 2 CPUs tracing the same
+iterations with 1 worker (one task at a time) and with 2 workers; iteration
+by iteration, each configuration in turn, so that on a shared machine they
+see about the same load.  Every configuration traces the same iterations
+from the same start, and the rows after each are checked to be
+bit-identical to the local run's.  Reported per iteration: seconds (median
+of iterations 2 on; the first also builds each worker's simulation), the
+driver's merge, bytes moved (surfel state sent to the workers, chunk deltas
+returned, the job sent once), and the cost of distribution as the ratio of
+Ray's time to the local time at the same parallelism.
 ``--record`` appends the table to bench/RESULTS.md.
 """
 
@@ -39,7 +42,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--tons", type=int, default=1_000_000)
     ap.add_argument("--surfels", type=int, default=100_000)
-    ap.add_argument("--iterations", type=int, default=3)
+    ap.add_argument("--iterations", type=int, default=5)
     ap.add_argument("--record", action="store_true")
     args = ap.parse_args()
 
@@ -60,31 +63,36 @@ def main() -> None:
     t0 = time.perf_counter()
     with cluster.connect(num_cpus=2) as conn:
         start_seconds = time.perf_counter() - t0
-        results, reference = {}, []
-        for threads in (1, 2):
-            sim = simulation(threads)
-            times = []
-            for it in range(1, args.iterations + 1):
-                times.append(sim.trace(it)["trace_seconds"])
-                if threads == 1:
-                    reference.append(sim.rows().copy())
-            results[f"local, {threads} thread{'s' * (threads > 1)}"] = (statistics.median(times), None)
+        local = {f"local, {n} thread{'s' * (n > 1)}": simulation(n) for n in (1, 2)}
+        remote = {}
+        job = None
         for workers in (1, 2):
             sim = simulation(2)
-            job = distributed.make_job(rt, effect, kernels, opts, scene, sim, build_config)
-            tracer = distributed.RayTracer(sim, job, conn, workers=workers)
-            times, moved, merges = [], [], []
-            for it in range(1, args.iterations + 1):
+            # one job for both: a worker keeps the simulation it built for it
+            job = job or distributed.make_job(rt, effect, kernels, opts, scene, sim, build_config)
+            remote[f"Ray, {workers} worker{'s' * (workers > 1)}"] = distributed.RayTracer(sim, job, conn,
+                                                                                          workers=workers)
+        times = {name: [] for name in [*local, *remote]}
+        moved = {name: [] for name in remote}
+        merges = {name: [] for name in remote}
+        # Iteration by iteration, every configuration in turn: on a shared
+        # machine they then see about the same load, so the ratios hold.
+        for it in range(1, args.iterations + 1):
+            for name, sim in local.items():
+                times[name].append(sim.trace(it)["trace_seconds"])
+            reference = local["local, 1 thread"].rows()
+            for name, tracer in remote.items():
                 stats = tracer.trace(it)
-                if not np.array_equal(sim.rows(), reference[it - 1]):
-                    raise SystemExit(f"Ray with {workers} worker(s): iteration {it} differs from the local run")
-                times.append(stats["trace_seconds"])
-                merges.append(stats["merge_seconds"])
-                moved.append(stats["bytes_moved"])
-            # the first iteration also builds the simulation on each worker
-            first = times[0]
-            results[f"Ray, {workers} worker{'s' * (workers > 1)}"] = (statistics.median(times[1:] or times),
-                                                                      (moved, first, statistics.median(merges)))
+                if not np.array_equal(tracer.sim.rows(), reference):
+                    raise SystemExit(f"{name}: iteration {it} differs from the local run")
+                times[name].append(stats["trace_seconds"])
+                merges[name].append(stats["merge_seconds"])
+                moved[name].append(stats["bytes_moved"])
+        # the first iteration also builds the simulation on each worker: left out of the medians
+        results = {}
+        for name, values in times.items():
+            extra = (moved[name], values[0], statistics.median(merges[name])) if name in remote else None
+            results[name] = (statistics.median(values[1:] or values), extra)
     base1 = results["local, 1 thread"][0]
     base2 = results["local, 2 threads"][0]
     rows = []
@@ -102,7 +110,7 @@ def main() -> None:
     header = ("| tracing | s per iteration (median) | of it, driver merge s | state sent MB | deltas back MB | "
               "job MB (once) | time / local at same parallelism |\n|---|---|---|---|---|---|---|")
     info = (f"patina on the bunny {scene.mesh.num_triangles:,} triangles, {args.surfels:,} surfels, "
-            f"{args.tons:,} γ-tons per iteration, {args.iterations} iterations, rows bit-identical to the "
+            f"{args.tons:,} γ-tons per iteration, {args.iterations} iterations (configurations interleaved), rows bit-identical to the "
             f"local run checked every iteration; local Ray start-up {start_seconds:.1f} s; "
             f"{cpu_name()}, {os.cpu_count()} cores, load average {load_before:.1f} before, "
             f"{load_average():.1f} after (other engineers share the machine)")
