@@ -10,7 +10,8 @@ by iteration, each configuration in turn, so that on a shared machine they
 see about the same load.  Every configuration traces the same iterations
 from the same start, and the rows after each are checked to be
 bit-identical to the local run's.  Reported per iteration: seconds (median
-of iterations 2 on; the first also builds each worker's simulation), the
+of iterations 2 on; the worker processes' builds of their simulation, in
+whichever iteration Ray first gave them a task, reported apart but included), the
 driver's merge, bytes moved (surfel state sent to the workers, chunk deltas
 returned, the job sent once), and the cost of distribution as the ratio of
 Ray's time to the local time at the same parallelism.
@@ -88,10 +89,18 @@ def main() -> None:
                 times[name].append(stats["trace_seconds"])
                 merges[name].append(stats["merge_seconds"])
                 moved[name].append(stats["bytes_moved"])
-        # the first iteration also builds the simulation on each worker: left out of the medians
+        # Medians of iterations 2 on.  On Ray a worker process builds its
+        # simulation when it first gets a task, which Ray gives it when it
+        # first needs it (not only in iteration 1): those builds (and the
+        # start of a worker process, which is not counted in them) stay in.
         results = {}
         for name, values in times.items():
-            extra = (moved[name], values[0], statistics.median(merges[name])) if name in remote else None
+            extra = None
+            if name in remote:
+                setups = (sum(m["worker_setups"] for m in moved[name]),
+                          sum(m["worker_setup_seconds"] for m in moved[name]),
+                          [i + 1 for i, m in enumerate(moved[name]) if m["worker_setups"]])
+                extra = (moved[name], setups, statistics.median(merges[name]))
             results[name] = (statistics.median(values[1:] or values), extra)
     base1 = results["local, 1 thread"][0]
     base2 = results["local, 2 threads"][0]
@@ -99,16 +108,18 @@ def main() -> None:
     for name, (seconds, extra) in results.items():
         baseline = base1 if name.endswith(("1 thread", "1 worker")) else base2
         if extra is None:
-            rows.append(f"| {name} | {seconds:.3f} | | | | | {seconds / baseline:.2f} |")
+            rows.append(f"| {name} | {seconds:.3f} | | | | | | {seconds / baseline:.2f} |")
             continue
-        moved, first, merge = extra
+        moved, (setups, setup_seconds, with_setup), merge = extra
         state = moved[-1]["state"] / 1e6
         deltas = statistics.median(m["deltas"] for m in moved) / 1e6
         job = moved[0]["job"] / 1e6
-        rows.append(f"| {name} | {seconds:.3f} (first {first:.2f}) | {merge:.3f} | {state:.2f} | {deltas:.2f} | "
-                    f"{job:.2f} | {seconds / baseline:.2f} |")
-    header = ("| tracing | s per iteration (median) | of it, driver merge s | state sent MB | deltas back MB | "
-              "job MB (once) | time / local at same parallelism |\n|---|---|---|---|---|---|---|")
+        where = f"{setup_seconds:.1f} s in iteration {', '.join(map(str, with_setup))}" if setups else "none"
+        rows.append(f"| {name} | {seconds:.3f} | {merge:.3f} | {setups} ({where}) | "
+                    f"{state:.2f} | {deltas:.2f} | {job:.2f} | {seconds / baseline:.2f} |")
+    header = ("| tracing | s per iteration (median) | of it, driver merge s | worker setups | "
+              "state sent MB | deltas back MB | job MB (once) | time / local at same parallelism |\n"
+              "|---|---|---|---|---|---|---|---|")
     info = (f"patina on the bunny {scene.mesh.num_triangles:,} triangles, {args.surfels:,} surfels, "
             f"{args.tons:,} γ-tons per iteration, {args.iterations} iterations (configurations interleaved), rows bit-identical to the "
             f"local run checked every iteration; local Ray start-up {start_seconds:.1f} s; "

@@ -81,6 +81,10 @@ def test_ray_run_is_bit_identical_to_a_local_run(ray_local, tmp_path, bumpy_obj)
         assert moved["state"] == 4 * summary["surfels"] * width and width >= 5   # 3 reflectance + 2 properties
         assert moved["deltas"] > 0
     assert summary["iterations"][0]["ray"]["job"] > 0 and summary["iterations"][1]["ray"]["job"] == 0
+    # every worker process builds the simulation once, whenever Ray first gives it a task
+    setups = [i["ray"]["worker_setups"] for i in summary["iterations"]]
+    assert setups[0] >= 1 and sum(setups) <= summary["ray"]["workers"] * len(setups)
+    assert all((i["ray"]["worker_setup_seconds"] > 0) == (i["ray"]["worker_setups"] > 0) for i in summary["iterations"])
 
 
 def test_a_killed_worker_is_retried_and_the_run_is_unchanged(ray_local, tmp_path, box_obj, monkeypatch):

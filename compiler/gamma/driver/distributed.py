@@ -193,13 +193,18 @@ class RayTracer:
         rows_ref = self.ray.put(rows)
         refs = [self.task.remote([self.job_ref], self.key, rows_ref, iteration, a, b, self.threads, CRASH_MARKER)
                 for a, b in self.ranges(nchunks)]
-        chunks = [chunk for part in self.ray.get(refs) for chunk in part]
+        parts = self.ray.get(refs)
+        chunks = [chunk for part, _ in parts for chunk in part]
+        setups = [seconds for _, seconds in parts if seconds is not None]
         del rows_ref
         t_merge = time.perf_counter()
         stats = self.sim.merge_chunks(iteration, chunks)     # the splat spreads the deposits here
         merge_seconds = time.perf_counter() - t_merge
         moved = {"state": int(rows.nbytes), "deltas": int(sum(s.nbytes + d.nbytes for s, d, _ in chunks)),
-                 "job": 0 if self.sent_job else self.job_bytes, "tasks": len(refs), "chunks": nchunks}
+                 "job": 0 if self.sent_job else self.job_bytes, "tasks": len(refs), "chunks": nchunks,
+                 # worker processes that built the simulation in this iteration (Ray starts
+                 # them when it first needs them, not only in the first iteration)
+                 "worker_setups": len(setups), "worker_setup_seconds": float(sum(setups))}
         self.sent_job = True
         self.bytes_moved.append(moved)
         stats["trace_seconds"] = time.perf_counter() - t0
@@ -212,19 +217,24 @@ class RayTracer:
 
 
 def _trace_task(job_box: list, key: str, rows: np.ndarray, iteration: int, first: int, last: int,
-                threads: int, crash_marker: str | None) -> list:
+                threads: int, crash_marker: str | None) -> tuple[list, float | None]:
+    """The chunk logs of [first, last), and the seconds this worker process
+    spent building its simulation first (None when it had it already)."""
     if crash_marker and not os.path.exists(crash_marker):
         with open(crash_marker, "w") as f:
             f.write(str(os.getpid()))
         os._exit(1)
+    setup = None
     if key in _WORKER:
         sim = _WORKER[key][0]
     else:
         import ray
 
+        t0 = time.perf_counter()
         sim = worker_simulation(ray.get(job_box[0]), threads)
+        setup = time.perf_counter() - t0
     sim.set_rows(rows)
-    return sim.trace_chunks(iteration, first, last)
+    return sim.trace_chunks(iteration, first, last), setup
 
 
 def start(rt, effect, kernels, opts, scene, sim, build_config) -> RayTracer:
