@@ -30,30 +30,30 @@ def small_run(tmp_path, *args, effect=PATINA, scene=BUNNY, out="out"):
 LOADER = """
 import json, resource, sys
 resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))   # bounded memory, asserted
-import gamma._runtime as rt
-for path in sys.argv[1:]:
-    try:
-        m = rt.Mesh.load(path)
-        print(json.dumps(["ok", m.num_triangles, m.degenerate_dropped]), flush=True)
-    except ValueError as err:
-        print(json.dumps(["error", str(err)]), flush=True)
+sys.path.insert(0, sys.argv[1])
+from mesh_corpus import load
+for path in sys.argv[2:]:
+    print(json.dumps(load(path)), flush=True)
 """
 
 
 def test_mesh_corpus(tmp_path):
-    """Every file of the generated corpus loads or is refused with the expected
-    message, within a memory limit and a time limit (no loop, no allocation
-    of a declared 10^11 vertices)."""
+    """Every file of the generated corpus (OBJ, PLY, glTF) loads or is refused
+    with the expected message naming the file, within a memory limit and a
+    time limit (no loop, no allocation of a declared 10^11 vertices, no
+    decoding of a 12000x12000 texture)."""
     from fuzz_meshes import REGRESSIONS
     from mesh_corpus import write
 
     corpus = write(tmp_path / "corpus") + [(p, "any") for p in sorted(REGRESSIONS.glob("*"))]
-    r = subprocess.run([sys.executable, "-c", LOADER, *[str(p) for p, _ in corpus]],
+    r = subprocess.run([sys.executable, "-c", LOADER, str(ROOT / "tests"), *[str(p) for p, _ in corpus]],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stderr == ""                                  # no warnings either
     outcomes = [json.loads(line) for line in r.stdout.splitlines()]
     assert len(outcomes) == len(corpus)
     for (path, expected), outcome in zip(corpus, outcomes):
+        assert "\n" not in str(outcome[1])                 # one line
         if expected == "any":
             continue
         if expected == "ok":
@@ -61,7 +61,25 @@ def test_mesh_corpus(tmp_path):
         else:
             assert outcome[0] == "error" and expected in outcome[1], (path.name, expected, outcome)
             assert str(path) in outcome[1], outcome      # the message names the file
-    assert sum(o[0] == "error" for o in outcomes) > 40
+    assert sum(o[0] == "error" for o in outcomes) > 90
+    assert sum(p.suffix in (".gltf", ".glb") and o[0] == "error" for (p, _), o in zip(corpus, outcomes)) > 45
+
+
+#: A few malformed glTF files of the corpus, run end to end: `gammac run`
+#: exits with status 1 (SPEC §16.2) and one line naming the file.
+GLTF_RUN_CASES = ["glb_cut_in_bin.glb", "bad_json.gltf", "view_too_long.gltf", "accessor_huge_count.gltf",
+                  "data_uri_not_base64.gltf", "missing_bin.gltf", "nan_position.glb", "indices_out_of_range.glb",
+                  "texture_bomb.glb"]
+
+
+@pytest.mark.parametrize("name", GLTF_RUN_CASES)
+def test_malformed_gltf_run_is_one_line_error(tmp_path, name):
+    from mesh_corpus import GLTF_ERRORS, write
+
+    write(tmp_path / "corpus")
+    r = small_run(tmp_path, scene=tmp_path / "corpus" / name)
+    assert_one_line_error(r, str(tmp_path / "corpus" / name), GLTF_ERRORS[name])
+    assert not (tmp_path / "out").exists()
 
 
 def test_degenerate_ply_face_is_dropped_with_a_warning(tmp_path):

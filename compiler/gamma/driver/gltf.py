@@ -5,7 +5,8 @@ Every node that draws a mesh becomes one part: its vertices in world space
 per triangle corner (when the primitive has ``TEXCOORD_0``) and its
 material's base colour (texture as float RGB in [0, 1], and factor).  The
 part answers to its node name, its mesh name and its material name in
-``--assign`` patterns.
+``--assign`` patterns.  The file is checked first (``gltf_check.py``), so
+a malformed one is a one-line error naming it, never a trimesh exception.
 """
 
 from __future__ import annotations
@@ -15,11 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .gltf_check import MAX_TEXTURE_SIDE, GltfError, check_gltf
+
 GLTF_SUFFIXES = (".gltf", ".glb")
-
-
-class GltfError(Exception):
-    """A one-line, user-facing problem with a glTF file."""
 
 
 @dataclass
@@ -42,10 +41,16 @@ def read_gltf(path: str | Path) -> list[GltfPart]:
     import trimesh
 
     path = Path(path)
+    check_gltf(path)
     try:
         scene = trimesh.load(str(path), force="scene", process=False)
     except Exception as err:   # trimesh raises many kinds for a bad file
-        raise GltfError(f"cannot read glTF '{path}': {err}") from None
+        raise GltfError(f"cannot read glTF '{path}': {err or type(err).__name__}") from None
+    with np.errstate(all="ignore"):    # a non-finite vertex is refused by Mesh.from_arrays, by number
+        return _parts(path, scene, trimesh)
+
+
+def _parts(path: Path, scene, trimesh) -> list[GltfPart]:
     parts = []
     for node in scene.graph.nodes_geometry:
         transform, geometry_name = scene.graph[node]
@@ -61,7 +66,7 @@ def read_gltf(path: str | Path) -> list[GltfPart]:
         uv = getattr(visual, "uv", None)
         uvs = np.asarray(uv, np.float32)[faces] if uv is not None and len(uv) == len(verts) else None
         material = getattr(visual, "material", None)
-        image, factor = _base_colour(material)
+        image, factor = _base_colour(material, path)
         parts.append(GltfPart(str(node), str(geometry_name), getattr(material, "name", None),
                               world.astype(np.float32), faces.astype(np.int32), uvs, image, factor))
     if not parts:
@@ -69,7 +74,7 @@ def read_gltf(path: str | Path) -> list[GltfPart]:
     return parts
 
 
-def _base_colour(material):
+def _base_colour(material, path: Path):
     """(texture as float32 [h, w, 3] or None, RGB factor) of a glTF material."""
     if material is None:
         return None, (1.0, 1.0, 1.0)
@@ -83,5 +88,12 @@ def _base_colour(material):
         scale = 255.0 if f.dtype.kind in "iu" or f.max() > 1.0 else 1.0
         rgb = tuple(float(c) / scale for c in f[:3])
     if image is not None:
-        image = np.asarray(image.convert("RGB"), np.float32) / 255.0
+        w, h = image.size
+        if max(w, h) > MAX_TEXTURE_SIDE:   # checked from the header before decoding (gltf_check too)
+            raise GltfError(f"glTF '{path}': a base-colour texture is {w}x{h} pixels; at most "
+                            f"{MAX_TEXTURE_SIDE}x{MAX_TEXTURE_SIDE} are supported")
+        try:
+            image = np.asarray(image.convert("RGB"), np.float32) / 255.0
+        except (OSError, ValueError) as err:
+            raise GltfError(f"glTF '{path}': a base-colour texture cannot be decoded ({err})") from None
     return image, rgb
