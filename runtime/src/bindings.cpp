@@ -289,6 +289,10 @@ NB_MODULE(_runtime, m) {
              },
              "iteration"_a,
              "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
+        .def("reconfigure", &gammart::Simulation::reconfigure, "config"_a,
+             "Take another effect's config for the next run, keeping surfels, scene index and splat kernel "
+             "(same surfel count, seed and surface binding, shape never changed; else an error, nothing "
+             "changed).")
         .def("shape",
              [](gammart::Simulation& s, int iteration) {
                  gammart::ShapeStats st;
@@ -443,6 +447,36 @@ NB_MODULE(_runtime, m) {
              "flat"_a.none(), "crease_deg"_a,
              "Render shading: flat (int32[m] flags, or None) triangles and every triangle when crease_deg <= 0 "
              "render flat; the others smooth, with edges sharper than crease_deg kept sharp.")
+        .def("set_base_colours",
+             [](gammart::Simulation& s, nb::handle triangle_material, nb::handle factors, nb::handle textures,
+                nb::handle images) {
+                 gammart::BaseColours b;
+                 I32 tm = as_i32(triangle_material), tx = as_i32(textures);
+                 F32 f = as_f32(factors);
+                 if (tm.ndim() != 1 || tx.ndim() != 1 || f.ndim() != 2 || f.shape(1) != 3 || f.shape(0) != tx.shape(0))
+                     throw Error("set_base_colours: triangle_material int32[m], factors float32[k, 3], "
+                                 "textures int32[k] are needed");
+                 b.triangle_material.assign(tm.data(), tm.data() + tm.shape(0));
+                 b.texture.assign(tx.data(), tx.data() + tx.shape(0));
+                 for (size_t k = 0; k < f.shape(0); ++k)
+                     b.factor.push_back({f.data()[3 * k], f.data()[3 * k + 1], f.data()[3 * k + 2]});
+                 size_t i = 0;
+                 for (nb::handle item : images) {
+                     F32 a = as_f32(item);
+                     if (a.ndim() != 3 || a.shape(2) != 3)
+                         throw Error("set_base_colours: image " + std::to_string(i) + " must have shape (H, W, 3)");
+                     gammart::Texture t;
+                     t.height = int(a.shape(0));
+                     t.width = int(a.shape(1));
+                     t.rgb.assign(a.data(), a.data() + a.shape(0) * a.shape(1) * 3);
+                     b.images.push_back(std::move(t));
+                     ++i;
+                 }
+                 s.set_base_colours(std::move(b));
+             },
+             "triangle_material"_a, "factors"_a, "textures"_a, "images"_a,
+             "The scene's own base colours: a material per triangle (-1: none), an RGB factor and an image "
+             "index (-1: none) per material, images float32[H, W, 3] (row 0 = top).")
         .def("corner_normals",
              [](const gammart::Simulation& s) {
                  std::vector<float> c = s.corner_normals();
@@ -471,6 +505,32 @@ NB_MODULE(_runtime, m) {
              },
              "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "iteration"_a, "threads"_a,
              "At surface points: (smoothed rows float32[k, W], appearance colours float32[k, 3]).")
+        .def("prepare_points",
+             [](gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,
+                nb::handle uvs, int threads) {
+                 F32 p = as_f32(positions), n = as_f32(normals), uv = as_f32(uvs);
+                 I32 t = as_i32(triangles);
+                 const size_t k = t.ndim() == 1 ? t.shape(0) : 0;
+                 if (t.ndim() != 1 || p.ndim() != 2 || p.shape(0) != k || p.shape(1) != 3 || n.ndim() != 2 ||
+                     n.shape(0) != k || n.shape(1) != 3 || uv.ndim() != 2 || uv.shape(0) != k || uv.shape(1) != 2)
+                     throw Error("prepare_points: positions (k,3), normals (k,3), triangles (k), uvs (k,2)");
+                 nb::gil_scoped_release nogil;
+                 s.prepare_points(k, p.data(), n.data(), t.data(), uv.data(), threads);
+             },
+             "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "threads"_a,
+             "Points bake_prepared() bakes again and again (their smoothing neighbours found once).")
+        .def_prop_ro("num_prepared_points", &gammart::Simulation::num_prepared_points)
+        .def("bake_prepared",
+             [](const gammart::Simulation& s, int iteration, int threads) {
+                 const size_t k = s.num_prepared_points(), W = size_t(s.row_width());
+                 std::vector<float> rows(k * W), rgb(k * 3);
+                 {
+                     nb::gil_scoped_release nogil;
+                     s.bake_prepared(iteration, threads, rows.data(), rgb.data());
+                 }
+                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}), to_numpy(std::move(rgb), {k, 3}));
+             },
+             "iteration"_a, "threads"_a, "bake_points() of the prepared points: (rows float32[k, W], colours float32[k, 3]).")
         .def("render_appearance",
              [](gammart::Simulation& s, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads, int samples,

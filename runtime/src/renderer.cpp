@@ -94,12 +94,21 @@ void interpolate_row(const RenderScene& rs, int surface, const float p[3], float
 int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
                   const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]) {
     const int surface = rs.index.tri_surface()[triangle];
+    if (rs.kernels.appearance[size_t(surface)]) interpolate_row(rs, surface, p, row);
+    return albedo_of_row(rs, triangle, p, n, dir, uv, iteration, random_key, row, tex, out_rgb);
+}
+
+int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
+                      const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
+                      float* tex, float out_rgb[3]) {
+    const int surface = rs.index.tri_surface()[triangle];
     GammaAppearanceKernel fn = rs.kernels.appearance[size_t(surface)];
+    const size_t T = rs.textures.size();
+    rs.base.at(triangle, uv, tex + 3 * T);      // base_color() reads the slot after the effect's textures
     if (!fn) {
-        out_rgb[0] = out_rgb[1] = out_rgb[2] = kNeutralAlbedo;
+        for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(tex[3 * T + size_t(c)]);
         return 0;
     }
-    interpolate_row(rs, surface, p, row);
     GammaContext ctx;
     for (int c = 0; c < 3; ++c) {
         ctx.position[c] = p[c];
@@ -112,7 +121,7 @@ int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], co
     set_random_key(ctx, random_key);
     ctx.uv[0] = uv[0];
     ctx.uv[1] = uv[1];
-    for (size_t ti = 0; ti < rs.textures.size(); ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
+    for (size_t ti = 0; ti < T; ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
     float rgb[3] = {0, 0, 0};
     const int32_t bad = fn(row, tex, rgb, &ctx);
     for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(rgb[c]);
@@ -195,7 +204,7 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
     run_with_threads(P.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, P.height, 1), [&](const tbb::blocked_range<int>& r) {
             // Per-task buffers: nothing is allocated per pixel.
-            std::vector<float> row(size_t(W), 0.0f), tex(3 * T + 1, 0.0f);
+            std::vector<float> row(size_t(W), 0.0f), tex(3 * T + 3, 0.0f);
             std::vector<NonFinite> bad_local;
             int64_t rays = 0, calls = 0;
             for (int y = r.begin(); y < r.end(); ++y)

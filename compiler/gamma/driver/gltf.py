@@ -31,6 +31,7 @@ class GltfPart:
     uvs: np.ndarray | None             # float32 (m, 3, 2), OBJ convention (v up), or None
     base_colour: np.ndarray | None     # float32 (h, w, 3) display values, or None
     base_factor: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    has_material: bool = False
 
 
 def is_gltf(path: str | Path) -> bool:
@@ -66,15 +67,19 @@ def _parts(path: Path, scene, trimesh) -> list[GltfPart]:
         uv = getattr(visual, "uv", None)
         uvs = np.asarray(uv, np.float32)[faces] if uv is not None and len(uv) == len(verts) else None
         material = getattr(visual, "material", None)
-        image, factor = _base_colour(material, path)
+        try:
+            image, factor = _base_colour(material)
+        except GltfError as err:
+            raise GltfError(f"glTF '{path}', node '{node}': {err}") from None
         parts.append(GltfPart(str(node), str(geometry_name), getattr(material, "name", None),
-                              world.astype(np.float32), faces.astype(np.int32), uvs, image, factor))
+                              world.astype(np.float32), faces.astype(np.int32), uvs, image, factor,
+                              material is not None))
     if not parts:
         raise GltfError(f"glTF '{path}' has no triangle mesh")
     return parts
 
 
-def _base_colour(material, path: Path):
+def _base_colour(material):
     """(texture as float32 [h, w, 3] or None, RGB factor) of a glTF material."""
     if material is None:
         return None, (1.0, 1.0, 1.0)
@@ -88,12 +93,17 @@ def _base_colour(material, path: Path):
         scale = 255.0 if f.dtype.kind in "iu" or f.max() > 1.0 else 1.0
         rgb = tuple(float(c) / scale for c in f[:3])
     if image is not None:
-        w, h = image.size
-        if max(w, h) > MAX_TEXTURE_SIDE:   # checked from the header before decoding (gltf_check too)
-            raise GltfError(f"glTF '{path}': a base-colour texture is {w}x{h} pixels; at most "
-                            f"{MAX_TEXTURE_SIDE}x{MAX_TEXTURE_SIDE} are supported")
+        width, height = image.size
+        if width * height > MAX_TEXTURE_PIXELS:
+            raise GltfError(f"a base-colour texture of {width} x {height} pixels is larger than "
+                            f"{MAX_TEXTURE_SIDE} x {MAX_TEXTURE_SIDE}")
         try:
             image = np.asarray(image.convert("RGB"), np.float32) / 255.0
         except (OSError, ValueError) as err:
-            raise GltfError(f"glTF '{path}': a base-colour texture cannot be decoded ({err})") from None
+            raise GltfError(f"a base-colour texture cannot be decoded ({err})") from None
     return image, rgb
+
+
+#: The largest base-colour texture read (as for texture() in effects, SPEC §8a;
+#: MAX_TEXTURE_SIDE lives in gltf_check.py, which checks the image headers).
+MAX_TEXTURE_PIXELS = MAX_TEXTURE_SIDE * MAX_TEXTURE_SIDE

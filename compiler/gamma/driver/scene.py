@@ -44,6 +44,8 @@ class Scene:
     object_names: list = None             # OBJ object, else group, else the mesh file's name
     triangle_has_uv: np.ndarray = None    # bool per triangle: its part has texture coordinates
     triangle_flat: np.ndarray = None      # bool per triangle: its part renders flat ("shading": "flat")
+    triangle_material: np.ndarray = None  # int32 per triangle: index into materials, -1 none
+    materials: list = None                # (RGB factor, float32 image [h, w, 3] or None) per material
 
     @property
     def diagonal(self) -> float:
@@ -97,6 +99,7 @@ class _Part:
     vertices: np.ndarray | None = None   # transformed (None: untransformed single mesh)
     names: tuple = ()                    # more names --assign patterns match (glTF mesh, material)
     flat: bool = False                   # rendered with flat shading (a scene file's "shading": "flat")
+    material: tuple | None = None        # glTF base colour: (RGB factor, float32 image [h, w, 3] or None)
 
 
 def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
@@ -119,7 +122,9 @@ def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
         except (ValueError, RuntimeError) as err:
             raise SceneError(f"glTF '{path}', node '{piece.node}': {err}") from None
         names = tuple(n for n in (piece.mesh, piece.material, path.stem) if n)
-        parts.append(_Part(mesh, piece.node, list(rules), np.asarray(mesh.vertices(), float), names))
+        material = (piece.base_factor, piece.base_colour) if piece.has_material else None
+        parts.append(_Part(mesh, piece.node, list(rules), np.asarray(mesh.vertices(), float), names,
+                           material=material))
     return parts
 
 
@@ -276,7 +281,12 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None, part
     objects, names = _objects(parts)
     has_uv = np.concatenate([np.full(p.mesh.num_triangles, p.mesh.has_uvs) for p in parts])
     flat = np.concatenate([np.full(p.mesh.num_triangles, p.flat) for p in parts])
-    scene = Scene(mesh, surface, down, mesh.bounds, counts, objects, names, has_uv, flat)
+    materials = [p.material for p in parts if p.material is not None]
+    numbered = iter(range(len(materials)))
+    triangle_material = np.concatenate([np.full(p.mesh.num_triangles, -1 if p.material is None else next(numbered),
+                                                 np.int32) for p in parts])
+    scene = Scene(mesh, surface, down, mesh.bounds, counts, objects, names, has_uv, flat,
+                  triangle_material, materials)
     problem = scene_size_problem(scene.diagonal)
     if problem:
         raise SceneError(f"scene '{path}': {problem}")

@@ -31,6 +31,7 @@ struct RenderScene {
     const std::vector<Texture>& textures;
     const Mesh& mesh;
     const std::vector<float>& corner_normals;  // shading.h; empty: flat shading
+    const BaseColours& base;                   // the scene's own colours (glTF materials)
 };
 
 // Checks textures (positive size, height*width*3 finite floats); throws
@@ -43,10 +44,17 @@ void interpolate_row(const RenderScene& rs, int surface, const float p[3], float
 
 // The colour the surface's appearance kernel gives at point p of triangle
 // `triangle` (normal n, texture coordinates uv) with the smoothed row,
-// clamped to [0, 1]; the neutral albedo without a kernel.  `row` (W floats)
-// and `tex` (3 per texture) are scratch; returns the kernel's non-finite report.
+// clamped to [0, 1]; the scene's base colour there without a kernel.  `row`
+// (W floats) and `tex` (3 per texture, then 3 for the base colour) are
+// scratch; returns the kernel's non-finite report.
 int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
                   const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]);
+
+// albedo_at with the smoothed row already in `row` (W floats, as
+// interpolate_row gives it for the triangle's surface).
+int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
+                      const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
+                      float* tex, float out_rgb[3]);
 
 // False colour: smoothed `values` (one per surfel) and a shade per pixel
 // (height*width each; NaN on the background).

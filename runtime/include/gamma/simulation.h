@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "gamma/baker.h"
 #include "gamma/config.h"
 #include "gamma/kernel_table.h"
 #include "gamma/mesh.h"
@@ -45,6 +46,14 @@ public:
     ~Simulation();
     Simulation(const Simulation&) = delete;
     Simulation& operator=(const Simulation&) = delete;
+
+    // Takes another effect (kernels, sources, initial rows, options) for the
+    // next run, keeping the surfels, the scene index and the splat kernel:
+    // the state is then what Simulation(mesh, config) would give, without
+    // its setup.  Throws gammart::Error (nothing changed) unless the surfel
+    // count, the seed and the binding of triangles to surfaces are the same
+    // and the shape never changed.
+    void reconfigure(const Config& config);
 
     size_t num_surfels() const { return state_.size(); }
     int row_width() const { return state_.width; }
@@ -84,6 +93,12 @@ public:
     // floats per texture in this order).  Throws gammart::Error.
     void set_textures(std::vector<Texture> textures);
     const std::vector<Texture>& textures() const { return textures_; }
+    // The scene's own base colours (glTF materials): what surfaces without an
+    // appearance render with and what `base_color()` reads.  After a
+    // re-tiling a triangle keeps a material when its surface had only that
+    // one.  Throws gammart::Error on sizes or indices out of range and on
+    // non-finite factors or texels.
+    void set_base_colours(BaseColours base);
     // Physically plausible preview: appearance kernels per camera sample,
     // sky ambient x AO + sun with shadows.  out_rgba: height*width*4.
     // Throws gammart::Error on bad parameters.
@@ -111,6 +126,14 @@ public:
     void bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
                      const float* uvs, int iteration, int threads, float* rows_out, float* rgb_out) const;
     float smoothing_sigma() const;
+    // bake_points for points baked again and again (the live viewer's
+    // vertices): prepare_points finds their neighbours once; bake_prepared
+    // then gives bake_points' results.  A shape change forgets the points
+    // (num_prepared_points() == 0; bake_prepared throws gammart::Error).
+    void prepare_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
+                        const float* uvs, int threads);
+    size_t num_prepared_points() const { return prepared_.size(); }
+    void bake_prepared(int iteration, int threads, float* rows_out, float* rgb_out) const;
 
     // Filled by the Python binding after render_appearance (GIL held).
     RenderStats last_render;
@@ -134,7 +157,7 @@ public:
 
 private:
     RenderScene render_scene() const {
-        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals_};
+        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals_, base_};
     }
 
     Mesh mesh_;
@@ -149,6 +172,9 @@ private:
     std::vector<Texture> textures_;
     std::vector<uint8_t> shading_flat_;   // per triangle of mesh_, or empty
     std::vector<uint8_t> flat_surface_;   // per surface: all its triangles flat
+    BaseColours base_;
+    BakePoints prepared_;
+    std::vector<int32_t> surface_material_;  // per surface: its one material, else -1
     float crease_deg_ = kDefaultCreaseDeg;
     std::vector<float> corner_normals_;
     void update_corner_normals();
