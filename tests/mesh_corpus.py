@@ -227,11 +227,11 @@ DELETE = object()
 
 #: The one-line error each malformed glTF of ``gltf_cases`` must end in (a fragment).
 GLTF_ERRORS = {
-    "glb_empty.glb": "is not a binary glTF",
+    "glb_empty.glb": "not a binary glTF",
     "glb_header_only.glb": "the header declares 692 bytes but the file has 12",
     "glb_cut_in_json.glb": "but the file has 40",
     "glb_cut_in_bin.glb": "but the file has 672",
-    "glb_bad_magic.glb": "is not a binary glTF",
+    "glb_bad_magic.glb": "not a binary glTF",
     "glb_version_1.glb": "version 1; only version 2",
     "glb_huge_length.glb": "declares 4294967280 bytes",
     "glb_huge_json_chunk.glb": "chunk 0 declares 2147483632 bytes",

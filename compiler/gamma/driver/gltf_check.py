@@ -43,11 +43,11 @@ class GltfError(Exception):
 
 def check_gltf(path: Path) -> None:
     """Raise GltfError naming ``path`` and the first problem found."""
-    where = f"glTF '{path}'"
+    where = f"cannot read glTF '{path}'"
     try:
         data = path.read_bytes()
     except OSError as err:
-        raise GltfError(f"cannot read {where}: {err.strerror or err}") from None
+        raise GltfError(f"{where}: {err.strerror or err}") from None
     if path.suffix.lower() == ".glb":
         text, bin_chunk = _glb_chunks(data, where)
     else:
@@ -58,10 +58,10 @@ def check_gltf(path: Path) -> None:
 
 def _glb_chunks(data: bytes, where: str) -> tuple[bytes, bytes | None]:
     if len(data) < 12 or data[:4] != GLB_MAGIC:
-        raise GltfError(f"{where} is not a binary glTF (it must start with 'glTF' and a 12-byte header)")
+        raise GltfError(f"{where}: not a binary glTF (it must start with 'glTF' and a 12-byte header)")
     version, length = struct.unpack_from("<II", data, 4)
     if version != 2:
-        raise GltfError(f"{where} is binary glTF version {version}; only version 2 is supported")
+        raise GltfError(f"{where}: binary glTF version {version}; only version 2 is supported")
     if length != len(data):
         raise GltfError(f"{where}: the header declares {length} bytes but the file has {len(data)}")
     chunks = []
