@@ -99,3 +99,35 @@ def test_prepared_points_bake_like_bake_points(scene):
     rows_a, rgb_a = sim.bake_points(positions, normals, owner, uvs, 2, 1)
     rows_b, rgb_b = sim.bake_prepared(2, 2)
     assert rows_b.shape[1] == sim.row_width and np.array_equal(rows_a, rows_b) and np.array_equal(rgb_a, rgb_b)
+
+
+def test_cancel_stops_a_trace_and_leaves_the_rows(scene):
+    """Simulation.cancel() from another thread stops the tracing pass before
+    its end; the rows are untouched and the next trace runs normally."""
+    import threading
+    import time
+
+    from gamma.backends.jit import JitKernels
+    from gamma.driver.runner import build_config
+
+    eff = effect(PATINA)
+    kernels = JitKernels(eff)              # alive as long as the simulation traces
+    cfg = build_config(runtime_module(), eff, kernels, RunOptions(scene="b", out="", surfels=5000, tons=20000,
+                                                                 threads=2), scene.bounds, scene.down)
+    cfg.triangle_surface = scene.triangle_surface
+    sim = runtime_module().Simulation(scene.mesh, cfg)
+    sim.trace(1)
+    before = np.asarray(sim.rows()).copy()
+    sim.cancel()                                    # before: the next trace stops at once
+    with pytest.raises(ValueError, match="^cancelled:"):
+        sim.trace(2)
+    assert np.array_equal(np.asarray(sim.rows()), before)
+    sim.trace(2)                                    # one request stops one trace
+    assert not np.array_equal(np.asarray(sim.rows()), before)
+    timer = threading.Timer(0.3, sim.cancel)        # from another thread, while traces run
+    timer.start()
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match="^cancelled:"):
+        for it in range(3, 100000):
+            sim.trace(it)
+    assert time.perf_counter() - t0 < 30

@@ -123,7 +123,7 @@ BINDING = {
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
                    "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
-                   "num_prepared_points", "bake_prepared"),
+                   "num_prepared_points", "bake_prepared", "cancel"),
 }
 
 

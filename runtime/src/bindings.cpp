@@ -291,6 +291,9 @@ NB_MODULE(_runtime, m) {
              },
              "iteration"_a,
              "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
+        .def("cancel", &gammart::Simulation::cancel,
+             "Stop the trace running now (or the next) before its next chunk: it raises ValueError "
+             "('cancelled: ...') and leaves the rows as they were.  Callable from any thread.")
         .def("reconfigure", &gammart::Simulation::reconfigure, "config"_a,
              "Take another effect's config for the next run, keeping surfels, scene index and splat kernel "
              "(same surfel count, seed and surface binding, shape never changed; else an error, nothing "

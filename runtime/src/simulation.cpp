@@ -75,6 +75,7 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
                                           state_.surface.data(), state_.size(), index_->sigma());
     });
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    tracer_->set_cancel_flag(&cancel_);
     update_corner_normals();
 }
 
@@ -105,6 +106,8 @@ void Simulation::reconfigure(const Config& config) {
     state_.rows = std::move(rows);
     state_.width = W;
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    tracer_->set_cancel_flag(&cancel_);
+    cancel_.store(false);
 }
 
 void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {

@@ -58,7 +58,12 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                              : 1.0f);
     }
 
+    std::atomic<bool> cancelled{false};
     auto run_chunk = [&](int64_t ci, ChunkLog& log) {
+        if (cancel_ != nullptr && cancel_->load(std::memory_order_relaxed)) {
+            cancelled.store(true, std::memory_order_relaxed);
+            return;
+        }
         log.clear();
         TraceStats st;
         std::vector<float> carry(max_carry_, 0.0f);
@@ -187,6 +192,10 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                 for (int64_t ci = r.begin(); ci < r.end(); ++ci) run_chunk(ci, logs_[size_t(ci - first)]);
             });
         });
+        if (cancelled.load()) {   // the rows are untouched: the sums so far are only in merge_scratch_
+            cancel_->store(false);   // one request stops one trace
+            throw Error("cancelled: the iteration was stopped before its end (Simulation.cancel)");
+        }
         int64_t held = 0;
         for (int64_t k = 0; k < last - first; ++k) {
             total_st.add(logs_[size_t(k)].st);

@@ -13,6 +13,7 @@
 //   shape_step.h    displacement, re-tiling (remesh.h), surfel transfer, rebuild
 #pragma once
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -63,6 +64,10 @@ public:
     void set_rows(const float* data);  // N*W floats
 
     TraceStats trace(int iteration);
+    // Asks the trace running now (or the next one) to stop before its next
+    // chunk of gamma-tons: it throws gammart::Error ("cancelled: ...") and
+    // leaves the rows as they were.  Safe from any thread.
+    void cancel() { cancel_.store(true); }
     UpdateStats update(int iteration);
     // The shape step (after update): nothing happens unless some surface's
     // shape follows a property (Config::shape_rates).
@@ -173,6 +178,7 @@ private:
     std::vector<uint8_t> shading_flat_;   // per triangle of mesh_, or empty
     std::vector<uint8_t> flat_surface_;   // per surface: all its triangles flat
     BaseColours base_;
+    std::atomic<bool> cancel_{false};
     BakePoints prepared_;
     std::vector<int32_t> surface_material_;  // per surface: its one material, else -1
     float crease_deg_ = kDefaultCreaseDeg;
