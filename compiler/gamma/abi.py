@@ -20,7 +20,7 @@ import sys
 
 #: Bumped whenever anything below changes; ``driver.runner.runtime_module``
 #: refuses a runtime built for another version.
-ABI_VERSION = 4
+ABI_VERSION = 5
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -44,6 +44,7 @@ CONTEXT_FIELDS = (
     ("interactions", "int32_t", 1), # interactions of this gamma-ton so far, this one included
     ("random_key", "uint32_t", 2),  # low, high word of the key of random() for this call
     ("uv", "float", 2),             # texture coordinates of the point (appearance; 0 elsewhere)
+    ("up", "float", 3),             # unit vector opposite the scene's down (SPEC §15)
 )
 
 _C_SIZE = {"float": 4, "int32_t": 4, "uint32_t": 4}

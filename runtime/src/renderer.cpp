@@ -110,6 +110,7 @@ int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], co
     set_random_key(ctx, random_key);
     ctx.uv[0] = uv[0];
     ctx.uv[1] = uv[1];
+    ctx.up[0] = rs.frame.up.x; ctx.up[1] = rs.frame.up.y; ctx.up[2] = rs.frame.up.z;
     for (size_t ti = 0; ti < rs.textures.size(); ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
     float rgb[3] = {0, 0, 0};
     const int32_t bad = fn(row, tex, rgb, &ctx);

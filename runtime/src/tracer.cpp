@@ -133,6 +133,8 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                 ctx.height = dot(p, up) - frame.min_up;
                 ctx.iteration = iteration;
                 ctx.interactions = inter;
+                ctx.uv[0] = ctx.uv[1] = 0.0f;
+                ctx.up[0] = up.x; ctx.up[1] = up.y; ctx.up[2] = up.z;
                 const float xi = rng.next();
                 const float c1 = std::min(ks, 1.0f);
                 const float c2 = std::min(c1 + kp, 1.0f);

@@ -40,6 +40,8 @@ UpdateStats run_update_pass(const KernelTable& K, const SceneFrame& frame, Surfe
                 ctx.height = dot(V3{ctx.position[0], ctx.position[1], ctx.position[2]}, frame.up) - frame.min_up;
                 ctx.iteration = iteration;
                 ctx.interactions = 0;
+                ctx.uv[0] = ctx.uv[1] = 0.0f;
+                ctx.up[0] = frame.up.x; ctx.up[1] = frame.up.y; ctx.up[2] = frame.up.z;
                 set_random_key(ctx, mix64(iteration_key ^ uint64_t(i)));
                 if (int32_t bad = fn(rows + i * size_t(W), &ctx))
                     count_nonfinite(local, -1, 0, state.surface[i], bad);

@@ -6,7 +6,7 @@ checked arguments) and the kernels: every rule body that runs for one
 (event, ton type, surface), for one surface's update, or for its
 appearance, in file order.  Rule bodies are trees of the nodes below, in
 which every name is already bound (``Var``: which array, which slot, which
-name), every expression has its kind (``float``, ``bool``, ``color``),
+name), every expression has its kind (``float``, ``bool``, ``color``, ``vector``),
 parameters are folded to constants, every assignment has its statement
 number and every ``random()`` its site.  Nothing downstream looks a name up
 or reads the AST; ``dump`` prints it (``gammac emit --effect``).
@@ -101,7 +101,7 @@ class Var:
     space: str
     name: str
     slot: int = 0
-    component: int = 0
+    component: int | None = None     # of a vector (context value or let): None is the whole vector
     writable: tuple[str, ...] = ()   # the assignment operators allowed on it here
     text: str = ""                   # as written (t.patina), for messages
 
@@ -166,7 +166,26 @@ class Call:
     texture: int | None = None     # texture(): index in Effect.textures
 
 
-Expr = Const | Load | Neg | Arith | Compare | Logic | Call
+@dataclass
+class MakeVector:
+    """``(x, y, z)`` in a rule: a vector of three numbers."""
+
+    items: list["Expr"]
+    pos: Pos
+    kind = "vector"
+
+
+@dataclass
+class Component:
+    """Component ``index`` (0, 1, 2: x, y, z) of a vector expression."""
+
+    operand: "Expr"
+    index: int
+    pos: Pos
+    kind = "float"
+
+
+Expr = Const | Load | Neg | Arith | Compare | Logic | Call | MakeVector | Component
 
 
 @dataclass
@@ -282,12 +301,13 @@ def _expr(e) -> str:
 
         return str(np.float32(e.value))
     if isinstance(e, Load):
-        from .builtins import CONTEXT_VALUES
-
         var = e.var
-        components = CONTEXT_VALUES[var.name][1] if var.space == "ctx" else ()
         return (f"{var.space}:{var.name}" + (f"[{var.slot}]" if var.space in ("ton", "surf") else "")
-                + (f".{components[var.component]}" if components else ""))
+                + (f".{'xyz'[var.component]}" if var.component is not None else ""))
+    if isinstance(e, MakeVector):
+        return f"({', '.join(_expr(a) for a in e.items)})"
+    if isinstance(e, Component):
+        return f"{_expr(e.operand)}.{'xyz'[e.index]}"
     if isinstance(e, Neg):
         return f"(-{_expr(e.operand)})"
     if isinstance(e, (Arith, Compare)):
