@@ -98,7 +98,7 @@ def test_unknown_param_lists_the_valid_ones(tmp_path):
     assert "--param rat: m.gamma has no parameter 'rat' (did you mean 'rate'?); its parameters: rate, tons" in r.stderr
     r = run_gammac("check", main, "--param", "patina.speed=1")
     assert r.returncode == 2
-    assert "--param patina.speed: patina.gamma has no parameter 'speed'; its parameters: rate, tons, trap" in r.stderr
+    assert "--param patina.speed: patina.gamma has no parameter 'speed'; its parameters: rate, intensity, tons, trap" in r.stderr
     r = run_gammac("check", main, "--param", "rust.rate=1")
     assert r.returncode == 2 and "m.gamma imports no recipe 'rust' (imported: patina)" in r.stderr
 
