@@ -113,3 +113,48 @@ def test_ply_texture_coordinates_are_read(rt, tmp_path):
                      "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
                      "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
     assert not rt.Mesh.load(str(plain)).has_uvs
+
+
+LOOK = EFFECT + """
+appearance(s: Iron) { if s.rust > 1000 { color = rgb(0, 0, 1) } }
+appearance(s: Cement) { color = mix(base_color(), rgb(0, 0, 1), 0.5) }
+"""
+
+
+@pytest.mark.parametrize("chain_surface", ["Iron", "Cement"])
+def test_base_colour_textures_are_used(glb, tmp_path, chain_surface):
+    """The chain's material (a red base-colour texture) is what `color` starts
+    as and what base_color() reads; the steps have no material: neutral grey."""
+    import gamma
+
+    path, _, _ = glb
+    (tmp_path / "look.gamma").write_text(LOOK)
+    effect = gamma.compile(tmp_path / "look.gamma")
+    result = gamma.run(effect, path, assign=[f"chain={chain_surface}", "Cement"], iterations=1,
+                       surfels=2000, threads=2)
+    baked = result.bake(32)
+    chain = baked["chain"]["color"].reshape(-1, 3)
+    chain = chain[chain.max(1) > 0]                     # texels the chain's triangles cover
+    red = np.array([200, 40, 40]) / 255
+    want = red if chain_surface == "Iron" else 0.5 * red + 0.5 * np.array([0, 0, 1])
+    assert np.allclose(chain, want, atol=2e-3), chain.mean(0)
+    steps = baked["steps"]["color"].reshape(-1, 3)
+    steps = steps[steps.max(1) > 0]
+    assert np.allclose(steps, 0.5 * 0.7 + 0.5 * np.array([0, 0, 1]), atol=2e-3), steps.mean(0)
+
+
+def test_base_colour_factor_without_texture(tmp_path):
+    import gamma
+
+    ball = trimesh.creation.icosphere(2)
+    ball.visual = trimesh.visual.TextureVisuals(
+        material=trimesh.visual.material.PBRMaterial(name="Green", baseColorFactor=[0.1, 0.8, 0.2, 1.0]))
+    scene = trimesh.Scene()
+    scene.add_geometry(ball, node_name="ball")
+    scene.export(str(tmp_path / "ball.glb"))
+    (tmp_path / "e.gamma").write_text(EFFECT + "appearance(s: Iron) { color = color * 1 }\n")
+    result = gamma.run(gamma.compile(tmp_path / "e.gamma"), tmp_path / "ball.glb", assign=["Iron"],
+                       iterations=1, surfels=1000, threads=2)
+    colours = result.bake(16)["ball"]["color"].reshape(-1, 3)
+    colours = colours[colours.max(1) > 0]
+    assert np.allclose(colours, [0.1, 0.8, 0.2], atol=2e-3), colours.mean(0)

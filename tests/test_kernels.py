@@ -172,7 +172,7 @@ def random_color(rng, depth=0):
     pick = rng.random()
     if depth > 2 or pick < 0.3:
         return rng.choice(['texture("a.png")', 'texture("b.png")', "rgb(s.p, 0.5, uv.u)",
-                           "rgb(0.1, s.q, normal.y)", "color"])
+                           "rgb(0.1, s.q, normal.y)", "color", "base_color()"])
     if pick < 0.5:
         return f"mix({random_color(rng, depth + 1)}, {random_color(rng, depth + 1)}, {random_expr(rng, ['s.p', 'uv.v', 'height'])})"
     if pick < 0.7:
@@ -205,7 +205,7 @@ def test_appearance_matches_interpreter(tmp_path, seed):
     data = np.random.default_rng(seed)
     for _ in range(50):
         surf = (data.standard_normal(effect.row_width) * 2).astype(np.float32)
-        textures = data.random(3 * len(effect.textures)).astype(np.float32)
+        textures = data.random(3 * len(effect.textures) + 3).astype(np.float32)   # + the base colour
         vec = data.standard_normal(9).astype(np.float32)
         ctx = GammaContext(height=float(vec[0]), position=(ctypes.c_float * 3)(*vec[1:4]),
                            normal=(ctypes.c_float * 3)(*vec[4:7]), uv=(ctypes.c_float * 2)(*vec[7:9]))

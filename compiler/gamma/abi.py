@@ -76,7 +76,8 @@ TRANSPORT_SIGNATURE = (
 UPDATE_SIGNATURE = ("int32_t", (("float*", "surf"), ("const GammaContext*", "ctx")))
 #: Appearance kernels turn a point's (interpolated) surfel row into a colour.
 #: ``textures`` holds 3 floats (r, g, b in [0, 1]) per texture of the effect
-#: (``Effect.textures`` order), sampled by the renderer at ``ctx.uv``; the
+#: (``Effect.textures`` order), sampled by the renderer at ``ctx.uv``, then 3
+#: more: the scene's own base colour there (``base_color()``, SPEC §8a); the
 #: kernel writes ``rgb`` (3 floats).  Return value as for the other kernels.
 APPEARANCE_SIGNATURE = (
     "int32_t",
@@ -121,7 +122,8 @@ BINDING = {
                "set_appearance", "add_shape_rate", "add_mass_property"),
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
-                   "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces"),
+                   "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
+                   "set_shading", "corner_normals", "set_base_colours", "reconfigure"),
 }
 
 

@@ -192,7 +192,7 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("dir", help="the --out folder of a gammac run")
     v.add_argument("--iteration", type=_bounded_int, help="iteration to show (default: the last saved)")
     _camera_options(v)
-    _picture_options(v)
+    _picture_options(v, saved=True)
     v.add_argument("--output", "-o", metavar="FILE",
                    help="PNG to write (default: DIR/renders/view_iter_NNNN[_PROPERTY].png)")
     v.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
@@ -244,13 +244,30 @@ def _simulation_options(r: argparse.ArgumentParser) -> None:
                    help="bound on interactions per gamma-ton")
 
 
-def _picture_options(r: argparse.ArgumentParser) -> None:
+def _picture_options(r: argparse.ArgumentParser, saved: bool = False) -> None:
+    """Picture options; for a saved run (``saved``), shading defaults to the run's."""
     r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
     r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
     r.add_argument("--samples", type=_bounded_int, default=4,
                    help="camera rays per pixel of appearance renders (anti-aliasing)")
     r.add_argument("--ao", type=_bounded_int, default=8, dest="ao_samples",
                    help="ambient-occlusion rays per pixel sample (0: none)")
+    r.add_argument("--shading", choices=("smooth", "flat"), default=None if saved else "smooth",
+                   help="smooth: normals interpolated across edges gentler than --crease; "
+                        "flat: every triangle's own normal" + (" (default: the run's)" if saved else ""))
+    r.add_argument("--crease", type=_crease, default=None if saved else 60.0, metavar="DEG",
+                   help="edges whose faces meet at more than this angle stay sharp in smooth shading"
+                        + (" (default: the run's)" if saved else ""))
+
+
+def _crease(text: str) -> float:
+    try:
+        value = _float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not 0 <= value <= 180:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an angle from 0 to 180 degrees")
+    return value
 
 
 def _camera_options(p: argparse.ArgumentParser) -> None:
@@ -321,7 +338,8 @@ def _run_options(args):
                       progress=not getattr(args, "quiet", False),
                       samples=getattr(args, "samples", 4), ao_samples=getattr(args, "ao_samples", 8),
                       export=getattr(args, "export", False), bake_size=getattr(args, "bake_size", 1024),
-                      resume=getattr(args, "resume", False), started=_STARTED)
+                      resume=getattr(args, "resume", False), started=_STARTED,
+                      shading=getattr(args, "shading", "smooth"), crease=getattr(args, "crease", 60.0))
 
 
 class _PipeTolerant:
@@ -426,7 +444,8 @@ def _saved(args) -> int:
                 raise UsageError(f"--size must be between {low} and {high:,}, not {args.size}")
             path = render_saved(args.dir, args.iteration, args.show, args.output, args.size, args.samples,
                                 args.ao_samples, view=args.view, eye=args.eye, look_at=args.look_at,
-                                up=args.up, fov=args.fov, threads=args.threads)
+                                up=args.up, fov=args.fov, threads=args.threads, shading=args.shading,
+                                crease=args.crease)
             print(f"gammac: wrote {path}", file=sys.stderr)
         else:
             iterations = None

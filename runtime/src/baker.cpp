@@ -22,7 +22,7 @@ void bake_points(const RenderScene& rs, size_t k, const float* positions, const 
             throw Error("bake_points: triangle " + std::to_string(triangles[i]) + " out of range");
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 1024), [&](const tbb::blocked_range<size_t>& r) {
-            std::vector<float> tex(3 * rs.textures.size() + 1, 0.0f), scratch(static_cast<size_t>(W), 0.0f);
+            std::vector<float> tex(3 * rs.textures.size() + 3, 0.0f), scratch(static_cast<size_t>(W), 0.0f);
             const float none[3] = {0.0f, 0.0f, 0.0f};
             for (size_t i = r.begin(); i < r.end(); ++i) {
                 const uint32_t tri = uint32_t(triangles[i]);

@@ -289,6 +289,10 @@ NB_MODULE(_runtime, m) {
              },
              "iteration"_a,
              "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
+        .def("reconfigure", &gammart::Simulation::reconfigure, "config"_a,
+             "Take another effect's config for the next run, keeping surfels, scene index and splat kernel "
+             "(same surfel count, seed and surface binding, shape never changed; else an error, nothing "
+             "changed).")
         .def("shape",
              [](gammart::Simulation& s, int iteration) {
                  gammart::ShapeStats st;
@@ -429,6 +433,57 @@ NB_MODULE(_runtime, m) {
                  s.set_textures(std::move(tex));
              },
              "textures"_a, "Textures (float32[H, W, 3], row 0 = top) for the appearance kernels, in order.")
+        .def("set_shading",
+             [](gammart::Simulation& s, nb::handle flat, float crease_deg) {
+                 std::vector<uint8_t> flags;
+                 if (!flat.is_none()) {
+                     I32 f = as_i32(flat);
+                     if (f.ndim() != 1) throw Error("set_shading: flat must be one flag per triangle");
+                     flags.reserve(f.shape(0));
+                     for (size_t t = 0; t < f.shape(0); ++t) flags.push_back(f.data()[t] != 0 ? 1 : 0);
+                 }
+                 s.set_shading(std::move(flags), crease_deg);
+             },
+             "flat"_a.none(), "crease_deg"_a,
+             "Render shading: flat (int32[m] flags, or None) triangles and every triangle when crease_deg <= 0 "
+             "render flat; the others smooth, with edges sharper than crease_deg kept sharp.")
+        .def("set_base_colours",
+             [](gammart::Simulation& s, nb::handle triangle_material, nb::handle factors, nb::handle textures,
+                nb::handle images) {
+                 gammart::BaseColours b;
+                 I32 tm = as_i32(triangle_material), tx = as_i32(textures);
+                 F32 f = as_f32(factors);
+                 if (tm.ndim() != 1 || tx.ndim() != 1 || f.ndim() != 2 || f.shape(1) != 3 || f.shape(0) != tx.shape(0))
+                     throw Error("set_base_colours: triangle_material int32[m], factors float32[k, 3], "
+                                 "textures int32[k] are needed");
+                 b.triangle_material.assign(tm.data(), tm.data() + tm.shape(0));
+                 b.texture.assign(tx.data(), tx.data() + tx.shape(0));
+                 for (size_t k = 0; k < f.shape(0); ++k)
+                     b.factor.push_back({f.data()[3 * k], f.data()[3 * k + 1], f.data()[3 * k + 2]});
+                 size_t i = 0;
+                 for (nb::handle item : images) {
+                     F32 a = as_f32(item);
+                     if (a.ndim() != 3 || a.shape(2) != 3)
+                         throw Error("set_base_colours: image " + std::to_string(i) + " must have shape (H, W, 3)");
+                     gammart::Texture t;
+                     t.height = int(a.shape(0));
+                     t.width = int(a.shape(1));
+                     t.rgb.assign(a.data(), a.data() + a.shape(0) * a.shape(1) * 3);
+                     b.images.push_back(std::move(t));
+                     ++i;
+                 }
+                 s.set_base_colours(std::move(b));
+             },
+             "triangle_material"_a, "factors"_a, "textures"_a, "images"_a,
+             "The scene's own base colours: a material per triangle (-1: none), an RGB factor and an image "
+             "index (-1: none) per material, images float32[H, W, 3] (row 0 = top).")
+        .def("corner_normals",
+             [](const gammart::Simulation& s) {
+                 std::vector<float> c = s.corner_normals();
+                 const size_t m = c.size() / 9;
+                 return to_numpy<float>(std::move(c), {m, 3, 3});
+             },
+             "The renders' shading normals: float32[m, 3 corners, 3].")
         .def_prop_ro("num_textures", [](const gammart::Simulation& s) { return s.textures().size(); })
         .def("bake_points",
              [](const gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,

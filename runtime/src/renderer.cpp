@@ -1,6 +1,8 @@
 // False-colour and appearance renders (see gamma/renderer.h).
 #include "gamma/renderer.h"
 
+#include "gamma/shading.h"
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -93,8 +95,10 @@ int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], co
                   const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]) {
     const int surface = rs.index.tri_surface()[triangle];
     GammaAppearanceKernel fn = rs.kernels.appearance[size_t(surface)];
+    const size_t T = rs.textures.size();
+    rs.base.at(triangle, uv, tex + 3 * T);      // base_color() reads the slot after the effect's textures
     if (!fn) {
-        out_rgb[0] = out_rgb[1] = out_rgb[2] = kNeutralAlbedo;
+        for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(tex[3 * T + size_t(c)]);
         return 0;
     }
     interpolate_row(rs, surface, p, row);
@@ -111,7 +115,7 @@ int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], co
     ctx.uv[0] = uv[0];
     ctx.uv[1] = uv[1];
     ctx.up[0] = rs.frame.up.x; ctx.up[1] = rs.frame.up.y; ctx.up[2] = rs.frame.up.z;
-    for (size_t ti = 0; ti < rs.textures.size(); ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
+    for (size_t ti = 0; ti < T; ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
     float rgb[3] = {0, 0, 0};
     const int32_t bad = fn(row, tex, rgb, &ctx);
     for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(rgb[c]);
@@ -147,7 +151,9 @@ void render_false_colour(const RenderScene& rs, const float* values, std::array<
                     double sv = 0;
                     for (size_t j = 0; j < k; ++j) sv += w[j] * values[idx[j]];
                     out_value[px] = float(sv);
-                    const V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+                    V3 ng = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+                    if (dot(ng, dir) > 0) ng = ng * -1.0f;
+                    const V3 n = shading_normal(rs.corner_normals, rh.hit.primID, rh.hit.u, rh.hit.v, ng);
                     out_shade[px] = 0.25f + 0.75f * std::fabs(dot(n, light));
                 }
         });
@@ -192,7 +198,7 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
     run_with_threads(P.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, P.height, 1), [&](const tbb::blocked_range<int>& r) {
             // Per-task buffers: nothing is allocated per pixel.
-            std::vector<float> row(size_t(W), 0.0f), tex(3 * T + 1, 0.0f);
+            std::vector<float> row(size_t(W), 0.0f), tex(3 * T + 3, 0.0f);
             std::vector<NonFinite> bad_local;
             int64_t rays = 0, calls = 0;
             for (int y = r.begin(); y < r.end(); ++y)
@@ -223,6 +229,8 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
                         const V3 p = cam.eye + dir * rh.ray.tfar;
                         V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
                         if (dot(n, dir) > 0) n = n * -1.0f;
+                        // Shading normal for the sun's cosine; occlusion rays use the geometric one.
+                        const V3 ns = shading_normal(rs.corner_normals, prim, rh.hit.u, rh.hit.v, n);
                         const int surface = tri_surface[prim];
                         // Albedo.
                         float albedo[3];
@@ -255,8 +263,8 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
                             light = ambient * (float(open) / float(A));
                         }
                         if (sun_on) {
-                            const float cs = dot(n, sun);
-                            if (cs > 0) {
+                            const float cs = dot(ns, sun);
+                            if (cs > 0 && dot(n, sun) > 0) {
                                 ++rays;
                                 if (!I.occluded(p + n * eps, sun, eps, std::numeric_limits<float>::infinity()))
                                     light += kSunIntensity * cs;

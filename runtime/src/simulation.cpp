@@ -75,9 +75,80 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
                                           state_.surface.data(), state_.size(), index_->sigma());
     });
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    update_corner_normals();
 }
 
 Simulation::~Simulation() = default;
+
+void Simulation::reconfigure(const Config& config) {
+    auto refuse = [](const std::string& why) { throw Error("reconfigure: " + why); };
+    if (shape_.rebuilds() > 0) refuse("the shape of the scene changed");
+    if (config.surfels != cfg_.surfels || config.seed != cfg_.seed) refuse("another surfel count or seed");
+    if (config.surface_rows.size() != cfg_.surface_rows.size()) refuse("another number of surfaces");
+    std::vector<int32_t> tri_surface = validate_config(config, mesh_);
+    if (tri_surface != index_->tri_surface()) refuse("another binding of triangles to surfaces");
+    // Everything below is what the constructor derives from the config; the
+    // surfels, the scene index and the splat kernel depend only on what was
+    // just checked to be the same.
+    SceneFrame frame = SceneFrame::of(mesh_, config.down);
+    std::vector<SourceRt> sources = build_sources(config, frame);
+    KernelTable kernels = KernelTable::from_config(config);
+    const int W = config.surface_rows.empty() ? 0 : int(config.surface_rows[0].size());
+    std::vector<float> rows(state_.size() * size_t(W));
+    for (size_t i = 0; i < state_.size(); ++i)
+        std::memcpy(&rows[i * size_t(W)], config.surface_rows[size_t(state_.surface[i])].data(),
+                    sizeof(float) * size_t(W));
+    cfg_ = config;
+    frame_ = frame;
+    sources_ = std::move(sources);
+    kernels_ = std::move(kernels);
+    state_.rows = std::move(rows);
+    state_.width = W;
+    tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+}
+
+void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
+    if (!flat.empty() && flat.size() != mesh_.num_triangles())
+        throw Error("set_shading: flat has " + std::to_string(flat.size()) + " flags for " +
+                    std::to_string(mesh_.num_triangles()) + " triangles");
+    if (!std::isfinite(crease_deg)) throw Error("set_shading: crease_deg must be finite");
+    shading_flat_ = std::move(flat);
+    crease_deg_ = crease_deg;
+    // A surface is flat after a re-tiling when all of its triangles are now.
+    const std::vector<int32_t>& tri_surface = index_->tri_surface();
+    flat_surface_.assign(size_t(index_->n_surfaces()), shading_flat_.empty() ? 0 : 1);
+    if (!shading_flat_.empty())
+        for (size_t t = 0; t < tri_surface.size(); ++t)
+            if (!shading_flat_[t]) flat_surface_[size_t(tri_surface[t])] = 0;
+    update_corner_normals();
+}
+
+void Simulation::set_base_colours(BaseColours base) {
+    auto fail = [](const std::string& m) { throw Error("set_base_colours: " + m); };
+    if (!base.triangle_material.empty() && base.triangle_material.size() != mesh_.num_triangles())
+        fail("one material per triangle is needed");
+    if (base.texture.size() != base.factor.size()) fail("one texture index per material is needed");
+    for (int32_t m : base.triangle_material)
+        if (m < -1 || m >= int32_t(base.factor.size())) fail("material " + std::to_string(m) + " out of range");
+    for (int32_t t : base.texture)
+        if (t < -1 || t >= int32_t(base.images.size())) fail("texture " + std::to_string(t) + " out of range");
+    for (const auto& f : base.factor)
+        for (float x : f)
+            if (!std::isfinite(x)) fail("a factor is not finite");
+    validate_textures(base.images);
+    const std::vector<int32_t>& tri_surface = index_->tri_surface();
+    constexpr int32_t kUnset = -2;
+    surface_material_.assign(size_t(index_->n_surfaces()), kUnset);
+    for (size_t t = 0; t < base.triangle_material.size(); ++t) {
+        int32_t& sm = surface_material_[size_t(tri_surface[t])];
+        sm = sm == kUnset || sm == base.triangle_material[t] ? base.triangle_material[t] : -1;
+    }
+    for (int32_t& sm : surface_material_)
+        if (sm == kUnset) sm = -1;
+    base_ = std::move(base);
+}
+
+void Simulation::update_corner_normals() { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); }
 
 void Simulation::set_rows(const float* data) {
     std::memcpy(state_.rows.data(), data, sizeof(float) * state_.rows.size());
@@ -91,7 +162,24 @@ TraceStats Simulation::trace(int iteration) {
     return tracer_->trace(iteration, *index_, frame_, state_);
 }
 
-ShapeStats Simulation::shape(int iteration) { return shape_.apply(iteration, mesh_, state_, index_, frame_); }
+ShapeStats Simulation::shape(int iteration) {
+    ShapeStats st = shape_.apply(iteration, mesh_, state_, index_, frame_);
+    if (st.changed) {
+        if (!base_.triangle_material.empty()) {
+            const std::vector<int32_t>& tri_surface = index_->tri_surface();
+            base_.triangle_material.resize(tri_surface.size());
+            for (size_t t = 0; t < tri_surface.size(); ++t)
+                base_.triangle_material[t] = surface_material_[size_t(tri_surface[t])];
+        }
+        if (!shading_flat_.empty()) {
+            const std::vector<int32_t>& tri_surface = index_->tri_surface();
+            shading_flat_.resize(tri_surface.size());
+            for (size_t t = 0; t < tri_surface.size(); ++t) shading_flat_[t] = flat_surface_[size_t(tri_surface[t])];
+        }
+        update_corner_normals();
+    }
+    return st;
+}
 
 UpdateStats Simulation::update(int iteration) {
     return run_update_pass(kernels_, frame_, state_, iteration, cfg_.seed, cfg_.threads);

@@ -17,7 +17,7 @@ from llvmlite import ir
 
 from .. import abi
 from ..ir import effect as I
-from ..ir.builtins import DEFAULT_ALBEDO, FUNCTIONS, NOISE_BITS, NOISE_CLAMP, noise_salt
+from ..ir.builtins import FUNCTIONS, NOISE_BITS, NOISE_CLAMP, noise_salt
 from ..ir.effect import Effect, Kernel
 
 F32 = ir.FloatType()
@@ -63,9 +63,9 @@ class _KernelBuilder:
         self.first_bad = self.b.alloca(I32, name="first_bad")  # see abi.TRANSPORT_SIGNATURE
         self.b.store(ir.Constant(I32, 0), self.first_bad)
         self.random_key = None
-        if appearance:
-            for c in range(3):
-                self.b.store(ir.Constant(F32, DEFAULT_ALBEDO), self.slot_ptr(self.rgb, c))
+        if appearance:   # `color` starts as the scene's base colour (SPEC §8a)
+            for c, value in enumerate(self.texture(kernel.base_slot)):
+                self.b.store(value, self.slot_ptr(self.rgb, c))
 
     def _intrinsic(self, name: str, arity: int = 2):
         return self.module.declare_intrinsic(name, [F32], ir.FunctionType(F32, [F32] * arity))

@@ -20,7 +20,7 @@ import numpy as np
 from .. import abi
 from ..abi import random_value
 from ..ir import effect as I
-from ..ir.builtins import DEFAULT_ALBEDO, FUNCTIONS, ref_arith
+from ..ir.builtins import FUNCTIONS, ref_arith
 from ..ir.effect import Kernel
 
 f32 = np.float32
@@ -224,8 +224,13 @@ def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context, *, textures=None,
 
 
 def run_appearance(kernel: Kernel, surf, textures, ctx: Context):
-    """The colour an appearance kernel gives: (rgb float32[3], first non-finite statement)."""
-    rgb = np.full(3, DEFAULT_ALBEDO, np.float32)
-    bad = run_kernel(kernel, None, surf, None, ctx, textures=np.asarray(textures, np.float32).reshape(-1),
-                     rgb=rgb)
+    """The colour an appearance kernel gives: (rgb float32[3], first non-finite statement).
+    ``textures``: 3 floats per texture of the effect, then 3 for the scene's
+    base colour (SPEC §8a), which ``color`` starts as."""
+    textures = np.asarray(textures, np.float32).reshape(-1)
+    base = 3 * kernel.base_slot
+    if len(textures) != base + 3:
+        raise ValueError(f"run_appearance: {len(textures)} texture values, not {base + 3}")
+    rgb = textures[base:base + 3].copy()
+    bad = run_kernel(kernel, None, surf, None, ctx, textures=textures, rgb=rgb)
     return rgb.copy(), bad

@@ -32,6 +32,7 @@ class GltfPart:
     uvs: np.ndarray | None             # float32 (m, 3, 2), OBJ convention (v up), or None
     base_colour: np.ndarray | None     # float32 (h, w, 3) display values, or None
     base_factor: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    has_material: bool = False
 
 
 def is_gltf(path: str | Path) -> bool:
@@ -61,9 +62,13 @@ def read_gltf(path: str | Path) -> list[GltfPart]:
         uv = getattr(visual, "uv", None)
         uvs = np.asarray(uv, np.float32)[faces] if uv is not None and len(uv) == len(verts) else None
         material = getattr(visual, "material", None)
-        image, factor = _base_colour(material)
+        try:
+            image, factor = _base_colour(material)
+        except GltfError as err:
+            raise GltfError(f"glTF '{path}', node '{node}': {err}") from None
         parts.append(GltfPart(str(node), str(geometry_name), getattr(material, "name", None),
-                              world.astype(np.float32), faces.astype(np.int32), uvs, image, factor))
+                              world.astype(np.float32), faces.astype(np.int32), uvs, image, factor,
+                              material is not None))
     if not parts:
         raise GltfError(f"glTF '{path}' has no triangle mesh")
     return parts
@@ -83,5 +88,14 @@ def _base_colour(material):
         scale = 255.0 if f.dtype.kind in "iu" or f.max() > 1.0 else 1.0
         rgb = tuple(float(c) / scale for c in f[:3])
     if image is not None:
+        width, height = image.size
+        if width * height > MAX_TEXTURE_PIXELS:
+            raise GltfError(f"a base-colour texture of {width} x {height} pixels is larger than "
+                            f"{MAX_TEXTURE_SIDE} x {MAX_TEXTURE_SIDE}")
         image = np.asarray(image.convert("RGB"), np.float32) / 255.0
     return image, rgb
+
+
+#: The largest base-colour texture read (as for texture() in effects, SPEC §8a).
+MAX_TEXTURE_SIDE = 8192
+MAX_TEXTURE_PIXELS = MAX_TEXTURE_SIDE * MAX_TEXTURE_SIDE

@@ -57,6 +57,8 @@ class RunOptions:
     progress: bool = True
     resume: bool = False          # continue the run in ``out`` from its last complete iteration
     started: float | None = None  # time.perf_counter() when gammac started (start-up time)
+    shading: str = "smooth"       # renders: "smooth" (up to the crease angle) or "flat"
+    crease: float = 60.0          # degrees; sharper edges stay sharp in smooth shading
 
 
 def runtime_module():
@@ -254,7 +256,7 @@ def prepare_output(out: Path) -> None:
 
 
 def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None,
-        standard: bool = True) -> dict:
+        standard: bool = True, reuse=None) -> dict:
     """Simulate ``effect`` with ``opts``; the standard outputs, then ``writers``,
     receive the run's events (``events.py``).  Returns the summary.
 
@@ -263,14 +265,17 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
     ``"completed": false``, and ``RunInterrupted`` is raised.  A run that fails
     puts the earlier run's files back (``folder.py``).  ``scene`` (a
     ``scene.Scene``) replaces ``opts.scene``; ``standard=False`` leaves the
-    standard outputs out (the Python API, the viewer)."""
+    standard outputs out (the Python API, the viewer).  ``reuse``: the
+    simulation of an earlier run on the same ``scene``, taken over with the
+    new effect when its surfels can stay (``Simulation.reconfigure``), which
+    saves the surfel setup; the results are the same either way."""
     from . import folder
     from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
     from .interrupt import Interrupted, Interruptions
     from .writers import standard_writers
 
     with Interruptions() as stop:
-        session = start(effect, opts, stop, scene)
+        session = start(effect, opts, stop, scene, reuse)
         subscribers = (standard_writers(session) if standard else []) + list(writers)
         done = session.first_iteration - 1
         try:
@@ -439,7 +444,7 @@ def static_columns(sim, surfel_surface: np.ndarray) -> dict:
     return static
 
 
-def start(effect: Effect, opts: RunOptions, stop=None, scene=None) -> Run:
+def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -> Run:
     """Check the options, load the scene, compile, build the simulation and
     set the earlier run's files aside; every user error is raised before any output."""
     from .scene import SceneError, load_scene
@@ -489,7 +494,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None) -> Run:
     except folder.FolderError as err:
         raise RunError(str(err)) from None
     try:
-        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered)
+        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse)
     except BaseException:
         lock.__exit__()
         raise
@@ -497,7 +502,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None) -> Run:
     return session
 
 
-def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered) -> Run:
+def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse=None) -> Run:
     """The rest of ``start``, with the output folder locked."""
     from . import folder, resume
     from .events import WriteQueue
@@ -512,7 +517,15 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     try:
         cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
         cfg.triangle_surface = scene.triangle_surface
-        sim = call(rt.Simulation, mesh, cfg)
+        sim = None
+        if reuse is not None:
+            try:
+                call(reuse.reconfigure, cfg)
+                sim = reuse
+            except (ValueError, RuntimeError):
+                sim = None              # another surfel set is needed: build it
+        if sim is None:
+            sim = call(rt.Simulation, mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
         message = str(err).removeprefix("config: ")
         names = list(effect.surfaces)
@@ -521,6 +534,17 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                          if int(m[1]) < len(names) else m[0], message)
         raise RunError(message) from None
     setup_seconds = time.perf_counter() - t0
+    flat = scene.triangle_flat
+    sim.set_shading(flat.astype(np.int32) if flat is not None and flat.any() else None,
+                    0.0 if opts.shading == "flat" else float(opts.crease))
+    if scene.materials:
+        images = [image for _, image in scene.materials if image is not None]
+        numbered = iter(range(len(images)))
+        sim.set_base_colours(scene.triangle_material,
+                             np.asarray([factor for factor, _ in scene.materials], np.float32),
+                             np.asarray([-1 if image is None else next(numbered) for _, image in scene.materials],
+                                        np.int32),
+                             [np.ascontiguousarray(image, np.float32) for image in images])
     if looks:
         sim.set_textures(textures)
     camera = run_camera(scene, opts)
@@ -572,7 +596,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         "options": {"params": dict(effect.overrides), "assign": list(opts.assign),
                     "down": list(opts.down) if opts.down is not None else None,
                     "surfels": opts.surfels, "seed": opts.seed, "tons": opts.tons,
-                    "iterations": opts.iterations, "max_interactions": opts.max_interactions},
+                    "iterations": opts.iterations, "max_interactions": opts.max_interactions,
+                    "shading": opts.shading, "crease": opts.crease},
         "iterations": [],
     }
     report = NonFiniteReport(effect, opts.progress)

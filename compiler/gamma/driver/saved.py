@@ -23,8 +23,9 @@ from .runner import RunError, RunOptions, start
 
 
 def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: float = 30.0,
-           threads: int = 0):
-    """(run session, summary, the iterations saved) of the run in ``folder``."""
+           threads: int = 0, shading: str | None = None, crease: float | None = None):
+    """(run session, summary, the iterations saved) of the run in ``folder``;
+    shading and crease (None: the run's) as ``gammac run`` takes them."""
     from ..frontend.checker import load
 
     folder = Path(folder)
@@ -48,7 +49,9 @@ def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: 
                       view=view, eye=eye, look_at=look_at, up=up, fov=fov,
                       surfels=options["surfels"], seed=options["seed"], tons=options.get("tons"),
                       threads=threads, max_interactions=options.get("max_interactions", 100),
-                      iterations=max(saved), progress=False)
+                      iterations=max(saved), progress=False,
+                      shading=shading or options.get("shading", "smooth"),
+                      crease=crease if crease is not None else options.get("crease", 60.0))
     import tempfile
 
     scratch = tempfile.TemporaryDirectory(prefix="gamma-saved-")   # start() wants a folder of its own
@@ -127,6 +130,7 @@ def render_saved(folder, iteration: int | None, show: str | None, output: str | 
     target_path = Path(output) if output else folder / "renders" / f"view_iter_{it:04d}{suffix}.png"
     if show:
         low, high = run_ranges(summary, folder, saved, [show]).get(show, (0.0, 1.0))
+        low = min(0.0, low)      # as the run's own renders: the scale starts at 0 or below
         if high <= low:
             high = low + 1.0
         values = np.ascontiguousarray(np.nan_to_num(_column(session, show), nan=low, posinf=high,

@@ -43,6 +43,9 @@ class Scene:
     triangle_object: np.ndarray = None    # int32 index into object_names per triangle
     object_names: list = None             # OBJ object, else group, else the mesh file's name
     triangle_has_uv: np.ndarray = None    # bool per triangle: its part has texture coordinates
+    triangle_flat: np.ndarray = None      # bool per triangle: its part renders flat ("shading": "flat")
+    triangle_material: np.ndarray = None  # int32 per triangle: index into materials, -1 none
+    materials: list = None                # (RGB factor, float32 image [h, w, 3] or None) per material
 
     @property
     def diagonal(self) -> float:
@@ -95,6 +98,8 @@ class _Part:
     rules: list[tuple[str, str]]
     vertices: np.ndarray | None = None   # transformed (None: untransformed single mesh)
     names: tuple = ()                    # more names --assign patterns match (glTF mesh, material)
+    flat: bool = False                   # rendered with flat shading (a scene file's "shading": "flat")
+    material: tuple | None = None        # glTF base colour: (RGB factor, float32 image [h, w, 3] or None)
 
 
 def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
@@ -117,7 +122,9 @@ def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
         except (ValueError, RuntimeError) as err:
             raise SceneError(f"glTF '{path}', node '{piece.node}': {err}") from None
         names = tuple(n for n in (piece.mesh, piece.material, path.stem) if n)
-        parts.append(_Part(mesh, piece.node, list(rules), np.asarray(mesh.vertices(), float), names))
+        material = (piece.base_factor, piece.base_colour) if piece.has_material else None
+        parts.append(_Part(mesh, piece.node, list(rules), np.asarray(mesh.vertices(), float), names,
+                           material=material))
     return parts
 
 
@@ -149,10 +156,13 @@ def _read_scene_file(rt, path: Path, effect: Effect):
         where = f"scene '{path}': meshes[{i}]"
         if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
             raise SceneError(f"{where} must be an object with a \"file\"")
-        unknown = set(entry) - {"file", "translate", "rotate", "scale", "assign"}
+        unknown = set(entry) - {"file", "translate", "rotate", "scale", "assign", "shading"}
         if unknown:
             raise SceneError(f"{where}: unknown key '{sorted(unknown)[0]}' "
-                             "(keys: file, translate, rotate, scale, assign)")
+                             "(keys: file, translate, rotate, scale, assign, shading)")
+        shading = entry.get("shading", "smooth")
+        if shading not in ("smooth", "flat"):
+            raise SceneError(f"{where}.shading must be \"smooth\" or \"flat\", not {json.dumps(shading)}")
         scale = entry.get("scale", 1.0)
         if isinstance(scale, (int, float)):
             scale = [scale] * 3
@@ -172,6 +182,7 @@ def _read_scene_file(rt, path: Path, effect: Effect):
         for part in _file_parts(rt, path.parent / entry["file"], rules):
             verts = part.vertices if part.vertices is not None else np.asarray(part.mesh.vertices(), float)
             part.vertices = (verts * scale) @ _rotation(rotate).T + translate
+            part.flat = shading == "flat"
             parts.append(part)
     return parts, down
 
@@ -269,7 +280,13 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None, part
     counts = {name: int(np.sum(surface == s.index)) for name, s in effect.surfaces.items()}
     objects, names = _objects(parts)
     has_uv = np.concatenate([np.full(p.mesh.num_triangles, p.mesh.has_uvs) for p in parts])
-    scene = Scene(mesh, surface, down, mesh.bounds, counts, objects, names, has_uv)
+    flat = np.concatenate([np.full(p.mesh.num_triangles, p.flat) for p in parts])
+    materials = [p.material for p in parts if p.material is not None]
+    numbered = iter(range(len(materials)))
+    triangle_material = np.concatenate([np.full(p.mesh.num_triangles, -1 if p.material is None else next(numbered),
+                                                 np.int32) for p in parts])
+    scene = Scene(mesh, surface, down, mesh.bounds, counts, objects, names, has_uv, flat,
+                  triangle_material, materials)
     problem = scene_size_problem(scene.diagonal)
     if problem:
         raise SceneError(f"scene '{path}': {problem}")

@@ -84,6 +84,7 @@ class _Checker:
         self.report = Report()
         self.unit: Unit | None = None
         self.textures: dict[str, int] = {}      # resolved path -> index
+        self.base_color_calls: list = []        # base_color(): Call.texture set to len(textures) at the end
 
     def error(self, pos: A.Pos, message: str) -> None:
         self.report.error(pos, message, self.unit.file)
@@ -150,6 +151,10 @@ class _Checker:
         effect.params = dict(main.params)
         effect.assign = assign
         effect.textures = list(self.textures)
+        for call in self.base_color_calls:
+            call.texture = len(effect.textures)
+        for kernel in effect.kernels:
+            kernel.base_slot = len(effect.textures)
         effect.files = [u.path for u in program.units]
         effect.overrides = dict(self.overrides)
         return effect
@@ -650,6 +655,11 @@ class _Typer:
         if e.name == "texture":
             # a colour even when the file is missing, so the rest is still checked
             return ir.Call("texture", [], "color", e.pos, texture=self.checker.texture(e))
+        if e.name == "base_color":
+            # its slot follows the effect's textures, whose number is known at the end
+            call = ir.Call("base_color", [], "color", e.pos)
+            self.checker.base_color_calls.append(call)
+            return call
         if fn.result == "like-first":  # mix(): of colours or vectors with a number, or of numbers
             first = self.expr(e.args[0], lets)
             if first is not None and first.kind in ("color", "vector"):

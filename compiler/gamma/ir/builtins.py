@@ -31,8 +31,6 @@ f32 = np.float32
 KINDS = ("float", "bool", "color", "vector")
 #: ``fbm(p, octaves)``: octaves is a constant whole number from 1 to this.
 MAX_OCTAVES = 8
-#: ``color`` before an appearance block sets it, and of surfaces without one (SPEC §8a).
-DEFAULT_ALBEDO = 0.7
 
 
 @dataclass(frozen=True)
@@ -357,6 +355,10 @@ BUILTINS: tuple[Builtin, ...] = (
     Builtin("rgb", 3, 3, "color", lambda emit, call, args: tuple(args),
             lambda state, call, args: tuple(args), None, appearance_only=True, spec_section="8a"),
     Builtin("texture", 1, 1, "color", lambda emit, call, args: emit.texture(call.texture),
+            lambda state, call, args: state.texture(call), None, appearance_only=True,
+            spec_section="8a"),
+    # the scene's own colour: the slot after the effect's textures (``Call.texture``, set by the checker)
+    Builtin("base_color", 0, 0, "color", lambda emit, call, args: emit.texture(call.texture),
             lambda state, call, args: state.texture(call), None, appearance_only=True,
             spec_section="8a"),
 )

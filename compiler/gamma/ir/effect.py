@@ -241,6 +241,7 @@ class Kernel:
     bodies: list[list[Stmt]] = field(default_factory=list)
     rules: list = field(default_factory=list)   # the AST declaration of each body (warnings)
     random_sites: int = 0          # random() calls in all bodies (their sites are 0 .. this - 1)
+    base_slot: int = 0             # appearance: the textures slot of the scene's base colour
 
     @property
     def label(self) -> str:

@@ -84,6 +84,7 @@ class Watcher:
         self.generation = 0
         self.scene_key = None
         self.scene = None
+        self.sim = None            # the last run's simulation, whose surfels a save can keep
         self.mesh = None
         import tempfile
 
@@ -171,6 +172,7 @@ class Watcher:
             except SceneError as err:
                 raise RunError(str(err)) from None
             self.scene_key = key
+            self.sim = None                  # surfels of another scene
             self.mesh = viewer_mesh(self.scene.mesh)
             self._publish_mesh(run_camera(self.scene, opts))
         total = opts.tons if opts.tons is not None else sum(s.count for s in effect.sources)
@@ -179,8 +181,9 @@ class Watcher:
         writer = ViewerWriter(self, self.mesh, quality)
         t0 = time.perf_counter()
         run(effect, replace(opts, tons=tons, out=self.scratch.name, progress=False), [writer],
-            scene=self.scene, standard=False)
+            scene=self.scene, standard=False, reuse=self.sim)
         session = writer.session
+        self.sim = session.sim             # the next save keeps its surfels when it can
         setup_seconds = writer.setup_seconds - t0            # compilation (or the cache) and surfels
         run_seconds = time.perf_counter() - writer.setup_seconds
         info = {"surfels": int(session.sim.num_surfels), "triangles": int(self.scene.mesh.num_triangles),

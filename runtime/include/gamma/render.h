@@ -57,6 +57,28 @@ constexpr std::array<float, 3> kSkyZenith{0.47f, 0.63f, 0.86f};
 // Event number used for appearance kernels in NonFinite records.
 constexpr int kAppearanceEvent = -2;
 
+// The scene's own base colour (glTF materials, SPEC §8a `base_color()`):
+// per triangle a material (-1: none), per material an RGB factor and an
+// index into `images` (-1: no texture).  Without a material the colour is
+// the neutral albedo.
+struct BaseColours {
+    std::vector<int32_t> triangle_material;      // empty: no materials at all
+    std::vector<std::array<float, 3>> factor;
+    std::vector<int32_t> texture;
+    std::vector<Texture> images;
+
+    void at(uint32_t triangle, const float uv[2], float out[3]) const {
+        const int32_t m = triangle < triangle_material.size() ? triangle_material[triangle] : -1;
+        if (m < 0) {
+            out[0] = out[1] = out[2] = kNeutralAlbedo;
+            return;
+        }
+        float texel[3] = {1.0f, 1.0f, 1.0f};
+        if (texture[size_t(m)] >= 0) sample_texture(images[size_t(texture[size_t(m)])], uv[0], uv[1], texel);
+        for (int c = 0; c < 3; ++c) out[c] = factor[size_t(m)][size_t(c)] * texel[c];
+    }
+};
+
 struct AppearanceParams {
     std::array<float, 3> eye{0, 0, 1}, target{0, 0, 0}, up{0, 1, 0};
     float fov_deg = 40;

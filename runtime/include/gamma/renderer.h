@@ -30,6 +30,8 @@ struct RenderScene {
     const KernelTable& kernels;
     const std::vector<Texture>& textures;
     const Mesh& mesh;
+    const std::vector<float>& corner_normals;  // shading.h; empty: flat shading
+    const BaseColours& base;                   // the scene's own colours (glTF materials)
 };
 
 // Checks textures (positive size, height*width*3 finite floats); throws
@@ -42,8 +44,9 @@ void interpolate_row(const RenderScene& rs, int surface, const float p[3], float
 
 // The colour the surface's appearance kernel gives at point p of triangle
 // `triangle` (normal n, texture coordinates uv) with the smoothed row,
-// clamped to [0, 1]; the neutral albedo without a kernel.  `row` (W floats)
-// and `tex` (3 per texture) are scratch; returns the kernel's non-finite report.
+// clamped to [0, 1]; the scene's base colour there without a kernel.  `row`
+// (W floats) and `tex` (3 per texture, then 3 for the base colour) are
+// scratch; returns the kernel's non-finite report.
 int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
                   const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]);
 

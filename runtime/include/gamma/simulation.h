@@ -25,6 +25,7 @@
 #include "gamma/renderer.h"
 #include "gamma/scene_index.h"
 #include "gamma/shape_step.h"
+#include "gamma/shading.h"
 #include "gamma/sources.h"
 #include "gamma/stats.h"
 #include "gamma/surfel_state.h"
@@ -44,6 +45,14 @@ public:
     ~Simulation();
     Simulation(const Simulation&) = delete;
     Simulation& operator=(const Simulation&) = delete;
+
+    // Takes another effect (kernels, sources, initial rows, options) for the
+    // next run, keeping the surfels, the scene index and the splat kernel:
+    // the state is then what Simulation(mesh, config) would give, without
+    // its setup.  Throws gammart::Error (nothing changed) unless the surfel
+    // count, the seed and the binding of triangles to surfaces are the same
+    // and the shape never changed.
+    void reconfigure(const Config& config);
 
     size_t num_surfels() const { return state_.size(); }
     int row_width() const { return state_.width; }
@@ -71,10 +80,24 @@ public:
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads,
                 float* out_value, float* out_shade) const;
 
+    // Shading of the renders (shading.h): flat[t] != 0 renders triangle t
+    // flat (empty: none), crease_deg <= 0 renders every triangle flat.  After
+    // a re-tiling, a triangle is flat when every triangle of its surface was.
+    // Throws gammart::Error if flat has the wrong size or crease_deg is not
+    // finite.
+    void set_shading(std::vector<uint8_t> flat, float crease_deg);
+    const std::vector<float>& corner_normals() const { return corner_normals_; }
+
     // Textures for the appearance kernels (kernel argument `textures`, 3
     // floats per texture in this order).  Throws gammart::Error.
     void set_textures(std::vector<Texture> textures);
     const std::vector<Texture>& textures() const { return textures_; }
+    // The scene's own base colours (glTF materials): what surfaces without an
+    // appearance render with and what `base_color()` reads.  After a
+    // re-tiling a triangle keeps a material when its surface had only that
+    // one.  Throws gammart::Error on sizes or indices out of range and on
+    // non-finite factors or texels.
+    void set_base_colours(BaseColours base);
     // Physically plausible preview: appearance kernels per camera sample,
     // sky ambient x AO + sun with shadows.  out_rgba: height*width*4.
     // Throws gammart::Error on bad parameters.
@@ -125,7 +148,7 @@ public:
 
 private:
     RenderScene render_scene() const {
-        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_};
+        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals_, base_};
     }
 
     Mesh mesh_;
@@ -138,6 +161,13 @@ private:
     std::unique_ptr<Tracer> tracer_;
     ShapeStep shape_{cfg_};
     std::vector<Texture> textures_;
+    std::vector<uint8_t> shading_flat_;   // per triangle of mesh_, or empty
+    std::vector<uint8_t> flat_surface_;   // per surface: all its triangles flat
+    BaseColours base_;
+    std::vector<int32_t> surface_material_;  // per surface: its one material, else -1
+    float crease_deg_ = kDefaultCreaseDeg;
+    std::vector<float> corner_normals_;
+    void update_corner_normals();
     SetupSeconds setup_seconds_;
 };
 
