@@ -78,10 +78,27 @@ void validate_textures(const std::vector<Texture>& textures) {
     }
 }
 
-void interpolate_row(const RenderScene& rs, int surface, const float p[3], float* out) {
+namespace {
+
+// The smoothed row (see interpolate_row) and the smoothed accessibility and
+// curvature (SPEC §12: an appearance block reads them at the point), each
+// neighbour's on the side of the point's normal n (none: the measures are 0).
+void interpolate_point(const RenderScene& rs, int surface, const float p[3], const float* n, float* out,
+                       float* accessibility, float* curvature) {
     uint32_t idx[kSmoothingNeighbours];
     double w[kSmoothingNeighbours];
     const size_t k = rs.index.smooth(surface, p, idx, w);
+    const SurfelMeasures& m = rs.state.measures;
+    double open_sum = 0, curvature_sum = 0;
+    for (size_t j = 0; n != nullptr && j < k; ++j) {
+        const float* sn = rs.state.surf.normal.data() + 3 * size_t(idx[j]);
+        const bool back = n[0] * sn[0] + n[1] * sn[1] + n[2] * sn[2] < 0.0f;
+        if (!m.accessibility.empty())
+            open_sum += w[j] * (back ? m.accessibility_back[idx[j]] : m.accessibility[idx[j]]);
+        if (!m.curvature.empty()) curvature_sum += w[j] * (back ? -m.curvature[idx[j]] : m.curvature[idx[j]]);
+    }
+    *accessibility = float(open_sum);
+    *curvature = float(curvature_sum);
     const float* rows = rs.state.rows.data();
     const int W = rs.state.width;
     for (int c = 0; c < W; ++c) {
@@ -89,6 +106,13 @@ void interpolate_row(const RenderScene& rs, int surface, const float p[3], float
         for (size_t j = 0; j < k; ++j) acc += w[j] * rows[size_t(idx[j]) * size_t(W) + size_t(c)];
         out[c] = float(acc);
     }
+}
+
+}  // namespace
+
+void interpolate_row(const RenderScene& rs, int surface, const float p[3], float* out) {
+    float accessibility, curvature;
+    interpolate_point(rs, surface, p, nullptr, out, &accessibility, &curvature);
 }
 
 int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
@@ -101,8 +125,8 @@ int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], co
         for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(tex[3 * T + size_t(c)]);
         return 0;
     }
-    interpolate_row(rs, surface, p, row);
     GammaContext ctx;
+    interpolate_point(rs, surface, p, n, row, &ctx.accessibility, &ctx.curvature);
     for (int c = 0; c < 3; ++c) {
         ctx.position[c] = p[c];
         ctx.normal[c] = n[c];

@@ -31,7 +31,8 @@ class Context:
 
     def __init__(self, iteration: int = 0, interactions: int = 0, height: float = 0.0,
                  position=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 0.0),
-                 random_key: int = 0, up=(0.0, 1.0, 0.0), uv=(0.0, 0.0)):
+                 random_key: int = 0, up=(0.0, 1.0, 0.0), uv=(0.0, 0.0), accessibility: float = 0.0,
+                 curvature: float = 0.0):
         self.random_key = random_key
         self.iteration = iteration
         self.interactions = interactions
@@ -41,6 +42,8 @@ class Context:
         self.direction = np.asarray(direction, np.float32)
         self.uv = np.asarray(uv, np.float32)
         self.up = np.asarray(up, np.float32)
+        self.accessibility = f32(accessibility)
+        self.curvature = f32(curvature)
 
 
 def _row_layout(kernel: Kernel) -> dict[str, int]:

@@ -389,7 +389,9 @@ CONTEXT_VALUES = {
     "normal": (("transport", "update", "appearance"), ("x", "y", "z")),
     "direction": (("transport",), ("x", "y", "z")),
     "up": (("transport", "update", "appearance"), ("x", "y", "z")),
-    "uv": (("appearance",), ("x", "y", "z")),
+    "uv": (("transport", "update", "appearance"), ("x", "y", "z")),
+    "accessibility": (("transport", "update", "appearance"), ()),
+    "curvature": (("transport", "update", "appearance"), ()),
 }
 #: Other names of components: uv.u, uv.v are uv.x, uv.y.
 COMPONENT_ALIASES = {"uv": {"u": 0, "v": 1}}

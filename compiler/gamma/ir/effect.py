@@ -220,6 +220,39 @@ class Store:
 Stmt = Let | If | Store
 
 
+def children(e) -> list:
+    """The operands of an expression, in source order."""
+    if isinstance(e, Neg):
+        return [e.operand]
+    if isinstance(e, (Arith, Compare)):
+        return [e.left, e.right]
+    if isinstance(e, Logic):
+        return [e.left] + ([e.right] if e.right is not None else [])
+    if isinstance(e, Call):
+        return list(e.args)
+    if isinstance(e, MakeVector):
+        return list(e.items)
+    if isinstance(e, Component):
+        return [e.operand]
+    return []
+
+
+def expressions(body: list):
+    """Every expression of a body, nested ones too (a parent before its operands)."""
+    stack = []
+    for st in body:
+        if isinstance(st, (Let, Store)):
+            stack.append(st.value)
+        elif isinstance(st, If):
+            stack.append(st.cond)
+            yield from expressions(st.then)
+            yield from expressions(st.otherwise)
+    while stack:
+        e = stack.pop()
+        yield e
+        stack.extend(children(e))
+
+
 def stores(body: list) -> list[Store]:
     """Every assignment of a body, nested ones too, in source order."""
     found = []
@@ -283,6 +316,18 @@ class Effect:
     textures: list = field(default_factory=list) # image files read by texture(), in index order
     files: list = field(default_factory=list)    # the effect file and every file it imports
     overrides: dict = field(default_factory=dict) # --param values it was checked with (NAME or RECIPE.NAME)
+
+    def context_reads(self, events=None) -> set[str]:
+        """The context values the kernels read (of the given events: 'transport',
+        'update', 'appearance'; None: all)."""
+        names = set()
+        for k in self.kernels:
+            kind = "transport" if k.ton is not None else k.event
+            if events is not None and kind not in events:
+                continue
+            for body in k.bodies:
+                names |= {e.var.name for e in expressions(body) if isinstance(e, Load) and e.var.space == "ctx"}
+        return names
 
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]
