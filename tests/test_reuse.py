@@ -74,3 +74,60 @@ def test_surfels_that_cannot_stay_are_built_afresh(scene):
     with pytest.raises((ValueError, RuntimeError), match="reconfigure: another surfel count or seed"):
         first["sim"].reconfigure(bad)
     assert np.array_equal(np.asarray(first["sim"].rows()), before)
+
+
+def test_prepared_points_bake_like_bake_points(scene):
+    """The viewer's bake (neighbours found once) gives bake_points' results, bit for bit,
+    for every iteration and after the simulation is taken over by another effect."""
+    first = go(effect(PATINA), scene)
+    sim = first["sim"]
+    rng = np.random.default_rng(3)
+    tris = np.asarray(scene.mesh.triangles())
+    verts = np.asarray(scene.mesh.vertices())
+    owner = rng.integers(0, len(tris), 3000).astype(np.int32)
+    bary = rng.dirichlet([1, 1, 1], 3000)
+    positions = np.einsum("kc,kcd->kd", bary, verts[tris[owner]]).astype(np.float32)
+    normals = np.tile(np.float32([0, 1, 0]), (3000, 1))
+    uvs = rng.random((3000, 2)).astype(np.float32)
+    sim.prepare_points(positions, normals, owner, uvs, 2)
+    assert sim.num_prepared_points == 3000
+    for it in (1, 2):
+        rows_a, rgb_a = sim.bake_points(positions, normals, owner, uvs, it, 2)
+        rows_b, rgb_b = sim.bake_prepared(it, 2)
+        assert np.array_equal(rows_a, rows_b) and np.array_equal(rgb_a, rgb_b)
+    go(effect(OTHER), scene, reuse=sim)
+    rows_a, rgb_a = sim.bake_points(positions, normals, owner, uvs, 2, 1)
+    rows_b, rgb_b = sim.bake_prepared(2, 2)
+    assert rows_b.shape[1] == sim.row_width and np.array_equal(rows_a, rows_b) and np.array_equal(rgb_a, rgb_b)
+
+
+def test_cancel_stops_a_trace_and_leaves_the_rows(scene):
+    """Simulation.cancel() from another thread stops the tracing pass before
+    its end; the rows are untouched and the next trace runs normally."""
+    import threading
+    import time
+
+    from gamma.backends.jit import JitKernels
+    from gamma.driver.runner import build_config
+
+    eff = effect(PATINA)
+    kernels = JitKernels(eff)              # alive as long as the simulation traces
+    cfg = build_config(runtime_module(), eff, kernels, RunOptions(scene="b", out="", surfels=5000, tons=20000,
+                                                                 threads=2), scene.bounds, scene.down)
+    cfg.triangle_surface = scene.triangle_surface
+    sim = runtime_module().Simulation(scene.mesh, cfg)
+    sim.trace(1)
+    before = np.asarray(sim.rows()).copy()
+    sim.cancel()                                    # before: the next trace stops at once
+    with pytest.raises(ValueError, match="^cancelled:"):
+        sim.trace(2)
+    assert np.array_equal(np.asarray(sim.rows()), before)
+    sim.trace(2)                                    # one request stops one trace
+    assert not np.array_equal(np.asarray(sim.rows()), before)
+    timer = threading.Timer(0.3, sim.cancel)        # from another thread, while traces run
+    timer.start()
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match="^cancelled:"):
+        for it in range(3, 100000):
+            sim.trace(it)
+    assert time.perf_counter() - t0 < 30

@@ -126,8 +126,8 @@ BINDING = {
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
                    "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
-                   "set_shading", "corner_normals", "set_base_colours", "reconfigure",
-                   "surfel_measures"),
+                   "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
+                   "num_prepared_points", "bake_prepared", "cancel", "surfel_measures"),
 }
 
 

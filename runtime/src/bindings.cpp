@@ -301,6 +301,9 @@ NB_MODULE(_runtime, m) {
              },
              "iteration"_a,
              "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
+        .def("cancel", &gammart::Simulation::cancel,
+             "Stop the trace running now (or the next) before its next chunk: it raises ValueError "
+             "('cancelled: ...') and leaves the rows as they were.  Callable from any thread.")
         .def("reconfigure", &gammart::Simulation::reconfigure, "config"_a,
              "Take another effect's config for the next run, keeping surfels, scene index and splat kernel "
              "(same surfel count, seed and surface binding, shape never changed; else an error, nothing "
@@ -517,6 +520,32 @@ NB_MODULE(_runtime, m) {
              },
              "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "iteration"_a, "threads"_a,
              "At surface points: (smoothed rows float32[k, W], appearance colours float32[k, 3]).")
+        .def("prepare_points",
+             [](gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,
+                nb::handle uvs, int threads) {
+                 F32 p = as_f32(positions), n = as_f32(normals), uv = as_f32(uvs);
+                 I32 t = as_i32(triangles);
+                 const size_t k = t.ndim() == 1 ? t.shape(0) : 0;
+                 if (t.ndim() != 1 || p.ndim() != 2 || p.shape(0) != k || p.shape(1) != 3 || n.ndim() != 2 ||
+                     n.shape(0) != k || n.shape(1) != 3 || uv.ndim() != 2 || uv.shape(0) != k || uv.shape(1) != 2)
+                     throw Error("prepare_points: positions (k,3), normals (k,3), triangles (k), uvs (k,2)");
+                 nb::gil_scoped_release nogil;
+                 s.prepare_points(k, p.data(), n.data(), t.data(), uv.data(), threads);
+             },
+             "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "threads"_a,
+             "Points bake_prepared() bakes again and again (their smoothing neighbours found once).")
+        .def_prop_ro("num_prepared_points", &gammart::Simulation::num_prepared_points)
+        .def("bake_prepared",
+             [](const gammart::Simulation& s, int iteration, int threads) {
+                 const size_t k = s.num_prepared_points(), W = size_t(s.row_width());
+                 std::vector<float> rows(k * W), rgb(k * 3);
+                 {
+                     nb::gil_scoped_release nogil;
+                     s.bake_prepared(iteration, threads, rows.data(), rgb.data());
+                 }
+                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}), to_numpy(std::move(rgb), {k, 3}));
+             },
+             "iteration"_a, "threads"_a, "bake_points() of the prepared points: (rows float32[k, W], colours float32[k, 3]).")
         .def("render_appearance",
              [](gammart::Simulation& s, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads, int samples,

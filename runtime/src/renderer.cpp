@@ -80,17 +80,20 @@ void validate_textures(const std::vector<Texture>& textures) {
 
 namespace {
 
-// The smoothed row (see interpolate_row) and the smoothed accessibility and
-// curvature (SPEC §12: an appearance block reads them at the point), each
-// neighbour's on the side of the point's normal n (none: the measures are 0).
-void interpolate_point(const RenderScene& rs, int surface, const float p[3], const float* n, float* out,
-                       float* accessibility, float* curvature) {
+// The accessibility and curvature an appearance block reads at point p
+// (SPEC §12): the surfels' values smoothed with the rows' weights, each
+// neighbour's on the side of the point's normal n.  Zero when the effect
+// reads neither (nothing was measured), without a neighbour search.
+void smoothed_measures(const RenderScene& rs, int surface, const float p[3], const float n[3], float* accessibility,
+                       float* curvature) {
+    const SurfelMeasures& m = rs.state.measures;
+    *accessibility = *curvature = 0.0f;
+    if (m.accessibility.empty() && m.curvature.empty()) return;
     uint32_t idx[kSmoothingNeighbours];
     double w[kSmoothingNeighbours];
     const size_t k = rs.index.smooth(surface, p, idx, w);
-    const SurfelMeasures& m = rs.state.measures;
     double open_sum = 0, curvature_sum = 0;
-    for (size_t j = 0; n != nullptr && j < k; ++j) {
+    for (size_t j = 0; j < k; ++j) {
         const float* sn = rs.state.surf.normal.data() + 3 * size_t(idx[j]);
         const bool back = n[0] * sn[0] + n[1] * sn[1] + n[2] * sn[2] < 0.0f;
         if (!m.accessibility.empty())
@@ -99,6 +102,14 @@ void interpolate_point(const RenderScene& rs, int surface, const float p[3], con
     }
     *accessibility = float(open_sum);
     *curvature = float(curvature_sum);
+}
+
+}  // namespace
+
+void interpolate_row(const RenderScene& rs, int surface, const float p[3], float* out) {
+    uint32_t idx[kSmoothingNeighbours];
+    double w[kSmoothingNeighbours];
+    const size_t k = rs.index.smooth(surface, p, idx, w);
     const float* rows = rs.state.rows.data();
     const int W = rs.state.width;
     for (int c = 0; c < W; ++c) {
@@ -108,15 +119,16 @@ void interpolate_point(const RenderScene& rs, int surface, const float p[3], con
     }
 }
 
-}  // namespace
-
-void interpolate_row(const RenderScene& rs, int surface, const float p[3], float* out) {
-    float accessibility, curvature;
-    interpolate_point(rs, surface, p, nullptr, out, &accessibility, &curvature);
-}
-
 int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
                   const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]) {
+    const int surface = rs.index.tri_surface()[triangle];
+    if (rs.kernels.appearance[size_t(surface)]) interpolate_row(rs, surface, p, row);
+    return albedo_of_row(rs, triangle, p, n, dir, uv, iteration, random_key, row, tex, out_rgb);
+}
+
+int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
+                      const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
+                      float* tex, float out_rgb[3]) {
     const int surface = rs.index.tri_surface()[triangle];
     GammaAppearanceKernel fn = rs.kernels.appearance[size_t(surface)];
     const size_t T = rs.textures.size();
@@ -126,7 +138,7 @@ int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], co
         return 0;
     }
     GammaContext ctx;
-    interpolate_point(rs, surface, p, n, row, &ctx.accessibility, &ctx.curvature);
+    smoothed_measures(rs, surface, p, n, &ctx.accessibility, &ctx.curvature);
     for (int c = 0; c < 3; ++c) {
         ctx.position[c] = p[c];
         ctx.normal[c] = n[c];

@@ -77,6 +77,7 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
     state_.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh_, *index_,
                                       state_.surf, kAoLengthFraction * frame_.diag, c.seed, c.threads);
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    tracer_->set_cancel_flag(&cancel_);
     update_corner_normals();
 }
 
@@ -114,6 +115,8 @@ void Simulation::reconfigure(const Config& config) {
     state_.rows = std::move(rows);
     state_.width = W;
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    tracer_->set_cancel_flag(&cancel_);
+    cancel_.store(false);
 }
 
 void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
@@ -157,6 +160,16 @@ void Simulation::set_base_colours(BaseColours base) {
     base_ = std::move(base);
 }
 
+void Simulation::prepare_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
+                                const float* uvs, int threads) {
+    prepared_ = BakePoints::prepare(render_scene(), k, positions, normals, triangles, uvs, threads);
+}
+
+void Simulation::bake_prepared(int iteration, int threads, float* rows_out, float* rgb_out) const {
+    if (prepared_.size() == 0) throw Error("bake_prepared: no points prepared (or the shape changed since)");
+    gammart::bake_prepared(render_scene(), prepared_, iteration, threads, rows_out, rgb_out);
+}
+
 void Simulation::update_corner_normals() { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); }
 
 void Simulation::set_rows(const float* data) {
@@ -186,6 +199,7 @@ ShapeStats Simulation::shape(int iteration) {
             for (size_t t = 0; t < tri_surface.size(); ++t) shading_flat_[t] = flat_surface_[size_t(tri_surface[t])];
         }
         update_corner_normals();
+        prepared_ = BakePoints{};      // new surfels and triangles: the caller prepares its points again
     }
     return st;
 }

@@ -48,7 +48,12 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                              : 1.0f);
     }
 
+    std::atomic<bool> cancelled{false};
     auto run_chunk = [&](int64_t ci) {
+        if (cancel_ != nullptr && cancel_->load(std::memory_order_relaxed)) {
+            cancelled.store(true, std::memory_order_relaxed);
+            return;
+        }
         ChunkLog& log = logs_[size_t(ci)];
         log.clear();
         TraceStats st;
@@ -184,6 +189,10 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
         });
     });
 
+    if (cancelled.load()) {
+        cancel_->store(false);   // one request stops one trace
+        throw Error("cancelled: the iteration was stopped before its end (Simulation.cancel)");
+    }
     TraceStats total_st;
     total_st.mass.assign(c.mass_properties.size(), MassBooks{});
     for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);

@@ -5,6 +5,7 @@
 #pragma once
 #include <cstddef>
 #include <cstdint>
+#include <vector>
 
 #include "gamma/renderer.h"
 
@@ -16,5 +17,25 @@ namespace gammart {
 void bake_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
                  const int32_t* triangles, const float* uvs, int iteration, int threads, float* rows_out,
                  float* rgb_out);
+
+// Surface points baked again and again while the surfels stay (the live
+// viewer's vertices, every iteration): their smoothing neighbours and
+// weights are found once, so a bake is a weighted sum and the appearance
+// kernels, with exactly bake_points' results.
+struct BakePoints {
+    std::vector<float> positions, normals, uvs;   // k*3, k*3, k*2
+    std::vector<int32_t> triangles;               // k
+    std::vector<uint32_t> neighbour;              // k*kSmoothingNeighbours
+    std::vector<double> weight;                   // k*kSmoothingNeighbours
+    std::vector<uint8_t> count;                   // k: neighbours used
+    size_t size() const { return triangles.size(); }
+
+    // Copies the points and finds their neighbours.  Throws gammart::Error
+    // for a triangle out of range.
+    static BakePoints prepare(const RenderScene& rs, size_t k, const float* positions, const float* normals,
+                              const int32_t* triangles, const float* uvs, int threads);
+};
+void bake_prepared(const RenderScene& rs, const BakePoints& points, int iteration, int threads, float* rows_out,
+                   float* rgb_out);
 
 }  // namespace gammart

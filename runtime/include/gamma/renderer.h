@@ -50,6 +50,12 @@ void interpolate_row(const RenderScene& rs, int surface, const float p[3], float
 int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
                   const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]);
 
+// albedo_at with the smoothed row already in `row` (W floats, as
+// interpolate_row gives it for the triangle's surface).
+int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
+                      const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
+                      float* tex, float out_rgb[3]);
+
 // False colour: smoothed `values` (one per surfel) and a shade per pixel
 // (height*width each; NaN on the background).
 void render_false_colour(const RenderScene& rs, const float* values, std::array<float, 3> eye,

@@ -13,11 +13,13 @@
 //   shape_step.h    displacement, re-tiling (remesh.h), surfel transfer, rebuild
 #pragma once
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "gamma/baker.h"
 #include "gamma/config.h"
 #include "gamma/kernel_table.h"
 #include "gamma/mesh.h"
@@ -64,6 +66,10 @@ public:
     void set_rows(const float* data);  // N*W floats
 
     TraceStats trace(int iteration);
+    // Asks the trace running now (or the next one) to stop before its next
+    // chunk of gamma-tons: it throws gammart::Error ("cancelled: ...") and
+    // leaves the rows as they were.  Safe from any thread.
+    void cancel() { cancel_.store(true); }
     UpdateStats update(int iteration);
     // The shape step (after update): nothing happens unless some surface's
     // shape follows a property (Config::shape_rates).
@@ -127,6 +133,14 @@ public:
     void bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
                      const float* uvs, int iteration, int threads, float* rows_out, float* rgb_out) const;
     float smoothing_sigma() const;
+    // bake_points for points baked again and again (the live viewer's
+    // vertices): prepare_points finds their neighbours once; bake_prepared
+    // then gives bake_points' results.  A shape change forgets the points
+    // (num_prepared_points() == 0; bake_prepared throws gammart::Error).
+    void prepare_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
+                        const float* uvs, int threads);
+    size_t num_prepared_points() const { return prepared_.size(); }
+    void bake_prepared(int iteration, int threads, float* rows_out, float* rgb_out) const;
 
     // Filled by the Python binding after render_appearance (GIL held).
     RenderStats last_render;
@@ -166,6 +180,8 @@ private:
     std::vector<uint8_t> shading_flat_;   // per triangle of mesh_, or empty
     std::vector<uint8_t> flat_surface_;   // per surface: all its triangles flat
     BaseColours base_;
+    std::atomic<bool> cancel_{false};
+    BakePoints prepared_;
     std::vector<int32_t> surface_material_;  // per surface: its one material, else -1
     float crease_deg_ = kDefaultCreaseDeg;
     std::vector<float> corner_normals_;

@@ -6,6 +6,7 @@
 // writes go through the chunk logs (surface_log.h).  Also the raw-ray
 // benchmarks (environment rays; the tracer's own recorded rays) and the parabola check against a plane.
 #pragma once
+#include <atomic>
 #include <array>
 #include <cstdint>
 #include <vector>
@@ -34,6 +35,9 @@ public:
     // While on, trace() keeps every ray it casts (in gamma-ton order, the
     // same at any thread count); take_recorded_rays() hands them over.
     void set_record_rays(bool on) { record_rays_ = on; }
+    // While *flag is set, trace() stops before its next chunk and throws
+    // gammart::Error ("cancelled: ...") without touching the rows.
+    void set_cancel_flag(std::atomic<bool>* flag) { cancel_ = flag; }
     std::vector<RecordedRay> take_recorded_rays();
 
 private:
@@ -44,6 +48,7 @@ private:
     std::vector<ChunkLog> logs_;
     std::vector<float> merge_scratch_;
     bool record_rays_ = false;
+    std::atomic<bool>* cancel_ = nullptr;
     std::vector<std::vector<RecordedRay>> ray_logs_;  // per chunk
 };
 
