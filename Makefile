@@ -136,6 +136,7 @@ bench: install
 	$(PY) bench/bench_render.py
 	$(PY) bench/bench_scaling.py
 	$(PY) bench/bench_erosion.py
+	$(PY) bench/bench_ray.py
 
 clean:
 	rm -rf build build-tests out $(VENV)

@@ -66,6 +66,11 @@ EXAMPLES = [
           "Rust and dust on a hydrant, moss in the joints of the floor (Fig. 1)",
           ["--view", "0.8,0.75,1"], ["--surfels", "100000", "--iterations", "30"],
           ["--surfels", "100000", "--iterations", "30"]),
+    Entry("erosion", "examples/erosion.gamma", "examples/scenes/arch.obj",
+          "Erosion: wind-driven sand wears a sandstone arch, after 1 and 30 iterations (Fig. 11)",
+          ["--assign", "arch=Sandstone", "--assign", "ground=Ground", "--show", "stone",
+           "--view", "-1,0.45,0.9"], ["--surfels", "60000", "--iterations", "30"],
+          ["--surfels", "60000", "--iterations", "30"], compare=["--iterations", "1"]),
 ]
 
 # Recipes: each stdlib recipe imported alone, on a scene that shows it.

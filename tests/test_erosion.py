@@ -44,6 +44,7 @@ def test_erosion_writes_meshes_geometry_and_balanced_books(erosion_run):
     summary = json.loads((erosion_run / "summary.json").read_text())
     first = summary["geometry"]
     assert first["closed"] is False          # the ground plate is open
+    assert summary["iterations"][0]["shape"]["retiled"] is True     # the input's tiling is re-tiled first
     for it, record in enumerate(summary["iterations"], 1):
         g = record["geometry"]
         assert g["triangles"] > 0 and g["area"] > 0

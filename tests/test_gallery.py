@@ -38,7 +38,7 @@ def run_small(tmp_path, name, *extra):
 def test_gallery_table_is_complete():
     """Every example of the paper's results and every recipe has an entry."""
     names = set(gallery.entries())
-    assert {"patina", "stain", "moss-dirt", "leak-stain", "hydrant"} <= names
+    assert {"patina", "stain", "moss-dirt", "leak-stain", "hydrant", "erosion"} <= names
     for stem in (p.stem for p in (ROOT / "stdlib").glob("*.gamma")):
         assert f"recipe-{stem}" in names
 

@@ -1,5 +1,6 @@
-"""gammac sweep without Ray: grid syntax, cell names and commands, overlap
-with run options, and the message when the optional extra is missing."""
+"""gammac sweep and run --ray without Ray: grid syntax, cell names and
+commands, overlap with run options, and the message when the optional extra
+is missing."""
 
 import sys
 
@@ -92,3 +93,90 @@ def test_sweep_checks_the_effect_before_starting(tmp_path, capsys):
     assert code == 2
     assert "--grid speed: e.gamma has no parameter 'speed'" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_run_on_ray_without_ray_says_how_to_install_it(tmp_path, monkeypatch, capsys):
+    (tmp_path / "e.gamma").write_text("""
+        ton T { motion straight = 1.0  carry p = 1.0 }
+        surface S { property q = 0.0 }
+        source a = environment(sphere) emits T count 10
+        on settle(t: T, s: S) { s.q += t.p }
+    """)
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    monkeypatch.setitem(sys.modules, "ray", None)     # import ray fails as if not installed
+    code = cli.main(["run", str(tmp_path / "e.gamma"), "--scene", str(tmp_path / "m.obj"), "--surfels", "100",
+                     "--iterations", "1", "--ray", "--out", str(tmp_path / "out"), "--quiet"])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "Ray is not installed" in err and "pip install '.[ray]'" in err
+    assert not list((tmp_path / "out").rglob("iter_*"))
+
+
+@pytest.mark.parametrize("where", [["--ray"], ["--ray-address", "127.0.0.1:1"]])
+def test_run_on_ray_refuses_an_effect_that_changes_shape(tmp_path, capsys, where):
+    """The workers keep the scene as loaded; the shape step re-tiles it. The
+    refusal names the shape clause and comes before Ray is started or reached
+    and before anything is written."""
+    (tmp_path / "e.gamma").write_text(
+        "ton T { motion straight = 1.0  carry worn = 1.0 }\n"
+        "surface S { property worn = 0.0\n"
+        "  shape worn = -0.01 }\n"
+        "source a = environment(sphere) emits T count 10\n"
+        "on settle(t: T, s: S) { s.worn += t.worn }\n")
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    code = cli.main(["run", str(tmp_path / "e.gamma"), "--scene", str(tmp_path / "m.obj"), "--surfels", "100",
+                     "--iterations", "1", *where, "--out", str(tmp_path / "out"), "--quiet"])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert f"{where[0]}: {tmp_path / 'e.gamma'}:3:9: an effect that changes the shape of the scene " \
+           "cannot be traced on Ray" in err
+    assert not (tmp_path / "out").exists()
+
+
+class _FlakyRay:
+    """Stands in for the ray module: init fails `failures` times (as Ray's
+    fixed 30 s raylet wait does on a loaded machine), then succeeds."""
+
+    def __init__(self, failures):
+        self.failures, self.inits, self.shutdowns, self.up = failures, [], 0, False
+
+    def is_initialized(self):
+        return self.up
+
+    def init(self, **kwargs):
+        self.inits.append(kwargs)
+        if len(self.inits) <= self.failures:
+            raise Exception("Timed out after 30 seconds waiting for the raylet")
+        self.up = True
+
+    def shutdown(self):
+        self.shutdowns += 1
+        self.up = False
+
+
+@pytest.mark.parametrize("failures, started", [(0, True), (2, True), (3, False)])
+def test_a_local_ray_start_is_tried_three_times(monkeypatch, failures, started):
+    from gamma.driver import cluster
+
+    fake = _FlakyRay(failures)
+    monkeypatch.setattr(cluster, "ray_module", lambda: fake)
+    if started:
+        connection = cluster.connect(num_cpus=2)
+        assert connection.started and fake.up
+        assert len(fake.inits) == failures + 1 and fake.shutdowns == failures   # each failed start cleaned up
+        connection.close()
+        assert not fake.up
+    else:
+        with pytest.raises(cluster.RayUnavailable, match="cannot start or reach a local Ray: Timed out"):
+            cluster.connect(num_cpus=2)
+        assert len(fake.inits) == 3 and fake.shutdowns == 3
+
+
+def test_a_cluster_address_is_tried_once(monkeypatch):
+    from gamma.driver import cluster
+
+    fake = _FlakyRay(1)
+    monkeypatch.setattr(cluster, "ray_module", lambda: fake)
+    with pytest.raises(cluster.RayUnavailable, match="cannot start or reach the Ray cluster at '10.0.0.1:6379'"):
+        cluster.connect("10.0.0.1:6379")
+    assert [call["address"] for call in fake.inits] == ["10.0.0.1:6379"]

@@ -24,13 +24,16 @@ def _installed_version() -> str:
         return "0+unknown"
 
 
-__version__ = _installed_version()
-
-from .api import Result, compile, run  # noqa: E402  (the Python API; see api.py)
-
-
 def __getattr__(name: str):
-    # the error types, imported on first use (they pull in the compiler and driver)
+    # Everything is imported on first use, so that `gammac check` starts fast:
+    # the Python API pulls in numpy, the driver and LLVM, the version the
+    # package metadata.
+    if name == "__version__":
+        globals()["__version__"] = value = _installed_version()
+        return value
+    if name in ("compile", "run", "Result"):
+        from . import api
+        return getattr(api, name)
     if name == "GammaError":
         from .frontend.diagnostics import GammaError
         return GammaError
@@ -41,3 +44,6 @@ def __getattr__(name: str):
         from .driver.runner import RunError
         return RunError
     raise AttributeError(f"module 'gamma' has no attribute '{name}'")
+
+
+__all__ = ["compile", "run", "Result", "GammaError", "UsageError", "RunError", "__version__"]

@@ -126,6 +126,7 @@ BINDING = {
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
                    "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
+                   "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
                    "num_prepared_points", "bake_prepared", "cancel", "surfel_measures"),
 }

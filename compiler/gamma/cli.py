@@ -169,6 +169,12 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("file")
     _add_run_options(r)
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    where = r.add_mutually_exclusive_group()
+    where.add_argument("--ray", action="store_true",
+                       help="trace each iteration's gamma-tons on Ray workers on this machine "
+                            "(same result; optional extra: pip install '.[ray]')")
+    where.add_argument("--ray-address", metavar="ADDRESS",
+                       help="trace each iteration's gamma-tons on the Ray cluster at ADDRESS")
     r.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its last complete iteration (same command; "
                         "--iterations may grow)")
@@ -339,6 +345,7 @@ def _run_options(args):
                       samples=getattr(args, "samples", 4), ao_samples=getattr(args, "ao_samples", 8),
                       export=getattr(args, "export", False), bake_size=getattr(args, "bake_size", 1024),
                       resume=getattr(args, "resume", False), started=_STARTED,
+                      ray=getattr(args, "ray", False), ray_address=getattr(args, "ray_address", None),
                       shading=getattr(args, "shading", "smooth"), crease=getattr(args, "crease", 60.0))
 
 

@@ -61,6 +61,75 @@ nb::list nonfinite_list(const std::vector<gammart::NonFinite>& items) {
         out.append(nb::make_tuple(nf.event, nf.ton_type, nf.surface, nf.statement, nf.count));
     return out;
 }
+
+// TraceStats as the dict trace() returns, and back (merge_chunks receives
+// the dicts of chunks traced elsewhere).
+nb::dict trace_stats_dict(const gammart::TraceStats& st) {
+    nb::dict d;
+    d["emitted"] = st.emitted;
+    d["settled"] = st.settled;
+    d["escaped"] = st.escaped;
+    d["missed"] = st.missed;
+    d["capped"] = st.capped;
+    d["interactions"] = st.interactions;
+    d["rays"] = st.rays;
+    d["flow_steps"] = st.flow_steps;
+    d["bounces"] = st.bounces;
+    d["drips"] = st.drips;
+    d["segments"] = st.segments;
+    d["trace_seconds"] = st.trace_seconds;
+    d["nonfinite"] = nonfinite_list(st.nonfinite);
+    nb::list mass;
+    for (const gammart::MassBooks& b : st.mass) {
+        nb::dict m;
+        m["removed"] = b.removed;
+        m["deposited"] = b.deposited;
+        m["escaped"] = b.escaped;
+        m["in_flight"] = b.in_flight;
+        m["emitted"] = b.emitted;
+        m["created"] = b.created;
+        m["dropped"] = b.dropped;
+        mass.append(m);
+    }
+    d["mass"] = mass;
+    return d;
+}
+
+gammart::TraceStats trace_stats_from(nb::handle obj) {
+    nb::dict d = nb::cast<nb::dict>(obj);
+    gammart::TraceStats st;
+    st.emitted = nb::cast<int64_t>(d["emitted"]);
+    st.settled = nb::cast<int64_t>(d["settled"]);
+    st.escaped = nb::cast<int64_t>(d["escaped"]);
+    st.missed = nb::cast<int64_t>(d["missed"]);
+    st.capped = nb::cast<int64_t>(d["capped"]);
+    st.interactions = nb::cast<int64_t>(d["interactions"]);
+    st.rays = nb::cast<int64_t>(d["rays"]);
+    st.flow_steps = nb::cast<int64_t>(d["flow_steps"]);
+    st.bounces = nb::cast<int64_t>(d["bounces"]);
+    st.drips = nb::cast<int64_t>(d["drips"]);
+    st.segments = nb::cast<int64_t>(d["segments"]);
+    for (nb::handle item : nb::cast<nb::list>(d["nonfinite"])) {
+        auto t = nb::cast<nb::tuple>(item);
+        gammart::count_nonfinite(st.nonfinite, nb::cast<int>(t[0]), nb::cast<int>(t[1]), nb::cast<int>(t[2]),
+                                 nb::cast<int>(t[3]), nb::cast<int64_t>(t[4]));
+    }
+    // Doubles pass through Python floats unchanged, so the merged books are
+    // the ones trace() forms.
+    for (nb::handle item : nb::cast<nb::list>(d["mass"])) {
+        nb::dict m = nb::cast<nb::dict>(item);
+        gammart::MassBooks b;
+        b.removed = nb::cast<double>(m["removed"]);
+        b.deposited = nb::cast<double>(m["deposited"]);
+        b.escaped = nb::cast<double>(m["escaped"]);
+        b.in_flight = nb::cast<double>(m["in_flight"]);
+        b.emitted = nb::cast<double>(m["emitted"]);
+        b.created = nb::cast<double>(m["created"]);
+        b.dropped = nb::cast<double>(m["dropped"]);
+        st.mass.push_back(b);
+    }
+    return st;
+}
 }  // namespace
 
 NB_MODULE(_runtime, m) {
@@ -255,38 +324,59 @@ NB_MODULE(_runtime, m) {
                      nb::gil_scoped_release nogil;
                      st = s.trace(iteration);
                  }
-                 nb::dict d;
-                 d["emitted"] = st.emitted;
-                 d["settled"] = st.settled;
-                 d["escaped"] = st.escaped;
-                 d["missed"] = st.missed;
-                 d["capped"] = st.capped;
-                 d["interactions"] = st.interactions;
-                 d["rays"] = st.rays;
-                 d["flow_steps"] = st.flow_steps;
-                 d["bounces"] = st.bounces;
-                 d["drips"] = st.drips;
-                 d["segments"] = st.segments;
-                 d["trace_seconds"] = st.trace_seconds;
-                 d["nonfinite"] = nonfinite_list(st.nonfinite);
-                 nb::list mass;
-                 for (const gammart::MassBooks& b : st.mass) {
-                     nb::dict m;
-                     m["removed"] = b.removed;
-                     m["deposited"] = b.deposited;
-                     m["escaped"] = b.escaped;
-                     m["in_flight"] = b.in_flight;
-                     m["emitted"] = b.emitted;
-                     m["created"] = b.created;
-                     m["dropped"] = b.dropped;
-                     mass.append(m);
-                 }
-                 d["mass"] = mass;
-                 return d;
+                 return trace_stats_dict(st);
              },
              "iteration"_a,
              "Trace one iteration; a dict of counters, timings and `nonfinite`: a list of "
              "(event, ton_type, surface, statement, count).")
+        .def("num_chunks", &gammart::Simulation::num_chunks, "iteration"_a,
+             "How many chunks (CHUNK_SIZE gamma-tons each) iteration `iteration` traces.")
+        .def(
+            "trace_chunks",
+            [](const gammart::Simulation& s, int iteration, int64_t first, int64_t last) {
+                std::vector<gammart::ChunkLog> logs;
+                {
+                    nb::gil_scoped_release nogil;
+                    logs = s.trace_chunks(iteration, first, last);
+                }
+                const size_t P = size_t(s.row_width() - GAMMA_ROW_HEADER);
+                nb::list out;
+                for (gammart::ChunkLog& log : logs) {
+                    const size_t n = log.surfel.size();
+                    out.append(nb::make_tuple(to_numpy<uint32_t>(std::move(log.surfel), {n}),
+                                              to_numpy<float>(std::move(log.delta), {n, P}),
+                                              trace_stats_dict(log.st)));
+                }
+                return out;
+            },
+            "iteration"_a, "first"_a, "last"_a,
+            "Trace chunks [first, last) against the current rows, leaving them unchanged; per chunk "
+            "(surfel indices uint32[n], property deltas float32[n, P], counters as trace() gives).")
+        .def(
+            "merge_chunks",
+            [](gammart::Simulation& s, int iteration, nb::list chunks) {
+                using U32 = nb::ndarray<const uint32_t, nb::c_contig, nb::device::cpu>;
+                std::vector<gammart::ChunkLog> logs(chunks.size());
+                nb::module_ np = nb::module_::import_("numpy");
+                for (size_t i = 0; i < logs.size(); ++i) {
+                    auto t = nb::cast<nb::tuple>(chunks[i]);
+                    if (t.size() != 3) throw Error("merge_chunks: each chunk is (surfels, deltas, counters)");
+                    U32 sv = nb::cast<U32>(np.attr("ascontiguousarray")(t[0], "dtype"_a = "uint32"));
+                    F32 dv = as_f32(t[1]);
+                    logs[i].surfel.assign(sv.data(), sv.data() + sv.size());
+                    logs[i].delta.assign(dv.data(), dv.data() + dv.size());
+                    logs[i].st = trace_stats_from(t[2]);
+                }
+                gammart::TraceStats st;
+                {
+                    nb::gil_scoped_release nogil;
+                    st = s.merge_chunks(iteration, logs);
+                }
+                return trace_stats_dict(st);
+            },
+            "iteration"_a, "chunks"_a,
+            "Add the deltas of all chunks of an iteration (in chunk order) to the rows, as trace() "
+            "does; the summed counters (trace_seconds: the merge's).")
         .def("update",
              [](gammart::Simulation& s, int iteration) {
                  gammart::UpdateStats st;
@@ -317,6 +407,7 @@ NB_MODULE(_runtime, m) {
                  }
                  nb::dict d;
                  d["changed"] = st.changed;
+                 d["retiled"] = st.retiled;
                  d["moved_vertices"] = st.moved_vertices;
                  d["clamped_vertices"] = st.clamped_vertices;
                  d["inversion_limited"] = st.inversion_limited;

@@ -104,7 +104,8 @@ MeshMeasures measure(const Mesh& mesh) {
     m.area = mesh.area();
     m.min_angle_deg = m.triangles ? 180.0 : 0.0;
     // Closed: every directed edge (a, b) appears once and its reverse once.
-    std::map<std::pair<int32_t, int32_t>, int> directed;
+    std::vector<uint64_t> directed;
+    directed.reserve(3 * m.triangles);
     double vol = 0;
     for (size_t t = 0; t < m.triangles; ++t) {
         const int32_t* tri = &mesh.triangles[3 * t];
@@ -115,15 +116,15 @@ MeshMeasures measure(const Mesh& mesh) {
         vol += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
                 double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
                 double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6.0;
-        for (int k = 0; k < 3; ++k) ++directed[{tri[k], tri[(k + 1) % 3]}];
+        for (int k = 0; k < 3; ++k)
+            directed.push_back(uint64_t(uint32_t(tri[k])) << 32 | uint32_t(tri[(k + 1) % 3]));
     }
+    std::sort(directed.begin(), directed.end());
     m.closed = m.triangles > 0;
-    for (const auto& [edge, count] : directed) {
-        auto rev = directed.find({edge.second, edge.first});
-        if (count != 1 || rev == directed.end() || rev->second != 1) {
-            m.closed = false;
-            break;
-        }
+    for (size_t i = 0; i < directed.size() && m.closed; ++i) {
+        const uint64_t e = directed[i], rev = (e << 32) | (e >> 32);
+        const bool once = (i == 0 || directed[i - 1] != e) && (i + 1 == directed.size() || directed[i + 1] != e);
+        if (!once || !std::binary_search(directed.begin(), directed.end(), rev)) m.closed = false;
     }
     m.volume = m.closed ? vol : std::numeric_limits<double>::quiet_NaN();
     return m;

@@ -89,7 +89,8 @@ SceneIndex::~SceneIndex() {
     if (device_) rtcReleaseDevice(device_);
 }
 
-void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces) {
+void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces,
+                                bool refresh_lookup) {
     const size_t m = mesh.num_triangles();
     if (tri_surface.size() != m) throw Error("scene index: one surface id per triangle expected");
     tri_surface_ = std::move(tri_surface);
@@ -143,7 +144,7 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     ++geometry_builds_;
     // The candidates depend on both halves: refresh them if the surfels are
     // already indexed for these surfaces.
-    if (n_surfels_ > 0 && trees_->surface.size() == size_t(n_surfaces_)) build_lookup(0);
+    if (refresh_lookup && n_surfels_ > 0 && trees_->surface.size() == size_t(n_surfaces_)) build_lookup(0);
 }
 
 void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,

@@ -111,6 +111,74 @@ void require_surfels(const SceneIndex& index, int iteration) {
 
 V3 vertex(const Mesh& m, size_t i) { return {m.vertices[3 * i], m.vertices[3 * i + 1], m.vertices[3 * i + 2]}; }
 
+// The fraction of triangles with an angle below min_deg.
+double sliver_fraction(const Mesh& mesh, double min_deg) {
+    const size_t m = mesh.num_triangles();
+    if (m == 0) return 0.0;
+    const double cos_max = std::cos(min_deg * 3.14159265358979323846 / 180.0);
+    size_t bad = 0;
+    for (size_t t = 0; t < m; ++t) {
+        double p[3][3];
+        for (int k = 0; k < 3; ++k)
+            for (int d = 0; d < 3; ++d) p[k][d] = mesh.vertices[3 * size_t(mesh.triangles[3 * t + size_t(k)]) + size_t(d)];
+        for (int k = 0; k < 3; ++k) {
+            const double* a = p[k];
+            const double* b = p[(k + 1) % 3];
+            const double* c = p[(k + 2) % 3];
+            const double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+            const double uu = u[0] * u[0] + u[1] * u[1] + u[2] * u[2], vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+            const double uv = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+            if (!(uu > 0 && vv > 0) || uv > cos_max * std::sqrt(uu * vv)) {   // angle at a below min_deg
+                ++bad;
+                break;
+            }
+        }
+    }
+    return double(bad) / double(m);
+}
+
+// Surfels carried by their triangles from `before` to `after` (same
+// connectivity): the same barycentric coordinates, the new face normal.
+void carry_surfels(const Mesh& before, const Mesh& after, SurfelSet& surf, int threads) {
+    const size_t n = surf.triangle.size();
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i < r.end(); ++i) {
+                const int32_t* tri = &before.triangles[3 * size_t(surf.triangle[i])];
+                double a[3], b[3], c[3], p[3];
+                for (int k = 0; k < 3; ++k) {
+                    a[k] = before.vertices[3 * size_t(tri[0]) + size_t(k)];
+                    b[k] = before.vertices[3 * size_t(tri[1]) + size_t(k)];
+                    c[k] = before.vertices[3 * size_t(tri[2]) + size_t(k)];
+                    p[k] = surf.position[3 * i + size_t(k)];
+                }
+                // barycentric coordinates of p (in the triangle's plane) by the usual dot products
+                double e1[3], e2[3], d[3];
+                for (int k = 0; k < 3; ++k) { e1[k] = b[k] - a[k]; e2[k] = c[k] - a[k]; d[k] = p[k] - a[k]; }
+                auto dotd = [](const double* x, const double* y) { return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]; };
+                const double d11 = dotd(e1, e1), d12 = dotd(e1, e2), d22 = dotd(e2, e2);
+                const double dp1 = dotd(d, e1), dp2 = dotd(d, e2), den = d11 * d22 - d12 * d12;
+                const double v = den > 0 ? (d22 * dp1 - d12 * dp2) / den : 0.0;
+                const double w = den > 0 ? (d11 * dp2 - d12 * dp1) / den : 0.0;
+                const double u = 1.0 - v - w;
+                double na[3], nb[3], nc[3];
+                for (int k = 0; k < 3; ++k) {
+                    na[k] = after.vertices[3 * size_t(tri[0]) + size_t(k)];
+                    nb[k] = after.vertices[3 * size_t(tri[1]) + size_t(k)];
+                    nc[k] = after.vertices[3 * size_t(tri[2]) + size_t(k)];
+                    surf.position[3 * i + size_t(k)] = float(u * na[k] + v * nb[k] + w * nc[k]);
+                }
+                double f1[3], f2[3];
+                for (int k = 0; k < 3; ++k) { f1[k] = nb[k] - na[k]; f2[k] = nc[k] - na[k]; }
+                const double cr[3] = {f1[1] * f2[2] - f1[2] * f2[1], f1[2] * f2[0] - f1[0] * f2[2],
+                                      f1[0] * f2[1] - f1[1] * f2[0]};
+                const double len = std::sqrt(dotd(cr, cr));
+                for (int k = 0; k < 3; ++k) surf.normal[3 * i + size_t(k)] = float(len > 0 ? cr[k] / len : 0.0);
+            }
+        });
+    });
+}
+
 }  // namespace
 
 ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::unique_ptr<SceneIndex>& index,
@@ -202,11 +270,69 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
         displaced.vertices[3 * v + 1] = p.y;
         displaced.vertices[3 * v + 2] = p.z;
     }
-    Retiled rt = retile(displaced, index->tri_surface(), target, c.retile_iterations);
-    st.retile_seconds = seconds_since(t0);
+    // Re-tile only when the triangles need it (SPEC §13.12): the first time
+    // (the input's own tiling), when a sliver (an angle under kSliverDeg)
+    // appeared on a mesh the last re-tiling left without any, or their share
+    // grew by more than half a per cent of the triangles where it could not
+    // avoid them (constrained boundaries), when the area drifted by more than 10 % from it,
+    // or after kMaxIterationsWithoutRetiling.  Otherwise the vertices move
+    // and the surfels ride on their triangles.
+    const MeshMeasures q = measure(displaced);
+    const double slivers = sliver_fraction(displaced, kSliverDeg);
+    const bool keep_tiling = rebuilds_ > 1 && kept_iterations_ < kMaxIterationsWithoutRetiling &&
+                             slivers <= retiled_slivers_ + (retiled_slivers_ > 0 ? 0.005 : 0.0) &&
+                             std::fabs(q.area - retiled_area_) <= 0.1 * retiled_area_;
+    if (keep_tiling) {
+        ++kept_iterations_;
+        st.retiled = false;
+        st.retile_seconds = seconds_since(t0);
+        t0 = std::chrono::steady_clock::now();
+        const double old_area = mesh.area(), new_area = q.area;
+        carry_surfels(mesh, displaced, state.surf, c.threads);
+        // the amounts stay where they are: the integral of each property
+        // (value x area / N) is kept by scaling with the change of area
+        const double scale = new_area > 0 ? old_area / new_area : 1.0;
+        const size_t W = size_t(state.width);
+        for (size_t i = 0; i < state.size(); ++i)
+            for (size_t col = GAMMA_ROW_HEADER; col < W; ++col)
+                state.rows[i * W + col] = float(double(state.rows[i * W + col]) * scale);
+        st.resample_seconds = seconds_since(t0);
+        t0 = std::chrono::steady_clock::now();
+        mesh = std::move(displaced);
+        index->build_geometry(mesh, index->tri_surface(), index->n_surfaces(), /*refresh_lookup=*/false);
+        index->build_surfels(state.surf.position.data(), state.surface.data(), state.size(),
+                             float(std::sqrt(new_area / double(state.size()))), c.threads);
+        st.rebuild_seconds = seconds_since(t0);
+    } else {
+        kept_iterations_ = 0;
+        st.retiled = true;
+        Retiled rt = retile(displaced, index->tri_surface(), target, c.retile_iterations);
+        st.retile_seconds = seconds_since(t0);
+        resample(iteration, rt, mesh, state, index, st);
+        retiled_slivers_ = sliver_fraction(mesh, kSliverDeg);
+        retiled_area_ = mesh.area();
+    }
 
+    // The new surfels need their own splat neighbourhoods (SPEC §13.2); the old
+    // kernel's offsets no longer match and would silently switch spreading off.
+    run_with_threads(c.threads, [&] {
+        state.splat = build_splat_kernel(state.surf.position.data(), state.surf.normal.data(),
+                                         state.surface.data(), state.size(), index->sigma());
+    });
+    frame = SceneFrame::of(mesh, c.down);
+    // the moved or new surfels' accessibility, curvature and uv, as at setup (SPEC §12)
+    state.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh, *index,
+                                     state.surf, kAoLengthFraction * frame.diag, c.seed, c.threads);
+    before_ = state.rows;
+    st.geometry = keep_tiling ? q : measure(mesh);
+    return st;
+}
+
+void ShapeStep::resample(int iteration, Retiled& rt, Mesh& mesh, SurfelState& state,
+                         std::unique_ptr<SceneIndex>& index, ShapeStats& st) const {
+    const Config& c = cfg_;
     // Re-sample surfels (a new seed per iteration) and transfer the rows.
-    t0 = std::chrono::steady_clock::now();
+    auto t0 = std::chrono::steady_clock::now();
     const double old_area = mesh.area(), new_area = rt.mesh.area();
     std::vector<std::vector<float>> zero_rows(size_t(index->n_surfaces()), std::vector<float>(size_t(state.width), 0));
     SurfelState fresh = SurfelState::sample(rt.mesh, rt.tri_surface, state.size(),
@@ -226,19 +352,6 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     mesh = std::move(rt.mesh);
     state = std::move(fresh);
     index = std::move(rebuilt);
-    // The new surfels need their own splat neighbourhoods (SPEC §13.2); the old
-    // kernel's offsets no longer match and would silently switch spreading off.
-    run_with_threads(c.threads, [&] {
-        state.splat = build_splat_kernel(state.surf.position.data(), state.surf.normal.data(),
-                                         state.surface.data(), state.size(), index->sigma());
-    });
-    frame = SceneFrame::of(mesh, c.down);
-    // the new surfels' accessibility, curvature and uv, as at setup (SPEC §12)
-    state.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh, *index,
-                                     state.surf, kAoLengthFraction * frame.diag, c.seed, c.threads);
-    before_ = state.rows;
-    st.geometry = measure(mesh);
-    return st;
 }
 
 }  // namespace gammart

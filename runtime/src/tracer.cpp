@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <string>
 
 #include "gamma/error.h"
 #include "gamma/motion.h"
@@ -20,8 +21,67 @@ namespace gammart {
 Tracer::Tracer(const Config& c, const KernelTable& kernels, const std::vector<SourceRt>& sources)
     : cfg_(c), kernels_(kernels), sources_(sources), max_carry_(max_carry(c)) {}
 
+int64_t Tracer::num_chunks(int iteration) const {
+    return (schedule(cfg_.sources, iteration).total() + kChunkSize - 1) / kChunkSize;
+}
+
 TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state) {
     const auto t0 = std::chrono::steady_clock::now();
+    const int64_t nchunks = num_chunks(iteration);
+    if (logs_.size() < size_t(nchunks)) logs_.resize(size_t(nchunks));
+    ray_logs_.assign(record_rays_ ? size_t(nchunks) : 0, {});
+    run_chunks(iteration, 0, nchunks, index, frame, state, logs_.data(), record_rays_ ? ray_logs_.data() : nullptr);
+    TraceStats total_st;
+    total_st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
+    for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
+    apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, state.width - GAMMA_ROW_HEADER,
+                     state.rows.data(), merge_scratch_, cfg_.threads, &state.splat);
+    total_st.trace_seconds = seconds_since(t0);
+    return total_st;
+}
+
+std::vector<ChunkLog> Tracer::trace_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
+                                           const SceneFrame& frame, const SurfelState& state) const {
+    const int64_t nchunks = num_chunks(iteration);
+    if (first < 0 || last > nchunks || first > last)
+        throw Error("trace_chunks: chunks [" + std::to_string(first) + ", " + std::to_string(last) +
+                    ") are not within the " + std::to_string(nchunks) + " chunks of iteration " +
+                    std::to_string(iteration));
+    std::vector<ChunkLog> logs(size_t(last - first));
+    run_chunks(iteration, first, last, index, frame, state, logs.data(), nullptr);
+    return logs;
+}
+
+TraceStats Tracer::merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const int64_t nchunks = num_chunks(iteration);
+    const int P = state.width - GAMMA_ROW_HEADER;
+    if (int64_t(logs.size()) != nchunks)
+        throw Error("merge_chunks: iteration " + std::to_string(iteration) + " has " + std::to_string(nchunks) +
+                    " chunks, not " + std::to_string(logs.size()));
+    TraceStats total_st;
+    total_st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
+    for (const ChunkLog& log : logs) {
+        if (log.delta.size() != log.surfel.size() * size_t(std::max(P, 0)))
+            throw Error("merge_chunks: a chunk's deltas do not match its surfels");
+        if (log.st.mass.size() != cfg_.mass_properties.size())
+            throw Error("merge_chunks: a chunk has mass books for " + std::to_string(log.st.mass.size()) +
+                        " properties, not " + std::to_string(cfg_.mass_properties.size()));
+        for (uint32_t s : log.surfel)
+            if (s >= state.size()) throw Error("merge_chunks: surfel " + std::to_string(s) + " out of range");
+        total_st.add(log.st);
+    }
+    // The splat spreads each deposit exactly as trace() does (state.splat is
+    // the driver's own; workers only trace).
+    apply_chunk_logs(logs, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_,
+                     cfg_.threads, &state.splat);
+    total_st.trace_seconds = seconds_since(t0);
+    return total_st;
+}
+
+void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
+                        const SceneFrame& frame, const SurfelState& state, ChunkLog* out,
+                        std::vector<RecordedRay>* rays_out) const {
     const Config& c = cfg_;
     const KernelTable& K = kernels_;
     const int W = state.width;
@@ -29,9 +89,6 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     const EmissionSchedule sched = schedule(c.sources, iteration);
     const std::vector<int64_t>& start = sched.start;
     const int64_t total = sched.total();
-    const int64_t nchunks = (total + kChunkSize - 1) / kChunkSize;
-    if (logs_.size() < size_t(nchunks)) logs_.resize(size_t(nchunks));
-    ray_logs_.assign(record_rays_ ? size_t(nchunks) : 0, {});
     const float* rows = state.rows.data();
     const int32_t* surf_of = state.surface.data();
     const SurfelMeasures& measures = state.measures;
@@ -54,7 +111,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             cancelled.store(true, std::memory_order_relaxed);
             return;
         }
-        ChunkLog& log = logs_[size_t(ci)];
+        ChunkLog& log = out[size_t(ci - first)];
         log.clear();
         TraceStats st;
         std::vector<float> carry(max_carry_, 0.0f);
@@ -104,7 +161,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
             for (size_t j = 0; j < M; ++j) (settled ? st.mass[j].dropped : st.mass[j].escaped) += carried(j, type) * ton_weight;
         };
         Walker w(index, frame, st);
-        if (record_rays_) w.record = &ray_logs_[size_t(ci)];
+        if (rays_out) w.record = &rays_out[size_t(ci - first)];
 
         for (int64_t g = begin; g < end; ++g) {
             while (g >= start[a + 1]) ++a;
@@ -184,22 +241,15 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     };
 
     run_with_threads(c.threads, [&] {
-        tbb::parallel_for(tbb::blocked_range<int64_t>(0, nchunks, 1), [&](const tbb::blocked_range<int64_t>& r) {
+        tbb::parallel_for(tbb::blocked_range<int64_t>(first, last, 1), [&](const tbb::blocked_range<int64_t>& r) {
             for (int64_t ci = r.begin(); ci < r.end(); ++ci) run_chunk(ci);
         });
     });
 
     if (cancelled.load()) {
-        cancel_->store(false);   // one request stops one trace
+        cancel_->store(false);   // one request stops one trace (the caller merges nothing)
         throw Error("cancelled: the iteration was stopped before its end (Simulation.cancel)");
     }
-    TraceStats total_st;
-    total_st.mass.assign(c.mass_properties.size(), MassBooks{});
-    for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
-    apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_, c.threads,
-                     &state.splat);
-    total_st.trace_seconds = seconds_since(t0);
-    return total_st;
 }
 
 std::vector<RecordedRay> Tracer::take_recorded_rays() {

@@ -99,7 +99,9 @@ TEST(Trace, EnvironmentSourcesOutsideSphere) {
     EXPECT_NEAR(double(st.settled) / 40000.0, 1.0 / (R * R), 0.015);
 }
 
-static std::vector<float> run_threads(int threads) {
+// pieces > 0: each iteration traced as ranges of `pieces` chunks (as Ray
+// workers do) and merged in chunk order.
+static std::vector<float> run_threads(int threads, int pieces = 0) {
     Mesh m = gamma_test::icosphere(3);
     const int W = 5;
     Config c = base_config(W, 0.3f);
@@ -122,10 +124,50 @@ static std::vector<float> run_threads(int threads) {
     c.set_update(0, addr(reinterpret_cast<void*>(&k_update)));
     Simulation sim(m, c);
     for (int it = 0; it < 3; ++it) {
-        sim.trace(it + 1);
+        if (pieces == 0) {
+            sim.trace(it + 1);
+        } else {
+            const int64_t n = sim.num_chunks(it + 1);
+            std::vector<ChunkLog> logs;
+            for (int64_t a = 0; a < n; a += pieces) {
+                std::vector<ChunkLog> part = sim.trace_chunks(it + 1, a, std::min<int64_t>(n, a + pieces));
+                for (ChunkLog& log : part) logs.push_back(std::move(log));
+            }
+            const TraceStats st = sim.merge_chunks(it + 1, logs);
+            EXPECT_EQ(st.emitted, 50000);
+        }
         sim.update(it + 1);
     }
     return sim.rows();
+}
+
+TEST(Trace, ChunksTracedInPiecesAndMergedInOrderEqualTrace) {
+    std::vector<float> whole = run_threads(2), pieces = run_threads(1, 7), singles = run_threads(2, 1);
+    ASSERT_EQ(whole.size(), pieces.size());
+    EXPECT_EQ(0, std::memcmp(whole.data(), pieces.data(), whole.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(whole.data(), singles.data(), whole.size() * sizeof(float)));
+}
+
+TEST(Trace, MergeRefusesLogsThatDoNotFit) {
+    Mesh m = gamma_test::icosphere(2);
+    Config c = base_config(5, 0.3f);
+    int t = c.add_ton_type(1, 0, 0, {1.0f});
+    c.add_source("point", t, 3000, {0, 0, 0});
+    c.set_transport(GAMMA_EVENT_SETTLE, t, 0, addr(reinterpret_cast<void*>(&k_settle)), true);
+    Simulation sim(m, c);
+    ASSERT_EQ(sim.num_chunks(1), 3);
+    EXPECT_NE(gamma_test::expect_error([&] { sim.trace_chunks(1, 2, 4); }).find("not within the 3 chunks"), std::string::npos);
+    std::vector<ChunkLog> logs = sim.trace_chunks(1, 0, 3);
+    std::vector<ChunkLog> two(logs.begin(), logs.begin() + 2);
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_chunks(1, two); }).find("has 3 chunks, not 2"), std::string::npos);
+    logs[0].surfel.push_back(uint32_t(sim.num_surfels()));
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_chunks(1, logs); }).find("do not match"), std::string::npos);
+    logs[0].surfel.pop_back();
+    logs[1].st.mass.push_back(MassBooks{});  // books of a property this config does not account
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_chunks(1, logs); }).find("mass books for 1 properties, not 0"),
+              std::string::npos);
+    logs[1].st.mass.clear();
+    EXPECT_EQ(sim.merge_chunks(1, logs).emitted, 3000);
 }
 
 TEST(Trace, BitIdenticalAcrossThreadCounts) {

@@ -36,11 +36,18 @@ def _target_machine():
                                         codemodel="jitdefault")
 
 
-def compile_ir(module: ir.Module, optimise: bool = True) -> llvm.ModuleRef:
+def compile_ir(module: ir.Module | str, optimise: bool = True) -> llvm.ModuleRef:
+    """Parse (and optimise) a module; as text, it is IR another process
+    generated (``gammac run --ray`` workers), retargeted to this machine."""
     tm = _target_machine()
-    module.triple = tm.triple
-    module.data_layout = str(tm.target_data)
-    ref = llvm.parse_assembly(str(module))
+    if isinstance(module, str):
+        ref = llvm.parse_assembly(module)
+        ref.triple = tm.triple
+        ref.data_layout = str(tm.target_data)
+    else:
+        module.triple = tm.triple
+        module.data_layout = str(tm.target_data)
+        ref = llvm.parse_assembly(str(module))
     ref.verify()
     if optimise:
         pto = llvm.create_pipeline_tuning_options(speed_level=3)

@@ -14,9 +14,20 @@ The driver never looks inside rule bodies: it uses the checked effect's
 declarations and the kernels' addresses.
 """
 
-from .events import (CallbackWriter, IterationTraced, IterationUpdated, RunFinished, SetupDone,
-                     Writer)
-from .runner import RunError, RunOptions, run
+_FROM = {"run": "runner", "RunOptions": "runner", "RunError": "runner", "Writer": "events",
+         "CallbackWriter": "events", "SetupDone": "events", "IterationTraced": "events",
+         "IterationUpdated": "events", "RunFinished": "events"}
+
+
+def __getattr__(name: str):
+    # imported on first use: the command line reads driver.camera's defaults
+    # without loading the run loop (numpy, LLVM)
+    if name in _FROM:
+        from importlib import import_module
+
+        return getattr(import_module(f".{_FROM[name]}", __name__), name)
+    raise AttributeError(f"module 'gamma.driver' has no attribute '{name}'")
+
 
 __all__ = ["run", "RunOptions", "RunError", "Writer", "CallbackWriter", "SetupDone",
            "IterationTraced", "IterationUpdated", "RunFinished"]

@@ -79,14 +79,21 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> Connecti
     # No usage statistics sent anywhere, and quiet start-up.
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     os.environ.setdefault("RAY_DEDUP_LOGS", "0")
-    try:
-        if address:
-            ray.init(address=address, logging_level="ERROR", configure_logging=True)
-        else:
-            ray.init(num_cpus=num_cpus, include_dashboard=False,
-                     object_store_memory=LOCAL_OBJECT_STORE, logging_level="ERROR",
-                     configure_logging=True)
-    except (ConnectionError, RuntimeError, ValueError) as err:
-        where = f"the Ray cluster at '{address}'" if address else "a local Ray"
-        raise RayUnavailable(f"cannot start or reach {where}: {err}") from None
+    # A local start waits 30 s (fixed in Ray) for its raylet; on a machine
+    # busy enough to miss that, another try usually makes it.
+    attempts = 1 if address else 3
+    for attempt in range(attempts):
+        try:
+            if address:
+                ray.init(address=address, logging_level="ERROR", configure_logging=True)
+            else:
+                ray.init(num_cpus=num_cpus, include_dashboard=False,
+                         object_store_memory=LOCAL_OBJECT_STORE, logging_level="ERROR",
+                         configure_logging=True)
+            break
+        except Exception as err:     # Ray raises plain Exception for a start-up time-out
+            ray.shutdown()           # also stops what a half-started node left running
+            if attempt + 1 == attempts:
+                where = f"the Ray cluster at '{address}'" if address else "a local Ray"
+                raise RayUnavailable(f"cannot start or reach {where}: {err}") from None
     return Connection(ray, started=True)

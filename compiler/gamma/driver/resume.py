@@ -23,7 +23,7 @@ import numpy as np
 from .. import __version__, abi
 
 #: Options that do not change the results (or are what --resume changes).
-_NOT_IN_KEY = {"iterations", "threads", "progress", "resume", "out", "quiet", "started"}
+_NOT_IN_KEY = {"iterations", "threads", "progress", "resume", "out", "quiet", "started", "ray", "ray_address"}
 
 
 def run_key(ir_text: str, scene, opts) -> str:

@@ -59,6 +59,8 @@ class RunOptions:
     started: float | None = None  # time.perf_counter() when gammac started (start-up time)
     shading: str = "smooth"       # renders: "smooth" (up to the crease angle) or "flat"
     crease: float = 60.0          # degrees; sharper edges stay sharp in smooth shading
+    ray: bool = False           # trace on a local Ray (distributed.py)
+    ray_address: str | None = None   # trace on the Ray cluster there
 
 
 def runtime_module():
@@ -306,6 +308,8 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
             raise
         finally:
             session.lock.__exit__()
+            if session.tracer is not None:
+                session.tracer.close()
     return session.summary
 
 
@@ -373,9 +377,12 @@ class Run:
     first_iteration: int = 1       # 1, or where --resume continues
     lock: object = None            # folder.OutputLock, held for the run
     call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
+    tracer: object = None          # distributed.RayTracer with --ray / --ray-address
 
     def trace(self, it: int) -> dict:
         """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
+        if self.tracer is not None:
+            return self.tracer.trace(it)
         return self.sim.trace(it)
 
     def update(self, it: int, traced: dict) -> tuple[np.ndarray, dict, dict]:
@@ -389,6 +396,8 @@ class Run:
                                    for name, col in props.items()}
         record["trace_seconds"] = traced["trace_seconds"]
         record["update_seconds"] = updated["seconds"]
+        if "bytes_moved" in traced:
+            record["ray"] = traced["bytes_moved"]
         names = mass_properties(self.effect)
         if names:
             record["mass"] = {name: books for name, books in zip(names, traced["mass"])}
@@ -456,6 +465,11 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -
 
     entered = time.perf_counter()
     check_limits(opts)
+    if (opts.ray or opts.ray_address) and shape_changes(effect):
+        where = next((w for s in effect.surfaces.values() for _, _, w in s.shape.values()), "")
+        raise RunError(f"--ray{'-address' if opts.ray_address else ''}: {where}: an effect that changes "
+                       "the shape of the scene cannot be traced on Ray (the workers keep the scene as it "
+                       "was loaded, the shape step re-tiles it); run it without Ray")
     if not effect.sources:
         raise GammaError(effect.path, effect.source, [Diagnostic(
             Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced")])
@@ -509,7 +523,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -
 
 def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse=None) -> Run:
     """The rest of ``start``, with the output folder locked."""
-    from . import folder, resume
+    from . import folder
     from .events import WriteQueue
 
     mesh = scene.mesh
@@ -553,25 +567,21 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     if looks:
         sim.set_textures(textures)
     camera = run_camera(scene, opts)
-    key = resume.run_key(str(kernels.ir), scene, opts)
-    earlier, first = None, 1
-    if opts.resume:
-        if shape_changes(effect):
-            raise RunError("--resume: an effect that changes the shape of the scene cannot be "
-                           "resumed (its geometry is not in the maps); run it again")
+    tracer = None
+    if opts.ray or opts.ray_address:
+        from . import distributed
+        from .cluster import RayUnavailable
+
         try:
-            earlier, done = resume.load(out, key, opts.iterations)
-            sim.set_rows(resume.rows_from_map(out / "maps" / f"iter_{done:04d}.ply", effect,
-                                              np.asarray(sim.surfel_surfaces()), effect.row_width))
-        except resume.ResumeError as err:
+            tracer = distributed.start(rt, effect, kernels, opts, scene, sim, build_config)
+        except RayUnavailable as err:
             raise RunError(str(err)) from None
-        folder.discard_after(out, done)
-        first = done + 1
-    else:
-        try:
-            folder.set_aside(out)
-        except OSError as err:
-            raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
+    try:
+        key, earlier, first = _resume_or_set_aside(effect, opts, scene, kernels, sim, out)
+    except BaseException:
+        if tracer is not None:
+            tracer.close()
+        raise
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     static = static_columns(sim, surfel_surface)
@@ -605,6 +615,9 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                     "shading": opts.shading, "crease": opts.crease},
         "iterations": [],
     }
+    if tracer is not None:
+        summary["ray"] = {"address": opts.ray_address or "local", "workers": tracer.workers,
+                          "job_bytes": tracer.job_bytes}
     report = NonFiniteReport(effect, opts.progress)
     summary["nonfinite"] = report.entries
     if earlier is not None:
@@ -618,10 +631,38 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     if shapes:
         summary["geometry"] = sim.geometry()
     session = Run(effect, opts, out, rt, scene, kernels, sim, camera, threads, shown, looks,
-                  surfel_surface, static, summary, report, WriteQueue(), shapes, where)
+                  surfel_surface, static, summary, report, WriteQueue(), shapes, where, tracer=tracer)
     session.first_iteration = first
     session.call = call
     return session
+
+
+def _resume_or_set_aside(effect, opts, scene, kernels, sim, out) -> tuple:
+    """The run key; with --resume the earlier summary and the first iteration
+    to run (the rows of the last complete one loaded), else the earlier run's
+    files set aside: (key, earlier summary or None, first iteration)."""
+    from . import folder, resume
+
+    key = resume.run_key(str(kernels.ir), scene, opts)
+    earlier, first = None, 1
+    if opts.resume:
+        if shape_changes(effect):
+            raise RunError("--resume: an effect that changes the shape of the scene cannot be "
+                           "resumed (its geometry is not in the maps); run it again")
+        try:
+            earlier, done = resume.load(out, key, opts.iterations)
+            sim.set_rows(resume.rows_from_map(out / "maps" / f"iter_{done:04d}.ply", effect,
+                                              np.asarray(sim.surfel_surfaces()), effect.row_width))
+        except resume.ResumeError as err:
+            raise RunError(str(err)) from None
+        folder.discard_after(out, done)
+        first = done + 1
+    else:
+        try:
+            folder.set_aside(out)
+        except OSError as err:
+            raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
+    return key, earlier, first
 
 
 #: The event number NonFiniteReport files appearance kernels under (the

@@ -46,7 +46,10 @@ public:
 
     // (Re)builds the BVH over the mesh's triangles; tri_surface has one
     // surface id in [0, n_surfaces) per triangle.
-    void build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces);
+    // The triangle lookup is refreshed too when surfels are indexed, unless
+    // refresh_lookup is false (the caller rebuilds the surfels next).
+    void build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces,
+                        bool refresh_lookup = true);
     // (Re)builds the kd-trees over n surfels (positions n*3, surface ids n;
     // copied).  sigma = the smoothing width (mean surfel spacing).
     // Also rebuilds the triangle lookup (with `threads` threads, <= 0: all;

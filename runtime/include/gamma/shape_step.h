@@ -18,7 +18,8 @@
 namespace gammart {
 
 struct ShapeStats {
-    bool changed = false;              // the geometry moved (and was re-tiled, re-sampled, rebuilt)
+    bool changed = false;              // the geometry moved (and the scene index was rebuilt)
+    bool retiled = false;              // ... re-tiled with new surfels (else the surfels rode on their triangles)
     int64_t moved_vertices = 0;
     int64_t clamped_vertices = 0;      // |displacement| cut to the per-iteration bound
     int64_t inversion_limited = 0;     // vertices whose move was shortened so that no triangle flips
@@ -66,10 +67,21 @@ public:
     // How many times apply() rebuilt the geometry.
     int rebuilds() const { return rebuilds_; }
 
+    // Re-tilings are skipped while the triangles stay good: at most this
+    // many iterations in a row (SPEC §13.12).
+    static constexpr int kMaxIterationsWithoutRetiling = 8;
+    static constexpr double kSliverDeg = 15.0;   // a triangle with a smaller angle is a sliver
+
 private:
+    // New surfels on the re-tiled mesh, rows transferred, scene index rebuilt.
+    void resample(int iteration, Retiled& rt, Mesh& mesh, SurfelState& state, std::unique_ptr<SceneIndex>& index,
+                  ShapeStats& st) const;
+
     const Config& cfg_;
     std::vector<float> before_;
     int rebuilds_ = 0;
+    int kept_iterations_ = 0;           // shape steps since the last re-tiling
+    double retiled_slivers_ = 0, retiled_area_ = 0;   // sliver share and area right after it
 };
 
 }  // namespace gammart

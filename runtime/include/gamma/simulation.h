@@ -66,6 +66,16 @@ public:
     void set_rows(const float* data);  // N*W floats
 
     TraceStats trace(int iteration);
+    // trace() in pieces (see Tracer::trace_chunks): the driver of a
+    // distributed run merges the chunks its workers traced.
+    int64_t num_chunks(int iteration) const { return tracer_->num_chunks(iteration); }
+    std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last) const {
+        return tracer_->trace_chunks(iteration, first, last, *index_, frame_, state_);
+    }
+    TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs) {
+        shape_.begin_iteration(state_);  // as trace(): the rows before this iteration's deposits
+        return tracer_->merge_chunks(iteration, logs, state_);
+    }
     // Asks the trace running now (or the next one) to stop before its next
     // chunk of gamma-tons: it throws gammart::Error ("cancelled: ...") and
     // leaves the rows as they were.  Safe from any thread.

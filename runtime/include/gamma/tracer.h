@@ -32,15 +32,33 @@ public:
     // surfels (checked by the caller).
     TraceStats trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state);
 
+    // The same work in pieces, for tracing on other processes or machines:
+    // the iteration's gamma-tons fall in num_chunks() chunks of kChunkSize;
+    // trace_chunks traces chunks [first, last) against state.rows (left
+    // unchanged) and returns their logs; merge_chunks applies the logs of
+    // all chunks, in chunk order, exactly as trace() does after tracing.  A
+    // chunk's log depends only on (config, scene, rows, iteration, chunk), so
+    // the pieces give trace()'s bytes wherever they are traced.  Both throw
+    // gammart::Error on chunks or logs that do not fit.
+    int64_t num_chunks(int iteration) const;
+    std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
+                                       const SceneFrame& frame, const SurfelState& state) const;
+    TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state);
+
     // While on, trace() keeps every ray it casts (in gamma-ton order, the
     // same at any thread count); take_recorded_rays() hands them over.
     void set_record_rays(bool on) { record_rays_ = on; }
-    // While *flag is set, trace() stops before its next chunk and throws
+    // While *flag is set, trace() (and trace_chunks) stops before its next chunk and throws
     // gammart::Error ("cancelled: ...") without touching the rows.
     void set_cancel_flag(std::atomic<bool>* flag) { cancel_ = flag; }
     std::vector<RecordedRay> take_recorded_rays();
 
 private:
+    // Traces chunks [first, last) into out[0 .. last - first); with
+    // rays_out, also keeps each chunk's cast rays in rays_out[0 .. last - first).
+    void run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index, const SceneFrame& frame,
+                    const SurfelState& state, ChunkLog* out, std::vector<RecordedRay>* rays_out) const;
+
     const Config& cfg_;
     const KernelTable& kernels_;
     const std::vector<SourceRt>& sources_;

@@ -1,0 +1,102 @@
+"""The runtime's trace in pieces (what gammac run --ray distributes):
+tracing chunk ranges against the same rows and merging every chunk in chunk
+order equals trace() bit for bit, however the chunks are split: the rows
+(deposits spread by the splat kernel, weighted by source strength), the
+counters and the mass books of the carried properties."""
+
+import numpy as np
+import pytest
+
+from gamma.backends.jit import JitKernels
+from gamma.driver.runner import RunOptions, build_config, runtime_module
+from gamma.driver.scene import load_scene
+from gamma.frontend.checker import check
+from gamma.frontend.parser import parse
+
+EFFECT = """
+ton Weather { motion straight = 1.0  carry patina = 1.0, grime = 0.0 }
+surface Copper { reflectance straight = 0.5  property patina = 0.0, grime = 0.5 }
+source air = environment(sphere) emits Weather count 4000
+source drip = point(0, 1, 0) emits Weather count 1500 strength 0.5
+on hit(t: Weather, s: Copper) {
+    t.grime += 0.1 * s.grime * random()
+    s.grime -= 0.01 * s.grime
+}
+on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina + 0.01 * t.grime }
+update(s: Copper) { s.grime = max(s.grime, 0) + 0.001 * random() }
+"""
+
+
+@pytest.fixture(scope="module")
+def simulations(bumpy_obj):
+    rt = runtime_module()
+    effect = check(parse(EFFECT, "chunks.gamma"))
+    kernels = JitKernels(effect)
+    scene = load_scene(rt, str(bumpy_obj), effect, [], None)
+
+    def make(threads):
+        opts = RunOptions(scene=str(bumpy_obj), out="", surfels=3000, seed=9, threads=threads)
+        cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
+        cfg.triangle_surface = scene.triangle_surface
+        return rt.Simulation(scene.mesh, cfg)
+
+    return rt, kernels, make
+
+
+COUNTERS = ("emitted", "settled", "escaped", "missed", "capped", "interactions", "rays", "bounces", "flow_steps",
+            "drips", "segments")
+
+
+@pytest.mark.parametrize("splits", [[(0, 6)], [(0, 1), (1, 6)], [(0, 3), (3, 4), (4, 6)],
+                                    [(i, i + 1) for i in range(6)]])
+def test_chunks_merged_in_order_equal_trace(simulations, splits):
+    rt, _, make = simulations
+    whole, pieces = make(2), make(1)
+    assert pieces.num_chunks(1) == 6 == -(-5500 // rt.CHUNK_SIZE)
+    for it in (1, 2, 3):
+        expected = whole.trace(it)
+        whole.update(it)
+        before = pieces.rows().copy()
+        chunks = [c for a, b in splits for c in pieces.trace_chunks(it, a, b)]
+        assert np.array_equal(pieces.rows(), before)          # tracing leaves the rows alone
+        assert len(chunks) == 6 and all(s.dtype == np.uint32 and d.shape == (len(s), 2) for s, d, _ in chunks)
+        got = pieces.merge_chunks(it, chunks)
+        pieces.update(it)
+        assert {k: got[k] for k in COUNTERS} == {k: expected[k] for k in COUNTERS}
+        # the books of patina and grime (carried and surface properties), doubles summed in chunk order
+        assert len(expected["mass"]) == 2 and expected["mass"][0]["deposited"] > 0
+        assert got["mass"] == expected["mass"]
+        assert np.array_equal(pieces.rows(), whole.rows()), f"iteration {it}"
+
+
+def test_merge_refuses_chunks_that_do_not_fit(simulations):
+    _, _, make = simulations
+    sim = make(1)
+    chunks = sim.trace_chunks(1, 0, 6)
+    with pytest.raises(ValueError, match="has 6 chunks, not 5"):
+        sim.merge_chunks(1, chunks[:5])
+    surfels, deltas, stats = chunks[0]
+    bad = [(np.full_like(surfels, 10**6), deltas, stats)] + chunks[1:]
+    if len(surfels):
+        with pytest.raises(ValueError, match="out of range"):
+            sim.merge_chunks(1, bad)
+    with pytest.raises(ValueError, match="not within the 6 chunks"):
+        sim.trace_chunks(1, 4, 7)
+
+
+def test_merge_spreads_the_deposits_with_the_splat_kernel(simulations):
+    """The chunks hold each rule's deltas at the surfel it hit; the merge
+    spreads them over neighbouring surfels (SPEC §13.2) as trace() does, so
+    the rows differ from the deltas added where they were logged, while each
+    column's total is kept."""
+    _, _, make = simulations
+    sim = make(1)
+    before = sim.rows().copy()
+    chunks = sim.trace_chunks(1, 0, sim.num_chunks(1))
+    at_hits = before.astype(np.float64)
+    for surfels, deltas, _ in chunks:
+        np.add.at(at_hits[:, -2:], surfels.astype(np.int64), deltas)
+    sim.merge_chunks(1, chunks)
+    after = sim.rows().astype(np.float64)
+    assert not np.allclose(after[:, -2:], at_hits[:, -2:], rtol=0, atol=1e-6)
+    assert np.allclose(after[:, -2:].sum(axis=0), at_hits[:, -2:].sum(axis=0), rtol=1e-4)
