@@ -107,14 +107,19 @@ pytest: install
 test: runtime-tests pytest
 
 # Line coverage of the command line and the run driver, measured (coverage.py)
-# over the whole Python suite, subprocesses included; fails under CLI_COVERAGE %.
-CLI_COVERAGE ?= 85
+# over the whole Python suite, subprocesses included; fails under CLI_COVERAGE %
+# (set just below the figure measured, 90 %, recorded in tests/README.md).  Not
+# part of `make test`: it is a second pass of the whole suite with every
+# `gammac` subprocess traced (34 min on the shared 2-core machine, against
+# ~18 min for the plain suite in CI), which CI's 30 minutes cannot hold.
+CLI_COVERAGE ?= 88
 COVERAGE_TESTS ?= tests
 coverage: install
 	echo "import coverage; coverage.process_startup()" > \
 	  "$$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/gamma-coverage.pth"
 	rm -rf .coverage-data && mkdir -p .coverage-data
-	COVERAGE_PROCESS_START=$(abspath .coveragerc) $(PY) -m coverage run --rcfile=.coveragerc -m pytest -q $(COVERAGE_TESTS)
+	COVERAGE_PROCESS_START=$(abspath .coveragerc) COVERAGE_FILE=$(abspath .coverage-data)/coverage \
+	  $(PY) -m coverage run --rcfile=.coveragerc -m pytest -q $(COVERAGE_TESTS)
 	$(PY) -m coverage combine --rcfile=.coveragerc -q
 	$(PY) -m coverage report --rcfile=.coveragerc --include='*/gamma/cli.py,*/gamma/driver/*'
 	$(PY) -m coverage report --rcfile=.coveragerc --include='*/gamma/cli.py' --fail-under=$(CLI_COVERAGE)

@@ -88,3 +88,16 @@ def test_fuzz_regression(tmp_path, path):
     """Every input the fuzzer (or a user) once broke the compiler with."""
     problem = fuzz_gamma.examine(tmp_path / "case.gamma", path.read_bytes(), deep=True)
     assert problem is None, problem
+
+
+# ---- the mesh fuzzer (tests/fuzz_meshes.py; `make fuzz` runs it longer) ----
+
+def test_mesh_fuzzer_fixed_budget(tmp_path):
+    """A fixed number of mutants of the valid OBJ, PLY and glTF files of
+    tests/mesh_corpus.py, loaded as `gammac run --scene` loads them, in
+    children with a memory and a time limit: each ends in a mesh or one
+    line naming the file, with nothing else on stderr."""
+    import fuzz_meshes
+
+    failures = fuzz_meshes.fuzz(seconds=None, seed=2026, folder=tmp_path, save=None, cases=240)
+    assert not failures, failures[0]

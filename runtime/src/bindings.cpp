@@ -78,6 +78,7 @@ nb::dict trace_stats_dict(const gammart::TraceStats& st) {
     d["drips"] = st.drips;
     d["segments"] = st.segments;
     d["trace_seconds"] = st.trace_seconds;
+    d["log_records_peak"] = st.log_records_peak;
     d["nonfinite"] = nonfinite_list(st.nonfinite);
     nb::list mass;
     for (const gammart::MassBooks& b : st.mass) {
@@ -216,6 +217,7 @@ NB_MODULE(_runtime, m) {
         .def_rw("seed", &gammart::Config::seed)
         .def_rw("threads", &gammart::Config::threads)
         .def_rw("max_interactions", &gammart::Config::max_interactions)
+        .def_rw("trace_batch_chunks", &gammart::Config::trace_batch_chunks)
         .def_rw("row_width", &gammart::Config::row_width)
         .def_rw("surface_rows", &gammart::Config::surface_rows)
         .def_prop_rw(

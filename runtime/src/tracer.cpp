@@ -18,6 +18,11 @@
 
 namespace gammart {
 
+int64_t trace_batch_chunks(const Config& c) {
+    if (c.trace_batch_chunks > 0) return c.trace_batch_chunks;
+    return std::max<int64_t>(64, 8 * int64_t(resolve_threads(c.threads)));
+}
+
 Tracer::Tracer(const Config& c, const KernelTable& kernels, const std::vector<SourceRt>& sources)
     : cfg_(c), kernels_(kernels), sources_(sources), max_carry_(max_carry(c)) {}
 
@@ -28,14 +33,41 @@ int64_t Tracer::num_chunks(int iteration) const {
 TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state) {
     const auto t0 = std::chrono::steady_clock::now();
     const int64_t nchunks = num_chunks(iteration);
-    if (logs_.size() < size_t(nchunks)) logs_.resize(size_t(nchunks));
+    const int P = state.width - GAMMA_ROW_HEADER;
+    // Chunks are traced in batches and each batch's logs summed before the
+    // next: the logs held at once are those of one batch, whatever the pass's
+    // size (--tons 1e9 would otherwise hold a record per write of every
+    // gamma-ton).  The sums are formed in chunk order either way, so the
+    // batch size never changes the result.  A cancelled pass throws from
+    // run_chunks before its sums reach the rows.
+    const int64_t batch = trace_batch_chunks(cfg_);
+    if (logs_.size() < size_t(std::min(batch, nchunks))) logs_.resize(size_t(std::min(batch, nchunks)));
     ray_logs_.assign(record_rays_ ? size_t(nchunks) : 0, {});
-    run_chunks(iteration, 0, nchunks, index, frame, state, logs_.data(), record_rays_ ? ray_logs_.data() : nullptr);
     TraceStats total_st;
     total_st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
-    for (int64_t ci = 0; ci < nchunks; ++ci) total_st.add(logs_[size_t(ci)].st);
-    apply_chunk_logs(logs_, nchunks, state.size(), GAMMA_ROW_HEADER, state.width - GAMMA_ROW_HEADER,
-                     state.rows.data(), merge_scratch_, cfg_.threads, &state.splat);
+    const size_t n = state.size();
+    bool any_record = false;
+    for (int64_t first = 0; first < nchunks; first += batch) {
+        const int64_t last = std::min(nchunks, first + batch);
+        run_chunks(iteration, first, last, index, frame, state, logs_.data(),
+                   record_rays_ ? ray_logs_.data() + first : nullptr);
+        int64_t held = 0;
+        for (int64_t k = 0; k < last - first; ++k) {
+            total_st.add(logs_[size_t(k)].st);
+            held += int64_t(logs_[size_t(k)].surfel.size());
+        }
+        total_st.log_records_peak = std::max(total_st.log_records_peak, held);
+        if (held == 0 || P <= 0) continue;
+        if (!any_record)   // D, then (with a splat kernel) its spread
+            merge_scratch_.assign((state.splat.offset.size() == n + 1 ? 2 : 1) * n * size_t(P), 0.0f);
+        any_record = true;
+        accumulate_chunk_logs(logs_, last - first, n, P, merge_scratch_.data(), cfg_.threads);
+    }
+    if (any_record) {
+        float* spread = merge_scratch_.size() > n * size_t(P) ? merge_scratch_.data() + n * size_t(P) : nullptr;
+        add_chunk_sums(merge_scratch_.data(), spread, n, GAMMA_ROW_HEADER, P, state.rows.data(), cfg_.threads,
+                       &state.splat);
+    }
     total_st.trace_seconds = seconds_since(t0);
     return total_st;
 }

@@ -299,3 +299,43 @@ TEST(Trace, NonFiniteStatementsAreCounted) {
     }
     EXPECT_EQ(seen[0], seen[1]);
 }
+
+// A pass traced in batches of chunks (Config::trace_batch_chunks) holds the
+// deposit logs of one batch at a time, and gives the rows and statistics of
+// the pass in one go, bit for bit, at any thread count.
+TEST(Trace, BatchesBoundTheLogsAndNeverChangeResults) {
+    auto run = [](int threads, int64_t batch, int64_t& peak) {
+        Mesh m = gamma_test::icosphere(3);
+        Config c = base_config(5, 0.3f);
+        c.surfels = 3000;
+        c.threads = threads;
+        c.trace_batch_chunks = batch;
+        c.surface_rows[0][3] = 1.0f;
+        int t = c.add_ton_type(1, 0, 0, {1.0f});
+        c.add_source("point", t, 40 * int64_t(kChunkSize) + 17, {0.1f, 0, 0});   // 41 chunks
+        c.set_transport(GAMMA_EVENT_HIT, t, 0, addr(reinterpret_cast<void*>(&k_hit)), true);
+        c.set_transport(GAMMA_EVENT_SETTLE, t, 0, addr(reinterpret_cast<void*>(&k_settle)), true);
+        Simulation sim(m, c);
+        TraceStats st = sim.trace(1);
+        peak = st.log_records_peak;
+        std::vector<double> counts = {double(st.emitted), double(st.settled), double(st.interactions)};
+        std::vector<float> rows = sim.rows();
+        rows.insert(rows.end(), counts.begin(), counts.end());
+        return rows;
+    };
+    int64_t whole = 0, one = 0, three = 0, three2 = 0;
+    const std::vector<float> a = run(1, 1000, whole), b = run(1, 1, one), c3 = run(1, 3, three),
+                             d = run(2, 3, three2);
+    ASSERT_EQ(a.size(), b.size());
+    EXPECT_EQ(0, std::memcmp(a.data(), b.data(), a.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(a.data(), c3.data(), a.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(a.data(), d.data(), a.size() * sizeof(float)));
+    // Every gamma-ton hits (a point source inside a closed sphere) and writes
+    // at least twice: the whole pass holds all its records, a batch of one
+    // chunk about 1/41 of them.
+    EXPECT_GE(whole, 2 * (40 * kChunkSize + 17));
+    EXPECT_LE(one, 3 * whole / 41);
+    EXPECT_LE(three, 3 * (3 * whole / 41));
+    EXPECT_EQ(three, three2);
+    EXPECT_GT(one, 0);
+}

@@ -29,23 +29,35 @@ BASE_BYTES = 160 << 20
 BYTES_PER_SURFEL = 700
 BYTES_PER_ROW_FLOAT = 16
 BYTES_PER_HISTORY_VALUE = 4
-#: A tracing pass keeps, until it merges them, a log per chunk of 1024 γ-tons
+#: A tracing pass keeps, until it sums them, a log per chunk of 1024 γ-tons
 #: (~160 bytes) and a record per surface write (surfel index and one float
-#: per property): at most one per γ-ton is counted.
+#: per property; one per γ-ton is counted).  It sums them every batch of
+#: chunks (runtime Config.trace_batch_chunks: max(64, 8 × threads) chunks),
+#: so only one batch's logs are held, whatever the number of γ-tons.
 BYTES_PER_TON_CHUNK = 160
 BYTES_PER_TON_RECORD_FIXED = 4
+CHUNK_TONS = 1024
+
+
+def batch_tons(threads: int) -> int:
+    """γ-tons of one batch of chunks (the runtime's default batch)."""
+    import os
+
+    threads = threads if threads > 0 else (os.cpu_count() or 1)
+    return max(64, 8 * threads) * CHUNK_TONS
 #: Above this, `run` says how much memory it will need before it starts.
 ANNOUNCE_BYTES = 2 << 30
 
 
-def run_memory(surfels: int, row_width: int, iterations: int, history: bool, tons: int = 0) -> int:
+def run_memory(surfels: int, row_width: int, iterations: int, history: bool, tons: int = 0,
+               threads: int = 0) -> int:
     """Bytes a run is expected to need at its peak (``tons``: γ-tons of the
-    largest tracing pass)."""
+    largest tracing pass; its logs are held one batch at a time)."""
     per_surfel = BYTES_PER_SURFEL + BYTES_PER_ROW_FLOAT * row_width
     if history:
         per_surfel += BYTES_PER_HISTORY_VALUE * iterations
     per_ton = BYTES_PER_TON_CHUNK / 1024 + BYTES_PER_TON_RECORD_FIXED + 4 * max(0, row_width - 3)
-    return int(BASE_BYTES + surfels * per_surfel + tons * per_ton)
+    return int(BASE_BYTES + surfels * per_surfel + min(tons, batch_tons(threads)) * per_ton)
 
 
 def available_memory() -> int | None:
@@ -67,8 +79,7 @@ def gigabytes(n: int) -> str:
 def memory_problem(need: int, available: int | None) -> str | None:
     if available is not None and need > available:
         return (f"this run needs about {gigabytes(need)} of memory and {gigabytes(available)} are "
-                "available; use fewer --surfels or γ-tons (--tons, the sources' counts), or fewer "
-                "--iterations with a false-colour --show")
+                "available; use fewer --surfels, or fewer --iterations with a false-colour --show")
     return None
 
 

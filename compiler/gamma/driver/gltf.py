@@ -5,7 +5,8 @@ Every node that draws a mesh becomes one part: its vertices in world space
 per triangle corner (when the primitive has ``TEXCOORD_0``) and its
 material's base colour (texture as float RGB in [0, 1], and factor).  The
 part answers to its node name, its mesh name and its material name in
-``--assign`` patterns.
+``--assign`` patterns.  The file is checked first (``gltf_check.py``), so
+a malformed one is a one-line error naming it, never a trimesh exception.
 """
 
 from __future__ import annotations
@@ -15,11 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .gltf_check import MAX_TEXTURE_SIDE, GltfError, check_gltf
+
 GLTF_SUFFIXES = (".gltf", ".glb")
-
-
-class GltfError(Exception):
-    """A one-line, user-facing problem with a glTF file."""
 
 
 @dataclass
@@ -43,10 +42,16 @@ def read_gltf(path: str | Path) -> list[GltfPart]:
     import trimesh
 
     path = Path(path)
+    check_gltf(path)
     try:
         scene = trimesh.load(str(path), force="scene", process=False)
     except Exception as err:   # trimesh raises many kinds for a bad file
-        raise GltfError(f"cannot read glTF '{path}': {err}") from None
+        raise GltfError(f"cannot read glTF '{path}': {err or type(err).__name__}") from None
+    with np.errstate(all="ignore"):    # a non-finite vertex is refused by Mesh.from_arrays, by number
+        return _parts(path, scene, trimesh)
+
+
+def _parts(path: Path, scene, trimesh) -> list[GltfPart]:
     parts = []
     for node in scene.graph.nodes_geometry:
         transform, geometry_name = scene.graph[node]
@@ -92,10 +97,13 @@ def _base_colour(material):
         if width * height > MAX_TEXTURE_PIXELS:
             raise GltfError(f"a base-colour texture of {width} x {height} pixels is larger than "
                             f"{MAX_TEXTURE_SIDE} x {MAX_TEXTURE_SIDE}")
-        image = np.asarray(image.convert("RGB"), np.float32) / 255.0
+        try:
+            image = np.asarray(image.convert("RGB"), np.float32) / 255.0
+        except (OSError, ValueError) as err:
+            raise GltfError(f"a base-colour texture cannot be decoded ({err})") from None
     return image, rgb
 
 
-#: The largest base-colour texture read (as for texture() in effects, SPEC §8a).
-MAX_TEXTURE_SIDE = 8192
+#: The largest base-colour texture read (as for texture() in effects, SPEC §8a;
+#: MAX_TEXTURE_SIDE lives in gltf_check.py, which checks the image headers).
 MAX_TEXTURE_PIXELS = MAX_TEXTURE_SIDE * MAX_TEXTURE_SIDE

@@ -494,7 +494,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -
             raise RunError(problem)
     tons = opts.tons if opts.tons is not None else sum(src.count for src in effect.sources)
     need = budget.run_memory(opts.surfels, effect.row_width, opts.iterations, history=shown is not None,
-                             tons=tons)
+                             tons=tons, threads=opts.threads)
     problem = budget.memory_problem(need, budget.available_memory())
     if problem:
         raise RunError(problem)

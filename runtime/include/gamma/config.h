@@ -74,6 +74,10 @@ struct Config {
     uint64_t seed = 1;
     int threads = 1;             // <= 0: all hardware threads
     int max_interactions = 100;
+    // Chunks of kChunkSize gamma-tons traced before their deposit logs are
+    // summed (tracer.h): bounds the memory of a pass; never changes results.
+    // 0: the default, max(64, 8 x threads).
+    int64_t trace_batch_chunks = 0;
     int row_width = GAMMA_ROW_HEADER;
     std::array<float, 3> down{0, -1, 0};           // gravity; normalised by the runtime
     std::vector<std::vector<float>> surface_rows;  // initial row per surface id

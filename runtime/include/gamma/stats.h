@@ -47,6 +47,9 @@ struct TraceStats {
     std::vector<NonFinite> nonfinite;
     std::vector<MassBooks> mass;  // per Config::mass_properties entry
     double trace_seconds = 0;
+    // Most deposit records held at once during the pass (one batch of chunks'
+    // logs, tracer.h); set by Tracer::trace, not by add().
+    int64_t log_records_peak = 0;
 
     // Adds another chunk's counters (integers: the order of adding is free).
     void add(const TraceStats& o);

@@ -2,7 +2,9 @@
 // delta of the property columns) to their chunk's log while tracing; after
 // tracing, the logs are applied to the rows.  Rows never change during a
 // trace, and every surfel's sum is formed in chunk order, so the result is
-// bit-identical for any thread count.
+// bit-identical for any thread count.  A pass's logs need not be held all at
+// once: summed into D batch by batch (accumulate_chunk_logs, in chunk
+// order), they give the same D, hence the same rows, as in one go.
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -37,5 +39,14 @@ struct ChunkLog {
 // floats) is reused between calls.
 void apply_chunk_logs(const std::vector<ChunkLog>& logs, int64_t nchunks, size_t n, int header, int P, float* rows,
                       std::vector<float>& scratch, int threads, const SplatKernel* splat = nullptr);
+
+// The two halves of apply_chunk_logs.  accumulate_chunk_logs: D[s] += the
+// records of surfel s in logs [0, nchunks), in chunk order (D: n x P floats);
+// returns whether there was any record.  add_chunk_sums: D spread by the
+// splat kernel (if any; S is n x P floats of scratch) is added to the rows.
+bool accumulate_chunk_logs(const std::vector<ChunkLog>& logs, int64_t nchunks, size_t n, int P, float* D,
+                           int threads);
+void add_chunk_sums(float* D, float* S, size_t n, int header, int P, float* rows, int threads,
+                    const SplatKernel* splat);
 
 }  // namespace gammart

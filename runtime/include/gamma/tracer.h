@@ -22,6 +22,10 @@
 
 namespace gammart {
 
+// Chunks traced before their logs are summed (Config::trace_batch_chunks, or
+// by default max(64, 8 x threads)): bounds the logs held during a pass.
+int64_t trace_batch_chunks(const Config& c);
+
 class Tracer {
 public:
     // Keeps references: c, kernels and sources must outlive the tracer.
