@@ -290,3 +290,11 @@ def test_syntax_error_raises_gamma_error():
     with pytest.raises(GammaError) as info:
         format_source("ton T { motion a = }\n", "bad.gamma")
     assert "bad.gamma" in str(info.value)
+
+
+def test_components_of_expressions_keep_their_meaning():
+    text = ("on hit(t: T, s: S) {\n    let v = (1, 2, 3)\n"
+            "    t.a = (v + up).x + cross(v, up).y+( v ).z - -(1,2,3).x * normalize(v).z\n}\n")
+    out = format_source(text)
+    assert "(v + up).x + cross(v, up).y + (v).z - -(1, 2, 3).x * normalize(v).z" in out
+    assert _ast(out) == _ast(text) and format_source(out) == out

@@ -20,7 +20,7 @@ import sys
 
 #: Bumped whenever anything below changes; ``driver.runner.runtime_module``
 #: refuses a runtime built for another version.
-ABI_VERSION = 4
+ABI_VERSION = 6
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -43,7 +43,10 @@ CONTEXT_FIELDS = (
     ("iteration", "int32_t", 1),    # 1-based iteration number (iter_0001 is the first)
     ("interactions", "int32_t", 1), # interactions of this gamma-ton so far, this one included
     ("random_key", "uint32_t", 2),  # low, high word of the key of random() for this call
-    ("uv", "float", 2),             # texture coordinates of the point (appearance; 0 elsewhere)
+    ("uv", "float", 2),             # texture coordinates of the point / the surfel (0 without)
+    ("up", "float", 3),             # unit vector opposite the scene's down (SPEC §15)
+    ("accessibility", "float", 1),  # openness of the surfel / point in [0, 1] (SPEC §12)
+    ("curvature", "float", 1),      # mean curvature of the surface there, convex > 0
 )
 
 _C_SIZE = {"float": 4, "int32_t": 4, "uint32_t": 4}
@@ -118,13 +121,14 @@ BINDING = {
              "vertices", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
     "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",
                "triangle_surface", "add_ton_type", "add_source", "set_transport", "set_update",
-               "set_appearance", "add_shape_rate", "add_mass_property"),
+               "set_appearance", "add_shape_rate", "add_mass_property", "measure_accessibility",
+               "measure_curvature", "measure_uv"),
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
                    "rows", "trace", "update", "render", "set_textures", "bake_points",
                    "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
                    "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
-                   "num_prepared_points", "bake_prepared", "cancel"),
+                   "num_prepared_points", "bake_prepared", "cancel", "surfel_measures"),
 }
 
 

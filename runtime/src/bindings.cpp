@@ -271,6 +271,9 @@ NB_MODULE(_runtime, m) {
              "The surface's shape follows row column `column` (SPEC §19).")
         .def("add_mass_property", &gammart::Config::add_mass_property, "columns"_a, "carry"_a,
              "Account pick-up of a property: its row column per surface and carry index per ton type (-1: none).")
+        .def_rw("measure_accessibility", &gammart::Config::measure_accessibility)
+        .def_rw("measure_curvature", &gammart::Config::measure_curvature)
+        .def_rw("measure_uv", &gammart::Config::measure_uv)
         .def_rw("retile_edge_factor", &gammart::Config::retile_edge_factor)
         .def_rw("retile_iterations", &gammart::Config::retile_iterations)
         .def_rw("max_step_factor", &gammart::Config::max_step_factor)
@@ -291,6 +294,15 @@ NB_MODULE(_runtime, m) {
              [](const gammart::Simulation& s) { return to_numpy<float>(s.surfels().position, {s.num_surfels(), 3}); })
         .def("surfel_normals",
              [](const gammart::Simulation& s) { return to_numpy<float>(s.surfels().normal, {s.num_surfels(), 3}); })
+        .def("surfel_measures",
+             [](const gammart::Simulation& s) {
+                 // (accessibility, accessibility on the back, curvature, uv): empty if not computed
+                 const gammart::SurfelMeasures& m = s.measures();
+                 return nb::make_tuple(to_numpy<float>(m.accessibility, {m.accessibility.size()}),
+                                       to_numpy<float>(m.accessibility_back, {m.accessibility_back.size()}),
+                                       to_numpy<float>(m.curvature, {m.curvature.size()}),
+                                       to_numpy<float>(m.uv, {m.uv.size() / 2, 2}));
+             })
         .def("surfel_triangles",
              [](const gammart::Simulation& s) { return to_numpy<int32_t>(s.surfels().triangle, {s.num_surfels()}); })
         .def("surfel_surfaces",

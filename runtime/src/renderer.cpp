@@ -78,6 +78,34 @@ void validate_textures(const std::vector<Texture>& textures) {
     }
 }
 
+namespace {
+
+// The accessibility and curvature an appearance block reads at point p
+// (SPEC §12): the surfels' values smoothed with the rows' weights, each
+// neighbour's on the side of the point's normal n.  Zero when the effect
+// reads neither (nothing was measured), without a neighbour search.
+void smoothed_measures(const RenderScene& rs, int surface, const float p[3], const float n[3], float* accessibility,
+                       float* curvature) {
+    const SurfelMeasures& m = rs.state.measures;
+    *accessibility = *curvature = 0.0f;
+    if (m.accessibility.empty() && m.curvature.empty()) return;
+    uint32_t idx[kSmoothingNeighbours];
+    double w[kSmoothingNeighbours];
+    const size_t k = rs.index.smooth(surface, p, idx, w);
+    double open_sum = 0, curvature_sum = 0;
+    for (size_t j = 0; j < k; ++j) {
+        const float* sn = rs.state.surf.normal.data() + 3 * size_t(idx[j]);
+        const bool back = n[0] * sn[0] + n[1] * sn[1] + n[2] * sn[2] < 0.0f;
+        if (!m.accessibility.empty())
+            open_sum += w[j] * (back ? m.accessibility_back[idx[j]] : m.accessibility[idx[j]]);
+        if (!m.curvature.empty()) curvature_sum += w[j] * (back ? -m.curvature[idx[j]] : m.curvature[idx[j]]);
+    }
+    *accessibility = float(open_sum);
+    *curvature = float(curvature_sum);
+}
+
+}  // namespace
+
 void interpolate_row(const RenderScene& rs, int surface, const float p[3], float* out) {
     uint32_t idx[kSmoothingNeighbours];
     double w[kSmoothingNeighbours];
@@ -110,6 +138,7 @@ int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3]
         return 0;
     }
     GammaContext ctx;
+    smoothed_measures(rs, surface, p, n, &ctx.accessibility, &ctx.curvature);
     for (int c = 0; c < 3; ++c) {
         ctx.position[c] = p[c];
         ctx.normal[c] = n[c];
@@ -121,6 +150,7 @@ int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3]
     set_random_key(ctx, random_key);
     ctx.uv[0] = uv[0];
     ctx.uv[1] = uv[1];
+    ctx.up[0] = rs.frame.up.x; ctx.up[1] = rs.frame.up.y; ctx.up[2] = rs.frame.up.z;
     for (size_t ti = 0; ti < T; ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
     float rgb[3] = {0, 0, 0};
     const int32_t bad = fn(row, tex, rgb, &ctx);

@@ -320,6 +320,9 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
                                          state.surface.data(), state.size(), index->sigma());
     });
     frame = SceneFrame::of(mesh, c.down);
+    // the moved or new surfels' accessibility, curvature and uv, as at setup (SPEC §12)
+    state.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh, *index,
+                                     state.surf, kAoLengthFraction * frame.diag, c.seed, c.threads);
     before_ = state.rows;
     st.geometry = keep_tiling ? q : measure(mesh);
     return st;

@@ -74,6 +74,8 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
         state_.splat = build_splat_kernel(state_.surf.position.data(), state_.surf.normal.data(),
                                           state_.surface.data(), state_.size(), index_->sigma());
     });
+    state_.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh_, *index_,
+                                      state_.surf, kAoLengthFraction * frame_.diag, c.seed, c.threads);
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
     tracer_->set_cancel_flag(&cancel_);
     update_corner_normals();
@@ -99,6 +101,13 @@ void Simulation::reconfigure(const Config& config) {
     for (size_t i = 0; i < state_.size(); ++i)
         std::memcpy(&rows[i * size_t(W)], config.surface_rows[size_t(state_.surface[i])].data(),
                     sizeof(float) * size_t(W));
+    // the per-surfel measures depend on the surfels and the mesh only: computed
+    // again only if the new effect reads others (same values as a fresh run)
+    if (config.measure_accessibility != cfg_.measure_accessibility ||
+        config.measure_curvature != cfg_.measure_curvature || config.measure_uv != cfg_.measure_uv)
+        state_.measures = measure_surfels({config.measure_accessibility, config.measure_curvature, config.measure_uv},
+                                          mesh_, *index_, state_.surf, kAoLengthFraction * frame.diag, config.seed,
+                                          config.threads);
     cfg_ = config;
     frame_ = frame;
     sources_ = std::move(sources);

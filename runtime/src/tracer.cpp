@@ -123,6 +123,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
     const int64_t total = sched.total();
     const float* rows = state.rows.data();
     const int32_t* surf_of = state.surface.data();
+    const SurfelMeasures& measures = state.measures;
     const int max_inter = c.max_interactions;
     const uint64_t seed = c.seed;
     const uint32_t iter_u = uint32_t(iteration);
@@ -227,6 +228,17 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 ctx.height = dot(p, up) - frame.min_up;
                 ctx.iteration = iteration;
                 ctx.interactions = inter;
+                // the measures of the surfel the rules run on (SPEC §12)
+                ctx.uv[0] = measures.uv.empty() ? 0.0f : measures.uv[2 * size_t(s)];
+                ctx.uv[1] = measures.uv.empty() ? 0.0f : measures.uv[2 * size_t(s) + 1];
+                ctx.up[0] = up.x; ctx.up[1] = up.y; ctx.up[2] = up.z;
+                // on the side the gamma-ton came from (n is turned toward it)
+                const float* sn = state.surf.normal.data() + 3 * size_t(s);
+                const bool back = n.x * sn[0] + n.y * sn[1] + n.z * sn[2] < 0.0f;
+                ctx.accessibility = measures.accessibility.empty() ? 0.0f
+                                  : back ? measures.accessibility_back[s] : measures.accessibility[s];
+                ctx.curvature = measures.curvature.empty() ? 0.0f
+                              : back ? -measures.curvature[s] : measures.curvature[s];
                 const float xi = rng.next();
                 const float c1 = std::min(ks, 1.0f);
                 const float c2 = std::min(c1 + kp, 1.0f);

@@ -40,6 +40,12 @@ UpdateStats run_update_pass(const KernelTable& K, const SceneFrame& frame, Surfe
                 ctx.height = dot(V3{ctx.position[0], ctx.position[1], ctx.position[2]}, frame.up) - frame.min_up;
                 ctx.iteration = iteration;
                 ctx.interactions = 0;
+                const SurfelMeasures& m = state.measures;
+                ctx.uv[0] = m.uv.empty() ? 0.0f : m.uv[2 * i];
+                ctx.uv[1] = m.uv.empty() ? 0.0f : m.uv[2 * i + 1];
+                ctx.up[0] = frame.up.x; ctx.up[1] = frame.up.y; ctx.up[2] = frame.up.z;
+                ctx.accessibility = m.accessibility.empty() ? 0.0f : m.accessibility[i];
+                ctx.curvature = m.curvature.empty() ? 0.0f : m.curvature[i];
                 set_random_key(ctx, mix64(iteration_key ^ uint64_t(i)));
                 if (int32_t bad = fn(rows + i * size_t(W), &ctx))
                     count_nonfinite(local, -1, 0, state.surface[i], bad);

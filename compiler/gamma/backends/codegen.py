@@ -17,7 +17,7 @@ from llvmlite import ir
 
 from .. import abi
 from ..ir import effect as I
-from ..ir.builtins import FUNCTIONS
+from ..ir.builtins import FUNCTIONS, NOISE_BITS, NOISE_CLAMP, noise_salt
 from ..ir.effect import Effect, Kernel
 
 F32 = ir.FloatType()
@@ -88,16 +88,33 @@ class _KernelBuilder:
         if var.space == "ctx":
             index = _CONTEXT_INDEX[var.name]
             _, ctype, count = abi.CONTEXT_FIELDS[index]
-            path = [ir.Constant(I32, 0), ir.Constant(I32, index)]
+            if count > 1 and var.component is None:    # a whole vector (uv: z = 0)
+                return tuple(self.context_float(index, c) if c < count else ir.Constant(F32, 0.0)
+                             for c in range(3))
             if count > 1:
-                path.append(ir.Constant(I32, var.component))
-            field = self.b.gep(self.ctx, path, inbounds=True, source_etype=CONTEXT_TYPE)
+                return self.context_float(index, var.component) if var.component < count \
+                    else ir.Constant(F32, 0.0)
+            field = self.b.gep(self.ctx, [ir.Constant(I32, 0), ir.Constant(I32, index)], inbounds=True,
+                               source_etype=CONTEXT_TYPE)
             value = self.b.load(field, typ=_CTYPES[ctype])
             return value if ctype == "float" else self.b.sitofp(value, F32)
         base = self.ton if var.space == "ton" else self.surf
         return self.b.load(self.slot_ptr(base, var.slot), typ=F32)
 
+    def context_float(self, index: int, component: int):
+        field = self.b.gep(self.ctx, [ir.Constant(I32, 0), ir.Constant(I32, index), ir.Constant(I32, component)],
+                           inbounds=True, source_etype=CONTEXT_TYPE)
+        return self.b.load(field, typ=F32)
+
     # -- the emitter interface the lowerings of ir.builtins use --
+
+    def if_zero(self, x, when_zero, otherwise):
+        """``when_zero`` if x == 0 (+0 or -0), else ``otherwise``."""
+        return self.b.select(self.b.fcmp_ordered("==", x, ir.Constant(F32, 0.0)), when_zero, otherwise)
+
+    def gradient_noise(self, p, octave: int):
+        """The signed gradient noise at the vector ``p`` (ir.builtins.ref_gradient_noise)."""
+        return self.b.call(_noise_function(self.module), [*p, ir.Constant(I64, noise_salt(octave))])
 
     def const(self, value: float):
         return ir.Constant(F32, value)
@@ -194,6 +211,10 @@ class _KernelBuilder:
             return b.and_(left, right) if e.op == "and" else b.or_(left, right)
         if isinstance(e, I.Call):
             return FUNCTIONS[e.name].lower(self, e, [self.expr(a, lets) for a in e.args])
+        if isinstance(e, I.MakeVector):
+            return tuple(self.expr(item, lets) for item in e.items)
+        if isinstance(e, I.Component):
+            return self.expr(e.operand, lets)[e.index]
         raise AssertionError(f"unchecked expression {e!r}")
 
     def store_finite(self, new, ptr, number: int) -> None:
@@ -249,6 +270,77 @@ class _KernelBuilder:
         for body in self.kernel.bodies:
             self.statements(body, {})
         self.b.ret(self.b.load(self.first_bad, typ=I32))
+
+
+NOISE_SYMBOL = "gamma.noise"
+
+
+def _noise_function(module: ir.Module) -> ir.Function:
+    """``float gamma.noise(float x, float y, float z, i64 salt)``: the signed gradient
+    noise of SPEC §11, defined once per module (internal), operation for operation
+    as ``ir.builtins.ref_gradient_noise``."""
+    try:
+        return module.get_global(NOISE_SYMBOL)
+    except KeyError:
+        pass
+    fn = ir.Function(module, ir.FunctionType(F32, [F32, F32, F32, I64]), NOISE_SYMBOL)
+    fn.linkage = "internal"
+    b = ir.IRBuilder(fn.append_basic_block("entry"))
+    f = lambda v: ir.Constant(F32, v)
+    i64 = lambda v: ir.Constant(I64, v & 0xFFFFFFFFFFFFFFFF)
+    floor = module.declare_intrinsic("llvm.floor", [F32], ir.FunctionType(F32, [F32]))
+
+    def pick(name, a, c):                     # as _KernelBuilder.pick
+        better = b.fcmp_ordered("<" if name == "min" else ">", c, a)
+        return b.select(b.or_(better, b.fcmp_unordered("uno", a, a)), c, a)
+
+    cells, fracs = [], []
+    for x in fn.args[:3]:
+        fl = b.call(floor, [x])
+        fracs.append(b.fsub(x, fl))
+        clamped = pick("min", pick("max", fl, f(-NOISE_CLAMP)), f(NOISE_CLAMP))
+        cells.append(b.fptosi(clamped, I32))
+    salt = fn.args[3]
+    mask = ir.Constant(I32, (1 << NOISE_BITS) - 1)
+
+    def mix64(z):
+        z = b.add(z, i64(abi.RANDOM_GOLDEN))
+        z = b.mul(b.xor(z, b.lshr(z, i64(30))), i64(abi.RANDOM_MIX[0]))
+        z = b.mul(b.xor(z, b.lshr(z, i64(27))), i64(abi.RANDOM_MIX[1]))
+        return b.xor(z, b.lshr(z, i64(31)))
+
+    def coord(axis, offset):
+        return b.zext(b.and_(b.add(cells[axis], ir.Constant(I32, offset)), mask), I64)
+
+    corner = {}
+    for cx in (0, 1):
+        for cy in (0, 1):
+            for cz in (0, 1):
+                key = b.or_(b.or_(b.shl(coord(0, cx), i64(2 * NOISE_BITS)), b.shl(coord(1, cy), i64(NOISE_BITS))),
+                            coord(2, cz))
+                g = b.trunc(b.lshr(mix64(b.xor(key, salt)), i64(60)), I32)
+                dx, dy, dz = (b.fsub(t, f(float(c))) for t, c in zip(fracs, (cx, cy, cz)))
+                ig = lambda v: ir.Constant(I32, v)
+                u = b.select(b.icmp_unsigned("<", g, ig(8)), dx, dy)
+                dx_wins = b.or_(b.icmp_unsigned("==", g, ig(12)), b.icmp_unsigned("==", g, ig(14)))
+                v = b.select(b.icmp_unsigned("<", g, ig(4)), dy, b.select(dx_wins, dx, dz))
+                u = b.select(b.icmp_unsigned("!=", b.and_(g, ig(1)), ig(0)), b.fneg(u), u)
+                v = b.select(b.icmp_unsigned("!=", b.and_(g, ig(2)), ig(0)), b.fneg(v), v)
+                corner[cx, cy, cz] = b.fadd(u, v)
+
+    def fade(t):
+        return b.fmul(b.fmul(b.fmul(t, t), t), b.fadd(b.fmul(t, b.fsub(b.fmul(t, f(6.0)), f(15.0))), f(10.0)))
+
+    def lerp(a, c, w):
+        return b.fadd(a, b.fmul(w, b.fsub(c, a)))
+
+    fx, fy, fz = (fade(t) for t in fracs)
+    x00 = lerp(corner[0, 0, 0], corner[1, 0, 0], fx)
+    x10 = lerp(corner[0, 1, 0], corner[1, 1, 0], fx)
+    x01 = lerp(corner[0, 0, 1], corner[1, 0, 1], fx)
+    x11 = lerp(corner[0, 1, 1], corner[1, 1, 1], fx)
+    b.ret(lerp(lerp(x00, x10, fy), lerp(x01, x11, fy), fz))
+    return fn
 
 
 def generate(effect: Effect) -> ir.Module:

@@ -31,7 +31,8 @@ class Context:
 
     def __init__(self, iteration: int = 0, interactions: int = 0, height: float = 0.0,
                  position=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 0.0), direction=(0.0, 0.0, 0.0),
-                 random_key: int = 0):
+                 random_key: int = 0, up=(0.0, 1.0, 0.0), uv=(0.0, 0.0), accessibility: float = 0.0,
+                 curvature: float = 0.0):
         self.random_key = random_key
         self.iteration = iteration
         self.interactions = interactions
@@ -39,7 +40,10 @@ class Context:
         self.position = np.asarray(position, np.float32)
         self.normal = np.asarray(normal, np.float32)
         self.direction = np.asarray(direction, np.float32)
-        self.uv = np.zeros(2, np.float32)
+        self.uv = np.asarray(uv, np.float32)
+        self.up = np.asarray(up, np.float32)
+        self.accessibility = f32(accessibility)
+        self.curvature = f32(curvature)
 
 
 def _row_layout(kernel: Kernel) -> dict[str, int]:
@@ -100,7 +104,11 @@ class _Call:
             return tuple(f32(c) for c in self.rgb)
         if var.space == "ctx":
             value = getattr(self.ctx, var.name)
-            return f32(value[var.component] if np.ndim(value) else value)
+            if not np.ndim(value):
+                return f32(value)
+            # a vector (uv has 2 components in the context; its z is 0)
+            whole = tuple(f32(value[c]) if c < len(value) else f32(0) for c in range(3))
+            return whole if var.component is None else whole[var.component]
         array, index = self.where(var)
         return array[index]
 
@@ -127,6 +135,10 @@ class _Call:
             return (a and b) if e.op == "and" else (a or b)
         if isinstance(e, I.Call):
             return FUNCTIONS[e.name].reference(self, e, [self.eval(a, lets) for a in e.args])
+        if isinstance(e, I.MakeVector):
+            return tuple(f32(self.eval(item, lets)) for item in e.items)
+        if isinstance(e, I.Component):
+            return self.eval(e.operand, lets)[e.index]
         raise AssertionError(f"unchecked expression {e!r}")
 
     def run(self, body: list, lets: dict, numbers: dict) -> None:
@@ -172,7 +184,9 @@ def _number(kernel: Kernel) -> tuple[dict, dict]:
         for child in ([e.operand] if isinstance(e, I.Neg) else
                       [e.left, e.right] if isinstance(e, (I.Arith, I.Compare)) else
                       [e.left] + ([e.right] if e.right is not None else []) if isinstance(e, I.Logic) else
-                      list(e.args) if isinstance(e, I.Call) else []):
+                      list(e.args) if isinstance(e, I.Call) else
+                      list(e.items) if isinstance(e, I.MakeVector) else
+                      [e.operand] if isinstance(e, I.Component) else []):
             expr(child)
 
     def body(stmts):

@@ -174,6 +174,11 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
     for surface in effect.surfaces.values():
         for slot, rate, _ in surface.shape.values():
             cfg.add_shape_rate(surface.index, slot, rate)
+    # per-surfel measures (SPEC §12) cost setup time: computed only when a rule reads them
+    reads = effect.context_reads()
+    cfg.measure_accessibility = "accessibility" in reads
+    cfg.measure_curvature = "curvature" in reads
+    cfg.measure_uv = "uv" in effect.context_reads(("transport", "update"))
     for name in mass_properties(effect):
         cfg.add_mass_property([s.properties.get(name, -1) for s in effect.surfaces.values()],
                               [t.carry.get(name, -1) for t in effect.tons.values()])

@@ -60,10 +60,21 @@ class Call:
 
 @dataclass
 class Vector:
-    """``(a, b, c)``: only meaningful as a source argument."""
+    """``(a, b, c)``: a point or direction of a source, or a vector value in a rule."""
 
     items: list["Expr"]
     pos: Pos
+
+
+@dataclass
+class Field:
+    """``EXPR.x``: a component of a vector that is not a name (``cross(a, b).x``, ``(a + b).y``);
+    ``position.x`` and ``v.x`` are ``Ref``."""
+
+    operand: "Expr"
+    name: str
+    pos: Pos
+    name_pos: Pos
 
 
 @dataclass
@@ -90,7 +101,7 @@ class Logic:
     pos: Pos
 
 
-Expr = Number | Ref | Unary | Binary | Call | Vector | Compare | Logic | String
+Expr = Number | Ref | Unary | Binary | Call | Vector | Field | Compare | Logic | String
 
 
 # ---- statements and declarations -------------------------------------------

@@ -25,7 +25,10 @@ import numpy as np
 
 from .. import abi
 from ..ir import effect as ir
-from ..ir.builtins import FUNCTIONS, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS
+import dataclasses
+
+from ..ir.builtins import (FUNCTIONS, MAX_OCTAVES, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS,
+                           VECTOR_COMPONENTS, context_kind)
 from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
@@ -478,7 +481,8 @@ class _Checker:
         return self.textures.setdefault(str(path), len(self.textures))
 
 
-KIND_NAMES = {"float": "a number", "bool": "a truth value (a comparison)", "color": "a colour"}
+KIND_NAMES = {"float": "a number", "bool": "a truth value (a comparison)", "color": "a colour",
+              "vector": "a vector"}
 
 
 def _short(kind: str) -> str:
@@ -540,7 +544,16 @@ class _Typer:
                 return ir.Const(_f32(self.scope.unit.params[var.name]), e.pos)
             if var.space == "let":
                 kind = lets[var.name]
-                return ir.Load(var, kind, e.pos) if kind is not None else None
+                if kind is None:
+                    return None
+                if var.component is None:
+                    return ir.Load(var, kind, e.pos)
+                whole = ir.Load(dataclasses.replace(var, component=None, text=var.name), kind, e.pos)
+                return self.component(whole, e.parts[1], e.pos, e.part_pos[1] if e.part_pos else e.pos,
+                                      var.name)
+            if var.space == "ctx":
+                whole = var.component is None and context_kind(var.name) == "vector"
+                return ir.Load(var, "vector" if whole else "float", e.pos)
             return ir.Load(var, "color" if var.space == "color" else "float", e.pos)
         if isinstance(e, A.String):
             self.error(e.pos, 'a string is only the file name of texture("...")')
@@ -564,12 +577,14 @@ class _Typer:
                 if isinstance(left, ir.Const) and isinstance(right, ir.Const):
                     return ir.Const(_fold(e.op, left.value, right.value), e.pos)
                 return ir.Arith(e.op, left, right, "float", e.pos)
-            # colours: colour +- colour, colour * number, number * colour, colour / number
-            if kinds == ("color", "color") and e.op in "+-" \
-                    or kinds == ("color", "float") and e.op in "*/" \
-                    or kinds == ("float", "color") and e.op == "*":
-                return ir.Arith(e.op, left, right, "color", e.pos)
-            self.error(e.pos, f"'{e.op}' cannot combine {_short(left.kind)} and {_short(right.kind)}")
+            # colours and vectors: c +- c, c * number, number * c, c / number
+            for kind in ("color", "vector"):
+                if kinds == (kind, kind) and e.op in "+-" \
+                        or kinds == (kind, "float") and e.op in "*/" \
+                        or kinds == ("float", kind) and e.op == "*":
+                    return ir.Arith(e.op, left, right, kind, e.pos)
+            hint = "; use dot() or cross()" if kinds == ("vector", "vector") and e.op in "*/" else ""
+            self.error(e.pos, f"'{e.op}' cannot combine {_short(left.kind)} and {_short(right.kind)}{hint}")
             return None
         if isinstance(e, A.Compare):
             left, right = self.want(e.left, lets, "float"), self.want(e.right, lets, "float")
@@ -579,11 +594,43 @@ class _Typer:
             right = self.want(e.right, lets, "bool") if e.right is not None else None
             return ir.Logic(e.op, left, right, e.pos)
         if isinstance(e, A.Vector):
-            self.error(e.pos, "a vector is not a value in a rule; use its components")
-            return None
+            if len(e.items) != 3:
+                self.error(e.pos, f"a vector has 3 components (x, y, z), not {len(e.items)}")
+                for item in e.items:
+                    self.expr(item, lets)
+                return None
+            items = [self.want(item, lets, "float") for item in e.items]
+            return ir.MakeVector(items, e.pos) if None not in items else None
+        if isinstance(e, A.Field):
+            operand = self.expr(e.operand, lets)
+            return self.component(operand, e.name, e.pos, e.name_pos, None) if operand is not None else None
         if isinstance(e, A.Call):
             return self.call(e, lets)
         raise AssertionError(f"unknown expression {e!r}")
+
+    def component(self, operand, field: str, pos: A.Pos, field_pos: A.Pos, name: str | None):
+        """``operand.field``: a component of a vector (``name``: the let it is read from)."""
+        what = f"'{name}'" if name else "this"
+        if operand.kind != "vector":
+            self.error(pos, f"{what} is {_short(operand.kind)} and has no fields; only a vector has "
+                       "components (.x, .y, .z)")
+            return None
+        if field not in VECTOR_COMPONENTS:
+            self.error(field_pos, f"a vector has the components x, y and z, not '{field}'")
+            return None
+        return ir.Component(operand, VECTOR_COMPONENTS.index(field), pos)
+
+    def octaves(self, e: A.Expr, lets: dict, fn: str):
+        """The constant whole number of octaves of fbm()."""
+        value = self.expr(e, lets)
+        if value is None:
+            return None
+        if not isinstance(value, ir.Const) or not (1 <= value.value <= MAX_OCTAVES) \
+                or value.value != int(value.value):
+            self.error(e.pos, f"the octaves of {fn}() must be a constant whole number from 1 to "
+                       f"{MAX_OCTAVES}" + (f", not {value.value:g}" if isinstance(value, ir.Const) else ""))
+            return None
+        return value
 
     def call(self, e: A.Call, lets: dict):
         if e.name == "relative":
@@ -613,18 +660,19 @@ class _Typer:
             call = ir.Call("base_color", [], "color", e.pos)
             self.checker.base_color_calls.append(call)
             return call
-        if fn.result == "like-first":  # mix(): of colours with a number, or of numbers
+        if fn.result == "like-first":  # mix(): of colours or vectors with a number, or of numbers
             first = self.expr(e.args[0], lets)
-            if first is not None and first.kind == "color":
-                args = [first, self.want(e.args[1], lets, "color"), self.want(e.args[2], lets, "float")]
-                kind = "color"
+            if first is not None and first.kind in ("color", "vector"):
+                kind = first.kind
+                args = [first, self.want(e.args[1], lets, kind), self.want(e.args[2], lets, "float")]
             else:
                 if first is not None and first.kind == "bool":
                     self.error(e.args[0].pos, "expected a number here, but this is a truth value")
                 args = [first] + [self.want(a, lets, "float") for a in e.args[1:]]
                 kind = "float"
         else:
-            args = [self.want(a, lets, "float") for a in e.args]
+            args = [self.octaves(a, lets, e.name) if fn.arg_kind(i) == "octaves"
+                    else self.want(a, lets, fn.arg_kind(i)) for i, a in enumerate(e.args)]
             kind = fn.result
         site = None
         if e.name == "random":

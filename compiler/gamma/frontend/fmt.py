@@ -78,6 +78,11 @@ def _expr_prec(node) -> tuple[str, int]:
         return f"{c[0]}({', '.join(_expr(a) for a in _args(c[1:]))})", _ATOM
     if kind == "vector":
         return f"({', '.join(_expr(a) for a in c)})", _ATOM
+    if kind == "field":   # a name or a number keeps its parentheses: (v).x, not v.x
+        operand = _expr(c[0], _ATOM)
+        if c[0].data in ("ref", "number"):
+            operand = f"({operand})"
+        return f"{operand}.{c[1]}", _ATOM
     if kind == "unary":  # unary plus: means nothing, the parser drops it too
         return _expr_prec(c[0])
     prec = _PREC[kind]

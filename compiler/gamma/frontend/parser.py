@@ -72,6 +72,9 @@ class _ToAst(Transformer):
     def vector(self, meta, c):
         return A.Vector(list(c), _meta_pos(meta))
 
+    def field(self, meta, c):
+        return A.Field(c[0], str(c[1]), _meta_pos(meta), _pos(c[1]))
+
     def compare(self, meta, c):
         return A.Compare(str(c[1]), c[0], c[2], _meta_pos(meta))
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .. import abi
-from ..ir.builtins import CONTEXT_VALUES, FUNCTIONS
+from ..ir.builtins import CONTEXT_VALUES, FUNCTIONS, component_index
 from ..ir.effect import Surface, TonType, Var
 from . import ast as A
 from .diagnostics import Diagnostic, GammaError, Report, SourceFile, did_you_mean
@@ -265,6 +265,9 @@ class Scope:
         head = parts[0]
         params = self.unit.params
         if head in lets:
+            if len(parts) == 2 and component_index(None, parts[1]) is not None:
+                # a component of a vector let; the checker says so if the let is not a vector
+                return Var("let", head, component=component_index(None, parts[1]), text=".".join(parts))
             if len(parts) > 1:
                 return f"'{head}' is a local value and has no fields"
             return Var("let", head, text=head)
@@ -284,9 +287,13 @@ class Scope:
                 if len(parts) > 1:
                     return f"'{head}' is a number and has no fields"
                 return Var("ctx", head, text=head)
-            if len(parts) != 2 or parts[1] not in components:
-                return f"'{head}' is a vector: write {head}.x, {head}.y or {head}.z"
-            return Var("ctx", head, component=components.index(parts[1]), text=head)
+            if len(parts) == 1:
+                return Var("ctx", head, text=head)
+            index = component_index(head, parts[1])
+            if len(parts) != 2 or index is None:
+                return (f"'{head}' is a vector; its components are {head}.x, {head}.y and "
+                        f"{head}.z")
+            return Var("ctx", head, component=index, text=".".join(parts))
         if len(parts) == 1:
             if head in (self.ton_param, self.surf_param):
                 what = "gamma-ton" if head == self.ton_param else "surfel"
@@ -413,7 +420,12 @@ def _bind_expr(scope: Scope, e: A.Expr, report: Report, bindings: Bindings, lets
             return      # a malformed call's arguments are not looked at (one error is enough)
         for a in e.args:
             _bind_expr(scope, a, report, bindings, lets)
-    # a vector (not a value in a rule) and a string have no names to bind
+    elif isinstance(e, A.Vector):
+        for item in e.items:
+            _bind_expr(scope, item, report, bindings, lets)
+    elif isinstance(e, A.Field):
+        _bind_expr(scope, e.operand, report, bindings, lets)
+    # a string has no names to bind
 
 
 def declared(report: Report, unit: Unit, p: A.Param, table: dict, other: dict, want: str,

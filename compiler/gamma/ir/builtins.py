@@ -26,8 +26,11 @@ import numpy as np
 
 f32 = np.float32
 
-#: Kinds of values: numbers, truth values (comparisons) and colours (rgb triples).
-KINDS = ("float", "bool", "color")
+#: Kinds of values: numbers, truth values (comparisons), colours (rgb triples)
+#: and vectors (x, y, z triples: positions, directions, SPEC §10).
+KINDS = ("float", "bool", "color", "vector")
+#: ``fbm(p, octaves)``: octaves is a constant whole number from 1 to this.
+MAX_OCTAVES = 8
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,12 @@ class Builtin:
     spec: tuple[str, str] | None   # (function, value) cells of SPEC §11's table; None: see ``spec_section``
     appearance_only: bool = False  # gives a colour: only in appearance blocks
     spec_section: str = "11"
+    #: the kind of each argument (KINDS, or "octaves": a constant whole number
+    #: 1 .. MAX_OCTAVES); None: every argument is a number
+    args: tuple[str, ...] | None = None
+
+    def arg_kind(self, i: int) -> str:
+        return "float" if self.args is None else self.args[i]
 
     def accepts(self, count: int) -> bool:
         return count >= self.min_args and (self.max_args is None or count <= self.max_args)
@@ -105,6 +114,119 @@ def _ref_libm(name):
     return lambda state, call, args: f32(libm(name)(*[float(a) for a in args]))
 
 
+# vectors (3-tuples of float32): SPEC §11, "Vectors"
+
+def ref_dot(a, b):
+    return f32(f32(f32(a[0] * b[0]) + f32(a[1] * b[1])) + f32(a[2] * b[2]))
+
+
+def ref_cross(a, b):
+    return (f32(f32(a[1] * b[2]) - f32(a[2] * b[1])),
+            f32(f32(a[2] * b[0]) - f32(a[0] * b[2])),
+            f32(f32(a[0] * b[1]) - f32(a[1] * b[0])))
+
+
+def ref_length(v):
+    return f32(np.sqrt(ref_dot(v, v)))
+
+
+def ref_normalize(v):
+    length = ref_length(v)
+    if length == 0:
+        return (f32(0), f32(0), f32(0))
+    return tuple(f32(c / length) for c in v)
+
+
+# noise (SPEC §11, "Noise"): Perlin's improved gradient noise on the integer
+# lattice, each corner's gradient from splitmix64 (abi.mix64) of its packed
+# coordinates; written out here operation by operation, the code generator
+# builds the same operations in LLVM IR (backends.codegen._noise_function).
+
+#: Salt of octave 0; octave i adds i times abi.RANDOM_GOLDEN (mod 2**64).
+NOISE_SALT = 0x6A09E667F3BCC909
+#: Lattice coordinates are clamped to +-NOISE_CLAMP before they become integers.
+NOISE_CLAMP = 2.0 ** 30
+#: Each lattice coordinate enters the hash by its low NOISE_BITS bits (the
+#: pattern repeats every 2**21 units along an axis).
+NOISE_BITS = 21
+#: The signed noise lies within +-sqrt(3)/2 (Perlin's gradients on the unit
+#: cube); times this (1/sqrt(3), rounded to float32) it spans about +-0.5.
+NOISE_SCALE = float(np.float32(1.0 / np.sqrt(3.0)))
+
+
+def noise_salt(octave: int) -> int:
+    from ..abi import RANDOM_GOLDEN
+
+    return (NOISE_SALT + octave * RANDOM_GOLDEN) & 0xFFFFFFFFFFFFFFFF
+
+
+def _ref_fade(t):
+    return f32(f32(f32(t * t) * t) * f32(f32(t * f32(f32(t * f32(6)) - f32(15))) + f32(10)))
+
+
+def _ref_lerp(a, b, w):
+    return f32(a + f32(w * f32(b - a)))
+
+
+def ref_gradient_noise(p, octave: int):
+    """The signed noise value at p (about -1 .. 1; 0 at lattice points)."""
+    from ..abi import mix64
+
+    cells, fracs = [], []
+    for x in p:
+        fl = f32(np.floor(x))
+        with np.errstate(invalid="ignore"):     # inf - inf: NaN, as in the compiled code
+            fracs.append(f32(x - fl))
+        clamped = ref_pick("min", ref_pick("max", fl, f32(-NOISE_CLAMP)), f32(NOISE_CLAMP))
+        cells.append(int(clamped))
+    mask = (1 << NOISE_BITS) - 1
+    salt = noise_salt(octave)
+    corner = {}
+    for cx in (0, 1):
+        for cy in (0, 1):
+            for cz in (0, 1):
+                key = ((((cells[0] + cx) & mask) << (2 * NOISE_BITS))
+                       | (((cells[1] + cy) & mask) << NOISE_BITS) | ((cells[2] + cz) & mask))
+                g = mix64(key ^ salt) >> 60
+                dx, dy, dz = f32(fracs[0] - f32(cx)), f32(fracs[1] - f32(cy)), f32(fracs[2] - f32(cz))
+                u = dx if g < 8 else dy
+                v = dy if g < 4 else dx if g in (12, 14) else dz
+                corner[cx, cy, cz] = f32((-u if g & 1 else u) + (-v if g & 2 else v))
+    fx, fy, fz = (_ref_fade(t) for t in fracs)
+    x00 = _ref_lerp(corner[0, 0, 0], corner[1, 0, 0], fx)
+    x10 = _ref_lerp(corner[0, 1, 0], corner[1, 1, 0], fx)
+    x01 = _ref_lerp(corner[0, 0, 1], corner[1, 0, 1], fx)
+    x11 = _ref_lerp(corner[0, 1, 1], corner[1, 1, 1], fx)
+    y0 = _ref_lerp(x00, x10, fy)
+    y1 = _ref_lerp(x01, x11, fy)
+    return _ref_lerp(y0, y1, fz)
+
+
+def _ref_unit(n):
+    """Signed noise to [0, 1]: clamp(n * NOISE_SCALE + 0.5, 0, 1)."""
+    return _ref_clamp(None, None, [f32(f32(n * f32(NOISE_SCALE)) + f32(0.5)), f32(0), f32(1)])
+
+
+def _ref_noise(state, call, args):
+    return _ref_unit(ref_gradient_noise(args[0], 0))
+
+
+def fbm_weights(octaves: int) -> tuple[list[float], float]:
+    """Octave i weighs 0.5**i; the sum is divided by the total (exact in float32)."""
+    weights = [0.5 ** i for i in range(octaves)]
+    return weights, float(sum(weights))
+
+
+def _ref_fbm(state, call, args):
+    p, octaves = args[0], int(args[1])
+    weights, total = fbm_weights(octaves)
+    acc = ref_gradient_noise(p, 0)
+    for i in range(1, octaves):
+        scaled = tuple(f32(c * f32(2.0 ** i)) for c in p)
+        acc = f32(acc + f32(f32(weights[i]) * ref_gradient_noise(scaled, i)))
+    return _ref_unit(f32(acc / f32(total)))
+
+
 # ---- LLVM lowering (through the code generator's emitter) -----------------------------------
 
 def _low_fold(name):
@@ -131,6 +253,42 @@ def _low_smoothstep(emit, call, args):
 def _low_mix(emit, call, args):
     a, b, t = args
     return emit.arith("+", a, emit.arith("*", emit.arith("-", b, a), t))
+
+
+def _low_dot(emit, a, b):
+    return emit.arith("+", emit.arith("+", emit.arith("*", a[0], b[0]), emit.arith("*", a[1], b[1])),
+                      emit.arith("*", a[2], b[2]))
+
+
+def _low_cross(emit, call, args):
+    a, b = args
+    return tuple(emit.arith("-", emit.arith("*", a[i], b[j]), emit.arith("*", a[j], b[i]))
+                 for i, j in ((1, 2), (2, 0), (0, 1)))
+
+
+def _low_length(emit, v):
+    return emit.intrinsic("llvm.sqrt", [_low_dot(emit, v, v)])
+
+
+def _low_normalize(emit, call, args):
+    v = args[0]
+    length = _low_length(emit, v)
+    return tuple(emit.if_zero(length, emit.const(0.0), emit.arith("/", c, length)) for c in v)
+
+
+def _low_unit(emit, n):
+    return _low_clamp(emit, None, [emit.arith("+", emit.arith("*", n, emit.const(NOISE_SCALE)), emit.const(0.5)),
+                                   emit.const(0.0), emit.const(1.0)])
+
+
+def _low_fbm(emit, call, args):
+    p, octaves = args[0], int(args[1].constant)
+    weights, total = fbm_weights(octaves)
+    acc = emit.gradient_noise(p, 0)
+    for i in range(1, octaves):
+        scaled = tuple(emit.arith("*", c, emit.const(2.0 ** i)) for c in p)
+        acc = emit.arith("+", acc, emit.arith("*", emit.const(weights[i]), emit.gradient_noise(scaled, i)))
+    return _low_unit(emit, emit.arith("/", acc, emit.const(total)))
 
 
 BUILTINS: tuple[Builtin, ...] = (
@@ -172,6 +330,28 @@ BUILTINS: tuple[Builtin, ...] = (
     Builtin("random", 0, 0, "float", lambda emit, call, args: emit.random(call.site),
             lambda state, call, args: state.random(call),
             ("`random()`", "a number in [0, 1) with 24 random bits, deterministic (below)")),
+    Builtin("dot", 2, 2, "float", lambda emit, call, args: _low_dot(emit, *args),
+            lambda state, call, args: ref_dot(*args),
+            ("`dot(a, b)`", "vectors `a`, `b`: `(a.x * b.x + a.y * b.y) + a.z * b.z`"),
+            args=("vector", "vector")),
+    Builtin("cross", 2, 2, "vector", _low_cross, lambda state, call, args: ref_cross(*args),
+            ("`cross(a, b)`", "the vector `(a.y * b.z − a.z * b.y, a.z * b.x − a.x * b.z, "
+             "a.x * b.y − a.y * b.x)`"), args=("vector", "vector")),
+    Builtin("length", 1, 1, "float", lambda emit, call, args: _low_length(emit, args[0]),
+            lambda state, call, args: ref_length(args[0]),
+            ("`length(v)`", "`sqrt(dot(v, v))`"), args=("vector",)),
+    Builtin("normalize", 1, 1, "vector", _low_normalize, lambda state, call, args: ref_normalize(args[0]),
+            ("`normalize(v)`", "`v / length(v)` component by component; the zero vector (0, 0, 0) "
+             "when `length(v)` is 0 (a NaN component stays NaN)"), args=("vector",)),
+    Builtin("noise", 1, 1, "float", lambda emit, call, args: _low_unit(emit, emit.gradient_noise(args[0], 0)),
+            _ref_noise,
+            ("`noise(p)`", "gradient noise at the point `p` (a vector), in [0, 1], 0.5 at whole-number "
+             "points, changing over about one unit; deterministic and the same for every run (below)"),
+            args=("vector",)),
+    Builtin("fbm", 2, 2, "float", _low_fbm, _ref_fbm,
+            ("`fbm(p, octaves)`", f"`octaves` (a constant whole number from 1 to {MAX_OCTAVES}) of noise "
+             "at doubling frequency and halving weight, in [0, 1] (below); `fbm(p, 1) = noise(p)`"),
+            args=("vector", "octaves")),
     Builtin("rgb", 3, 3, "color", lambda emit, call, args: tuple(args),
             lambda state, call, args: tuple(args), None, appearance_only=True, spec_section="8a"),
     Builtin("texture", 1, 1, "color", lambda emit, call, args: emit.texture(call.texture),
@@ -198,7 +378,9 @@ def spec_table() -> str:
 
 
 #: Read-only context values: name -> (rules that may read them, components).
-#: Each is a field of ``abi.CONTEXT_FIELDS`` (a test checks it).
+#: A value with components is a vector (its components x, y, z); the others
+#: are numbers.  Each is a field of ``abi.CONTEXT_FIELDS`` (a test checks
+#: it); a vector whose field has fewer than 3 floats reads 0 for the rest.
 CONTEXT_VALUES = {
     "iteration": (("transport", "update", "appearance"), ()),
     "interactions": (("transport",), ()),
@@ -206,8 +388,28 @@ CONTEXT_VALUES = {
     "position": (("transport", "update", "appearance"), ("x", "y", "z")),
     "normal": (("transport", "update", "appearance"), ("x", "y", "z")),
     "direction": (("transport",), ("x", "y", "z")),
-    "uv": (("appearance",), ("u", "v")),
+    "up": (("transport", "update", "appearance"), ("x", "y", "z")),
+    "uv": (("transport", "update", "appearance"), ("x", "y", "z")),
+    "accessibility": (("transport", "update", "appearance"), ()),
+    "curvature": (("transport", "update", "appearance"), ()),
 }
+#: Other names of components: uv.u, uv.v are uv.x, uv.y.
+COMPONENT_ALIASES = {"uv": {"u": 0, "v": 1}}
+#: Components of any vector value: v.x, v.y, v.z.
+VECTOR_COMPONENTS = ("x", "y", "z")
+
+
+def context_kind(name: str) -> str:
+    """The kind of a context value: a vector or a number."""
+    return "vector" if CONTEXT_VALUES[name][1] else "float"
+
+
+def component_index(name: str | None, field: str) -> int | None:
+    """Which component ``field`` names of a vector (the context value ``name``, or None
+    for any vector), or None if it names none."""
+    if field in VECTOR_COMPONENTS:
+        return VECTOR_COMPONENTS.index(field)
+    return COMPONENT_ALIASES.get(name or "", {}).get(field)
 
 REQUIRED = object()
 #: Source kinds of the language: their parameters in positional order,

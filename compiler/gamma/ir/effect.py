@@ -6,7 +6,7 @@ checked arguments) and the kernels: every rule body that runs for one
 (event, ton type, surface), for one surface's update, or for its
 appearance, in file order.  Rule bodies are trees of the nodes below, in
 which every name is already bound (``Var``: which array, which slot, which
-name), every expression has its kind (``float``, ``bool``, ``color``),
+name), every expression has its kind (``float``, ``bool``, ``color``, ``vector``),
 parameters are folded to constants, every assignment has its statement
 number and every ``random()`` its site.  Nothing downstream looks a name up
 or reads the AST; ``dump`` prints it (``gammac emit --effect``).
@@ -101,7 +101,7 @@ class Var:
     space: str
     name: str
     slot: int = 0
-    component: int = 0
+    component: int | None = None     # of a vector (context value or let): None is the whole vector
     writable: tuple[str, ...] = ()   # the assignment operators allowed on it here
     text: str = ""                   # as written (t.patina), for messages
 
@@ -166,7 +166,26 @@ class Call:
     texture: int | None = None     # texture(): index in Effect.textures
 
 
-Expr = Const | Load | Neg | Arith | Compare | Logic | Call
+@dataclass
+class MakeVector:
+    """``(x, y, z)`` in a rule: a vector of three numbers."""
+
+    items: list["Expr"]
+    pos: Pos
+    kind = "vector"
+
+
+@dataclass
+class Component:
+    """Component ``index`` (0, 1, 2: x, y, z) of a vector expression."""
+
+    operand: "Expr"
+    index: int
+    pos: Pos
+    kind = "float"
+
+
+Expr = Const | Load | Neg | Arith | Compare | Logic | Call | MakeVector | Component
 
 
 @dataclass
@@ -199,6 +218,39 @@ class Store:
 
 
 Stmt = Let | If | Store
+
+
+def children(e) -> list:
+    """The operands of an expression, in source order."""
+    if isinstance(e, Neg):
+        return [e.operand]
+    if isinstance(e, (Arith, Compare)):
+        return [e.left, e.right]
+    if isinstance(e, Logic):
+        return [e.left] + ([e.right] if e.right is not None else [])
+    if isinstance(e, Call):
+        return list(e.args)
+    if isinstance(e, MakeVector):
+        return list(e.items)
+    if isinstance(e, Component):
+        return [e.operand]
+    return []
+
+
+def expressions(body: list):
+    """Every expression of a body, nested ones too (a parent before its operands)."""
+    stack = []
+    for st in body:
+        if isinstance(st, (Let, Store)):
+            stack.append(st.value)
+        elif isinstance(st, If):
+            stack.append(st.cond)
+            yield from expressions(st.then)
+            yield from expressions(st.otherwise)
+    while stack:
+        e = stack.pop()
+        yield e
+        stack.extend(children(e))
 
 
 def stores(body: list) -> list[Store]:
@@ -265,6 +317,18 @@ class Effect:
     files: list = field(default_factory=list)    # the effect file and every file it imports
     overrides: dict = field(default_factory=dict) # --param values it was checked with (NAME or RECIPE.NAME)
 
+    def context_reads(self, events=None) -> set[str]:
+        """The context values the kernels read (of the given events: 'transport',
+        'update', 'appearance'; None: all)."""
+        names = set()
+        for k in self.kernels:
+            kind = "transport" if k.ton is not None else k.event
+            if events is not None and kind not in events:
+                continue
+            for body in k.bodies:
+                names |= {e.var.name for e in expressions(body) if isinstance(e, Load) and e.var.space == "ctx"}
+        return names
+
     def transport_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.ton is not None]
 
@@ -283,12 +347,13 @@ def _expr(e) -> str:
 
         return str(np.float32(e.value))
     if isinstance(e, Load):
-        from .builtins import CONTEXT_VALUES
-
         var = e.var
-        components = CONTEXT_VALUES[var.name][1] if var.space == "ctx" else ()
         return (f"{var.space}:{var.name}" + (f"[{var.slot}]" if var.space in ("ton", "surf") else "")
-                + (f".{components[var.component]}" if components else ""))
+                + (f".{'xyz'[var.component]}" if var.component is not None else ""))
+    if isinstance(e, MakeVector):
+        return f"({', '.join(_expr(a) for a in e.items)})"
+    if isinstance(e, Component):
+        return f"{_expr(e.operand)}.{'xyz'[e.index]}"
     if isinstance(e, Neg):
         return f"(-{_expr(e.operand)})"
     if isinstance(e, (Arith, Compare)):

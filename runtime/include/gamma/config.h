@@ -92,6 +92,9 @@ struct Config {
     int retile_iterations = 3;                 // CGAL remeshing rounds per shape step
     float max_step_factor = 0.5f;              // |displacement| per iteration <= factor x target edge length
     std::vector<MassProperty> mass_properties;
+    // Per-surfel measures computed when the surfels are placed (SPEC §12):
+    // only those some kernel reads, as they cost setup time.
+    bool measure_accessibility = false, measure_curvature = false, measure_uv = false;
 
     int add_ton_type(float ks, float kp, float kf, std::vector<float> carry, float bounce_distance = 1.0f,
                      float flow_step = 1.0f, float drip_angle_deg = 10.0f) {

@@ -61,6 +61,8 @@ public:
     const SurfelSet& surfels() const { return state_.surf; }
     const std::vector<int32_t>& surfel_surfaces() const { return state_.surface; }
     const std::vector<float>& rows() const { return state_.rows; }
+    // Accessibility, curvature and uv per surfel (those the config requested).
+    const SurfelMeasures& measures() const { return state_.measures; }
     void set_rows(const float* data);  // N*W floats
 
     TraceStats trace(int iteration);

@@ -7,6 +7,7 @@
 
 #include "gamma/mesh.h"
 #include "gamma/splat.h"
+#include "gamma/surfel_measures.h"
 #include "gamma/surfels.h"
 
 namespace gammart {
@@ -17,6 +18,7 @@ struct SurfelState {
     std::vector<float> rows;       // N*W
     int width = 0;                 // W
     SplatKernel splat;             // where a surfel's deltas spread (SPEC §13.2); built at setup
+    SurfelMeasures measures;       // accessibility, curvature, uv (those requested; SPEC §12)
 
     size_t size() const { return surface.size(); }
     float* row(size_t i) { return rows.data() + i * size_t(width); }
