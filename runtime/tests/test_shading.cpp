@@ -86,7 +86,9 @@ TEST(Shading, FlatTrianglesAndZeroCreaseKeepTheirOwnNormal) {
     for (size_t t = 0; t < m.num_triangles(); ++t)
         for (int k = 0; k < 3; ++k) {
             EXPECT_GT(gammart::dot(corner(all_flat, t, k), face_normal(m, t)), 0.99999f);
-            if (t == 7) EXPECT_GT(gammart::dot(corner(one_flat, t, k), face_normal(m, t)), 0.99999f);
+            if (t == 7) {
+                EXPECT_GT(gammart::dot(corner(one_flat, t, k), face_normal(m, t)), 0.99999f);
+            }
         }
 }
 
