@@ -115,10 +115,29 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     if (!vb || !ib) throw std::runtime_error("internal error: embree cannot allocate geometry buffers");
     std::memcpy(vb, mesh.vertices.data(), sizeof(float) * mesh.vertices.size());
     for (size_t i = 0; i < 3 * m; ++i) ib[i] = uint32_t(mesh.triangles[i]);
-    // Bounding sphere of each triangle (centroid, farthest vertex) for the
-    // triangle lookup; the reach is padded so a hit point a rounding error
-    // off the triangle still counts as on it.
     lookup_tri_.assign(m, TriangleLookup{0, 0, 0, 0, 0, 0});
+    triangle_spheres(mesh);
+    lookup_cand_.clear();
+    lookup_ids_.clear();
+    lookup_search_.clear();
+    rtcCommitGeometry(geom);
+    geom_id_ = rtcAttachGeometry(scene_, geom);
+    rtcReleaseGeometry(geom);
+    rtcCommitScene(scene_);
+    if (rtcGetDeviceError(device_) != RTC_ERROR_NONE)
+        throw std::runtime_error("internal error: embree scene build failed");
+    ++geometry_builds_;
+    // The candidates depend on both halves: refresh them if the surfels are
+    // already indexed for these surfaces.
+    if (refresh_lookup && n_surfels_ > 0 && trees_->surface.size() == size_t(n_surfaces_)) build_lookup(0);
+}
+
+// Bounding sphere of each triangle (centroid, farthest vertex) for the
+// triangle lookup; the reach is padded so a hit point a rounding error off
+// the triangle still counts as on it.  Keeps each triangle's candidates.
+void SceneIndex::triangle_spheres(const Mesh& mesh) {
+    const size_t m = mesh.num_triangles();
+    lookup_tri_.resize(m, TriangleLookup{0, 0, 0, 0, 0, 0});
     const float pad = 1e-6f * mesh.diagonal();
     for (size_t t = 0; t < m; ++t) {
         const float* v[3];
@@ -131,20 +150,28 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
             r2 = std::max(r2, dx * dx + dy * dy + dz * dz);
         }
         const double reach = std::sqrt(r2) * (1.0 + 1e-5) + pad;
-        lookup_tri_[t] = TriangleLookup{float(c[0]), float(c[1]), float(c[2]), float(reach * reach), 0, 0};
+        TriangleLookup& L = lookup_tri_[t];
+        L.cx = float(c[0]);
+        L.cy = float(c[1]);
+        L.cz = float(c[2]);
+        L.reach2 = float(reach * reach);
     }
-    lookup_cand_.clear();
-    lookup_ids_.clear();
+}
+
+void SceneIndex::move_vertices(const Mesh& mesh) {
+    if (!scene_ || mesh.num_triangles() != tri_surface_.size())
+        throw Error("scene index: move_vertices needs the mesh the index was built on, with moved vertices");
+    RTCGeometry geom = rtcGetGeometry(scene_, geom_id_);
+    float* vb = static_cast<float*>(rtcGetGeometryBufferData(geom, RTC_BUFFER_TYPE_VERTEX, 0));
+    if (!vb) throw std::runtime_error("internal error: embree vertex buffer missing");
+    std::memcpy(vb, mesh.vertices.data(), sizeof(float) * mesh.vertices.size());
+    rtcUpdateGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0);
     rtcCommitGeometry(geom);
-    rtcAttachGeometry(scene_, geom);
-    rtcReleaseGeometry(geom);
     rtcCommitScene(scene_);
     if (rtcGetDeviceError(device_) != RTC_ERROR_NONE)
-        throw std::runtime_error("internal error: embree scene build failed");
+        throw std::runtime_error("internal error: embree scene update failed");
+    triangle_spheres(mesh);
     ++geometry_builds_;
-    // The candidates depend on both halves: refresh them if the surfels are
-    // already indexed for these surfaces.
-    if (refresh_lookup && n_surfels_ > 0 && trees_->surface.size() == size_t(n_surfaces_)) build_lookup(0);
 }
 
 void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
@@ -169,60 +196,179 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
     build_lookup(threads);
 }
 
+void SceneIndex::move_surfels(const float* positions, float sigma, int threads) {
+    Trees& T = *trees_;
+    const size_t n = n_surfels_;
+    // A grid of the largest move of the surfels now in each cell: a local
+    // bound on how far any surfel near a triangle moved (for the lookup).
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < n; ++i)
+        for (int d = 0; d < 3; ++d) {
+            lo[d] = std::min(lo[d], positions[3 * i + size_t(d)]);
+            hi[d] = std::max(hi[d], positions[3 * i + size_t(d)]);
+        }
+    MoveGrid& G = move_grid_;
+    const double extent = std::max({double(hi[0]) - lo[0], double(hi[1]) - lo[1], double(hi[2]) - lo[2], 1e-30});
+    G.h = std::max(4.0 * double(sigma), extent / 128.0);
+    for (int d = 0; d < 3; ++d) {
+        G.lo[d] = double(lo[d]);
+        G.dim[d] = std::min<size_t>(size_t((double(hi[d]) - lo[d]) / G.h) + 1, 129);
+    }
+    G.moved.assign(G.dim[0] * G.dim[1] * G.dim[2], 0.0);
+    for (size_t i = 0; i < n; ++i) {
+        double d2 = 0;
+        for (int d = 0; d < 3; ++d) {
+            const double x = double(positions[3 * i + size_t(d)]) - double(T.all.pos[3 * i + size_t(d)]);
+            d2 += x * x;
+        }
+        double& cell = G.moved[G.cell(&positions[3 * i])];
+        cell = std::max(cell, std::sqrt(d2));
+    }
+    sigma_ = sigma;
+    T.all.pos.assign(positions, positions + 3 * n);
+    T.all.build();
+    for (PointTree& t : T.surface) {
+        for (size_t k = 0; k < t.index.size(); ++k)
+            std::memcpy(&t.pos[3 * k], positions + 3 * size_t(t.index[k]), 3 * sizeof(float));
+        t.build();
+    }
+    ++surfel_builds_;
+    build_lookup(threads, /*reuse=*/true);
+}
+
+size_t SceneIndex::MoveGrid::cell(const float p[3]) const {
+    size_t c[3];
+    for (int d = 0; d < 3; ++d) {
+        const double x = std::floor((double(p[d]) - lo[d]) / h);
+        c[d] = x <= 0 ? 0 : std::min(size_t(x), dim[d] - 1);
+    }
+    return (c[2] * dim[1] + c[1]) * dim[0] + c[0];
+}
+
+double SceneIndex::MoveGrid::max_in_ball(const double c[3], double r) const {
+    size_t a[3], b[3];
+    for (int d = 0; d < 3; ++d) {
+        const double x0 = std::floor((c[d] - r - lo[d]) / h), x1 = std::floor((c[d] + r - lo[d]) / h);
+        a[d] = x0 <= 0 ? 0 : std::min(size_t(x0), dim[d] - 1);
+        b[d] = x1 <= 0 ? 0 : std::min(size_t(x1), dim[d] - 1);
+    }
+    double m = 0;
+    for (size_t z = a[2]; z <= b[2]; ++z)
+        for (size_t y = a[1]; y <= b[1]; ++y)
+            for (size_t x = a[0]; x <= b[0]; ++x) m = std::max(m, moved[(z * dim[1] + y) * dim[0] + x]);
+    return m;
+}
+
 // For triangle t of surface s with bounding sphere (c, reach) and q the
 // surfel of s nearest to c (distance d0): a point p with |p - c| <= reach has
 // its nearest surfel y* within |p - q| <= reach + d0 of p, so
 // |c - y*| <= 2 reach + d0.  The candidates are the surfels of s in that ball
-// (padded for rounding), so the scan finds the kd-tree's answer.
-void SceneIndex::build_lookup(int threads) {
+// (padded for rounding, and by kLookupSlack spacings so that they stay a
+// superset while the surfels ride on moving triangles: see move_surfels), so
+// the scan finds the kd-tree's answer.
+//
+// Reuse (move_surfels): the candidates of t hold every surfel of s within
+// `radius` (the covered radius) of the centre c' the triangle had before the
+// move.  A surfel now within r of the new centre c moved at most delta (the
+// largest move in the grid cells around c, move_grid_), so it was within
+// r + |c - c'| + delta of c': the candidates cover r = radius - |c - c'| -
+// delta.  If that is at least R (with d0 bounded by the nearest candidate),
+// they are kept, with their new positions and re-sorted; otherwise t is
+// searched again.
+void SceneIndex::build_lookup(int threads, bool reuse) {
     const Trees& T = *trees_;
     const size_t m = lookup_tri_.size();
+    if (!reuse || lookup_search_.size() != m) {
+        reuse = false;
+        lookup_search_.assign(m, SearchBall{0, 0, 0, 0});
+    }
+    const std::vector<Candidate> old_cand = reuse ? std::move(lookup_cand_) : std::vector<Candidate>{};
+    const std::vector<uint32_t> old_ids = reuse ? std::move(lookup_ids_) : std::vector<uint32_t>{};
     constexpr size_t kBlock = 2048;  // triangles per work item (fixed: the result is thread-count free)
     const size_t nblocks = (m + kBlock - 1) / kBlock;
     std::vector<std::vector<Candidate>> block_cand(nblocks);
     std::vector<std::vector<uint32_t>> block_ids(nblocks);
+    const double slack = kLookupSlack * double(sigma_);
+    size_t reused = 0;
+    std::vector<size_t> block_reused(nblocks, 0);
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
             std::vector<std::pair<uint32_t, float>> found;
+            std::vector<uint32_t> order;
+            std::vector<Candidate> sc;
+            std::vector<uint32_t> si;
             for (size_t b = r.begin(); b < r.end(); ++b) {
                 std::vector<Candidate>& out = block_cand[b];
                 std::vector<uint32_t>& out_ids = block_ids[b];
                 for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t) {
                     TriangleLookup& L = lookup_tri_[t];
+                    const uint32_t old_begin = L.begin, old_count = L.count;
                     L.begin = 0;
                     L.count = 0;
                     const int s = tri_surface_[t];
                     if (!has_surfels(s)) continue;
                     const PointTree& tree = T.surface[size_t(s)];
                     const float c[3] = {L.cx, L.cy, L.cz};
-                    uint32_t q = 0;
-                    float q2 = 0;
-                    nanoflann::KNNResultSet<float, uint32_t> rs(1);
-                    rs.init(&q, &q2);
-                    tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
-                    const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
-                    found.clear();
-                    tree.kd->radiusSearch(c, float(R * R), found, nanoflann::SearchParams(32, 0.0f, false));
-                    if (found.size() > kMaxCandidates || found.empty()) continue;
-                    L.count = uint32_t(found.size());
-                    L.begin = uint32_t(out.size());  // block-relative until the offsets are known
                     const size_t first = out.size();
-                    for (const auto& f : found) {
-                        const float* pp = &tree.pos[3 * size_t(f.first)];
-                        const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
-                        out.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
-                        out_ids.push_back(tree.index[f.first]);
+                    bool kept = false;
+                    if (reuse && old_count > 0) {
+                        SearchBall& B = lookup_search_[t];
+                        double d0 = INFINITY;
+                        for (uint32_t k = 0; k < old_count; ++k) {
+                            const float* pp = &T.all.pos[3 * size_t(old_ids[old_begin + k])];
+                            const double dx = double(pp[0]) - c[0], dy = double(pp[1]) - c[1], dz = double(pp[2]) - c[2];
+                            d0 = std::min(d0, std::sqrt(dx * dx + dy * dy + dz * dz));
+                        }
+                        const double R = (2.0 * std::sqrt(double(L.reach2)) + d0) * (1.0 + 1e-5);
+                        const double cdx = double(c[0]) - B.cx, cdy = double(c[1]) - B.cy, cdz = double(c[2]) - B.cz;
+                        const double cc[3] = {double(c[0]), double(c[1]), double(c[2])};
+                        const double covered = (double(B.radius) - std::sqrt(cdx * cdx + cdy * cdy + cdz * cdz) -
+                                                move_grid_.max_in_ball(cc, double(B.radius))) * (1.0 - 1e-5);
+                        if (R <= covered) {
+                            kept = true;
+                            B = SearchBall{c[0], c[1], c[2], float(covered * (1.0 - 1e-6))};
+                            for (uint32_t k = 0; k < old_count; ++k) {
+                                const uint32_t id = old_ids[old_begin + k];
+                                const float* pp = &T.all.pos[3 * size_t(id)];
+                                const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
+                                out.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
+                                out_ids.push_back(id);
+                            }
+                            ++block_reused[b];
+                        }
                     }
+                    if (!kept) {
+                        uint32_t q = 0;
+                        float q2 = 0;
+                        nanoflann::KNNResultSet<float, uint32_t> rs(1);
+                        rs.init(&q, &q2);
+                        tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
+                        const double R =
+                            (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5) + slack;
+                        lookup_search_[t] = SearchBall{c[0], c[1], c[2], float(R)};
+                        found.clear();
+                        tree.kd->radiusSearch(c, float(R * R), found, nanoflann::SearchParams(32, 0.0f, false));
+                        if (found.size() > kMaxCandidates || found.empty()) continue;
+                        for (const auto& f : found) {
+                            const float* pp = &tree.pos[3 * size_t(f.first)];
+                            const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
+                            out.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
+                            out_ids.push_back(tree.index[f.first]);
+                        }
+                    }
+                    const size_t count = out.size() - first;
+                    L.count = uint32_t(count);
+                    L.begin = uint32_t(first);  // block-relative until the offsets are known
                     // Sort this triangle's entries by (distance from the centre, index).
-                    std::vector<uint32_t> order(found.size());
-                    for (uint32_t k = 0; k < order.size(); ++k) order[k] = k;
+                    order.resize(count);
+                    for (uint32_t k = 0; k < count; ++k) order[k] = k;
                     std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b2) {
                         const float ra = out[first + a].from_centre, rb = out[first + b2].from_centre;
                         return ra < rb || (ra == rb && out_ids[first + a] < out_ids[first + b2]);
                     });
-                    std::vector<Candidate> sc(order.size());
-                    std::vector<uint32_t> si(order.size());
-                    for (size_t k = 0; k < order.size(); ++k) {
+                    sc.resize(count);
+                    si.resize(count);
+                    for (size_t k = 0; k < count; ++k) {
                         sc[k] = out[first + order[k]];
                         si[k] = out_ids[first + order[k]];
                     }
@@ -237,7 +383,9 @@ void SceneIndex::build_lookup(int threads) {
     for (size_t b = 0; b < nblocks; ++b) {
         offset[b] = total;
         total += block_cand[b].size();
+        reused += block_reused[b];
     }
+    lookup_reused_ = reused;
     if (total > size_t(UINT32_MAX)) throw Error("scene index: too many surfel candidates for the triangle lookup");
     lookup_cand_.resize(total);
     lookup_ids_.resize(total);
@@ -292,7 +440,7 @@ size_t SceneIndex::lookup_fallback_triangles() const {
 
 size_t SceneIndex::lookup_bytes() const {
     return lookup_tri_.capacity() * sizeof(TriangleLookup) + lookup_cand_.capacity() * sizeof(Candidate) +
-           lookup_ids_.capacity() * sizeof(uint32_t);
+           lookup_ids_.capacity() * sizeof(uint32_t) + lookup_search_.capacity() * sizeof(SearchBall);
 }
 
 void SceneIndex::cast(RTCRayHit& rh, V3 org, V3 dir, float tnear, float tfar) const {

@@ -89,6 +89,34 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
     return k;
 }
 
+void reweight_splat_kernel(SplatKernel& k, const float* position, size_t n, float sigma) {
+    if (k.offset.size() != n + 1) return;  // no kernel (spreading off): nothing to refresh
+    const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
+    std::vector<double> w(k.source.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
+        for (size_t j = range.begin(); j < range.end(); ++j)
+            for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e) {
+                // the kd-tree's float metric, query (source) minus point (target), as at build
+                const float* ps = position + 3 * size_t(k.source[e]);
+                const float* pj = position + 3 * j;
+                float d2 = 0.0f;
+                for (int c = 0; c < 3; ++c) {
+                    const float d = ps[c] - pj[c];
+                    d2 += d * d;
+                }
+                w[e] = std::exp(-double(k.source[e] == j ? 0.0f : d2) * inv2s2);
+            }
+    });
+    // Each source's sum over its targets in ascending target order, as at build.
+    std::vector<double> sum(n, 0.0);
+    for (size_t j = 0; j < n; ++j)
+        for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e) sum[k.source[e]] += w[e];
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
+        for (size_t j = range.begin(); j < range.end(); ++j)
+            for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e) k.weight[e] = float(w[e] / sum[k.source[e]]);
+    });
+}
+
 void apply_splat(const SplatKernel& k, const float* in, float* out, size_t n, int P) {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
         for (size_t j = range.begin(); j < range.end(); ++j) {

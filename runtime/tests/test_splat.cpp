@@ -75,3 +75,33 @@ TEST(Splat, BitIdenticalAcrossThreads) {
     for (size_t i = 0; i < a.size(); ++i) { sa += a[i]; si += in[i]; }
     EXPECT_NEAR(sa, si, 1e-3 * si);
 }
+
+// Riding surfels keep their neighbourhoods (SPEC §13.12): reweighting at the
+// positions the kernel was built with reproduces it bit for bit, and after a
+// move every source's weights still sum to 1 with the Gaussian of the new
+// distances.
+TEST(Splat, ReweightingKeepsNeighbourhoodsAndConserves) {
+    const float h = 0.1f;
+    Grid g = make_grid(12, h);
+    const size_t n = g.surf.size();
+    SplatKernel k = build_splat_kernel(g.pos.data(), g.nrm.data(), g.surf.data(), n, h);
+    SplatKernel same = k;
+    reweight_splat_kernel(same, g.pos.data(), n, h);
+    ASSERT_EQ(same.weight.size(), k.weight.size());
+    for (size_t e = 0; e < k.weight.size(); ++e) ASSERT_EQ(same.weight[e], k.weight[e]) << e;
+    // Stretch along x by 10 %: same neighbours, new weights.
+    for (size_t i = 0; i < n; ++i) g.pos[3 * i] *= 1.1f;
+    SplatKernel moved = k;
+    reweight_splat_kernel(moved, g.pos.data(), n, h);
+    EXPECT_EQ(moved.source, k.source);
+    EXPECT_EQ(moved.offset, k.offset);
+    std::vector<double> sum(n, 0.0);
+    bool changed = false;
+    for (size_t j = 0; j < n; ++j)
+        for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e) {
+            sum[k.source[e]] += moved.weight[e];
+            changed = changed || moved.weight[e] != k.weight[e];
+        }
+    EXPECT_TRUE(changed);
+    for (size_t s = 0; s < n; ++s) EXPECT_NEAR(sum[s], 1.0, 1e-5) << s;
+}

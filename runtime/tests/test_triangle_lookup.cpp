@@ -144,3 +144,53 @@ TEST(TriangleLookup, FollowsARebuildOfEitherHalf) {
     index.build_geometry(big, ts, 1);
     expect_lookup_matches_kdtree(big, ts, c, index, 5);
 }
+
+// The shape step's riding surfels (SPEC §13.12): vertices and surfels move,
+// the index is updated in place (move_vertices + move_surfels).  The lookup
+// keeps a triangle's candidates only where they provably still hold the
+// nearest surfel, so it must still agree with the kd-tree everywhere, and
+// with a freshly built index.  The moves vary from nothing (the lookup
+// keeps candidates there) to about a surfel spacing (searched again).
+TEST(TriangleLookup, StaysExactWhenVerticesAndSurfelsMoveInPlace) {
+    Mesh m = gamma_test::icosphere(4);
+    std::vector<int32_t> ts(m.num_triangles());
+    for (size_t t = 0; t < ts.size(); ++t) ts[t] = m.vertices[3 * size_t(m.triangles[3 * t]) + 2] > 0 ? 1 : 0;
+    SurfelState st = SurfelState::sample(m, ts, 8000, 5, {{0, 0, 0}, {0, 0, 0}});
+    const float sigma = float(std::sqrt(m.area() / double(st.size())));
+    SceneIndex index;
+    index.build_geometry(m, ts, 2);
+    index.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), sigma, 2);
+    // Radial moves, large on the x > 0.3 cap, none elsewhere.
+    auto push = [&](float* p, float amount) {
+        const float r = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+        const float f = p[0] > 0.3f ? 1.0f - amount * (p[0] - 0.3f) / r : 1.0f;
+        for (int c = 0; c < 3; ++c) p[c] *= f;
+    };
+    for (int step = 1; step <= 3; ++step) {
+        const float amount = 1.5f * sigma * float(step);
+        for (size_t v = 0; v < m.num_vertices(); ++v) push(&m.vertices[3 * v], amount);
+        for (size_t i = 0; i < st.size(); ++i) push(&st.surf.position[3 * i], amount);
+        index.move_vertices(m);
+        index.move_surfels(st.surf.position.data(), sigma, 2);
+        EXPECT_GT(index.lookup_reused(), m.num_triangles() / 4) << "step " << step;
+        EXPECT_LT(index.lookup_reused(), m.num_triangles()) << "step " << step;
+        expect_lookup_matches_kdtree(m, ts, st, index, 4);
+        SceneIndex fresh;
+        fresh.build_geometry(m, ts, 2);
+        fresh.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), sigma, 2);
+        std::mt19937 rng(3);
+        for (size_t t = 0; t < m.num_triangles(); t += 7)
+            for (const auto& q : points_on(m, t, rng, 2)) {
+                const float p[3] = {q[0], q[1], q[2]};
+                ASSERT_EQ(index.nearest_on_triangle(uint32_t(t), p), fresh.nearest_on_triangle(uint32_t(t), p))
+                    << "step " << step << " triangle " << t;
+            }
+        // Rays see the moved triangles.
+        RTCRayHit a, b;
+        index.cast(a, V3{2, 0.01f, 0.02f}, V3{-1, 0, 0}, 0.0f);
+        fresh.cast(b, V3{2, 0.01f, 0.02f}, V3{-1, 0, 0}, 0.0f);
+        ASSERT_NE(a.hit.geomID, RTC_INVALID_GEOMETRY_ID);
+        EXPECT_EQ(a.ray.tfar, b.ray.tfar);
+        EXPECT_EQ(a.hit.primID, b.hit.primID);
+    }
+}

@@ -8,7 +8,12 @@
 //   nearest-surfel query is a scan of a few contiguous entries;
 // - the scene frame: constants derived from the mesh's bounds and gravity.
 // Both halves are rebuildable on their own: build_geometry after the mesh
-// changed, build_surfels after the surfels changed.
+// changed, build_surfels after the surfels changed.  When only positions
+// changed (the shape step's surfels riding on their triangles, SPEC §13.12),
+// move_vertices + move_surfels update the index in place: the BVH keeps its
+// geometry object, and the triangle lookup keeps every triangle's candidates
+// that provably still hold the nearest surfel (searching again only where
+// that cannot be shown), so lookups stay exact.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -56,6 +61,16 @@ public:
     // the result does not depend on the count).
     void build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
                        int threads = 0);
+    // The mesh's vertices moved (same triangles, same vertex count): the BVH
+    // is updated and the triangles' bounding spheres recomputed.  The triangle
+    // lookup is stale until move_surfels is called next.
+    void move_vertices(const Mesh& mesh);
+    // The same surfels (same surfaces, same order) moved to `positions`: the
+    // kd-trees are rebuilt and the triangle lookup refreshed incrementally
+    // (exact: see build_lookup).  sigma = the new smoothing width.
+    void move_surfels(const float* positions, float sigma, int threads = 0);
+    // Triangles whose lookup candidates the last refresh kept (for tests).
+    size_t lookup_reused() const { return lookup_reused_; }
 
     // Closest hit along org + t*dir, t in [tnear, tfar]; rh.hit.geomID is
     // RTC_INVALID_GEOMETRY_ID on a miss.
@@ -117,9 +132,29 @@ public:
     // More candidates than this (a triangle much larger than the surfel
     // spacing) and the triangle uses the kd-tree.
     static constexpr uint32_t kMaxCandidates = 48;
+    // The lookup's search ball is padded by this many surfel spacings, so
+    // that its candidates stay valid while the surfels move a little.
+    static constexpr double kLookupSlack = 0.1;
 
 private:
-    void build_lookup(int threads);
+    // What a triangle's candidates cover: every surfel of its surface within
+    // `radius` of (cx, cy, cz) (the triangle's centre when they were last
+    // searched or kept).
+    struct SearchBall {
+        float cx, cy, cz, radius;
+    };
+    // The largest move of a surfel in the last move_surfels, per cell of a
+    // grid over the surfels' new positions.
+    struct MoveGrid {
+        double lo[3] = {0, 0, 0}, h = 1;
+        size_t dim[3] = {1, 1, 1};
+        std::vector<double> moved;
+        size_t cell(const float p[3]) const;
+        // The largest move in the cells that meet the box around the ball (c, r).
+        double max_in_ball(const double c[3], double r) const;
+    };
+    void build_lookup(int threads, bool reuse = false);
+    void triangle_spheres(const Mesh& mesh);
 
     RTCDevice device_ = nullptr;
     RTCScene scene_ = nullptr;
@@ -131,6 +166,10 @@ private:
     std::vector<TriangleLookup> lookup_tri_;
     std::vector<Candidate> lookup_cand_;
     std::vector<uint32_t> lookup_ids_;
+    std::vector<SearchBall> lookup_search_;
+    MoveGrid move_grid_;
+    size_t lookup_reused_ = 0;
+    unsigned geom_id_ = 0;
     int geometry_builds_ = 0, surfel_builds_ = 0;
 };
 

@@ -27,6 +27,13 @@ struct SplatKernel {
 SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
                                float sigma);
 
+// The same surfels moved a little (riding on their triangles, SPEC §13.12):
+// every neighbourhood keeps its surfels, and the weights are recomputed from
+// the new positions and `sigma` exactly as build_splat_kernel computes them
+// (same metric, same summation order), so a kernel whose neighbourhoods
+// would not change is reproduced bit for bit.
+void reweight_splat_kernel(SplatKernel& k, const float* position, size_t n, float sigma);
+
 // out[j*P + c] = sum over sources s of weight * in[s*P + c] (n rows of P).
 void apply_splat(const SplatKernel& k, const float* in, float* out, size_t n, int P);
 
