@@ -9,7 +9,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <map>
 #include <string>
 #include <utility>
 
@@ -41,14 +40,21 @@ double angle_deg(const float* a, const float* b, const float* c) {  // angle at 
 }  // namespace
 
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
-               int iterations) {
+               int iterations, const std::vector<uint8_t>* region) {
     if (!(target_edge_length > 0) || !std::isfinite(target_edge_length))
         throw Error("retile: target edge length must be positive");
     SurfaceMesh sm;
     std::vector<VertexIndex> vi(mesh.num_vertices());
     for (size_t i = 0; i < mesh.num_vertices(); ++i)
         vi[i] = sm.add_vertex(Point(mesh.vertices[3 * i], mesh.vertices[3 * i + 1], mesh.vertices[3 * i + 2]));
+    if (region && region->size() != mesh.num_triangles()) throw Error("retile: one region flag per triangle expected");
     auto patch = sm.add_property_map<FaceIndex, int32_t>("f:surface", 0).first;
+    // Which input vertex / triangle an element was (-1: made by the remeshing;
+    // CGAL resets properties of recycled elements).
+    auto vertex_input = sm.add_property_map<VertexIndex, int32_t>("v:input", -1).first;
+    auto face_input = sm.add_property_map<FaceIndex, int32_t>("f:input", -1).first;
+    for (size_t i = 0; i < mesh.num_vertices(); ++i) vertex_input[vi[i]] = int32_t(i);
+    std::vector<FaceIndex> faces;
     for (size_t t = 0; t < mesh.num_triangles(); ++t) {
         const FaceIndex f = sm.add_face(vi[size_t(mesh.triangles[3 * t])], vi[size_t(mesh.triangles[3 * t + 1])],
                                         vi[size_t(mesh.triangles[3 * t + 2])]);
@@ -56,6 +62,8 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
             throw Error("retile: " + mesh.name + " is not an oriented 2-manifold (triangle " + std::to_string(t) +
                         " cannot be added); re-tiling needs a manifold mesh");
         patch[f] = tri_surface[t];
+        face_input[f] = int32_t(t);
+        if (!region || (*region)[t]) faces.push_back(f);
     }
     // Sharp edges (faces meeting at more than kSharpEdgeDeg), borders between
     // surfaces and open boundaries stay where they are (as polylines):
@@ -66,7 +74,7 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
         const auto h = sm.halfedge(e), o = sm.opposite(h);
         if (sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)]) constrained[e] = true;
     }
-    PMP::isotropic_remeshing(sm.faces(), target_edge_length, sm,
+    PMP::isotropic_remeshing(faces, target_edge_length, sm,
                              CGAL::parameters::number_of_iterations(unsigned(std::max(iterations, 1)))
                                  .face_patch_map(patch)
                                  .edge_is_constrained_map(constrained)
@@ -74,27 +82,51 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
     sm.collect_garbage();
     std::vector<float> v;
     v.reserve(3 * sm.number_of_vertices());
-    std::map<VertexIndex, int32_t> id;
-    int32_t next = 0;
+    // After collect_garbage the vertex indices are 0 .. n-1 in order.
+    auto id = [](VertexIndex x) { return int32_t(x.idx()); };
     for (VertexIndex x : sm.vertices()) {
         const Point& p = sm.point(x);
         v.push_back(float(p.x()));
         v.push_back(float(p.y()));
         v.push_back(float(p.z()));
-        id[x] = next++;
     }
+    // A vertex is the input's if it is the same element at the same place.
+    auto unchanged = [&](VertexIndex x) {
+        const int32_t i = vertex_input[x];
+        if (i < 0) return false;
+        const Point& p = sm.point(x);
+        const float* q = &mesh.vertices[3 * size_t(i)];
+        return float(p.x()) == q[0] && float(p.y()) == q[1] && float(p.z()) == q[2];
+    };
     std::vector<int32_t> t;
-    std::vector<int32_t> surf;
+    std::vector<int32_t> surf, same;
     t.reserve(3 * sm.number_of_faces());
     for (FaceIndex f : sm.faces()) {
-        for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) t.push_back(id[x]);
+        int32_t in[3];
+        int k = 0;
+        bool kept = face_input[f] >= 0;
+        for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) {
+            t.push_back(id(x));
+            kept = kept && unchanged(x);
+            in[k++] = vertex_input[x];
+        }
+        if (kept) {  // the same corners as the input triangle, in the same cyclic order
+            const int32_t* o = &mesh.triangles[3 * size_t(face_input[f])];
+            kept = (in[0] == o[0] && in[1] == o[1] && in[2] == o[2]) ||
+                   (in[0] == o[1] && in[1] == o[2] && in[2] == o[0]) ||
+                   (in[0] == o[2] && in[1] == o[0] && in[2] == o[1]);
+        }
         surf.push_back(patch[f]);
+        same.push_back(kept ? face_input[f] : -1);
     }
     Retiled out;
     out.mesh = Mesh::from_arrays(v.data(), v.size() / 3, t.data(), t.size() / 3, mesh.name);
     out.tri_surface.resize(out.mesh.num_triangles());
-    for (size_t k = 0; k < out.tri_surface.size(); ++k)
+    out.kept.resize(out.mesh.num_triangles());
+    for (size_t k = 0; k < out.tri_surface.size(); ++k) {
         out.tri_surface[k] = surf[size_t(out.mesh.original_triangle[k])];
+        out.kept[k] = same[size_t(out.mesh.original_triangle[k])];
+    }
     return out;
 }
 

@@ -181,6 +181,37 @@ void carry_surfels(const Mesh& before, const Mesh& after, SurfelSet& surf, int t
 
 }  // namespace
 
+std::vector<uint8_t> retiling_region(const Mesh& mesh, double target, double min_deg) {
+    const size_t m = mesh.num_triangles();
+    const double cos_max = std::cos(min_deg * 3.14159265358979323846 / 180.0);
+    const double lo2 = kRegionShortEdge * kRegionShortEdge * target * target;
+    const double hi2 = kRegionLongEdge * kRegionLongEdge * target * target;
+    std::vector<uint8_t> bad(m, 0);
+    for (size_t t = 0; t < m; ++t) {
+        double p[3][3];
+        for (int k = 0; k < 3; ++k)
+            for (int d = 0; d < 3; ++d) p[k][d] = mesh.vertices[3 * size_t(mesh.triangles[3 * t + size_t(k)]) + size_t(d)];
+        for (int k = 0; k < 3 && !bad[t]; ++k) {
+            const double* a = p[k];
+            const double* b = p[(k + 1) % 3];
+            const double* c = p[(k + 2) % 3];
+            const double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+            const double uu = u[0] * u[0] + u[1] * u[1] + u[2] * u[2], vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+            const double uv = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+            if (!(uu > 0 && vv > 0) || uv > cos_max * std::sqrt(uu * vv) || uu < lo2 || uu > hi2) bad[t] = 1;
+        }
+    }
+    // and every triangle that shares a vertex with one (room to fix it)
+    std::vector<uint8_t> near(mesh.num_vertices(), 0);
+    for (size_t t = 0; t < m; ++t)
+        if (bad[t])
+            for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+    std::vector<uint8_t> region(m, 0);
+    for (size_t t = 0; t < m; ++t)
+        for (int k = 0; k < 3; ++k) region[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
+    return region;
+}
+
 ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::unique_ptr<SceneIndex>& index,
                             SceneFrame& frame) {
     ShapeStats st;
@@ -279,9 +310,22 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     // and the surfels ride on their triangles.
     const MeshMeasures q = measure(displaced);
     const double slivers = sliver_fraction(displaced, kSliverDeg);
-    const bool keep_tiling = rebuilds_ > 1 && kept_iterations_ < kMaxIterationsWithoutRetiling &&
-                             slivers <= retiled_slivers_ + (retiled_slivers_ > 0 ? 0.005 : 0.0) &&
-                             std::fabs(q.area - retiled_area_) <= 0.1 * retiled_area_;
+    const bool first = retiled_area_ == 0;
+    const bool drifted = std::fabs(q.area - retiled_area_) > 0.1 * retiled_area_;
+    bool keep_tiling = !first && !drifted && kept_iterations_ < kMaxIterationsWithoutRetiling &&
+                       slivers <= retiled_slivers_ + (retiled_slivers_ > 0 ? 0.005 : 0.0);
+    // After the first re-tiling, only the triangles that need it are re-tiled
+    // (unless the area drifted: then the whole mesh); if none does, the
+    // surfels ride.
+    std::vector<uint8_t> region;
+    if (!keep_tiling && !first && !drifted) {
+        region = retiling_region(displaced, target, kSliverDeg);
+        if (std::find(region.begin(), region.end(), uint8_t(1)) == region.end()) {
+            keep_tiling = true;
+            kept_iterations_ = -1;  // checked now: counts again from here
+            region.clear();
+        }
+    }
     if (keep_tiling) {
         ++kept_iterations_;
         st.retiled = false;
@@ -299,25 +343,36 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
         st.resample_seconds = seconds_since(t0);
         t0 = std::chrono::steady_clock::now();
         mesh = std::move(displaced);
-        index->build_geometry(mesh, index->tri_surface(), index->n_surfaces(), /*refresh_lookup=*/false);
-        index->build_surfels(state.surf.position.data(), state.surface.data(), state.size(),
-                             float(std::sqrt(new_area / double(state.size()))), c.threads);
-        st.rebuild_seconds = seconds_since(t0);
+        // Same triangles, same surfels: the index is updated in place (SPEC §13.12 step 6).
+        index->move_vertices(mesh);
+        index->move_surfels(state.surf.position.data(), float(std::sqrt(new_area / double(state.size()))),
+                            c.threads);
+        st.rebuild_seconds = seconds_since(t0);  // splat, frame and measures are added below
     } else {
         kept_iterations_ = 0;
         st.retiled = true;
-        Retiled rt = retile(displaced, index->tri_surface(), target, c.retile_iterations);
+        Retiled rt = retile(displaced, index->tri_surface(), target, c.retile_iterations,
+                            region.empty() ? nullptr : &region);
         st.retile_seconds = seconds_since(t0);
-        resample(iteration, rt, mesh, state, index, st);
+        for (int32_t k : rt.kept) st.retiled_triangles += k < 0;
+        if (region.empty())
+            resample(iteration, rt, mesh, state, index, st);
+        else
+            resample_region(iteration, rt, mesh, displaced, state, index, st);
         retiled_slivers_ = sliver_fraction(mesh, kSliverDeg);
         retiled_area_ = mesh.area();
     }
 
-    // The new surfels need their own splat neighbourhoods (SPEC §13.2); the old
+    // New surfels need their own splat neighbourhoods (SPEC §13.2); the old
     // kernel's offsets no longer match and would silently switch spreading off.
+    // Riding surfels keep their neighbourhoods, with weights for the new distances.
+    t0 = std::chrono::steady_clock::now();
     run_with_threads(c.threads, [&] {
-        state.splat = build_splat_kernel(state.surf.position.data(), state.surf.normal.data(),
-                                         state.surface.data(), state.size(), index->sigma());
+        if (keep_tiling)
+            reweight_splat_kernel(state.splat, state.surf.position.data(), state.size(), index->sigma());
+        else
+            state.splat = build_splat_kernel(state.surf.position.data(), state.surf.normal.data(),
+                                             state.surface.data(), state.size(), index->sigma());
     });
     frame = SceneFrame::of(mesh, c.down);
     // the moved or new surfels' accessibility, curvature and uv, as at setup (SPEC §12)
@@ -325,6 +380,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
                                      state.surf, kAoLengthFraction * frame.diag, c.seed, c.threads);
     before_ = state.rows;
     st.geometry = keep_tiling ? q : measure(mesh);
+    st.rebuild_seconds += seconds_since(t0);
     return st;
 }
 
@@ -347,6 +403,120 @@ void ShapeStep::resample(int iteration, Retiled& rt, Mesh& mesh, SurfelState& st
     st.rebuild_seconds = seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
     transfer_rows(state, old_area, *index, fresh, new_area, *rebuilt, c.threads);
+    st.resample_seconds += seconds_since(t0);
+
+    mesh = std::move(rt.mesh);
+    state = std::move(fresh);
+    index = std::move(rebuilt);
+}
+
+void ShapeStep::resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced, SurfelState& state,
+                                std::unique_ptr<SceneIndex>& index, ShapeStats& st) const {
+    const Config& c = cfg_;
+    auto t0 = std::chrono::steady_clock::now();
+    const size_t n = state.size();
+    const size_t W = size_t(state.width);
+    const double old_area = mesh.area(), new_area = rt.mesh.area();
+    // Every surfel onto the displaced mesh first (same triangles).
+    carry_surfels(mesh, displaced, state.surf, c.threads);
+    // Surfels on triangles re-tiling kept stay (on the same triangle, renumbered);
+    // the others are replaced by as many new surfels on the new triangles.
+    std::vector<int32_t> new_of_old(displaced.num_triangles(), -1);
+    std::vector<int32_t> new_faces;
+    for (size_t t = 0; t < rt.kept.size(); ++t) {
+        if (rt.kept[t] >= 0)
+            new_of_old[size_t(rt.kept[t])] = int32_t(t);
+        else
+            new_faces.push_back(int32_t(t));
+    }
+    std::vector<uint32_t> removed;
+    for (size_t i = 0; i < n; ++i)
+        if (new_of_old[size_t(state.surf.triangle[i])] < 0) removed.push_back(uint32_t(i));
+    SurfelState fresh;
+    fresh.width = state.width;
+    fresh.surf = state.surf;
+    fresh.surface = state.surface;
+    fresh.rows = state.rows;
+    for (size_t i = 0; i < n; ++i) {
+        const int32_t t = new_of_old[size_t(state.surf.triangle[i])];
+        if (t >= 0) fresh.surf.triangle[i] = t;
+    }
+    if (!removed.empty()) {
+        if (new_faces.empty())
+            throw Error("shape: re-tiling in iteration " + std::to_string(iteration) +
+                        " removed triangles but made none (internal error)");
+        // New surfels on the new triangles only (a sub-mesh of them), seed mixed with the iteration.
+        std::vector<int32_t> sub_tris;
+        std::vector<int32_t> sub_surface;
+        for (int32_t t : new_faces) {
+            sub_tris.insert(sub_tris.end(), &rt.mesh.triangles[3 * size_t(t)], &rt.mesh.triangles[3 * size_t(t)] + 3);
+            sub_surface.push_back(rt.tri_surface[size_t(t)]);
+        }
+        const Mesh sub = Mesh::from_arrays(rt.mesh.vertices.data(), rt.mesh.num_vertices(), sub_tris.data(),
+                                           new_faces.size(), rt.mesh.name);
+        std::vector<int32_t> sub_kept_surface(sub.num_triangles());
+        for (size_t k = 0; k < sub.num_triangles(); ++k)
+            sub_kept_surface[k] = sub_surface[size_t(sub.original_triangle[k])];
+        std::vector<std::vector<float>> zero_rows(size_t(index->n_surfaces()), std::vector<float>(W, 0));
+        const SurfelState added = SurfelState::sample(
+            sub, sub_kept_surface, removed.size(), mix64(c.seed ^ (uint64_t(uint32_t(iteration)) << 32)), zero_rows);
+        if (added.size() != removed.size())
+            throw Error("shape: re-sampling in iteration " + std::to_string(iteration) + " made " +
+                        std::to_string(added.size()) + " surfels for " + std::to_string(removed.size()) +
+                        " (internal error)");
+        for (size_t j = 0; j < removed.size(); ++j) {
+            const size_t i = removed[j];
+            for (int d = 0; d < 3; ++d) {
+                fresh.surf.position[3 * i + size_t(d)] = added.surf.position[3 * j + size_t(d)];
+                fresh.surf.normal[3 * i + size_t(d)] = added.surf.normal[3 * j + size_t(d)];
+            }
+            fresh.surf.triangle[i] = new_faces[size_t(sub.original_triangle[size_t(added.surf.triangle[j])])];
+            fresh.surface[i] = added.surface[j];
+            // gamma-reflectance from the nearest old surfel of the same surface, properties from the transfer
+            const uint32_t src = index->nearest_of(fresh.surface[i], &fresh.surf.position[3 * i]);
+            std::memcpy(fresh.row(i), state.row(src), sizeof(float) * GAMMA_ROW_HEADER);
+            std::fill(fresh.row(i) + GAMMA_ROW_HEADER, fresh.row(i) + W, 0.0f);
+        }
+    }
+    st.resample_seconds = seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    auto rebuilt = std::make_unique<SceneIndex>();
+    rebuilt->build_geometry(rt.mesh, rt.tri_surface, index->n_surfaces(), /*refresh_lookup=*/false);
+    rebuilt->build_surfels(fresh.surf.position.data(), fresh.surface.data(), fresh.size(),
+                           float(std::sqrt(new_area / double(fresh.size()))), c.threads);
+    require_surfels(*rebuilt, iteration);
+    st.rebuild_seconds = seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    // Amounts (value x A/N): kept surfels keep theirs; each replaced surfel
+    // spreads its amount over the (up to) 8 nearest surfels of its surface
+    // on the new mesh with the smoothing weights, in surfel order.
+    constexpr size_t K = kSmoothingNeighbours;
+    std::vector<uint32_t> nb_idx(removed.size() * K);
+    std::vector<double> nb_w(removed.size() * K);
+    std::vector<uint8_t> nb_count(removed.size());
+    run_with_threads(c.threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, removed.size(), 512), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t j = r.begin(); j < r.end(); ++j) {
+                const size_t i = removed[j];
+                nb_count[j] = uint8_t(rebuilt->smooth(state.surface[i], &state.surf.position[3 * i], &nb_idx[j * K],
+                                                      &nb_w[j * K]));
+            }
+        });
+    });
+    const double a_old = old_area / double(n), a_new = new_area / double(n);
+    std::vector<double> amount(n * W, 0.0);
+    for (size_t i = 0; i < n; ++i)
+        for (size_t col = GAMMA_ROW_HEADER; col < W; ++col) amount[i * W + col] = double(fresh.rows[i * W + col]) * a_old;
+    for (size_t j = 0; j < removed.size(); ++j) {
+        const float* row = state.row(removed[j]);
+        for (size_t k = 0; k < nb_count[j]; ++k) {
+            double* dst = &amount[size_t(nb_idx[j * K + k]) * W];
+            const double w = nb_w[j * K + k] * a_old;
+            for (size_t col = GAMMA_ROW_HEADER; col < W; ++col) dst[col] += w * double(row[col]);
+        }
+    }
+    for (size_t i = 0; i < n; ++i)
+        for (size_t col = GAMMA_ROW_HEADER; col < W; ++col) fresh.rows[i * W + col] = float(amount[i * W + col] / a_new);
     st.resample_seconds += seconds_since(t0);
 
     mesh = std::move(rt.mesh);

@@ -198,7 +198,9 @@ ShapeStats Simulation::shape(int iteration) {
             shading_flat_.resize(tri_surface.size());
             for (size_t t = 0; t < tri_surface.size(); ++t) shading_flat_[t] = flat_surface_[size_t(tri_surface[t])];
         }
+        const auto t0 = std::chrono::steady_clock::now();
         update_corner_normals();
+        st.rebuild_seconds += seconds_since(t0);  // the renders' normals belong to the rebuild
         prepared_ = BakePoints{};      // new surfels and triangles: the caller prepares its points again
     }
     return st;

@@ -232,3 +232,117 @@ TEST(MassBooks, PickUpBalancesAndCreationIsReported) {
     EXPECT_EQ(k3.created, k2.created);
     EXPECT_EQ(k3.escaped, k2.escaped);
 }
+
+// Local re-tiling (SPEC §13.12 step 4): only the flagged region and the
+// triangles along its border may change; every other triangle comes out with
+// the same corners at bit-identical positions, the mesh stays closed.
+TEST(ShapeStep, LocalRetilingKeepsTrianglesOutsideTheRegion) {
+    Mesh m = gamma_test::icosphere(4, 1.0f);
+    double target = 0;  // the mean edge length of the sphere
+    for (size_t t = 0; t < m.num_triangles(); ++t)
+        for (int k = 0; k < 3; ++k) {
+            const float* a = &m.vertices[3 * size_t(m.triangles[3 * t + size_t(k)])];
+            const float* b = &m.vertices[3 * size_t(m.triangles[3 * t + size_t((k + 1) % 3)])];
+            target += std::sqrt(double((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+                                       (a[2] - b[2]) * (a[2] - b[2])));
+        }
+    target /= 3.0 * double(m.num_triangles());
+    // Squash the x > 0.6 cap towards the centre so its triangles need re-tiling.
+    for (size_t v = 0; v < m.num_vertices(); ++v)
+        if (m.vertices[3 * v] > 0.6f) m.vertices[3 * v] = 0.6f + 0.3f * (m.vertices[3 * v] - 0.6f);
+    const std::vector<int32_t> ts(m.num_triangles(), 0);
+    const std::vector<uint8_t> region = retiling_region(m, target, 15.0);
+    size_t flagged = 0;
+    for (uint8_t f : region) flagged += f;
+    ASSERT_GT(flagged, 0u);
+    ASSERT_LT(flagged, m.num_triangles() / 2);
+    const Retiled rt = retile(m, ts, target, 3, &region);
+    EXPECT_TRUE(measure(rt.mesh).closed);
+    // Triangles that share no vertex with the region: all kept, exactly.
+    std::vector<uint8_t> near(m.num_vertices(), 0);
+    for (size_t t = 0; t < m.num_triangles(); ++t)
+        if (region[t])
+            for (int k = 0; k < 3; ++k) near[size_t(m.triangles[3 * t + k])] = 1;
+    std::vector<int> found(m.num_triangles(), 0);
+    size_t made = 0;
+    for (size_t t = 0; t < rt.kept.size(); ++t) {
+        if (rt.kept[t] < 0) {
+            ++made;
+            continue;
+        }
+        const size_t o = size_t(rt.kept[t]);
+        ++found[o];
+        // same corners, same positions, same orientation (up to rotation)
+        int match = 0;
+        for (int r = 0; r < 3; ++r) {
+            bool all = true;
+            for (int k = 0; k < 3; ++k)
+                all = all && std::memcmp(&rt.mesh.vertices[3 * size_t(rt.mesh.triangles[3 * t + size_t(k)])],
+                                         &m.vertices[3 * size_t(m.triangles[3 * o + size_t((k + r) % 3)])],
+                                         3 * sizeof(float)) == 0;
+            match += all;
+        }
+        EXPECT_EQ(match, 1) << "kept triangle " << t;
+    }
+    EXPECT_GT(made, 0u);
+    for (size_t t = 0; t < m.num_triangles(); ++t) {
+        const bool touches = near[size_t(m.triangles[3 * t])] || near[size_t(m.triangles[3 * t + 1])] ||
+                             near[size_t(m.triangles[3 * t + 2])];
+        if (!touches) EXPECT_EQ(found[t], 1) << "triangle " << t << " away from the region was not kept";
+        EXPECT_LE(found[t], 1);
+    }
+}
+
+namespace {
+// Strong erosion on the x > 0.4 cap only: its border shears, slivers appear
+// and later shape steps re-tile locally.
+extern "C" int32_t k_erode_cap(float* surf, const GammaContext* ctx) {
+    surf[3] += ctx->position[0] > 0.4f ? 1.0f : 0.0f;
+    return 0;
+}
+}  // namespace
+
+// Local re-tilings happen, keep every property's integral and the surfel
+// count, and are bit-identical at 1 and 2 threads.
+TEST(ShapeStep, LocalRetilingConservesAndIsDeterministic) {
+    const Mesh m = gamma_test::icosphere(4, 1.0f);
+    std::vector<float> verts[2], rows[2];
+    int local[2] = {0, 0};
+    for (int k = 0; k < 2; ++k) {
+        Config c = sphere_config(5000, -0.03f, reinterpret_cast<const void*>(&k_erode_cap));
+        c.threads = k + 1;
+        Simulation sim(m, c);
+        std::vector<float> r = sim.rows();
+        for (size_t i = 0; i < sim.num_surfels(); ++i) r[5 * i + 4] = 1.0f + sim.surfels().position[3 * i + 2];
+        sim.set_rows(r.data());
+        auto integral = [&](int col) {
+            double s = 0;
+            for (size_t i = 0; i < sim.num_surfels(); ++i) s += sim.rows()[5 * i + size_t(col)];
+            return s * sim.mesh().area() / double(sim.num_surfels());
+        };
+        for (int it = 1; it <= 8; ++it) {
+            sim.trace(it);
+            sim.update(it);
+            const double eroded = integral(3), dye = integral(4);
+            const size_t n = sim.num_surfels();
+            const ShapeStats s = sim.shape(it);
+            ASSERT_TRUE(s.changed);
+            EXPECT_TRUE(s.geometry.closed) << "iteration " << it;
+            EXPECT_EQ(sim.num_surfels(), n);
+            EXPECT_NEAR(integral(3) / eroded, 1.0, 1e-5) << "iteration " << it;
+            EXPECT_NEAR(integral(4) / dye, 1.0, 1e-5) << "iteration " << it;
+            if (it > 1 && s.retiled) {
+                EXPECT_GT(s.retiled_triangles, 0);
+                local[k] += size_t(s.retiled_triangles) < s.geometry.triangles / 2;
+            }
+        }
+        verts[k] = sim.mesh().vertices;
+        rows[k] = sim.rows();
+    }
+    EXPECT_GT(local[0], 0) << "no local re-tiling happened";
+    EXPECT_EQ(local[0], local[1]);
+    ASSERT_EQ(verts[0].size(), verts[1].size());
+    EXPECT_EQ(0, std::memcmp(verts[0].data(), verts[1].data(), sizeof(float) * verts[0].size()));
+    ASSERT_EQ(rows[0].size(), rows[1].size());
+    EXPECT_EQ(0, std::memcmp(rows[0].data(), rows[1].data(), sizeof(float) * rows[0].size()));
+}

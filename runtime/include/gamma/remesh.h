@@ -19,6 +19,9 @@ constexpr double kSharpEdgeDeg = 60.0;
 struct Retiled {
     Mesh mesh;                       // validated (degenerate triangles dropped)
     std::vector<int32_t> tri_surface; // surface id of every kept triangle
+    // Per triangle: the input triangle it is (same three vertices, at
+    // bit-identical positions, same orientation), or -1 if re-tiling made it.
+    std::vector<int32_t> kept;
 };
 
 // Isotropic remeshing towards `target_edge_length` (`iterations` rounds of
@@ -30,8 +33,14 @@ struct Retiled {
 // surface id of the triangle it came from.  Deterministic (single-threaded).
 // Texture coordinates and part labels do not survive (the result has none).
 // Throws gammart::Error if the input is not a valid triangle mesh for CGAL.
+//
+// With `region` (one flag per triangle), only the flagged triangles are
+// re-tiled (CGAL's face range): the border of the region is kept as a
+// constraint like a seam, so apart from the region only triangles along its
+// border can change (where a border edge is split or collapsed); every other
+// triangle comes out as it was (Retiled::kept).
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
-               int iterations);
+               int iterations, const std::vector<uint8_t>* region = nullptr);
 
 struct MeshMeasures {
     double area = 0;

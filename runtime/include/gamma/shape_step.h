@@ -20,6 +20,7 @@ namespace gammart {
 struct ShapeStats {
     bool changed = false;              // the geometry moved (and the scene index was rebuilt)
     bool retiled = false;              // ... re-tiled with new surfels (else the surfels rode on their triangles)
+    int64_t retiled_triangles = 0;     // triangles the re-tiling made (the rest it kept as they were)
     int64_t moved_vertices = 0;
     int64_t clamped_vertices = 0;      // |displacement| cut to the per-iteration bound
     int64_t inversion_limited = 0;     // vertices whose move was shortened so that no triangle flips
@@ -51,6 +52,13 @@ std::vector<V3> vertex_normals(const Mesh& mesh);
 void transfer_rows(const SurfelState& old_state, double old_area, const SceneIndex& old_index,
                    SurfelState& state, double new_area, const SceneIndex& index, int threads);
 
+// The triangles a re-tiling after the first re-tiles (SPEC §13.12): those
+// with an angle below min_deg or an edge shorter than kRegionShortEdge or
+// longer than kRegionLongEdge x target, and every triangle sharing a vertex
+// with one.  One flag per triangle.
+constexpr double kRegionShortEdge = 0.4, kRegionLongEdge = 2.0;
+std::vector<uint8_t> retiling_region(const Mesh& mesh, double target, double min_deg);
+
 class ShapeStep {
 public:
     explicit ShapeStep(const Config& c) : cfg_(c) {}
@@ -76,6 +84,11 @@ private:
     // New surfels on the re-tiled mesh, rows transferred, scene index rebuilt.
     void resample(int iteration, Retiled& rt, Mesh& mesh, SurfelState& state, std::unique_ptr<SceneIndex>& index,
                   ShapeStats& st) const;
+    // After a local re-tiling: surfels on kept triangles stay, those on
+    // replaced ones are replaced by as many new surfels sampled on the new
+    // triangles, whose amounts spread over the new surfels around them.
+    void resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced, SurfelState& state,
+                         std::unique_ptr<SceneIndex>& index, ShapeStats& st) const;
 
     const Config& cfg_;
     std::vector<float> before_;
