@@ -201,14 +201,16 @@ std::vector<uint8_t> retiling_region(const Mesh& mesh, double target, double min
             if (!(uu > 0 && vv > 0) || uv > cos_max * std::sqrt(uu * vv) || uu < lo2 || uu > hi2) bad[t] = 1;
         }
     }
-    // and every triangle that shares a vertex with one (room to fix it)
-    std::vector<uint8_t> near(mesh.num_vertices(), 0);
-    for (size_t t = 0; t < m; ++t)
-        if (bad[t])
-            for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
-    std::vector<uint8_t> region(m, 0);
-    for (size_t t = 0; t < m; ++t)
-        for (int k = 0; k < 3; ++k) region[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
+    // and the triangles within kRegionRings vertex rings of one (room to fix it)
+    std::vector<uint8_t> region = bad;
+    for (int ring = 0; ring < kRegionRings; ++ring) {
+        std::vector<uint8_t> near(mesh.num_vertices(), 0);
+        for (size_t t = 0; t < m; ++t)
+            if (region[t])
+                for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+        for (size_t t = 0; t < m; ++t)
+            for (int k = 0; k < 3; ++k) region[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
+    }
     return region;
 }
 

@@ -54,9 +54,10 @@ void transfer_rows(const SurfelState& old_state, double old_area, const SceneInd
 
 // The triangles a re-tiling after the first re-tiles (SPEC §13.12): those
 // with an angle below min_deg or an edge shorter than kRegionShortEdge or
-// longer than kRegionLongEdge x target, and every triangle sharing a vertex
-// with one.  One flag per triangle.
+// longer than kRegionLongEdge x target, and the triangles within
+// kRegionRings vertex rings of one.  One flag per triangle.
 constexpr double kRegionShortEdge = 0.4, kRegionLongEdge = 2.0;
+constexpr int kRegionRings = 1;
 std::vector<uint8_t> retiling_region(const Mesh& mesh, double target, double min_deg);
 
 class ShapeStep {
