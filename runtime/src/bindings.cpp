@@ -502,6 +502,7 @@ NB_MODULE(_runtime, m) {
                          nb::dict d;
                          d["candidates"] = ix.lookup_candidates();
                          d["fallback_triangles"] = ix.lookup_fallback_triangles();
+                         d["grid_triangles"] = ix.lookup_grid_triangles();
                          d["bytes"] = ix.lookup_bytes();
                          return d;
                      },
