@@ -154,7 +154,6 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
     sigma_ = sigma;
     T.all.pos.assign(positions, positions + 3 * n);
     T.all.index.clear();
-    T.all.build();
     T.surface.clear();  // trees hold references into their own Cloud: never copied or moved once built
     T.surface.resize(size_t(n_surfaces_));
     for (size_t i = 0; i < n; ++i) {
@@ -164,7 +163,12 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
         t.index.push_back(uint32_t(i));
         t.pos.insert(t.pos.end(), positions + 3 * i, positions + 3 * i + 3);
     }
-    for (PointTree& t : T.surface) t.build();
+    // The trees are independent (each build is serial and deterministic):
+    // built side by side.
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(size_t(0), T.surface.size() + 1,
+                          [&](size_t k) { (k == 0 ? T.all : T.surface[k - 1]).build(); });
+    });
     ++surfel_builds_;
     build_lookup(threads);
 }
