@@ -49,6 +49,10 @@ struct PointTree {
     }
 };
 
+// Candidates of a triangle tested against its nearest this many surfels
+// when the lookup drops the ones that can never be the nearest.
+constexpr size_t kPruningSurfels = 8;
+
 V3 unit(const std::array<float, 3>& a) {
     const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
     return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
@@ -177,7 +181,9 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
 // surfel of s nearest to c (distance d0): a point p with |p - c| <= reach has
 // its nearest surfel y* within |p - q| <= reach + d0 of p, so
 // |c - y*| <= 2 reach + d0.  The candidates are the surfels of s in that ball
-// (padded for rounding), so the scan finds the kd-tree's answer.
+// (padded for rounding), so the scan finds the kd-tree's answer.  Of these,
+// the ones that are farther than another candidate everywhere in the ball
+// are left out (they can never be the answer).
 void SceneIndex::build_lookup(int threads) {
     const Trees& T = *trees_;
     const size_t m = lookup_tri_.size();
@@ -187,7 +193,7 @@ void SceneIndex::build_lookup(int threads) {
     std::vector<std::vector<uint32_t>> block_ids(nblocks);
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
-            std::vector<std::pair<uint32_t, float>> found;
+            std::vector<std::pair<uint32_t, float>> found, kept;
             for (size_t b = r.begin(); b < r.end(); ++b) {
                 std::vector<Candidate>& out = block_cand[b];
                 std::vector<uint32_t>& out_ids = block_ids[b];
@@ -207,18 +213,45 @@ void SceneIndex::build_lookup(int threads) {
                     const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
                     found.clear();
                     tree.kd->radiusSearch(c, float(R * R), found, nanoflann::SearchParams(32, 0.0f, false));
-                    if (found.size() > kMaxCandidates || found.empty()) continue;
-                    L.count = uint32_t(found.size());
+                    if (found.empty()) continue;
+                    // Drop the surfels that are never the nearest in the
+                    // triangle's ball B(c, r): y loses to x everywhere in B
+                    // when |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
+                    // |p-x|^2 - |p-y|^2 over B), here with a margin far above
+                    // float rounding, so the scan's answer (ties included)
+                    // is unchanged.  x: the few surfels nearest to c.
+                    std::sort(found.begin(), found.end(), [](const auto& a, const auto& b2) {
+                        return a.second < b2.second || (a.second == b2.second && a.first < b2.first);
+                    });
+                    const double r = std::sqrt(double(L.reach2));
+                    const size_t nx = std::min(found.size(), kPruningSurfels);
+                    kept.clear();
+                    for (const auto& f : found) {
+                        const float* y = &tree.pos[3 * size_t(f.first)];
+                        const double cy2 = double(f.second);
+                        bool never = false;
+                        for (size_t k = 0; k < nx && !never; ++k) {
+                            if (found[k].first == f.first) continue;
+                            const float* x = &tree.pos[3 * size_t(found[k].first)];
+                            const double ex = double(y[0]) - x[0], ey = double(y[1]) - x[1], ez = double(y[2]) - x[2];
+                            const double yx = std::sqrt(ex * ex + ey * ey + ez * ez);
+                            const double scale = r + std::sqrt(cy2) + yx;
+                            never = cy2 - double(found[k].second) > 2.0 * r * yx + 1e-3 * scale * scale;
+                        }
+                        if (!never) kept.push_back(f);
+                    }
+                    if (kept.size() > kMaxCandidates) continue;
+                    L.count = uint32_t(kept.size());
                     L.begin = uint32_t(out.size());  // block-relative until the offsets are known
                     const size_t first = out.size();
-                    for (const auto& f : found) {
+                    for (const auto& f : kept) {
                         const float* pp = &tree.pos[3 * size_t(f.first)];
                         const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
                         out.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
                         out_ids.push_back(tree.index[f.first]);
                     }
                     // Sort this triangle's entries by (distance from the centre, index).
-                    std::vector<uint32_t> order(found.size());
+                    std::vector<uint32_t> order(kept.size());
                     for (uint32_t k = 0; k < order.size(); ++k) order[k] = k;
                     std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b2) {
                         const float ra = out[first + a].from_centre, rb = out[first + b2].from_centre;
