@@ -69,6 +69,50 @@ def test_chunks_merged_in_order_equal_trace(simulations, splits):
         assert np.array_equal(pieces.rows(), whole.rows()), f"iteration {it}"
 
 
+@pytest.mark.parametrize("batches", [[(0, 6)], [(0, 1), (1, 6)], [(i, i + 1) for i in range(6)]])
+def test_chunks_merged_batch_by_batch_equal_trace(simulations, batches):
+    """merge_begin / merge_add / merge_end: each batch added as soon as it is
+    traced (what the Ray driver does, so it never holds a whole pass)."""
+    _, _, make = simulations
+    whole, pieces = make(2), make(1)
+    for it in (1, 2):
+        expected = whole.trace(it)
+        whole.update(it)
+        pieces.merge_begin(it)
+        for a, b in batches:
+            pieces.merge_add(pieces.trace_chunks(it, a, b))
+        got = pieces.merge_end()
+        pieces.update(it)
+        assert {k: got[k] for k in COUNTERS} == {k: expected[k] for k in COUNTERS}
+        assert got["mass"] == expected["mass"]
+        assert 0 < got["log_records_peak"] <= expected["log_records_peak"]
+        assert np.array_equal(pieces.rows(), whole.rows()), f"iteration {it}"
+
+
+def test_batched_merge_refuses_batches_that_do_not_fit(simulations):
+    _, _, make = simulations
+    sim = make(1)
+    before = sim.rows().copy()
+    chunks = sim.trace_chunks(1, 0, 6)
+    with pytest.raises(ValueError, match="no merge begun"):
+        sim.merge_add(chunks[:2])
+    sim.merge_begin(1)
+    sim.merge_add(chunks[:4])
+    with pytest.raises(ValueError, match="has 6 chunks, not 8 or more"):
+        sim.merge_add(chunks[2:6])
+    with pytest.raises(ValueError, match="abandoned"):
+        sim.merge_end()
+    sim.merge_begin(1)
+    sim.merge_add(chunks[:5])
+    with pytest.raises(ValueError, match="has 6 chunks, not 5"):
+        sim.merge_end()
+    assert np.array_equal(sim.rows(), before)
+    sim.merge_begin(1)
+    sim.merge_add(chunks[:3])
+    sim.merge_add(chunks[3:])
+    assert sim.merge_end()["emitted"] == 5500
+
+
 def test_merge_refuses_chunks_that_do_not_fit(simulations):
     _, _, make = simulations
     sim = make(1)

@@ -10,7 +10,7 @@ import pytest
 
 from conftest import ROOT, run_gammac
 
-ARCH_ARGS = ("--assign", "arch=Sandstone", "--assign", "ground=Ground")
+ARCH_ARGS = ("--assign", "ground=Ground", "--assign", "arch=Sandstone")
 
 
 @pytest.fixture(scope="module")

@@ -121,3 +121,40 @@ def test_hydrant_rusts_and_gathers_dust(tmp_path):
     assert joints.sum() > 1000 and tops.sum() > 1000
     assert m["humidity"][joints].mean() > 1.5 * m["humidity"][tops].mean()
     assert m["moss"][joints].mean() > 1.3 * m["moss"][tops].mean()
+
+
+def test_erosion_wears_the_exposed_parts_and_piles_sand_at_the_foot(tmp_path):
+    """Fig. 11: the wind (from -x, slightly downward) wears the exposed stone
+    — the windward face and its convex edges — far more than the sheltered
+    and concave parts (the lee faces, the underside of the opening), and the
+    sand it carries gathers at the foot of the arch and in the hollow under
+    the opening, not on the top of the arch nor on the open ground.  `stone`
+    is each surfel's net gain (< 0: worn away); measured means (seeds 1 and 2)
+    in the comments."""
+    m, summary = run_small(tmp_path, "erosion", "--surfels", 12000, "--tons", 60000, "--iterations", 3)
+    books = summary["iterations"][-1]["mass"]["stone"]
+    assert books["removed"] > 0 and books["deposited"] > 0
+    stone, x, y, z = m["stone"], m["x"], m["y"], m["z"]
+    arch, ground = m["surface"] == 0, m["surface"] == 1
+    assert arch.sum() > 3000 and ground.sum() > 5000     # the ground is Ground, not worn Sandstone
+    worn, gained = np.maximum(-stone, 0), np.maximum(stone, 0)
+    assert gained[ground].sum() > 0 and worn[ground].max() == 0      # only the arch is worn
+    # make_arch.py: 2.0 m wide (|x| <= 1), 1.6 m high, 0.6 m deep (|z| <= 0.3), the opening |x| < 0.5
+    windward = arch & (m["nx"] < -0.9) & (x < -0.8)
+    windward_edges = arch & (x < -0.8) & ((y > 1.45) | (np.abs(z) > 0.25))
+    lee = arch & (m["nx"] > 0.9)                       # the lee faces: the outer right face, the left leg's inner wall
+    underside = arch & (m["ny"] < -0.3)                # the concave underside of the opening
+    assert min(windward.sum(), windward_edges.sum(), lee.sum(), underside.sum()) > 100
+    assert worn[windward].mean() > 100 * worn[lee].mean()              # 8.1 vs 0.002
+    assert worn[windward_edges].mean() > 10 * worn[underside].mean()   # 4.4 vs 0.10
+    assert worn[windward_edges].mean() > 1.0
+    # distance on the ground from the arch's footprint
+    off = np.hypot(np.maximum(np.abs(x) - 1, 0), np.maximum(np.abs(z) - 0.3, 0))
+    foot = ground & (off > 0) & (off < 0.15)
+    hollow = ground & (np.abs(x) < 0.45) & (np.abs(z) < 0.3)     # under the opening
+    open_ground = ground & (off > 1)
+    top = arch & (y > 1.45)
+    assert min(foot.sum(), hollow.sum(), open_ground.sum(), top.sum()) > 100
+    assert gained[foot].mean() > 15 * gained[top].mean()               # 2.8 vs 0.04
+    assert gained[foot].mean() > 100 * gained[open_ground].mean()      # 2.8 vs 0.002
+    assert gained[hollow].mean() > 50 * gained[open_ground].mean()     # 0.97 vs 0.002

@@ -118,3 +118,57 @@ def test_a_local_run_resumed_on_ray_equals_a_whole_local_run(ray_local, tmp_path
     resumed = run(tmp_path, bumpy_obj, "part", "--ray", "--resume")
     assert resumed == part and json.loads((part / "summary.json").read_text())["resumed_at"] == 3
     assert outputs(part) == outputs(whole)
+
+
+MANY_CHUNKS = EFFECT.replace("count 5000", "count 30000").replace("count 2500", "count 10000")
+
+
+def test_a_pass_of_many_chunks_holds_a_bounded_number_of_chunk_logs(ray_local, tmp_path, bumpy_obj, monkeypatch):
+    """The driver keeps at most workers × TASKS_PER_WORKER tasks of at most
+    TASK_CHUNKS chunks outstanding and merges each task's chunks, in chunk
+    order, as it completes: the chunk logs that exist at once stay within
+    that bound however many chunks the pass has, and the run still gives a
+    local run's bytes.  Counted here by watching every task submitted and
+    every task merged."""
+    monkeypatch.setattr(distributed, "TASK_CHUNKS", 3)
+    events = []
+    submit, merge_next = distributed.RayTracer._submit, distributed.RayTracer._merge_next
+
+    def watched_submit(self, rows_ref, iteration, first, last):
+        events.append(("submit", iteration, first, last))
+        return submit(self, rows_ref, iteration, first, last)
+
+    def watched_merge_next(self, pending, *args):
+        first, last, _ = pending[0]
+        result = merge_next(self, pending, *args)
+        events.append(("merge", None, first, last))
+        return result
+
+    monkeypatch.setattr(distributed.RayTracer, "_submit", watched_submit)
+    monkeypatch.setattr(distributed.RayTracer, "_merge_next", watched_merge_next)
+    remote = run(tmp_path, bumpy_obj, "ray", "--ray", "--iterations", "2", effect=MANY_CHUNKS)
+    local = run(tmp_path, bumpy_obj, "local", "--threads", "2", "--iterations", "2", effect=MANY_CHUNKS)
+    assert outputs(remote) == outputs(local)
+    summary = json.loads((remote / "summary.json").read_text())
+    workers = summary["ray"]["workers"]
+    bound = workers * distributed.TASKS_PER_WORKER * 3
+    outstanding, peak, merged_to, iteration = {}, 0, 0, 0
+    for kind, it, first, last in events:
+        assert last - first <= 3
+        if kind == "submit":
+            if it != iteration:                     # a new pass: the last one merged every chunk
+                assert not outstanding and merged_to in (0, 40)
+                iteration, merged_to = it, 0
+            outstanding[first] = last
+            peak = max(peak, sum(b - a for a, b in outstanding.items()))
+        else:
+            assert first == merged_to               # merged in chunk order, none skipped
+            merged_to = outstanding.pop(first)
+    assert iteration == 2 and merged_to == 40 and not outstanding
+    for record in summary["iterations"]:
+        moved = record["ray"]
+        assert moved["chunks"] == 40                # 40,000 gamma-tons in chunks of 1,024
+        assert moved["tasks"] == 14                 # ceil(40 / 3)
+        assert moved["chunk_logs_bound"] == bound < 40
+        assert 0 < moved["chunk_logs_peak"] <= bound
+    assert peak == max(r["ray"]["chunk_logs_peak"] for r in summary["iterations"]) <= bound

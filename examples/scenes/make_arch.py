@@ -5,7 +5,9 @@
 The arch is one closed, consistently outward-wound solid: an inverted U
 (two legs and a round-topped opening) extruded along z.  The ground plate
 is a separate open square around it.  Objects: `arch` and `ground`
-(assign them with --assign arch=Sandstone --assign ground=Ground).
+(assign them with --assign ground=Ground --assign arch=Sandstone; in that
+order, as a pattern also matches the file's name, `arch`, and the first rule
+that matches wins).
 Units are metres: the arch is 2.0 m wide, 1.6 m high and 0.6 m deep.
 """
 

@@ -131,6 +131,23 @@ gammart::TraceStats trace_stats_from(nb::handle obj) {
     }
     return st;
 }
+
+// Chunks as trace_chunks gives them to Python, back into logs.
+std::vector<gammart::ChunkLog> chunk_logs_from(nb::list chunks) {
+    using U32 = nb::ndarray<const uint32_t, nb::c_contig, nb::device::cpu>;
+    std::vector<gammart::ChunkLog> logs(chunks.size());
+    nb::module_ np = nb::module_::import_("numpy");
+    for (size_t i = 0; i < logs.size(); ++i) {
+        auto t = nb::cast<nb::tuple>(chunks[i]);
+        if (t.size() != 3) throw Error("merge_chunks: each chunk is (surfels, deltas, counters)");
+        U32 sv = nb::cast<U32>(np.attr("ascontiguousarray")(t[0], "dtype"_a = "uint32"));
+        F32 dv = as_f32(t[1]);
+        logs[i].surfel.assign(sv.data(), sv.data() + sv.size());
+        logs[i].delta.assign(dv.data(), dv.data() + dv.size());
+        logs[i].st = trace_stats_from(t[2]);
+    }
+    return logs;
+}
 }  // namespace
 
 NB_MODULE(_runtime, m) {
@@ -357,18 +374,7 @@ NB_MODULE(_runtime, m) {
         .def(
             "merge_chunks",
             [](gammart::Simulation& s, int iteration, nb::list chunks) {
-                using U32 = nb::ndarray<const uint32_t, nb::c_contig, nb::device::cpu>;
-                std::vector<gammart::ChunkLog> logs(chunks.size());
-                nb::module_ np = nb::module_::import_("numpy");
-                for (size_t i = 0; i < logs.size(); ++i) {
-                    auto t = nb::cast<nb::tuple>(chunks[i]);
-                    if (t.size() != 3) throw Error("merge_chunks: each chunk is (surfels, deltas, counters)");
-                    U32 sv = nb::cast<U32>(np.attr("ascontiguousarray")(t[0], "dtype"_a = "uint32"));
-                    F32 dv = as_f32(t[1]);
-                    logs[i].surfel.assign(sv.data(), sv.data() + sv.size());
-                    logs[i].delta.assign(dv.data(), dv.data() + dv.size());
-                    logs[i].st = trace_stats_from(t[2]);
-                }
+                std::vector<gammart::ChunkLog> logs = chunk_logs_from(chunks);
                 gammart::TraceStats st;
                 {
                     nb::gil_scoped_release nogil;
@@ -379,6 +385,34 @@ NB_MODULE(_runtime, m) {
             "iteration"_a, "chunks"_a,
             "Add the deltas of all chunks of an iteration (in chunk order) to the rows, as trace() "
             "does; the summed counters (trace_seconds: the merge's).")
+        .def("merge_begin", &gammart::Simulation::merge_begin, "iteration"_a,
+             "Begin merge_chunks in batches: merge_add(chunks) with the next chunks of the iteration in "
+             "chunk order, as many times as needed, then merge_end().  Holds only the n x P sums, never "
+             "the chunks; the result is merge_chunks's, bit for bit.")
+        .def(
+            "merge_add",
+            [](gammart::Simulation& s, nb::list chunks) {
+                std::vector<gammart::ChunkLog> logs = chunk_logs_from(chunks);
+                nb::gil_scoped_release nogil;
+                s.merge_add(logs);
+            },
+            "chunks"_a,
+            "Sum the next chunks of the merge begun by merge_begin (each as trace_chunks gives it); the "
+            "rows change only at merge_end.  A batch that does not fit raises ValueError and abandons "
+            "the merge.")
+        .def(
+            "merge_end",
+            [](gammart::Simulation& s) {
+                gammart::TraceStats st;
+                {
+                    nb::gil_scoped_release nogil;
+                    st = s.merge_end();
+                }
+                return trace_stats_dict(st);
+            },
+            "Add the sums of every chunk of the iteration to the rows (spread by the splat kernel) and "
+            "return the summed counters, as merge_chunks does (log_records_peak: the records of the "
+            "largest batch).")
         .def("update",
              [](gammart::Simulation& s, int iteration) {
                  gammart::UpdateStats st;
@@ -467,6 +501,7 @@ NB_MODULE(_runtime, m) {
                          nb::dict d;
                          d["candidates"] = ix.lookup_candidates();
                          d["fallback_triangles"] = ix.lookup_fallback_triangles();
+                         d["grid_triangles"] = ix.lookup_grid_triangles();
                          d["bytes"] = ix.lookup_bytes();
                          return d;
                      },

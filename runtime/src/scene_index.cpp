@@ -49,8 +49,8 @@ struct PointTree {
     }
 };
 
-// Candidates of a triangle tested against its nearest this many surfels
-// when the lookup drops the ones that can never be the nearest.
+// Candidates of a sphere tested against its nearest this many surfels when
+// the lookup drops the ones that can never be the nearest.
 constexpr size_t kPruningSurfels = 8;
 
 V3 unit(const std::array<float, 3>& a) {
@@ -122,11 +122,13 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     // Bounding sphere of each triangle (centroid, farthest vertex) for the
     // triangle lookup; the reach is padded so a hit point a rounding error
     // off the triangle still counts as on it.
-    lookup_tri_.assign(m, TriangleLookup{0, 0, 0, 0, 0, 0});
+    lookup_tri_.assign(m, TriangleLookup{0, 0, 0, 0, 0, 0, kNoGrid});
+    lookup_vertices_.resize(9 * m);
     const float pad = 1e-6f * mesh.diagonal();
     for (size_t t = 0; t < m; ++t) {
         const float* v[3];
         for (int k = 0; k < 3; ++k) v[k] = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + k])];
+        for (int k = 0; k < 3; ++k) std::copy(v[k], v[k] + 3, lookup_vertices_.begin() + std::ptrdiff_t(9 * t + 3 * k));
         double c[3];
         for (int d = 0; d < 3; ++d) c[d] = (double(v[0][d]) + v[1][d] + v[2][d]) / 3.0;
         double r2 = 0;
@@ -135,8 +137,10 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
             r2 = std::max(r2, dx * dx + dy * dy + dz * dz);
         }
         const double reach = std::sqrt(r2) * (1.0 + 1e-5) + pad;
-        lookup_tri_[t] = TriangleLookup{float(c[0]), float(c[1]), float(c[2]), float(reach * reach), 0, 0};
+        lookup_tri_[t] = TriangleLookup{float(c[0]), float(c[1]), float(c[2]), float(reach * reach), 0, 0, kNoGrid};
     }
+    lookup_grids_.clear();
+    lookup_cells_.clear();
     lookup_cand_.clear();
     lookup_ids_.clear();
     rtcCommitGeometry(geom);
@@ -177,33 +181,45 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
     build_lookup(threads);
 }
 
-// For triangle t of surface s with bounding sphere (c, reach) and q the
-// surfel of s nearest to c (distance d0): a point p with |p - c| <= reach has
-// its nearest surfel y* within |p - q| <= reach + d0 of p, so
-// |c - y*| <= 2 reach + d0.  The candidates are the surfels of s in that ball
-// (padded for rounding), so the scan finds the kd-tree's answer.  Of these,
-// the ones that are farther than another candidate everywhere in the ball
+// For a sphere (c, reach) on surface s (a triangle's or a cell's bounding
+// sphere) and q the surfel of s nearest to c (distance d0): a point p with
+// |p - c| <= reach has its nearest surfel y* within |p - q| <= reach + d0 of
+// p, so |c - y*| <= 2 reach + d0.  The candidates are the surfels of s in
+// that ball (padded for rounding), so a scan finds the kd-tree's answer.  Of
+// these, the ones farther than another candidate everywhere in the sphere
 // are left out (they can never be the answer).
+// A triangle with more than kMaxCandidates is cut into cells (a grid of
+// sub-triangles, about kCellCandidates each); which cell a point is looked up
+// in needs no exactness, since a point outside the cell's sphere goes to the
+// kd-tree.
+namespace {
+struct LookupBlock {
+    std::vector<SceneIndex::Candidate> cand;
+    std::vector<uint32_t> ids;
+    std::vector<SceneIndex::TriangleGrid> grids;
+    std::vector<SceneIndex::TriangleLookup> cells;
+};
+}  // namespace
+
 void SceneIndex::build_lookup(int threads) {
     const Trees& T = *trees_;
     const size_t m = lookup_tri_.size();
     constexpr size_t kBlock = 2048;  // triangles per work item (fixed: the result is thread-count free)
     const size_t nblocks = (m + kBlock - 1) / kBlock;
-    std::vector<std::vector<Candidate>> block_cand(nblocks);
-    std::vector<std::vector<uint32_t>> block_ids(nblocks);
+    std::vector<LookupBlock> blocks(nblocks);
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
             std::vector<std::pair<uint32_t, float>> found, kept;
+            std::vector<uint32_t> order;
+            std::vector<Candidate> sc;
+            std::vector<uint32_t> si;
             for (size_t b = r.begin(); b < r.end(); ++b) {
-                std::vector<Candidate>& out = block_cand[b];
-                std::vector<uint32_t>& out_ids = block_ids[b];
-                for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t) {
-                    TriangleLookup& L = lookup_tri_[t];
+                LookupBlock& out = blocks[b];
+                // The candidates of sphere L (surface tree): appended to the
+                // block, L.begin block-relative; false if more than `limit`.
+                auto collect = [&](const PointTree& tree, TriangleLookup& L, size_t limit) {
                     L.begin = 0;
                     L.count = 0;
-                    const int s = tri_surface_[t];
-                    if (!has_surfels(s)) continue;
-                    const PointTree& tree = T.surface[size_t(s)];
                     const float c[3] = {L.cx, L.cy, L.cz};
                     uint32_t q = 0;
                     float q2 = 0;
@@ -213,10 +229,9 @@ void SceneIndex::build_lookup(int threads) {
                     const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
                     found.clear();
                     tree.kd->radiusSearch(c, float(R * R), found, nanoflann::SearchParams(32, 0.0f, false));
-                    if (found.empty()) continue;
                     // Drop the surfels that are never the nearest in the
-                    // triangle's ball B(c, r): y loses to x everywhere in B
-                    // when |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
+                    // sphere B(c, r): y loses to x everywhere in B when
+                    // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
                     // |p-x|^2 - |p-y|^2 over B), here with a margin far above
                     // float rounding, so the scan's answer (ties included)
                     // is unchanged.  x: the few surfels nearest to c.
@@ -240,95 +255,208 @@ void SceneIndex::build_lookup(int threads) {
                         }
                         if (!never) kept.push_back(f);
                     }
-                    if (kept.size() > kMaxCandidates) continue;
-                    L.count = uint32_t(kept.size());
-                    L.begin = uint32_t(out.size());  // block-relative until the offsets are known
-                    const size_t first = out.size();
-                    for (const auto& f : kept) {
+                    found.swap(kept);
+                    if (found.size() > limit || found.empty()) return found.size();
+                    L.count = uint32_t(found.size());
+                    L.begin = uint32_t(out.cand.size());
+                    // entries sorted by (distance from the centre, index)
+                    sc.clear();
+                    si.clear();
+                    for (const auto& f : found) {
                         const float* pp = &tree.pos[3 * size_t(f.first)];
                         const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
-                        out.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
-                        out_ids.push_back(tree.index[f.first]);
+                        sc.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
+                        si.push_back(tree.index[f.first]);
                     }
-                    // Sort this triangle's entries by (distance from the centre, index).
-                    std::vector<uint32_t> order(kept.size());
+                    order.resize(found.size());
                     for (uint32_t k = 0; k < order.size(); ++k) order[k] = k;
                     std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b2) {
-                        const float ra = out[first + a].from_centre, rb = out[first + b2].from_centre;
-                        return ra < rb || (ra == rb && out_ids[first + a] < out_ids[first + b2]);
+                        return sc[a].from_centre < sc[b2].from_centre ||
+                               (sc[a].from_centre == sc[b2].from_centre && si[a] < si[b2]);
                     });
-                    std::vector<Candidate> sc(order.size());
-                    std::vector<uint32_t> si(order.size());
-                    for (size_t k = 0; k < order.size(); ++k) {
-                        sc[k] = out[first + order[k]];
-                        si[k] = out_ids[first + order[k]];
+                    for (uint32_t k : order) {
+                        out.cand.push_back(sc[k]);
+                        out.ids.push_back(si[k]);
                     }
-                    std::copy(sc.begin(), sc.end(), out.begin() + std::ptrdiff_t(first));
-                    std::copy(si.begin(), si.end(), out_ids.begin() + std::ptrdiff_t(first));
+                    return found.size();
+                };
+                for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t) {
+                    TriangleLookup& L = lookup_tri_[t];
+                    L.grid = kNoGrid;
+                    const int s = tri_surface_[t];
+                    if (!has_surfels(s)) {
+                        L.begin = L.count = 0;
+                        continue;
+                    }
+                    const PointTree& tree = T.surface[size_t(s)];
+                    const size_t n_found = collect(tree, L, kMaxCandidates);
+                    if (L.count || n_found == 0) continue;
+                    // Too many: cut the triangle into cells.
+                    const float* v = &lookup_vertices_[9 * t];
+                    double o[3], e1[3], e2[3];
+                    for (int d = 0; d < 3; ++d) {
+                        o[d] = v[d];
+                        e1[d] = double(v[3 + d]) - v[d];
+                        e2[d] = double(v[6 + d]) - v[d];
+                    }
+                    const double g11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+                    const double g12 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2];
+                    const double g22 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
+                    const double det = g11 * g22 - g12 * g12;
+                    if (!(det > 1e-30 * g11 * g22) || !std::isfinite(det)) continue;  // degenerate: kd-tree
+                    // Side from the count (~kCellCandidates per cell if the
+                    // ball were all surface), doubled while a cell overflows.
+                    uint32_t side = uint32_t(std::min<double>(
+                        kMaxGridSide, std::max(2.0, std::ceil(std::sqrt(double(n_found) / kCellCandidates)))));
+                    TriangleGrid G;
+                    G.ox = v[0], G.oy = v[1], G.oz = v[2];
+                    G.dux = float((g22 * e1[0] - g12 * e2[0]) / det);
+                    G.duy = float((g22 * e1[1] - g12 * e2[1]) / det);
+                    G.duz = float((g22 * e1[2] - g12 * e2[2]) / det);
+                    G.dvx = float((g11 * e2[0] - g12 * e1[0]) / det);
+                    G.dvy = float((g11 * e2[1] - g12 * e1[1]) / det);
+                    G.dvz = float((g11 * e2[2] - g12 * e1[2]) / det);
+                    G.first = uint32_t(out.cells.size());  // block-relative until the offsets are known
+                    const size_t cand_mark = out.cand.size();
+                    const double pad = std::sqrt(double(L.reach2)) * 1e-5;
+                    for (;;) {
+                        auto at = [&](double a, double bb, double* p) {
+                            for (int d = 0; d < 3; ++d) p[d] = o[d] + (a * e1[d] + bb * e2[d]) / side;
+                        };
+                        size_t overflow = 0;
+                        for (uint32_t i = 0; i < side; ++i)
+                            for (uint32_t j = 0; j < side; ++j)
+                                for (int upper = 0; upper < 2; ++upper) {
+                                    TriangleLookup C{0, 0, 0, -1.0f, 0, 0, kNoGrid};
+                                    if (i + j + uint32_t(upper) <= side - 1) {
+                                        double p[3][3];
+                                        if (!upper) at(i, j, p[0]), at(i + 1, j, p[1]), at(i, j + 1, p[2]);
+                                        else at(i + 1, j, p[0]), at(i + 1, j + 1, p[1]), at(i, j + 1, p[2]);
+                                        double c[3], r2 = 0;
+                                        for (int d = 0; d < 3; ++d) c[d] = (p[0][d] + p[1][d] + p[2][d]) / 3.0;
+                                        for (int k = 0; k < 3; ++k) {
+                                            const double dx = p[k][0] - c[0], dy = p[k][1] - c[1],
+                                                         dz = p[k][2] - c[2];
+                                            r2 = std::max(r2, dx * dx + dy * dy + dz * dz);
+                                        }
+                                        const double reach = std::sqrt(r2) * (1.0 + 1e-5) + pad;
+                                        C = TriangleLookup{float(c[0]), float(c[1]), float(c[2]),
+                                                           float(reach * reach), 0, 0, kNoGrid};
+                                        overflow += collect(tree, C, kMaxCandidates) > kMaxCandidates;
+                                    }
+                                    out.cells.push_back(C);
+                                }
+                        if (overflow == 0 || side >= kMaxGridSide) break;
+                        out.cand.resize(cand_mark);
+                        out.ids.resize(cand_mark);
+                        out.cells.resize(G.first);
+                        side = std::min(2 * side, kMaxGridSide);
+                    }
+                    G.s = side;
+                    L.grid = uint32_t(out.grids.size());  // block-relative until the offsets are known
+                    out.grids.push_back(G);
                 }
             }
         });
     });
-    size_t total = 0;
-    std::vector<size_t> offset(nblocks);
+    size_t n_cand = 0, n_grids = 0, n_cells = 0;
+    std::vector<size_t> cand_at(nblocks), grid_at(nblocks), cell_at(nblocks);
     for (size_t b = 0; b < nblocks; ++b) {
-        offset[b] = total;
-        total += block_cand[b].size();
+        cand_at[b] = n_cand, grid_at[b] = n_grids, cell_at[b] = n_cells;
+        n_cand += blocks[b].cand.size(), n_grids += blocks[b].grids.size(), n_cells += blocks[b].cells.size();
     }
-    if (total > size_t(UINT32_MAX)) throw Error("scene index: too many surfel candidates for the triangle lookup");
-    lookup_cand_.resize(total);
-    lookup_ids_.resize(total);
+    if (n_cand > size_t(UINT32_MAX) || n_cells > size_t(UINT32_MAX))
+        throw Error("scene index: too many surfel candidates for the triangle lookup");
+    lookup_cand_.resize(n_cand);
+    lookup_ids_.resize(n_cand);
+    lookup_grids_.resize(n_grids);
+    lookup_cells_.resize(n_cells);
     for (size_t b = 0; b < nblocks; ++b) {
-        std::copy(block_cand[b].begin(), block_cand[b].end(), lookup_cand_.begin() + std::ptrdiff_t(offset[b]));
-        std::copy(block_ids[b].begin(), block_ids[b].end(), lookup_ids_.begin() + std::ptrdiff_t(offset[b]));
-        for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t)
-            if (lookup_tri_[t].count) lookup_tri_[t].begin += uint32_t(offset[b]);
+        LookupBlock& B = blocks[b];
+        std::copy(B.cand.begin(), B.cand.end(), lookup_cand_.begin() + std::ptrdiff_t(cand_at[b]));
+        std::copy(B.ids.begin(), B.ids.end(), lookup_ids_.begin() + std::ptrdiff_t(cand_at[b]));
+        for (TriangleLookup& C : B.cells)
+            if (C.count) C.begin += uint32_t(cand_at[b]);
+        std::copy(B.cells.begin(), B.cells.end(), lookup_cells_.begin() + std::ptrdiff_t(cell_at[b]));
+        for (TriangleGrid& G : B.grids) G.first += uint32_t(cell_at[b]);
+        std::copy(B.grids.begin(), B.grids.end(), lookup_grids_.begin() + std::ptrdiff_t(grid_at[b]));
+        for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t) {
+            TriangleLookup& L = lookup_tri_[t];
+            if (L.count) L.begin += uint32_t(cand_at[b]);
+            if (L.grid != kNoGrid) L.grid += uint32_t(grid_at[b]);
+        }
     }
 }
 
-uint32_t SceneIndex::nearest_on_triangle(uint32_t prim, const float p[3]) const {
-    if (prim < lookup_tri_.size()) {
-        const TriangleLookup& L = lookup_tri_[prim];
-        const float dx = p[0] - L.cx, dy = p[1] - L.cy, dz = p[2] - L.cz;
-        const float to_centre2 = dx * dx + dy * dy + dz * dz;
-        if (L.count && to_centre2 <= L.reach2) {
-            const Candidate* c = lookup_cand_.data() + L.begin;
-            const uint32_t* ids = lookup_ids_.data() + L.begin;
-            const float to_centre = std::sqrt(to_centre2);
-            float best = std::numeric_limits<float>::infinity(), cut = best;
-            uint32_t id = UINT32_MAX;
-            for (uint32_t k = 0; k < L.count; ++k) {
-                // |p - y| >= |c - y| - |p - c|: once that exceeds the best
-                // distance (padded for rounding), no later entry can win or tie.
-                if (c[k].from_centre > cut) break;
-                // The kd-tree's metric, term by term: the same float distances.
-                float a = p[0] - c[k].x;
-                float d2 = 0.0f;
-                d2 += a * a;
-                a = p[1] - c[k].y;
-                d2 += a * a;
-                a = p[2] - c[k].z;
-                d2 += a * a;
-                if (d2 < best || (d2 == best && ids[k] < id)) {
-                    best = d2;
-                    id = ids[k];
-                    cut = (to_centre + std::sqrt(best)) * 1.0001f + 1e-30f;
-                }
-            }
-            return id;
+// The scan of sphere L's candidates for p; UINT32_MAX if p is outside it.
+uint32_t SceneIndex::scan(const TriangleLookup& L, const float p[3]) const {
+    const float dx = p[0] - L.cx, dy = p[1] - L.cy, dz = p[2] - L.cz;
+    const float to_centre2 = dx * dx + dy * dy + dz * dz;
+    if (!L.count || !(to_centre2 <= L.reach2)) return UINT32_MAX;
+    const Candidate* c = lookup_cand_.data() + L.begin;
+    const uint32_t* ids = lookup_ids_.data() + L.begin;
+    const float to_centre = std::sqrt(to_centre2);
+    float best = std::numeric_limits<float>::infinity(), cut = best;
+    uint32_t id = UINT32_MAX;
+    for (uint32_t k = 0; k < L.count; ++k) {
+        // |p - y| >= |c - y| - |p - c|: once that exceeds the best
+        // distance (padded for rounding), no later entry can win or tie.
+        if (c[k].from_centre > cut) break;
+        // The kd-tree's metric, term by term: the same float distances.
+        float a = p[0] - c[k].x;
+        float d2 = 0.0f;
+        d2 += a * a;
+        a = p[1] - c[k].y;
+        d2 += a * a;
+        a = p[2] - c[k].z;
+        d2 += a * a;
+        if (d2 < best || (d2 == best && ids[k] < id)) {
+            best = d2;
+            id = ids[k];
+            cut = (to_centre + std::sqrt(best)) * 1.0001f + 1e-30f;
         }
     }
+    return id;
+}
+
+uint32_t SceneIndex::nearest_on_triangle(uint32_t prim, const float p[3]) const {
+    const uint32_t id = lookup_scan(prim, p);
+    if (id != UINT32_MAX) return id;
     return nearest_of(prim < tri_surface_.size() ? tri_surface_[prim] : -1, p);
+}
+
+uint32_t SceneIndex::lookup_scan(uint32_t prim, const float p[3]) const {
+    uint32_t id = UINT32_MAX;
+    if (prim < lookup_tri_.size()) {
+        const TriangleLookup& L = lookup_tri_[prim];
+        if (L.count) {
+            id = scan(L, p);
+        } else if (L.grid != kNoGrid) {
+            const TriangleGrid& G = lookup_grids_[L.grid];
+            const float qx = p[0] - G.ox, qy = p[1] - G.oy, qz = p[2] - G.oz;
+            const float a = (qx * G.dux + qy * G.duy + qz * G.duz) * float(G.s);
+            const float b = (qx * G.dvx + qy * G.dvy + qz * G.dvz) * float(G.s);
+            const int smax = int(G.s) - 1;
+            int i = std::isfinite(a) ? std::clamp(int(std::floor(std::clamp(a, -1.0f, float(G.s)))), 0, smax) : 0;
+            int j = std::isfinite(b) ? std::clamp(int(std::floor(std::clamp(b, -1.0f, float(G.s)))), 0, smax) : 0;
+            while (i + j > smax) (i > j ? i : j) -= 1;
+            const bool upper = i + j < smax && (a - float(i)) + (b - float(j)) > 1.0f;
+            id = scan(lookup_cells_[G.first + 2 * (uint32_t(i) * G.s + uint32_t(j)) + (upper ? 1 : 0)], p);
+        }
+    }
+    return id;
 }
 
 size_t SceneIndex::lookup_fallback_triangles() const {
     size_t n = 0;
-    for (const TriangleLookup& L : lookup_tri_) n += L.count == 0;
+    for (const TriangleLookup& L : lookup_tri_) n += L.count == 0 && L.grid == kNoGrid;
     return n;
 }
 
 size_t SceneIndex::lookup_bytes() const {
-    return lookup_tri_.capacity() * sizeof(TriangleLookup) + lookup_cand_.capacity() * sizeof(Candidate) +
+    return lookup_tri_.capacity() * sizeof(TriangleLookup) + lookup_vertices_.capacity() * sizeof(float) +
+           lookup_grids_.capacity() * sizeof(TriangleGrid) + lookup_cells_.capacity() * sizeof(TriangleLookup) +
+           lookup_cand_.capacity() * sizeof(Candidate) +
            lookup_ids_.capacity() * sizeof(uint32_t);
 }
 

@@ -85,14 +85,35 @@ std::vector<ChunkLog> Tracer::trace_chunks(int iteration, int64_t first, int64_t
 }
 
 TraceStats Tracer::merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state) {
-    const auto t0 = std::chrono::steady_clock::now();
     const int64_t nchunks = num_chunks(iteration);
-    const int P = state.width - GAMMA_ROW_HEADER;
     if (int64_t(logs.size()) != nchunks)
         throw Error("merge_chunks: iteration " + std::to_string(iteration) + " has " + std::to_string(nchunks) +
                     " chunks, not " + std::to_string(logs.size()));
-    TraceStats total_st;
-    total_st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
+    merge_begin(iteration);
+    merge_add(logs, state);
+    return merge_end(state);
+}
+
+void Tracer::merge_begin(int iteration) {
+    const auto t0 = std::chrono::steady_clock::now();
+    batched_ = BatchedMerge{};
+    batched_.iteration = iteration;
+    batched_.nchunks = num_chunks(iteration);
+    batched_.st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
+    batched_.active = true;
+    batched_.seconds = seconds_since(t0);
+}
+
+void Tracer::merge_add(const std::vector<ChunkLog>& logs, const SurfelState& state) {
+    const auto t0 = std::chrono::steady_clock::now();
+    BatchedMerge& m = batched_;
+    if (!m.active) throw Error("merge_chunks: no merge begun (merge_begin), or it was abandoned");
+    m.active = false;  // until this batch is known to fit
+    const int P = state.width - GAMMA_ROW_HEADER;
+    if (m.merged + int64_t(logs.size()) > m.nchunks)
+        throw Error("merge_chunks: iteration " + std::to_string(m.iteration) + " has " + std::to_string(m.nchunks) +
+                    " chunks, not " + std::to_string(m.merged + int64_t(logs.size())) + " or more");
+    int64_t held = 0;
     for (const ChunkLog& log : logs) {
         if (log.delta.size() != log.surfel.size() * size_t(std::max(P, 0)))
             throw Error("merge_chunks: a chunk's deltas do not match its surfels");
@@ -101,14 +122,42 @@ TraceStats Tracer::merge_chunks(int iteration, const std::vector<ChunkLog>& logs
                         " properties, not " + std::to_string(cfg_.mass_properties.size()));
         for (uint32_t s : log.surfel)
             if (s >= state.size()) throw Error("merge_chunks: surfel " + std::to_string(s) + " out of range");
-        total_st.add(log.st);
+        held += int64_t(log.surfel.size());
     }
+    for (const ChunkLog& log : logs) m.st.add(log.st);
+    m.st.log_records_peak = std::max(m.st.log_records_peak, held);
+    const size_t n = state.size();
+    if (held > 0 && P > 0) {
+        // D, then (with a splat kernel) its spread: as trace() sizes it
+        if (!m.any_record) merge_scratch_.assign((state.splat.offset.size() == n + 1 ? 2 : 1) * n * size_t(P), 0.0f);
+        m.any_record = true;
+        accumulate_chunk_logs(logs, int64_t(logs.size()), n, P, merge_scratch_.data(), cfg_.threads);
+    }
+    m.merged += int64_t(logs.size());
+    m.active = true;
+    m.seconds += seconds_since(t0);
+}
+
+TraceStats Tracer::merge_end(SurfelState& state) {
+    const auto t0 = std::chrono::steady_clock::now();
+    BatchedMerge& m = batched_;
+    if (!m.active) throw Error("merge_chunks: no merge begun (merge_begin), or it was abandoned");
+    m.active = false;
+    if (m.merged != m.nchunks)
+        throw Error("merge_chunks: iteration " + std::to_string(m.iteration) + " has " + std::to_string(m.nchunks) +
+                    " chunks, not " + std::to_string(m.merged));
+    const int P = state.width - GAMMA_ROW_HEADER;
+    const size_t n = state.size();
     // The splat spreads each deposit exactly as trace() does (state.splat is
     // the driver's own; workers only trace).
-    apply_chunk_logs(logs, nchunks, state.size(), GAMMA_ROW_HEADER, P, state.rows.data(), merge_scratch_,
-                     cfg_.threads, &state.splat);
-    total_st.trace_seconds = seconds_since(t0);
-    return total_st;
+    if (m.any_record) {
+        float* spread = merge_scratch_.size() > n * size_t(P) ? merge_scratch_.data() + n * size_t(P) : nullptr;
+        add_chunk_sums(merge_scratch_.data(), spread, n, GAMMA_ROW_HEADER, P, state.rows.data(), cfg_.threads,
+                       &state.splat);
+    }
+    TraceStats st = std::move(m.st);
+    st.trace_seconds = m.seconds + seconds_since(t0);
+    return st;
 }
 
 void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,

@@ -100,8 +100,10 @@ TEST(Trace, EnvironmentSourcesOutsideSphere) {
 }
 
 // pieces > 0: each iteration traced as ranges of `pieces` chunks (as Ray
-// workers do) and merged in chunk order.
-static std::vector<float> run_threads(int threads, int pieces = 0) {
+// workers do) and merged in chunk order: all at once, or (batched) each
+// range added as it is traced (merge_begin / merge_add / merge_end), its
+// largest batch's records in *peak.
+static std::vector<float> run_threads(int threads, int pieces = 0, bool batched = false, int64_t* peak = nullptr) {
     Mesh m = gamma_test::icosphere(3);
     const int W = 5;
     Config c = base_config(W, 0.3f);
@@ -125,7 +127,15 @@ static std::vector<float> run_threads(int threads, int pieces = 0) {
     Simulation sim(m, c);
     for (int it = 0; it < 3; ++it) {
         if (pieces == 0) {
-            sim.trace(it + 1);
+            const TraceStats st = sim.trace(it + 1);
+            if (peak) *peak = std::max(*peak, st.log_records_peak);
+        } else if (batched) {
+            const int64_t n = sim.num_chunks(it + 1);
+            sim.merge_begin(it + 1);
+            for (int64_t a = 0; a < n; a += pieces) sim.merge_add(sim.trace_chunks(it + 1, a, std::min<int64_t>(n, a + pieces)));
+            const TraceStats st = sim.merge_end();
+            EXPECT_EQ(st.emitted, 50000);
+            if (peak) *peak = std::max(*peak, st.log_records_peak);
         } else {
             const int64_t n = sim.num_chunks(it + 1);
             std::vector<ChunkLog> logs;
@@ -146,6 +156,59 @@ TEST(Trace, ChunksTracedInPiecesAndMergedInOrderEqualTrace) {
     ASSERT_EQ(whole.size(), pieces.size());
     EXPECT_EQ(0, std::memcmp(whole.data(), pieces.data(), whole.size() * sizeof(float)));
     EXPECT_EQ(0, std::memcmp(whole.data(), singles.data(), whole.size() * sizeof(float)));
+}
+
+// A driver that merges each batch of chunks as it arrives holds one batch's
+// logs at a time and gets trace()'s rows bit for bit, whatever the batches.
+TEST(Trace, MergeInBatchesEqualsTraceAndHoldsOneBatch) {
+    int64_t whole_peak = 0, one_peak = 0, five_peak = 0;
+    std::vector<float> whole = run_threads(2, 0, false, &whole_peak), ones = run_threads(1, 1, true, &one_peak),
+                       fives = run_threads(2, 5, true, &five_peak), all = run_threads(1, 1000, true);
+    ASSERT_EQ(whole.size(), ones.size());
+    EXPECT_EQ(0, std::memcmp(whole.data(), ones.data(), whole.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(whole.data(), fives.data(), whole.size() * sizeof(float)));
+    EXPECT_EQ(0, std::memcmp(whole.data(), all.data(), whole.size() * sizeof(float)));
+    // 50,000 gamma-tons in 49 chunks, traced in one batch (the default is 64
+    // chunks): batches of one chunk hold about 1/49 of the records, of five 5/49.
+    EXPECT_GT(one_peak, 0);
+    EXPECT_LE(one_peak, 3 * whole_peak / 49);
+    EXPECT_LE(five_peak, 3 * 5 * whole_peak / 49);
+    EXPECT_GT(five_peak, one_peak);
+}
+
+TEST(Trace, MergeInBatchesRefusesBatchesThatDoNotFit) {
+    Mesh m = gamma_test::icosphere(2);
+    Config c = base_config(5, 0.3f);
+    int t = c.add_ton_type(1, 0, 0, {1.0f});
+    c.add_source("point", t, 3000, {0, 0, 0});
+    c.set_transport(GAMMA_EVENT_SETTLE, t, 0, addr(reinterpret_cast<void*>(&k_settle)), true);
+    Simulation sim(m, c);
+    const std::vector<float> before = sim.rows();
+    std::vector<ChunkLog> logs = sim.trace_chunks(1, 0, 3);
+    std::vector<ChunkLog> first(logs.begin(), logs.begin() + 2), last(logs.begin() + 2, logs.end());
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_add(first); }).find("no merge begun"), std::string::npos);
+    sim.merge_begin(1);
+    sim.merge_add(first);
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_end(); }).find("has 3 chunks, not 2"), std::string::npos);
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_end(); }).find("abandoned"), std::string::npos);
+    sim.merge_begin(1);
+    sim.merge_add(first);
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_add(first); }).find("has 3 chunks, not 4 or more"),
+              std::string::npos);
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_add(last); }).find("abandoned"), std::string::npos);
+    sim.merge_begin(1);
+    std::vector<ChunkLog> bad = last;
+    bad[0].surfel.push_back(uint32_t(sim.num_surfels()));
+    bad[0].delta.resize(bad[0].delta.size() + 2);
+    sim.merge_add(first);
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_add(bad); }).find("out of range"), std::string::npos);
+    EXPECT_NE(gamma_test::expect_error([&] { sim.merge_end(); }).find("abandoned"), std::string::npos);
+    EXPECT_EQ(sim.rows(), before);  // nothing reached the rows
+    sim.merge_begin(1);
+    sim.merge_add(first);
+    sim.merge_add(last);
+    EXPECT_EQ(sim.merge_end().emitted, 3000);
+    EXPECT_NE(sim.rows(), before);
 }
 
 TEST(Trace, MergeRefusesLogsThatDoNotFit) {

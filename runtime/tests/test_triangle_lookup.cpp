@@ -1,7 +1,8 @@
 // The scene index's triangle lookup (nearest_on_triangle): for every point on
-// a triangle it finds the surfel the per-surface kd-tree finds; it falls back
-// to the kd-tree off the triangle, on triangles far larger than the surfel
-// spacing, and is refreshed when either half of the index is rebuilt.
+// a triangle it finds the surfel the per-surface kd-tree finds, also on
+// triangles far larger than the surfel spacing (cut into cells); it falls
+// back to the kd-tree off the triangle, and is refreshed when either half of
+// the index is rebuilt.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -101,9 +102,9 @@ TEST(TriangleLookup, TheSameAtAnyThreadCount) {
         }
 }
 
-TEST(TriangleLookup, LargeTrianglesAndPointsOffTheTriangleUseTheKdTree) {
+TEST(TriangleLookup, LargeTrianglesAreCutIntoCellsAndPointsOffTheTriangleUseTheKdTree) {
     // Two unit squares (four triangles) under 2,000 surfels: far more
-    // candidates per triangle than kMaxCandidates.
+    // candidates per triangle than kMaxCandidates, so each is cut into cells.
     gamma_test::Builder b;
     b.quad({0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0});
     b.quad({1, 0, 0}, {2, 0, 0}, {2, 1, 0}, {1, 1, 0});
@@ -113,8 +114,39 @@ TEST(TriangleLookup, LargeTrianglesAndPointsOffTheTriangleUseTheKdTree) {
     SceneIndex index;
     index.build_geometry(m, ts, 2);
     index.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), 0.02f);
-    EXPECT_EQ(index.lookup_fallback_triangles(), m.num_triangles());
-    expect_lookup_matches_kdtree(m, ts, st, index, 50);
+    EXPECT_EQ(index.lookup_grid_triangles(), m.num_triangles());
+    EXPECT_EQ(index.lookup_fallback_triangles(), 0u);
+    expect_lookup_matches_kdtree(m, ts, st, index, 2000);
+    // On the cells' borders and corners too (a 1/64 lattice of the squares).
+    int64_t checked = 0, scanned = 0;
+    for (size_t t = 0; t < m.num_triangles(); ++t)
+        for (int i = 0; i <= 64; ++i)
+            for (int j = 0; j <= 64 - i; ++j) {
+                const float* v[3];
+                for (int k = 0; k < 3; ++k) v[k] = &m.vertices[3 * size_t(m.triangles[3 * t + k])];
+                const float a = float(i) / 64, c = float(j) / 64;
+                float p[3];
+                for (int d = 0; d < 3; ++d) p[d] = v[0][d] + a * (v[1][d] - v[0][d]) + c * (v[2][d] - v[0][d]);
+                const uint32_t x = index.nearest_on_triangle(uint32_t(t), p), y = index.nearest_of(ts[t], p);
+                ASSERT_EQ(d2(st, x, p), d2(st, y, p)) << "triangle " << t << " at " << i << "," << j;
+                ++checked;
+                scanned += index.lookup_scan(uint32_t(t), p) == x;
+            }
+    EXPECT_GT(checked, 8000);
+    // and the cells answer (the kd-tree only where a cell has too many)
+    EXPECT_GE(double(scanned), 0.95 * double(checked));
+
+    // The same cells and answers at 1 and 2 threads.
+    SceneIndex serial;
+    serial.build_geometry(m, ts, 2);
+    serial.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), 0.02f, 1);
+    EXPECT_EQ(serial.lookup_candidates(), index.lookup_candidates());
+    std::mt19937 rng(5);
+    for (size_t t = 0; t < m.num_triangles(); ++t)
+        for (const auto& q : points_on(m, t, rng, 200)) {
+            const float p[3] = {q[0], q[1], q[2]};
+            ASSERT_EQ(serial.nearest_on_triangle(uint32_t(t), p), index.nearest_on_triangle(uint32_t(t), p));
+        }
 
     // A fine sphere: a point far from triangle 0 still gets its surface's
     // nearest surfel (the kd-tree answers).

@@ -11,17 +11,24 @@ names), the assembled mesh and the triangles' surfaces.  A worker checks that
 its surfels equal the driver's (a digest) before it traces anything.
 
 Per iteration the driver puts the surfel rows in the object store once; each
-task traces a contiguous range of chunks against them and returns the chunks'
-surface deltas; the driver merges all chunks in chunk order, which is the
-merge of a local run.  Tasks whose worker dies are retried by Ray; tracing a
-chunk is a pure function of (job, rows, iteration, chunk), so a retry gives
-the same bytes.
+task traces a contiguous range of at most ``TASK_CHUNKS`` chunks against them
+and returns the chunks' surface deltas; the driver adds each task's chunks to
+the runtime's batched merge (``merge_begin`` / ``merge_add`` / ``merge_end``)
+in chunk order as the tasks complete, which sums exactly as a local run does.
+At most ``workers × TASKS_PER_WORKER`` tasks are outstanding (submitted and
+not yet merged), so the chunk logs that exist at once — in workers, Ray's
+object store and the driver together — are bounded by
+``workers × TASKS_PER_WORKER × TASK_CHUNKS`` whatever the pass's size, as a
+local run's batches bound its logs.  Tasks whose worker dies are retried by
+Ray; tracing a chunk is a pure function of (job, rows, iteration, chunk), so a
+retry gives the same bytes.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+from collections import deque
 import time
 import uuid
 from dataclasses import dataclass
@@ -30,9 +37,14 @@ import numpy as np
 
 #: Ray re-runs a chunk range whose worker died this many times.
 TASK_RETRIES = 3
-#: Tasks per worker and iteration: a little more than one, so a slow worker
-#: does not hold up the iteration.
+#: Tasks outstanding per worker (submitted and not yet merged): a little
+#: more than one, so a worker has its next task while the driver merges.
+#: A small pass is split into this many tasks per worker.
 TASKS_PER_WORKER = 2
+#: Most chunks (of CHUNK_SIZE γ-tons) one task traces and returns: with the
+#: window above, it bounds the chunk logs that exist at once during a pass
+#: (the local tracer's batch is max(64, 8 × threads) chunks).
+TASK_CHUNKS = 64
 #: For tests: a path whose absence makes the first task that sees it kill
 #: its own worker process (as a lost worker), once.
 CRASH_MARKER: str | None = None
@@ -181,8 +193,20 @@ class RayTracer:
         self.sent_job = False
         self.bytes_moved: list[dict] = []
 
+    @property
+    def window(self) -> int:
+        """Most tasks outstanding (submitted, not yet merged) at once."""
+        return self.workers * TASKS_PER_WORKER
+
+    def chunk_logs_bound(self) -> int:
+        """Most chunk logs that exist at once during a pass."""
+        return self.window * TASK_CHUNKS
+
     def ranges(self, nchunks: int) -> list[tuple[int, int]]:
-        parts = max(1, min(nchunks, self.workers * TASKS_PER_WORKER))
+        """The pass's chunks as contiguous ranges, one per task: at least
+        ``window`` of them (fewer if there are fewer chunks), each at most
+        TASK_CHUNKS chunks, as even as possible."""
+        parts = max(1, min(nchunks, self.window), -(-nchunks // TASK_CHUNKS))
         bounds = [round(i * nchunks / parts) for i in range(parts + 1)]
         return [(a, b) for a, b in zip(bounds, bounds[1:]) if b > a]
 
@@ -191,17 +215,35 @@ class RayTracer:
         nchunks = self.sim.num_chunks(iteration)
         rows = self.sim.rows()
         rows_ref = self.ray.put(rows)
-        refs = [self.task.remote([self.job_ref], self.key, rows_ref, iteration, a, b, self.threads, CRASH_MARKER)
-                for a, b in self.ranges(nchunks)]
-        parts = self.ray.get(refs)
-        chunks = [chunk for part, _ in parts for chunk in part]
-        setups = [seconds for _, seconds in parts if seconds is not None]
-        del rows_ref
-        t_merge = time.perf_counter()
-        stats = self.sim.merge_chunks(iteration, chunks)     # the splat spreads the deposits here
-        merge_seconds = time.perf_counter() - t_merge
-        moved = {"state": int(rows.nbytes), "deltas": int(sum(s.nbytes + d.nbytes for s, d, _ in chunks)),
-                 "job": 0 if self.sent_job else self.job_bytes, "tasks": len(refs), "chunks": nchunks,
+        ranges = self.ranges(nchunks)
+        pending: deque = deque()        # (first, last, ref) submitted and not yet merged, in chunk order
+        peak = 0                        # most chunk logs of pending tasks at once
+        setups: list[float] = []
+        delta_bytes = 0
+        merge_seconds = 0.0
+        self.sim.merge_begin(iteration)
+        try:
+            for a, b in ranges:
+                if len(pending) == self.window:
+                    merge_seconds, delta_bytes = self._merge_next(pending, setups, merge_seconds, delta_bytes)
+                pending.append((a, b, self._submit(rows_ref, iteration, a, b)))
+                peak = max(peak, sum(last - first for first, last, _ in pending))
+            while pending:
+                merge_seconds, delta_bytes = self._merge_next(pending, setups, merge_seconds, delta_bytes)
+        except BaseException:
+            for _, _, ref in pending:   # a failed or interrupted pass leaves no work behind
+                self.ray.cancel(ref, force=False)
+            raise
+        finally:
+            del rows_ref
+        t_end = time.perf_counter()
+        stats = self.sim.merge_end()    # the splat spreads the deposits here
+        merge_seconds += time.perf_counter() - t_end
+        moved = {"state": int(rows.nbytes), "deltas": delta_bytes,
+                 "job": 0 if self.sent_job else self.job_bytes, "tasks": len(ranges), "chunks": nchunks,
+                 # chunk logs of tasks submitted and not yet merged, at most at once (bounded by
+                 # chunk_logs_bound(), whatever the number of chunks)
+                 "chunk_logs_peak": peak, "chunk_logs_bound": self.chunk_logs_bound(),
                  # worker processes that built the simulation in this iteration (Ray starts
                  # them when it first needs them, not only in the first iteration)
                  "worker_setups": len(setups), "worker_setup_seconds": float(sum(setups))}
@@ -211,6 +253,27 @@ class RayTracer:
         stats["merge_seconds"] = merge_seconds          # the driver's serial part of the trace
         stats["bytes_moved"] = moved
         return stats
+
+    def _submit(self, rows_ref, iteration: int, first: int, last: int):
+        return self.task.remote([self.job_ref], self.key, rows_ref, iteration, first, last, self.threads,
+                                CRASH_MARKER)
+
+    def _merge_next(self, pending: deque, setups: list, merge_seconds: float,
+                    delta_bytes: int) -> tuple[float, int]:
+        """Wait for the first pending task and add its chunks to the merge
+        (the later tasks keep running meanwhile)."""
+        first, last, ref = pending[0]
+        chunks, setup = self.ray.get(ref)
+        if len(chunks) != last - first:
+            raise RuntimeError(f"a Ray task returned {len(chunks)} chunks for chunks [{first}, {last})")
+        if setup is not None:
+            setups.append(setup)
+        t = time.perf_counter()
+        self.sim.merge_add(chunks)
+        merge_seconds += time.perf_counter() - t
+        delta_bytes += int(sum(s.nbytes + d.nbytes for s, d, _ in chunks))
+        pending.popleft()
+        return merge_seconds, delta_bytes
 
     def close(self) -> None:
         self.connection.close()

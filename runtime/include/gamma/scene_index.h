@@ -5,7 +5,9 @@
 //   surfel an interaction touches, the renders' property smoothing);
 // - the triangle lookup: per triangle, the surfels of its surface that can be
 //   nearest to a point on it (precomputed from the kd-trees), so the tracer's
-//   nearest-surfel query is a scan of a few contiguous entries;
+//   nearest-surfel query is a scan of a few contiguous entries; a triangle
+//   much larger than the surfel spacing is cut into a grid of sub-triangles
+//   (cells), each with its own entries;
 // - the scene frame: constants derived from the mesh's bounds and gravity.
 // Both halves are rebuildable on their own: build_geometry after the mesh
 // changed, build_surfels after the surfels changed.
@@ -75,9 +77,14 @@ public:
     // triangle prim (anywhere else it falls back to the kd-tree): a scan of
     // the triangle's candidates.  Equidistant surfels go to the lower index.
     uint32_t nearest_on_triangle(uint32_t prim, const float p[3]) const;
-    // Size of the triangle lookup: candidate entries in all, and triangles
-    // that use the kd-tree instead (too many candidates or no surfels).
+    // The scan's answer alone: UINT32_MAX where nearest_on_triangle asks the
+    // kd-tree instead (tests measure how often the lookup answers).
+    uint32_t lookup_scan(uint32_t prim, const float p[3]) const;
+    // Size of the triangle lookup: candidate entries in all, triangles cut
+    // into cells, and triangles that use the kd-tree instead (no surfels, or
+    // too many candidates even in cells).
     size_t lookup_candidates() const { return lookup_cand_.size(); }
+    size_t lookup_grid_triangles() const { return lookup_grids_.size(); }
     size_t lookup_fallback_triangles() const;
     // Bytes held by the triangle lookup.
     size_t lookup_bytes() const;
@@ -108,18 +115,35 @@ public:
     struct Candidate {
         float x, y, z, from_centre;
     };
-    // Per triangle: bounding sphere (centre, squared reach) and its
-    // candidates lookup_cand_[begin, begin + count); count 0 = kd-tree.
+    // Per triangle (or cell): bounding sphere (centre, squared reach) and
+    // its candidates lookup_cand_[begin, begin + count); count 0 = the
+    // triangle's grid if it has one (grid != kNoGrid), else the kd-tree.
+    static constexpr uint32_t kNoGrid = UINT32_MAX;
     struct TriangleLookup {
         float cx, cy, cz, reach2;
         uint32_t begin, count;
+        uint32_t grid;
+    };
+    // A triangle cut into s x s parallelogram slots of its (a, b) parameter
+    // plane, p = o + a e1 + b e2; each slot holds a lower and an upper
+    // sub-triangle, cells lookup_cells_[first + 2 (i s + j) + upper].  du and
+    // dv give a = (p - o).du and b = (p - o).dv; slots past the triangle's
+    // hypotenuse are empty cells (reach2 < 0).
+    struct TriangleGrid {
+        float ox, oy, oz, dux, duy, duz, dvx, dvy, dvz;
+        uint32_t s, first;
     };
     // More candidates than this (a triangle much larger than the surfel
-    // spacing) and the triangle uses the kd-tree.
+    // spacing) and the triangle is cut into cells; a cell with more still
+    // uses the kd-tree.
     static constexpr uint32_t kMaxCandidates = 48;
+    // Cells aim at about this many candidates each; a grid has at most
+    // kMaxGridSide slots a side.
+    static constexpr uint32_t kCellCandidates = 12, kMaxGridSide = 128;
 
 private:
     void build_lookup(int threads);
+    uint32_t scan(const TriangleLookup& L, const float p[3]) const;
 
     RTCDevice device_ = nullptr;
     RTCScene scene_ = nullptr;
@@ -129,6 +153,9 @@ private:
     float sigma_ = 1;
     std::unique_ptr<Trees> trees_;
     std::vector<TriangleLookup> lookup_tri_;
+    std::vector<float> lookup_vertices_;        // 9 per triangle: its corners
+    std::vector<TriangleGrid> lookup_grids_;
+    std::vector<TriangleLookup> lookup_cells_;
     std::vector<Candidate> lookup_cand_;
     std::vector<uint32_t> lookup_ids_;
     int geometry_builds_ = 0, surfel_builds_ = 0;

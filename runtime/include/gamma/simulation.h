@@ -76,6 +76,14 @@ public:
         shape_.begin_iteration(state_);  // as trace(): the rows before this iteration's deposits
         return tracer_->merge_chunks(iteration, logs, state_);
     }
+    // merge_chunks in batches (see Tracer::merge_begin): a driver merges
+    // chunks as they arrive, holding one batch of logs at a time.
+    void merge_begin(int iteration) {
+        shape_.begin_iteration(state_);  // the rows stay those before this iteration's deposits until merge_end
+        tracer_->merge_begin(iteration);
+    }
+    void merge_add(const std::vector<ChunkLog>& logs) { tracer_->merge_add(logs, state_); }
+    TraceStats merge_end() { return tracer_->merge_end(state_); }
     // Asks the trace running now (or the next one) to stop before its next
     // chunk of gamma-tons: it throws gammart::Error ("cancelled: ...") and
     // leaves the rows as they were.  Safe from any thread.

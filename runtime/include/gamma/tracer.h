@@ -49,6 +49,19 @@ public:
                                        const SceneFrame& frame, const SurfelState& state) const;
     TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state);
 
+    // merge_chunks in batches, so a driver need not hold a pass's logs at
+    // once: merge_begin, then merge_add with the next chunks of the pass in
+    // chunk order (any batch sizes), then merge_end, which adds the sums to
+    // state.rows and returns the summed counters (log_records_peak: the
+    // records of the largest batch; trace_seconds: the time spent in the
+    // three calls).  Each surfel's sum is formed in chunk order as in trace()
+    // and merge_chunks, so the batches never change the bytes.  The rows are
+    // untouched until merge_end; a batch that does not fit throws
+    // gammart::Error and abandons the merge (rows unchanged).
+    void merge_begin(int iteration);
+    void merge_add(const std::vector<ChunkLog>& logs, const SurfelState& state);
+    TraceStats merge_end(SurfelState& state);
+
     // While on, trace() keeps every ray it casts (in gamma-ton order, the
     // same at any thread count); take_recorded_rays() hands them over.
     void set_record_rays(bool on) { record_rays_ = on; }
@@ -69,6 +82,15 @@ private:
     size_t max_carry_ = 1;
     std::vector<ChunkLog> logs_;
     std::vector<float> merge_scratch_;
+    struct BatchedMerge {                  // a merge_begin .. merge_end in progress
+        bool active = false;
+        int iteration = 0;
+        int64_t nchunks = 0, merged = 0;   // chunks of the pass; chunks added so far
+        bool any_record = false;
+        TraceStats st;
+        double seconds = 0;
+    };
+    BatchedMerge batched_;
     bool record_rays_ = false;
     std::atomic<bool>* cancel_ = nullptr;
     std::vector<std::vector<RecordedRay>> ray_logs_;  // per chunk
