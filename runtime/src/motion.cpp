@@ -61,6 +61,7 @@ FlightEnd flow_step(Walker& w, PhiloxStream& rng, const TonType& tt) {
     ++w.st.flow_steps;
     const float sin_drip = std::sin(tt.drip_angle_deg * 0.017453292519943295f);
     auto probe = [&](V3 org, V3 d, float tfar, FlowHit& h) {
+        if (w.record) w.record->push_back(RecordedRay{{org.x, org.y, org.z}, {d.x, d.y, d.z}, 0.0f, tfar});
         w.index.cast(w.rh, org, d, 0.0f, tfar);
         ++w.st.rays;
         if (w.rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;

@@ -49,6 +49,10 @@ struct PointTree {
     }
 };
 
+// Candidates of a sphere tested against its nearest this many surfels when
+// the lookup drops the ones that can never be the nearest.
+constexpr size_t kPruningSurfels = 8;
+
 V3 unit(const std::array<float, 3>& a) {
     const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
     return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
@@ -186,7 +190,6 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
     sigma_ = sigma;
     T.all.pos.assign(positions, positions + 3 * n);
     T.all.index.clear();
-    T.all.build();
     T.surface.clear();  // trees hold references into their own Cloud: never copied or moved once built
     T.surface.resize(size_t(n_surfaces_));
     for (size_t i = 0; i < n; ++i) {
@@ -196,7 +199,12 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
         t.index.push_back(uint32_t(i));
         t.pos.insert(t.pos.end(), positions + 3 * i, positions + 3 * i + 3);
     }
-    for (PointTree& t : T.surface) t.build();
+    // The trees are independent (each build is serial and deterministic):
+    // built side by side.
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(size_t(0), T.surface.size() + 1,
+                          [&](size_t k) { (k == 0 ? T.all : T.surface[k - 1]).build(); });
+    });
     ++surfel_builds_;
     build_lookup(threads);
 }
@@ -268,7 +276,9 @@ double SceneIndex::MoveGrid::max_in_ball(const double c[3], double r) const {
 // sphere) and q the surfel of s nearest to c (distance d0): a point p with
 // |p - c| <= reach has its nearest surfel y* within |p - q| <= reach + d0 of
 // p, so |c - y*| <= 2 reach + d0.  The candidates are the surfels of s in
-// that ball (padded for rounding), so a scan finds the kd-tree's answer.
+// that ball (padded for rounding), so a scan finds the kd-tree's answer.  Of
+// these, the ones farther than another candidate everywhere in the sphere
+// are left out (they can never be the answer).
 // A triangle with more than kMaxCandidates is cut into cells (a grid of
 // sub-triangles, about kCellCandidates each); which cell a point is looked up
 // in needs no exactness, since a point outside the cell's sphere goes to the
@@ -308,7 +318,7 @@ void SceneIndex::build_lookup(int threads, bool reuse) {
     std::vector<LookupBlock> blocks(nblocks);
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
-            std::vector<std::pair<uint32_t, float>> found;
+            std::vector<std::pair<uint32_t, float>> found, kept;
             std::vector<uint32_t> order;
             std::vector<Candidate> sc;
             std::vector<uint32_t> si;
@@ -329,6 +339,33 @@ void SceneIndex::build_lookup(int threads, bool reuse) {
                     if (extra > 0) lookup_search_[size_t(&L - lookup_tri_.data())] = SearchBall{c[0], c[1], c[2], float(R)};
                     found.clear();
                     tree.kd->radiusSearch(c, float(R * R), found, nanoflann::SearchParams(32, 0.0f, false));
+                    // Drop the surfels that are never the nearest in the
+                    // sphere B(c, r): y loses to x everywhere in B when
+                    // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
+                    // |p-x|^2 - |p-y|^2 over B), here with a margin far above
+                    // float rounding, so the scan's answer (ties included)
+                    // is unchanged.  x: the few surfels nearest to c.
+                    std::sort(found.begin(), found.end(), [](const auto& a, const auto& b2) {
+                        return a.second < b2.second || (a.second == b2.second && a.first < b2.first);
+                    });
+                    const double r = std::sqrt(double(L.reach2));
+                    const size_t nx = std::min(found.size(), kPruningSurfels);
+                    kept.clear();
+                    for (const auto& f : found) {
+                        const float* y = &tree.pos[3 * size_t(f.first)];
+                        const double cy2 = double(f.second);
+                        bool never = false;
+                        for (size_t k = 0; k < nx && !never; ++k) {
+                            if (found[k].first == f.first) continue;
+                            const float* x = &tree.pos[3 * size_t(found[k].first)];
+                            const double ex = double(y[0]) - x[0], ey = double(y[1]) - x[1], ez = double(y[2]) - x[2];
+                            const double yx = std::sqrt(ex * ex + ey * ey + ez * ez);
+                            const double scale = r + std::sqrt(cy2) + yx;
+                            never = cy2 - double(found[k].second) > 2.0 * r * yx + 1e-3 * scale * scale;
+                        }
+                        if (!never) kept.push_back(f);
+                    }
+                    found.swap(kept);
                     if (found.size() > limit || found.empty()) return found.size();
                     L.count = uint32_t(found.size());
                     L.begin = uint32_t(out.cand.size());

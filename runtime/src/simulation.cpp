@@ -59,7 +59,10 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
     const int nsurf = int(c.surface_rows.size());
 
     auto t0 = std::chrono::steady_clock::now();
-    state_ = SurfelState::sample(mesh_, tri_surface, size_t(c.surfels), c.seed, c.surface_rows);
+    // The sampling is parallel; its result does not depend on the thread count.
+    run_with_threads(c.threads, [&] {
+        state_ = SurfelState::sample(mesh_, tri_surface, size_t(c.surfels), c.seed, c.surface_rows);
+    });
     setup_seconds_.sample = seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
     index_ = std::make_unique<SceneIndex>();

@@ -1,8 +1,16 @@
+// Surfel sampling: 5N candidates uniform by area, Yuksel's weighted sample
+// elimination down to N (see gamma/surfels.h).  The candidates, the cell sort
+// and the neighbour lists are built in parallel, the elimination itself is
+// serial; the result is that of the serial algorithm at any thread count.
 #include "gamma/surfels.h"
 
 #include <algorithm>
 #include <cmath>
 #include <unordered_map>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
 #include "gamma/error.h"
 #include "gamma/philox.h"
@@ -11,55 +19,73 @@ namespace gammart {
 
 namespace {
 
-// Indexed binary max-heap over weights (ties: larger index first; any fixed
-// rule keeps the elimination deterministic).
-class IndexedMaxHeap {
+// Max-heap of candidates keyed by (weight, rank): larger weight first, ties
+// larger rank (index in the sorted points) first.  The key is a strict total order, so the sequence of
+// eliminations depends only on the weights, never on the heap's layout.
+// 4-ary with each entry holding its weight (16 bytes): the four children of
+// a node share one 64-byte cache line, and no indirection to a weight array.
+class EliminationHeap {
 public:
-    explicit IndexedMaxHeap(const std::vector<double>& w) : w_(w) {
-        const size_t n = w.size();
-        heap_.resize(n);
-        pos_.resize(n);
-        for (size_t i = 0; i < n; ++i) { heap_[i] = uint32_t(i); pos_[i] = uint32_t(i); }
-        for (size_t i = n / 2; i-- > 0;) down(i);
+    explicit EliminationHeap(const std::vector<double>& w) : n_(w.size()) {
+        // Entries live at slot k + 3 of a 64-byte-aligned block, so the
+        // children 4k+1..4k+4 of node k sit at slots 4(k+1)..4(k+1)+3.
+        storage_.resize(n_ + 3 + 4);
+        const uintptr_t p = reinterpret_cast<uintptr_t>(storage_.data());
+        const size_t skew = ((64 - p % 64) % 64) / sizeof(Entry);
+        h_ = storage_.data() + skew + 3;
+        pos_.resize(n_);
+        for (size_t i = 0; i < n_; ++i) { h_[i] = {w[i], uint32_t(i), 0}; pos_[i] = uint32_t(i); }
+        for (size_t i = n_ / 4 + 1; i-- > 0;) down(i);
     }
-    bool empty() const { return heap_.empty(); }
-    uint32_t top() const { return heap_[0]; }
+    uint32_t top() const { return h_[0].index; }
     void pop() {
-        uint32_t last = heap_.back();
-        pos_[heap_[0]] = kRemoved;
-        heap_.pop_back();
-        if (!heap_.empty()) {
-            heap_[0] = last;
-            pos_[last] = 0;
+        pos_[h_[0].index] = kRemoved;
+        --n_;
+        if (n_ > 0) {
+            h_[0] = h_[n_];
+            pos_[h_[0].index] = 0;
             down(0);
         }
     }
     bool contains(uint32_t i) const { return pos_[i] != kRemoved; }
-    // Weight of i decreased (caller changed w_[i]).
-    void decreased(uint32_t i) { down(pos_[i]); }
+    // Subtracts d from i's weight (d >= 0, so i can only move down).
+    void decrease(uint32_t i, double d) {
+        const uint32_t p = pos_[i];
+        h_[p].weight -= d;
+        down(p);
+    }
 
 private:
+    struct Entry {
+        double weight;
+        uint32_t index, pad;
+    };
+    static_assert(sizeof(Entry) == 16, "four entries per cache line");
     static constexpr uint32_t kRemoved = 0xFFFFFFFFu;
-    bool less(uint32_t a, uint32_t b) const {  // a has lower priority than b
-        return w_[a] < w_[b] || (w_[a] == w_[b] && a < b);
+    static bool before(const Entry& a, const Entry& b) {  // a has higher priority than b
+        return a.weight > b.weight || (a.weight == b.weight && a.index > b.index);
     }
     void down(size_t i) {
-        const size_t n = heap_.size();
-        uint32_t item = heap_[i];
+        const Entry item = h_[i];
         for (;;) {
-            size_t c = 2 * i + 1;
-            if (c >= n) break;
-            if (c + 1 < n && less(heap_[c], heap_[c + 1])) ++c;
-            if (!less(item, heap_[c])) break;
-            heap_[i] = heap_[c];
-            pos_[heap_[i]] = uint32_t(i);
-            i = c;
+            const size_t c0 = 4 * i + 1;
+            if (c0 >= n_) break;
+            const size_t ce = std::min(c0 + 4, n_);
+            size_t best = c0;
+            for (size_t c = c0 + 1; c < ce; ++c)
+                if (before(h_[c], h_[best])) best = c;
+            if (!before(h_[best], item)) break;
+            h_[i] = h_[best];
+            pos_[h_[i].index] = uint32_t(i);
+            i = best;
         }
-        heap_[i] = item;
-        pos_[item] = uint32_t(i);
+        h_[i] = item;
+        pos_[item.index] = uint32_t(i);
     }
-    const std::vector<double>& w_;
-    std::vector<uint32_t> heap_, pos_;
+    size_t n_;
+    std::vector<Entry> storage_;
+    Entry* h_ = nullptr;
+    std::vector<uint32_t> pos_;
 };
 
 inline uint64_t expand_bits21(uint64_t v) {
@@ -71,6 +97,10 @@ inline uint64_t expand_bits21(uint64_t v) {
     v = (v | v << 2) & 0x1249249249249249ULL;
     return v;
 }
+
+// Cells per parallel work item of the neighbour search (fixed: the lists do
+// not depend on the thread count, and each item's lists are contiguous).
+constexpr size_t kCellsPerTask = 512;
 
 }  // namespace
 
@@ -97,31 +127,41 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
     };
     // Sort points by cell key and work on a copy in that order, so that the
     // points of a cell (and of neighbouring z-cells) are contiguous in memory.
-    std::vector<std::pair<uint64_t, uint32_t>> order(m);
-    for (size_t i = 0; i < m; ++i)
-        order[i] = {key_of(cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)), uint32_t(i)};
-    std::sort(order.begin(), order.end());
+    // (key, index) pairs are unique: the parallel sort's order is the serial one.
+    std::vector<uint32_t> original(m);
     std::vector<float> sp(3 * m);
-    for (size_t a = 0; a < m; ++a)
-        for (int k = 0; k < 3; ++k) sp[3 * a + k] = pts[3 * size_t(order[a].second) + k];
+    std::vector<uint64_t> sorted_key(m);
+    {
+        std::vector<std::pair<uint64_t, uint32_t>> order(m);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i < r.end(); ++i)
+                order[i] = {key_of(cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)), uint32_t(i)};
+        });
+        tbb::parallel_sort(order.begin(), order.end());
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t a = r.begin(); a < r.end(); ++a) {
+                original[a] = order[a].second;
+                sorted_key[a] = order[a].first;
+                for (int k = 0; k < 3; ++k) sp[3 * a + k] = pts[3 * size_t(order[a].second) + k];
+            }
+        });
+    }
     struct Cell { uint64_t key; uint32_t begin, end; };
     std::vector<Cell> cell_list;
-    std::unordered_map<uint64_t, uint32_t> cells;  // key -> index in cell_list
-    cells.reserve(m);
     for (size_t a = 0; a < m;) {
         size_t b = a;
-        while (b < m && order[b].first == order[a].first) ++b;
-        cells.emplace(order[a].first, uint32_t(cell_list.size()));
-        cell_list.push_back({order[a].first, uint32_t(a), uint32_t(b)});
+        while (b < m && sorted_key[b] == sorted_key[a]) ++b;
+        cell_list.push_back({sorted_key[a], uint32_t(a), uint32_t(b)});
         a = b;
     }
-    // Neighbour lists (CSR, in sorted index space) and initial weights.
-    std::vector<uint64_t> offs(m + 1, 0);
-    std::vector<uint32_t> nbr;
-    nbr.reserve(m * 24);
-    std::vector<double> w(m, 0.0);
+    sorted_key = {};
+    std::unordered_map<uint64_t, uint32_t> cells;  // key -> index in cell_list
+    cells.reserve(cell_list.size());
+    for (size_t c = 0; c < cell_list.size(); ++c) cells.emplace(cell_list[c].key, uint32_t(c));
+
     const double r2sq = r2 * r2;
     const double inv_r2 = 1.0 / r2;
+    // Yuksel's weight (1 - d / 2r_max)^8; symmetric bit for bit in i and j.
     auto weight = [&](uint32_t i, uint32_t j) {
         double d2 = 0;
         for (int k = 0; k < 3; ++k) {
@@ -133,51 +173,102 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
         t = t * t;  // ^4
         return t * t;  // ^8
     };
-    std::vector<std::pair<uint32_t, uint32_t>> ranges;
-    for (const Cell& cl : cell_list) {
-        const int64_t cx = int64_t(cl.key >> 42), cy = int64_t((cl.key >> 21) & 0x1fffff),
-                      cz = int64_t(cl.key & 0x1fffff);
-        ranges.clear();
-        for (int64_t dx = -1; dx <= 1; ++dx)
-            for (int64_t dy = -1; dy <= 1; ++dy)
-                for (int64_t dz = -1; dz <= 1; ++dz) {
-                    if (cx + dx < 0 || cy + dy < 0 || cz + dz < 0) continue;
-                    auto it = cells.find(key_of(cx + dx, cy + dy, cz + dz));
-                    if (it == cells.end()) continue;
-                    const Cell& nc = cell_list[it->second];
-                    ranges.emplace_back(nc.begin, nc.end);
+    // Neighbour lists in rank order (the order of the sorted points), each
+    // pair found once: F(i) = neighbours ranked after i, searched in the own
+    // cell and the 13 neighbouring cells of larger key, in parallel over
+    // fixed blocks of cells (block b's lists contiguous in fwd[b]); then
+    // B(j) = neighbours ranked before j, the transpose of F.  B(i) then F(i)
+    // is i's whole neighbourhood in rank order, which is the order of the
+    // sum of its weights.
+    const size_t nblocks = (cell_list.size() + kCellsPerTask - 1) / kCellsPerTask;
+    std::vector<std::vector<uint32_t>> fwd(nblocks);
+    std::vector<const uint32_t*> f_first(m);
+    std::vector<uint32_t> f_count(m);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
+        std::vector<std::pair<uint32_t, uint32_t>> ranges;  // later cells, ascending key
+        for (size_t b = br.begin(); b < br.end(); ++b) {
+            std::vector<uint32_t>& nbr = fwd[b];
+            const size_t c_begin = b * kCellsPerTask, c_end = std::min(cell_list.size(), c_begin + kCellsPerTask);
+            nbr.reserve(size_t(cell_list[c_end - 1].end - cell_list[c_begin].begin) * 10);
+            for (size_t ci = c_begin; ci < c_end; ++ci) {
+                const Cell& cl = cell_list[ci];
+                const int64_t cx = int64_t(cl.key >> 42), cy = int64_t((cl.key >> 21) & 0x1fffff),
+                              cz = int64_t(cl.key & 0x1fffff);
+                ranges.clear();
+                for (int64_t dx = 0; dx <= 1; ++dx)
+                    for (int64_t dy = dx ? -1 : 0; dy <= 1; ++dy)
+                        for (int64_t dz = (dx || dy) ? -1 : 1; dz <= 1; ++dz) {
+                            if (cy + dy < 0 || cz + dz < 0) continue;
+                            auto it = cells.find(key_of(cx + dx, cy + dy, cz + dz));
+                            if (it == cells.end()) continue;
+                            const Cell& nc = cell_list[it->second];
+                            ranges.emplace_back(nc.begin, nc.end);
+                        }
+                for (uint32_t i = cl.begin; i < cl.end; ++i) {
+                    const size_t before = nbr.size();
+                    const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+                    auto scan = [&](uint32_t j0, uint32_t j1) {
+                        for (uint32_t j = j0; j < j1; ++j) {
+                            const double dx = px - sp[3 * size_t(j)], dy = py - sp[3 * size_t(j) + 1],
+                                         dz = pz - sp[3 * size_t(j) + 2];
+                            if (dx * dx + dy * dy + dz * dz < r2sq) nbr.push_back(j);
+                        }
+                    };
+                    scan(i + 1, cl.end);
+                    for (const auto& rg : ranges) scan(rg.first, rg.second);
+                    f_count[i] = uint32_t(nbr.size() - before);
                 }
-        for (uint32_t i = cl.begin; i < cl.end; ++i) {
-            const float px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
-            for (const auto& rg : ranges)
-                for (uint32_t j = rg.first; j < rg.second; ++j) {
-                    if (j == i) continue;
-                    const double dx = double(px) - sp[3 * size_t(j)], dy = double(py) - sp[3 * size_t(j) + 1],
-                                 dz = double(pz) - sp[3 * size_t(j) + 2];
-                    if (dx * dx + dy * dy + dz * dz < r2sq) nbr.push_back(j);
-                }
-            offs[i + 1] = nbr.size();
+            }
+            nbr.shrink_to_fit();
+            // Pointers only once the block's list no longer moves.
+            const uint32_t* p = nbr.data();
+            for (uint32_t i = cell_list[c_begin].begin; i < cell_list[c_end - 1].end; ++i) {
+                f_first[i] = p;
+                p += f_count[i];
+            }
+        }
+    });
+    // The transpose, in rank order of i (so each B(j) is ascending).
+    std::vector<uint64_t> b_offs(m + 1, 0);
+    for (size_t i = 0; i < m; ++i)
+        for (uint32_t k = 0; k < f_count[i]; ++k) ++b_offs[f_first[i][k] + 1];
+    for (size_t j = 0; j < m; ++j) b_offs[j + 1] += b_offs[j];
+    std::vector<uint32_t> bwd(b_offs[m]);
+    {
+        std::vector<uint64_t> fill(b_offs.begin(), b_offs.end() - 1);
+        for (size_t i = 0; i < m; ++i)
+            for (uint32_t k = 0; k < f_count[i]; ++k) bwd[fill[f_first[i][k]]++] = uint32_t(i);
+    }
+    // Initial weights: the sum over B(i) then F(i), i.e. in rank order.
+    std::vector<double> w(m, 0.0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
             double sum = 0;
-            for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) sum += weight(i, nbr[a]);
+            for (uint64_t a = b_offs[i]; a < b_offs[i + 1]; ++a) sum += weight(uint32_t(i), bwd[a]);
+            for (uint32_t k = 0; k < f_count[i]; ++k) sum += weight(uint32_t(i), f_first[i][k]);
             w[i] = sum;
         }
-    }
-    IndexedMaxHeap heap(w);
-    size_t alive = m;
-    while (alive > keep) {
-        uint32_t i = heap.top();
+    });
+    // Sequential elimination: the heaviest candidate goes, its neighbours
+    // lose its contribution.
+    EliminationHeap heap(w);
+    w = {};
+    for (size_t left = m; left > keep; --left) {
+        const uint32_t i = heap.top();
         heap.pop();
-        --alive;
-        for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) {
-            uint32_t j = nbr[a];
-            if (!heap.contains(j)) continue;
-            w[j] -= weight(j, i);
-            heap.decreased(j);
+        for (uint64_t a = b_offs[i]; a < b_offs[i + 1]; ++a) {
+            const uint32_t j = bwd[a];
+            if (heap.contains(j)) heap.decrease(j, weight(j, i));
+        }
+        const uint32_t* fl = f_first[i];
+        for (uint32_t k = 0, n = f_count[i]; k < n; ++k) {
+            const uint32_t j = fl[k];
+            if (heap.contains(j)) heap.decrease(j, weight(j, i));
         }
     }
     kept.reserve(keep);
     for (size_t a = 0; a < m; ++a)
-        if (heap.contains(uint32_t(a))) kept.push_back(order[a].second);
+        if (heap.contains(uint32_t(a))) kept.push_back(original[a]);
     return kept;
 }
 
@@ -206,7 +297,9 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     std::vector<float> cand(3 * nc);
     std::vector<int32_t> cand_tri(nc);
     const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
-    for (size_t i = 0; i < nc; ++i) {
+    // Each candidate depends only on (seed, i): generated in parallel.
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nc, 4096), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
         Philox4 r = philox4x32_10({kSamplingIteration, uint32_t(i), uint32_t(uint64_t(i) >> 32), 0}, key);
         // 53-bit uniform for the triangle choice (24 bits are too coarse for
         // very large meshes), 24-bit floats for the barycentrics.
@@ -222,6 +315,7 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         for (int k = 0; k < 3; ++k) cand[3 * i + k] = float(ba * a[k] + bb * b[k] + bc * c[k]);
         cand_tri[i] = int32_t(t);
     }
+    });
     SurfelSet out;
     out.r_max = std::sqrt(total / (2.0 * std::sqrt(3.0) * double(n)));
     std::vector<uint32_t> kept = eliminate_samples(cand, n, out.r_max);

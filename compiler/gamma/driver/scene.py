@@ -17,9 +17,10 @@ the first rule that matches wins.  ``--assign SURFACE`` alone means
 from __future__ import annotations
 
 import fnmatch
+import sys
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -187,7 +188,15 @@ def _read_scene_file(rt, path: Path, effect: Effect):
     return parts, down
 
 
-def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect) -> np.ndarray:
+@dataclass
+class _RuleUse:
+    """Which rules won some triangles, and for the others that matched some,
+    the rule that beat them (its index, the name it matched)."""
+    won: set = field(default_factory=set)
+    beaten: dict = field(default_factory=dict)
+
+
+def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect, use: _RuleUse | None = None) -> np.ndarray:
     """Surface index per triangle of one part; -1 where no rule matches."""
     m = part.mesh.num_triangles
     names = list(part.mesh.part_names())
@@ -198,10 +207,19 @@ def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect) -> np.ndarr
     chosen = np.full(len(keys), -1, np.int32)
     for k, key in enumerate(keys):
         candidates = [part.stem, *part.names] + [names[i] for i in key if i >= 0]
-        for pattern, surface in rules:
-            if any(fnmatch.fnmatchcase(c, pattern) for c in candidates):
+        winner = None
+        for r, (pattern, surface) in enumerate(rules):
+            matched = next((c for c in candidates if fnmatch.fnmatchcase(c, pattern)), None)
+            if matched is None:
+                continue
+            if winner is None:
+                winner = (r, matched)
                 chosen[k] = effect.surfaces[surface].index
-                break
+                if use is None:
+                    break
+                use.won.add(r)
+            else:
+                use.beaten.setdefault(r, winner)
     unbound = [k for k in range(len(keys)) if chosen[k] < 0]
     if unbound:
         described = []
@@ -213,6 +231,21 @@ def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect) -> np.ndarr
         raise SceneError(f"no surface for {', '.join(described)}{more} of '{part.stem}': "
                          "add --assign PATTERN=SURFACE")
     return chosen[inverse.reshape(-1)]
+
+
+def _warn_shadowed(cli_rules: list[tuple[str, str]], use: _RuleUse) -> None:
+    """A ``--assign`` rule that names some triangles but is beaten to every
+    one of them by an earlier rule is a mistake a user does not see (the
+    classic: ``arch=...`` also matches every part of ``arch.obj`` through the
+    file name); say so, naming the rule that won."""
+    for r, (pattern, surface) in enumerate(cli_rules):
+        if r in use.won or r not in use.beaten:
+            continue
+        w, name = use.beaten[r]
+        earlier = f"{cli_rules[w][0]}={cli_rules[w][1]}" if w < len(cli_rules) else "an earlier rule"
+        print(f"gammac: warning: --assign {pattern}={surface} is never used: the triangles it matches "
+              f"are taken by {earlier}, which matches the name '{name}'; give the narrower rule first",
+              file=sys.stderr)
 
 
 def arrays_scene(rt, vertices, faces, uvs, effect: Effect, assign: list[str], down=None,
@@ -248,7 +281,9 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None, part
     down = tuple(down) if down is not None else file_down or (0.0, -1.0, 0.0)
     if not any(down):
         raise SceneError("the down direction must not be the zero vector")
-    surface_of = [_bind(p, cli_rules + p.rules + file_rules, effect) for p in parts]
+    use = _RuleUse()
+    surface_of = [_bind(p, cli_rules + p.rules + file_rules, effect, use) for p in parts]
+    _warn_shadowed(cli_rules, use)
     if len(parts) == 1 and parts[0].vertices is None:
         mesh = parts[0].mesh
     else:
