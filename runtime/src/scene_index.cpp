@@ -125,7 +125,6 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     lookup_cells_.clear();
     lookup_cand_.clear();
     lookup_ids_.clear();
-    lookup_search_.clear();
     rtcCommitGeometry(geom);
     geom_id_ = rtcAttachGeometry(scene_, geom);
     rtcReleaseGeometry(geom);
@@ -212,31 +211,6 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
 void SceneIndex::move_surfels(const float* positions, float sigma, int threads) {
     Trees& T = *trees_;
     const size_t n = n_surfels_;
-    // A grid of the largest move of the surfels now in each cell: a local
-    // bound on how far any surfel near a triangle moved (for the lookup).
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < n; ++i)
-        for (int d = 0; d < 3; ++d) {
-            lo[d] = std::min(lo[d], positions[3 * i + size_t(d)]);
-            hi[d] = std::max(hi[d], positions[3 * i + size_t(d)]);
-        }
-    MoveGrid& G = move_grid_;
-    const double extent = std::max({double(hi[0]) - lo[0], double(hi[1]) - lo[1], double(hi[2]) - lo[2], 1e-30});
-    G.h = std::max(4.0 * double(sigma), extent / 128.0);
-    for (int d = 0; d < 3; ++d) {
-        G.lo[d] = double(lo[d]);
-        G.dim[d] = std::min<size_t>(size_t((double(hi[d]) - lo[d]) / G.h) + 1, 129);
-    }
-    G.moved.assign(G.dim[0] * G.dim[1] * G.dim[2], 0.0);
-    for (size_t i = 0; i < n; ++i) {
-        double d2 = 0;
-        for (int d = 0; d < 3; ++d) {
-            const double x = double(positions[3 * i + size_t(d)]) - double(T.all.pos[3 * i + size_t(d)]);
-            d2 += x * x;
-        }
-        double& cell = G.moved[G.cell(&positions[3 * i])];
-        cell = std::max(cell, std::sqrt(d2));
-    }
     sigma_ = sigma;
     T.all.pos.assign(positions, positions + 3 * n);
     T.all.build();
@@ -246,30 +220,7 @@ void SceneIndex::move_surfels(const float* positions, float sigma, int threads) 
         t.build();
     }
     ++surfel_builds_;
-    build_lookup(threads, /*reuse=*/true);
-}
-
-size_t SceneIndex::MoveGrid::cell(const float p[3]) const {
-    size_t c[3];
-    for (int d = 0; d < 3; ++d) {
-        const double x = std::floor((double(p[d]) - lo[d]) / h);
-        c[d] = x <= 0 ? 0 : std::min(size_t(x), dim[d] - 1);
-    }
-    return (c[2] * dim[1] + c[1]) * dim[0] + c[0];
-}
-
-double SceneIndex::MoveGrid::max_in_ball(const double c[3], double r) const {
-    size_t a[3], b[3];
-    for (int d = 0; d < 3; ++d) {
-        const double x0 = std::floor((c[d] - r - lo[d]) / h), x1 = std::floor((c[d] + r - lo[d]) / h);
-        a[d] = x0 <= 0 ? 0 : std::min(size_t(x0), dim[d] - 1);
-        b[d] = x1 <= 0 ? 0 : std::min(size_t(x1), dim[d] - 1);
-    }
-    double m = 0;
-    for (size_t z = a[2]; z <= b[2]; ++z)
-        for (size_t y = a[1]; y <= b[1]; ++y)
-            for (size_t x = a[0]; x <= b[0]; ++x) m = std::max(m, moved[(z * dim[1] + y) * dim[0] + x]);
-    return m;
+    build_lookup(threads);  // searched again: the pruned candidates hold only for the old positions
 }
 
 // For a sphere (c, reach) on surface s (a triangle's or a cell's bounding
@@ -282,17 +233,7 @@ double SceneIndex::MoveGrid::max_in_ball(const double c[3], double r) const {
 // A triangle with more than kMaxCandidates is cut into cells (a grid of
 // sub-triangles, about kCellCandidates each); which cell a point is looked up
 // in needs no exactness, since a point outside the cell's sphere goes to the
-// kd-tree.  A triangle's own ball is padded by kLookupSlack spacings, so that
-// its candidates stay a superset while the surfels ride on moving triangles.
-//
-// Reuse (move_surfels): the candidates of a triangle without cells hold every
-// surfel of s within `radius` (the covered radius) of the centre c' the
-// triangle had before the move.  A surfel now within r of the new centre c
-// moved at most delta (the largest move in the grid cells around c,
-// move_grid_), so it was within r + |c - c'| + delta of c': the candidates
-// cover r = radius - |c - c'| - delta.  If that is at least R (with d0
-// bounded by the nearest candidate), they are kept, with their new positions
-// and re-sorted; otherwise the triangle is searched again.
+// kd-tree.
 namespace {
 struct LookupBlock {
     std::vector<SceneIndex::Candidate> cand;
@@ -302,17 +243,9 @@ struct LookupBlock {
 };
 }  // namespace
 
-void SceneIndex::build_lookup(int threads, bool reuse) {
+void SceneIndex::build_lookup(int threads) {
     const Trees& T = *trees_;
     const size_t m = lookup_tri_.size();
-    if (!reuse || lookup_search_.size() != m) {
-        reuse = false;
-        lookup_search_.assign(m, SearchBall{0, 0, 0, 0});
-    }
-    const std::vector<Candidate> old_cand = reuse ? std::move(lookup_cand_) : std::vector<Candidate>{};
-    const std::vector<uint32_t> old_ids = reuse ? std::move(lookup_ids_) : std::vector<uint32_t>{};
-    const double slack = kLookupSlack * double(sigma_);
-    std::vector<size_t> block_reused((m + 2047) / 2048, 0);
     constexpr size_t kBlock = 2048;  // triangles per work item (fixed: the result is thread-count free)
     const size_t nblocks = (m + kBlock - 1) / kBlock;
     std::vector<LookupBlock> blocks(nblocks);
@@ -326,7 +259,7 @@ void SceneIndex::build_lookup(int threads, bool reuse) {
                 LookupBlock& out = blocks[b];
                 // The candidates of sphere L (surface tree): appended to the
                 // block, L.begin block-relative; false if more than `limit`.
-                auto collect = [&](const PointTree& tree, TriangleLookup& L, size_t limit, double extra = 0.0) {
+                auto collect = [&](const PointTree& tree, TriangleLookup& L, size_t limit) {
                     L.begin = 0;
                     L.count = 0;
                     const float c[3] = {L.cx, L.cy, L.cz};
@@ -335,8 +268,7 @@ void SceneIndex::build_lookup(int threads, bool reuse) {
                     nanoflann::KNNResultSet<float, uint32_t> rs(1);
                     rs.init(&q, &q2);
                     tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
-                    const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5) + extra;
-                    if (extra > 0) lookup_search_[size_t(&L - lookup_tri_.data())] = SearchBall{c[0], c[1], c[2], float(R)};
+                    const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
                     found.clear();
                     tree.kd->radiusSearch(c, float(R * R), found, nanoflann::SearchParams(32, 0.0f, false));
                     // Drop the surfels that are never the nearest in the
@@ -392,8 +324,6 @@ void SceneIndex::build_lookup(int threads, bool reuse) {
                 };
                 for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t) {
                     TriangleLookup& L = lookup_tri_[t];
-                    const uint32_t old_begin = L.begin, old_count = L.count;
-                    const bool had_grid = L.grid != kNoGrid;
                     L.grid = kNoGrid;
                     const int s = tri_surface_[t];
                     if (!has_surfels(s)) {
@@ -401,48 +331,7 @@ void SceneIndex::build_lookup(int threads, bool reuse) {
                         continue;
                     }
                     const PointTree& tree = T.surface[size_t(s)];
-                    if (reuse && old_count > 0 && !had_grid) {
-                        SearchBall& B = lookup_search_[t];
-                        const float c[3] = {L.cx, L.cy, L.cz};
-                        double d0 = INFINITY;
-                        for (uint32_t k = 0; k < old_count; ++k) {
-                            const float* pp = &T.all.pos[3 * size_t(old_ids[old_begin + k])];
-                            const double dx = double(pp[0]) - c[0], dy = double(pp[1]) - c[1], dz = double(pp[2]) - c[2];
-                            d0 = std::min(d0, std::sqrt(dx * dx + dy * dy + dz * dz));
-                        }
-                        const double R = (2.0 * std::sqrt(double(L.reach2)) + d0) * (1.0 + 1e-5);
-                        const double cdx = double(c[0]) - B.cx, cdy = double(c[1]) - B.cy, cdz = double(c[2]) - B.cz;
-                        const double cc[3] = {double(c[0]), double(c[1]), double(c[2])};
-                        const double covered = (double(B.radius) - std::sqrt(cdx * cdx + cdy * cdy + cdz * cdz) -
-                                                move_grid_.max_in_ball(cc, double(B.radius))) * (1.0 - 1e-5);
-                        if (R <= covered) {
-                            B = SearchBall{c[0], c[1], c[2], float(covered * (1.0 - 1e-6))};
-                            sc.clear();
-                            si.clear();
-                            for (uint32_t k = 0; k < old_count; ++k) {
-                                const uint32_t id = old_ids[old_begin + k];
-                                const float* pp = &T.all.pos[3 * size_t(id)];
-                                const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
-                                sc.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
-                                si.push_back(id);
-                            }
-                            order.resize(sc.size());
-                            for (uint32_t k = 0; k < order.size(); ++k) order[k] = k;
-                            std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b2) {
-                                return sc[a].from_centre < sc[b2].from_centre ||
-                                       (sc[a].from_centre == sc[b2].from_centre && si[a] < si[b2]);
-                            });
-                            L.count = old_count;
-                            L.begin = uint32_t(out.cand.size());
-                            for (uint32_t k : order) {
-                                out.cand.push_back(sc[k]);
-                                out.ids.push_back(si[k]);
-                            }
-                            ++block_reused[b];
-                            continue;
-                        }
-                    }
-                    const size_t n_found = collect(tree, L, kMaxCandidates, slack);
+                    const size_t n_found = collect(tree, L, kMaxCandidates);
                     if (L.count || n_found == 0) continue;
                     // Too many: cut the triangle into cells.
                     const float* v = &lookup_vertices_[9 * t];
@@ -512,8 +401,6 @@ void SceneIndex::build_lookup(int threads, bool reuse) {
             }
         });
     });
-    lookup_reused_ = 0;
-    for (size_t r : block_reused) lookup_reused_ += r;
     size_t n_cand = 0, n_grids = 0, n_cells = 0;
     std::vector<size_t> cand_at(nblocks), grid_at(nblocks), cell_at(nblocks);
     for (size_t b = 0; b < nblocks; ++b) {
@@ -611,7 +498,7 @@ size_t SceneIndex::lookup_fallback_triangles() const {
 size_t SceneIndex::lookup_bytes() const {
     return lookup_tri_.capacity() * sizeof(TriangleLookup) + lookup_vertices_.capacity() * sizeof(float) +
            lookup_grids_.capacity() * sizeof(TriangleGrid) + lookup_cells_.capacity() * sizeof(TriangleLookup) +
-           lookup_search_.capacity() * sizeof(SearchBall) + lookup_cand_.capacity() * sizeof(Candidate) +
+           lookup_cand_.capacity() * sizeof(Candidate) +
            lookup_ids_.capacity() * sizeof(uint32_t);
 }
 

@@ -178,11 +178,8 @@ TEST(TriangleLookup, FollowsARebuildOfEitherHalf) {
 }
 
 // The shape step's riding surfels (SPEC §13.12): vertices and surfels move,
-// the index is updated in place (move_vertices + move_surfels).  The lookup
-// keeps a triangle's candidates only where they provably still hold the
-// nearest surfel, so it must still agree with the kd-tree everywhere, and
-// with a freshly built index.  The moves vary from nothing (the lookup
-// keeps candidates there) to about a surfel spacing (searched again).
+// the index is updated in place (move_vertices + move_surfels): it must
+// still agree with the kd-tree everywhere, and with a freshly built index.
 TEST(TriangleLookup, StaysExactWhenVerticesAndSurfelsMoveInPlace) {
     Mesh m = gamma_test::icosphere(4);
     std::vector<int32_t> ts(m.num_triangles());
@@ -204,8 +201,6 @@ TEST(TriangleLookup, StaysExactWhenVerticesAndSurfelsMoveInPlace) {
         for (size_t i = 0; i < st.size(); ++i) push(&st.surf.position[3 * i], amount);
         index.move_vertices(m);
         index.move_surfels(st.surf.position.data(), sigma, 2);
-        EXPECT_GT(index.lookup_reused(), m.num_triangles() / 4) << "step " << step;
-        EXPECT_LT(index.lookup_reused(), m.num_triangles()) << "step " << step;
         expect_lookup_matches_kdtree(m, ts, st, index, 4);
         SceneIndex fresh;
         fresh.build_geometry(m, ts, 2);

@@ -13,9 +13,8 @@
 // changed, build_surfels after the surfels changed.  When only positions
 // changed (the shape step's surfels riding on their triangles, SPEC §13.12),
 // move_vertices + move_surfels update the index in place: the BVH keeps its
-// geometry object, and the triangle lookup keeps every triangle's candidates
-// that provably still hold the nearest surfel (searching again only where
-// that cannot be shown), so lookups stay exact.
+// geometry object (its vertex buffer is updated), the kd-trees keep their
+// point order, and the triangle lookup is searched again.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -68,11 +67,9 @@ public:
     // lookup is stale until move_surfels is called next.
     void move_vertices(const Mesh& mesh);
     // The same surfels (same surfaces, same order) moved to `positions`: the
-    // kd-trees are rebuilt and the triangle lookup refreshed incrementally
-    // (exact: see build_lookup).  sigma = the new smoothing width.
+    // kd-trees and the triangle lookup are rebuilt.  sigma = the new
+    // smoothing width.
     void move_surfels(const float* positions, float sigma, int threads = 0);
-    // Triangles whose lookup candidates the last refresh kept (for tests).
-    size_t lookup_reused() const { return lookup_reused_; }
 
     // Closest hit along org + t*dir, t in [tnear, tfar]; rh.hit.geomID is
     // RTC_INVALID_GEOMETRY_ID on a miss.
@@ -156,28 +153,8 @@ public:
     // kMaxGridSide slots a side.
     static constexpr uint32_t kCellCandidates = 12, kMaxGridSide = 128;
 
-    // A triangle's search ball is padded by this many surfel spacings, so
-    // that its candidates stay valid while the surfels move a little.
-    static constexpr double kLookupSlack = 0.1;
-
 private:
-    // What a triangle's candidates cover: every surfel of its surface within
-    // `radius` of (cx, cy, cz) (the triangle's centre when they were last
-    // searched or kept).
-    struct SearchBall {
-        float cx, cy, cz, radius;
-    };
-    // The largest move of a surfel in the last move_surfels, per cell of a
-    // grid over the surfels' new positions.
-    struct MoveGrid {
-        double lo[3] = {0, 0, 0}, h = 1;
-        size_t dim[3] = {1, 1, 1};
-        std::vector<double> moved;
-        size_t cell(const float p[3]) const;
-        // The largest move in the cells that meet the box around the ball (c, r).
-        double max_in_ball(const double c[3], double r) const;
-    };
-    void build_lookup(int threads, bool reuse = false);
+    void build_lookup(int threads);
     void triangle_spheres(const Mesh& mesh);
     uint32_t scan(const TriangleLookup& L, const float p[3]) const;
 
@@ -194,9 +171,6 @@ private:
     std::vector<TriangleLookup> lookup_cells_;
     std::vector<Candidate> lookup_cand_;
     std::vector<uint32_t> lookup_ids_;
-    std::vector<SearchBall> lookup_search_;
-    MoveGrid move_grid_;
-    size_t lookup_reused_ = 0;
     unsigned geom_id_ = 0;
     int geometry_builds_ = 0, surfel_builds_ = 0;
 };
