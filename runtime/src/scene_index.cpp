@@ -125,6 +125,10 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     lookup_cells_.clear();
     lookup_cand_.clear();
     lookup_ids_.clear();
+    lookup_packed_.clear();
+    lookup_cell_at_.clear();
+    lookup_head_.assign(m, TriangleHead{});
+    lookup_n_candidates_ = 0;
     rtcCommitGeometry(geom);
     geom_id_ = rtcAttachGeometry(scene_, geom);
     rtcReleaseGeometry(geom);
@@ -164,6 +168,14 @@ void SceneIndex::triangle_spheres(const Mesh& mesh) {
         L.cz = float(c[2]);
         L.reach2 = float(reach * reach);
     }
+    // The heads follow (the candidates stay stale until the surfels are
+    // searched again, as documented for move_vertices).
+    if (lookup_head_.size() == m)
+        for (size_t t = 0; t < m; ++t) {
+            const TriangleLookup& L = lookup_tri_[t];
+            TriangleHead& h = lookup_head_[t];
+            h.cx = L.cx, h.cy = L.cy, h.cz = L.cz, h.reach2 = L.reach2;
+        }
 }
 
 void SceneIndex::move_vertices(const Mesh& mesh) {
@@ -428,38 +440,95 @@ void SceneIndex::build_lookup(int threads) {
             if (L.grid != kNoGrid) L.grid += uint32_t(grid_at[b]);
         }
     }
+    pack_lookup();
 }
 
-// The scan of sphere L's candidates for p; UINT32_MAX if p is outside it.
-uint32_t SceneIndex::scan(const TriangleLookup& L, const float p[3]) const {
-    const float dx = p[0] - L.cx, dy = p[1] - L.cy, dz = p[2] - L.cz;
+static_assert(sizeof(SceneIndex::PackedEntry) == 20, "packed lookup entries are 20 bytes");
+static_assert(sizeof(SceneIndex::TriangleHead) == 128, "a triangle head is two cache lines");
+
+// Lays the lookup out as the scan reads it (see TriangleHead); the same
+// spheres, candidates and order, so the same answers.
+void SceneIndex::pack_lookup() {
+    const size_t m = lookup_tri_.size();
+    constexpr uint32_t K = kInlineCandidates;
+    size_t entries = 0;
+    for (const TriangleLookup& L : lookup_tri_) entries += L.count > K ? L.count - K : 0;
+    for (const TriangleLookup& C : lookup_cells_) entries += C.count > 0 ? 1 + C.count : 0;
+    if (entries >= size_t(kGridBit) || lookup_grids_.size() >= size_t(kGridBit))
+        throw Error("scene index: too many surfel candidates for the triangle lookup");
+    std::vector<PackedEntry> packed;
+    packed.reserve(entries);
+    auto entry = [&](uint32_t k) {
+        const Candidate& c = lookup_cand_[k];
+        return PackedEntry{c.x, c.y, c.z, c.from_centre, lookup_ids_[k]};
+    };
+    lookup_head_.assign(m, TriangleHead{});
+    for (size_t t = 0; t < m; ++t) {
+        const TriangleLookup& L = lookup_tri_[t];
+        TriangleHead& h = lookup_head_[t];
+        h.cx = L.cx, h.cy = L.cy, h.cz = L.cz, h.reach2 = L.reach2;
+        h.count = L.count;
+        if (L.count) {
+            for (uint32_t k = 0; k < std::min(L.count, K); ++k) h.first[k] = entry(L.begin + k);
+            h.more = L.count > K ? uint32_t(packed.size()) : 0;
+            for (uint32_t k = K; k < L.count; ++k) packed.push_back(entry(L.begin + k));
+        } else {
+            h.more = L.grid != kNoGrid ? kGridBit | L.grid : kNoBlock;
+        }
+    }
+    lookup_cell_at_.assign(lookup_cells_.size(), kNoBlock);
+    for (size_t c = 0; c < lookup_cells_.size(); ++c) {
+        const TriangleLookup& C = lookup_cells_[c];
+        if (!C.count) continue;
+        lookup_cell_at_[c] = uint32_t(packed.size());
+        packed.push_back(PackedEntry{C.cx, C.cy, C.cz, C.reach2, C.count});
+        for (uint32_t k = C.begin; k < C.begin + C.count; ++k) packed.push_back(entry(k));
+    }
+    lookup_packed_.swap(packed);
+    lookup_n_candidates_ = lookup_cand_.size();
+    std::vector<Candidate>().swap(lookup_cand_);   // held once, packed
+    std::vector<uint32_t>().swap(lookup_ids_);
+}
+
+namespace {
+// The scan of one sphere's candidates for p: `first` (n_first entries), then
+// `rest` (count - n_first); UINT32_MAX if p is outside the sphere.
+inline uint32_t scan_sphere(const float p[3], float cx, float cy, float cz, float reach2, uint32_t count,
+                            const SceneIndex::PackedEntry* first, uint32_t n_first,
+                            const SceneIndex::PackedEntry* rest) {
+    const float dx = p[0] - cx, dy = p[1] - cy, dz = p[2] - cz;
     const float to_centre2 = dx * dx + dy * dy + dz * dz;
-    if (!L.count || !(to_centre2 <= L.reach2)) return UINT32_MAX;
-    const Candidate* c = lookup_cand_.data() + L.begin;
-    const uint32_t* ids = lookup_ids_.data() + L.begin;
+    if (!(to_centre2 <= reach2)) return UINT32_MAX;
     const float to_centre = std::sqrt(to_centre2);
     float best = std::numeric_limits<float>::infinity(), cut = best;
     uint32_t id = UINT32_MAX;
-    for (uint32_t k = 0; k < L.count; ++k) {
+    // false once no later entry can win or tie
+    auto visit = [&](const SceneIndex::PackedEntry& e) {
         // |p - y| >= |c - y| - |p - c|: once that exceeds the best
         // distance (padded for rounding), no later entry can win or tie.
-        if (c[k].from_centre > cut) break;
+        if (e.w > cut) return false;
         // The kd-tree's metric, term by term: the same float distances.
-        float a = p[0] - c[k].x;
+        float a = p[0] - e.x;
         float d2 = 0.0f;
         d2 += a * a;
-        a = p[1] - c[k].y;
+        a = p[1] - e.y;
         d2 += a * a;
-        a = p[2] - c[k].z;
+        a = p[2] - e.z;
         d2 += a * a;
-        if (d2 < best || (d2 == best && ids[k] < id)) {
+        if (d2 < best || (d2 == best && e.id < id)) {
             best = d2;
-            id = ids[k];
+            id = e.id;
             cut = (to_centre + std::sqrt(best)) * 1.0001f + 1e-30f;
         }
-    }
+        return true;
+    };
+    for (uint32_t k = 0; k < n_first; ++k)
+        if (!visit(first[k])) return id;
+    for (uint32_t k = 0; k < count - n_first; ++k)
+        if (!visit(rest[k])) return id;
     return id;
 }
+}  // namespace
 
 uint32_t SceneIndex::nearest_on_triangle(uint32_t prim, const float p[3]) const {
     const uint32_t id = lookup_scan(prim, p);
@@ -468,25 +537,32 @@ uint32_t SceneIndex::nearest_on_triangle(uint32_t prim, const float p[3]) const 
 }
 
 uint32_t SceneIndex::lookup_scan(uint32_t prim, const float p[3]) const {
-    uint32_t id = UINT32_MAX;
-    if (prim < lookup_tri_.size()) {
-        const TriangleLookup& L = lookup_tri_[prim];
-        if (L.count) {
-            id = scan(L, p);
-        } else if (L.grid != kNoGrid) {
-            const TriangleGrid& G = lookup_grids_[L.grid];
-            const float qx = p[0] - G.ox, qy = p[1] - G.oy, qz = p[2] - G.oz;
-            const float a = (qx * G.dux + qy * G.duy + qz * G.duz) * float(G.s);
-            const float b = (qx * G.dvx + qy * G.dvy + qz * G.dvz) * float(G.s);
-            const int smax = int(G.s) - 1;
-            int i = std::isfinite(a) ? std::clamp(int(std::floor(std::clamp(a, -1.0f, float(G.s)))), 0, smax) : 0;
-            int j = std::isfinite(b) ? std::clamp(int(std::floor(std::clamp(b, -1.0f, float(G.s)))), 0, smax) : 0;
-            while (i + j > smax) (i > j ? i : j) -= 1;
-            const bool upper = i + j < smax && (a - float(i)) + (b - float(j)) > 1.0f;
-            id = scan(lookup_cells_[G.first + 2 * (uint32_t(i) * G.s + uint32_t(j)) + (upper ? 1 : 0)], p);
-        }
+    if (prim >= lookup_head_.size()) return UINT32_MAX;
+    const TriangleHead& h = lookup_head_[prim];
+    // both lines of the head in flight at once
+    __builtin_prefetch(reinterpret_cast<const char*>(&h) + 64);
+    if (h.count) {
+        constexpr uint32_t K = kInlineCandidates;
+        const bool more = h.count > K;
+        const PackedEntry* rest = more ? lookup_packed_.data() + h.more : nullptr;
+        if (more) __builtin_prefetch(rest);
+        return scan_sphere(p, h.cx, h.cy, h.cz, h.reach2, h.count, h.first, more ? K : h.count, rest);
     }
-    return id;
+    if (h.more == kNoBlock) return UINT32_MAX;
+    const TriangleGrid& G = lookup_grids_[h.more & ~kGridBit];
+    const float qx = p[0] - G.ox, qy = p[1] - G.oy, qz = p[2] - G.oz;
+    const float a = (qx * G.dux + qy * G.duy + qz * G.duz) * float(G.s);
+    const float b = (qx * G.dvx + qy * G.dvy + qz * G.dvz) * float(G.s);
+    const int smax = int(G.s) - 1;
+    int i = std::isfinite(a) ? std::clamp(int(std::floor(std::clamp(a, -1.0f, float(G.s)))), 0, smax) : 0;
+    int j = std::isfinite(b) ? std::clamp(int(std::floor(std::clamp(b, -1.0f, float(G.s)))), 0, smax) : 0;
+    while (i + j > smax) (i > j ? i : j) -= 1;
+    const bool upper = i + j < smax && (a - float(i)) + (b - float(j)) > 1.0f;
+    const uint32_t cell = lookup_cell_at_[G.first + 2 * (uint32_t(i) * G.s + uint32_t(j)) + (upper ? 1 : 0)];
+    if (cell == kNoBlock) return UINT32_MAX;
+    const PackedEntry* c = lookup_packed_.data() + cell;
+    __builtin_prefetch(reinterpret_cast<const char*>(c) + 64);
+    return scan_sphere(p, c->x, c->y, c->z, c->w, c->id, c + 1, c->id, nullptr);
 }
 
 size_t SceneIndex::lookup_fallback_triangles() const {
@@ -498,8 +574,9 @@ size_t SceneIndex::lookup_fallback_triangles() const {
 size_t SceneIndex::lookup_bytes() const {
     return lookup_tri_.capacity() * sizeof(TriangleLookup) + lookup_vertices_.capacity() * sizeof(float) +
            lookup_grids_.capacity() * sizeof(TriangleGrid) + lookup_cells_.capacity() * sizeof(TriangleLookup) +
-           lookup_cand_.capacity() * sizeof(Candidate) +
-           lookup_ids_.capacity() * sizeof(uint32_t);
+           lookup_cand_.capacity() * sizeof(Candidate) + lookup_ids_.capacity() * sizeof(uint32_t) +
+           lookup_packed_.capacity() * sizeof(PackedEntry) + lookup_head_.capacity() * sizeof(TriangleHead) +
+           lookup_cell_at_.capacity() * sizeof(uint32_t);
 }
 
 void SceneIndex::cast(RTCRayHit& rh, V3 org, V3 dir, float tnear, float tfar) const {

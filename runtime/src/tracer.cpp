@@ -269,6 +269,12 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 const V3 p = w.p, n = w.n, dir = w.dir;
                 const float pa[3] = {p.x, p.y, p.z};
                 const uint32_t s = index.nearest_on_triangle(w.prim, pa);
+                // The surfel's row (read by the kernels and the roulette) and
+                // normal are random accesses: their misses overlap with the
+                // context's filling instead of following one another.
+                __builtin_prefetch(rows + size_t(s) * W);
+                __builtin_prefetch(rows + size_t(s) * W + (W - 1));
+                __builtin_prefetch(state.surf.normal.data() + 3 * size_t(s));
                 const int surface = surf_of[s];
                 GammaContext ctx;
                 ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;

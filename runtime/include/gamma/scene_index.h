@@ -95,7 +95,7 @@ public:
     // Size of the triangle lookup: candidate entries in all, triangles cut
     // into cells, and triangles that use the kd-tree instead (no surfels, or
     // too many candidates even in cells).
-    size_t lookup_candidates() const { return lookup_cand_.size(); }
+    size_t lookup_candidates() const { return lookup_n_candidates_; }
     size_t lookup_grid_triangles() const { return lookup_grids_.size(); }
     size_t lookup_fallback_triangles() const;
     // Bytes held by the triangle lookup.
@@ -145,6 +145,29 @@ public:
         float ox, oy, oz, dux, duy, duz, dvx, dvy, dvz;
         uint32_t s, first;
     };
+    // What the scan reads, laid out so that a lookup on a random hit costs
+    // about one cache miss (a triangle, its candidates and their ids were
+    // three arrays, a miss each).  A triangle's head is 128 bytes (two cache
+    // lines, fetched together): its sphere, its candidate count and its
+    // first kInlineCandidates candidates, where the scan usually stops; the
+    // rest follow in lookup_packed_[more...].  A cell's block in
+    // lookup_packed_ is a header entry (x, y, z = centre, w = squared
+    // reach, id = candidate count) followed by its candidates.  A candidate
+    // entry: x, y, z = position, w = distance from the centre (entries
+    // sorted as above), id = the global surfel index.
+    struct PackedEntry {
+        float x, y, z, w;
+        uint32_t id;
+    };
+    static constexpr uint32_t kInlineCandidates = 5;
+    // count 0: `more` is kGridBit | grid index for a triangle cut into
+    // cells, kNoBlock for the kd-tree.
+    static constexpr uint32_t kNoBlock = UINT32_MAX, kGridBit = 0x80000000u;
+    struct alignas(64) TriangleHead {
+        float cx = 0, cy = 0, cz = 0, reach2 = 0;
+        uint32_t count = 0, more = kNoBlock;
+        PackedEntry first[kInlineCandidates] = {};
+    };
     // More candidates than this (a triangle much larger than the surfel
     // spacing) and the triangle is cut into cells; a cell with more still
     // uses the kd-tree.
@@ -156,7 +179,7 @@ public:
 private:
     void build_lookup(int threads);
     void triangle_spheres(const Mesh& mesh);
-    uint32_t scan(const TriangleLookup& L, const float p[3]) const;
+    void pack_lookup();
 
     RTCDevice device_ = nullptr;
     RTCScene scene_ = nullptr;
@@ -171,6 +194,12 @@ private:
     std::vector<TriangleLookup> lookup_cells_;
     std::vector<Candidate> lookup_cand_;
     std::vector<uint32_t> lookup_ids_;
+    // The packed form the scan reads (pack_lookup; lookup_cand_ and
+    // lookup_ids_ are released once packed).
+    std::vector<PackedEntry> lookup_packed_;
+    std::vector<TriangleHead> lookup_head_;  // per triangle
+    std::vector<uint32_t> lookup_cell_at_;   // per cell: its block or kNoBlock
+    size_t lookup_n_candidates_ = 0;
     unsigned geom_id_ = 0;
     int geometry_builds_ = 0, surfel_builds_ = 0;
 };
