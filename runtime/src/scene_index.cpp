@@ -456,7 +456,7 @@ void SceneIndex::pack_lookup() {
     for (const TriangleLookup& C : lookup_cells_) entries += C.count > 0 ? 1 + C.count : 0;
     if (entries >= size_t(kGridBit) || lookup_grids_.size() >= size_t(kGridBit))
         throw Error("scene index: too many surfel candidates for the triangle lookup");
-    std::vector<PackedEntry> packed;
+    std::vector<PackedEntry, HugePageAllocator<PackedEntry>> packed;
     packed.reserve(entries);
     auto entry = [&](uint32_t k) {
         const Candidate& c = lookup_cand_[k];

@@ -24,6 +24,7 @@
 
 #include <embree3/rtcore.h>
 
+#include "gamma/huge_pages.h"
 #include "gamma/mesh.h"
 #include "gamma/render.h"
 #include "gamma/vec.h"
@@ -196,8 +197,8 @@ private:
     std::vector<uint32_t> lookup_ids_;
     // The packed form the scan reads (pack_lookup; lookup_cand_ and
     // lookup_ids_ are released once packed).
-    std::vector<PackedEntry> lookup_packed_;
-    std::vector<TriangleHead> lookup_head_;  // per triangle
+    std::vector<PackedEntry, HugePageAllocator<PackedEntry>> lookup_packed_;
+    std::vector<TriangleHead, HugePageAllocator<TriangleHead>> lookup_head_;  // per triangle
     std::vector<uint32_t> lookup_cell_at_;   // per cell: its block or kNoBlock
     size_t lookup_n_candidates_ = 0;
     unsigned geom_id_ = 0;
