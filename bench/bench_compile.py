@@ -1,15 +1,9 @@
-"""Benchmark: compiling a 200-line effect, cold (no kernel cache) and warm;
-and the whole ``gammac check`` process on it.
+"""Benchmark: compiling a 200-line effect, cold (no kernel cache) and warm.
 
     .venv/bin/python bench/bench_compile.py [--record]
 
-Goals: compiling under 0.5 s cold (issue 4); ``gammac check`` of a 200-line
-effect under 0.3 s cold, start-up included (issue 14).  Each measurement runs
-in a fresh process so nothing is cached in memory; the 'cold' runs use
-GAMMA_CACHE_DIR=off (no kernel cache, no cached parser tables).  The
-``gammac check`` rows time the process from outside (interpreter start,
-imports, parse, check, report), next to a bare ``python -c pass`` measured in
-the same run.
+Goal (issue 4): under 0.5 s cold.  Each measurement runs in a fresh process
+so nothing is cached in memory; the 'cold' runs use GAMMA_CACHE_DIR=off.
 """
 
 from __future__ import annotations
@@ -20,10 +14,9 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from report import cpu_name, load_average, report
+from report import report
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -71,44 +64,24 @@ def measure(path: Path, cache: str) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
-def time_process(cmd: list[str], cache: str) -> float:
-    env = dict(os.environ, GAMMA_CACHE_DIR=cache)
-    t0 = time.perf_counter()
-    subprocess.run(cmd, env=env, capture_output=True, check=True)
-    return time.perf_counter() - t0
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--record", action="store_true")
     args = ap.parse_args()
-    load_before = load_average()
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "big.gamma"
         path.write_text(effect_text())
         cold = min((measure(path, "off") for _ in range(args.repeats)), key=lambda r: r["check"] + r["jit"])
         measure(path, tmp)                       # fill the cache
         warm = min((measure(path, tmp) for _ in range(args.repeats)), key=lambda r: r["check"] + r["jit"])
-        gammac = str(Path(sys.executable).parent / "gammac")
-        bare = min(time_process([sys.executable, "-c", "pass"], "off") for _ in range(args.repeats))
-        check_cold = min(time_process([gammac, "check", str(path)], "off") for _ in range(args.repeats))
-        time_process([gammac, "check", str(path)], tmp)    # the parser tables cached
-        check_warm = min(time_process([gammac, "check", str(path)], tmp) for _ in range(args.repeats))
     assert warm["cached"] and not cold["cached"]
     header = "| case | import s | check s | codegen+JIT s | check+JIT s |\n|---|---|---|---|---|"
     rows = [f"| {name} | {r['import']:.3f} | {r['check']:.3f} | {r['jit']:.3f} | {r['check'] + r['jit']:.3f} |"
             for name, r in (("cold (no cache)", cold), ("warm (cache hit)", warm))]
     info = (f"200-line effect, {cold['kernels']} kernels, best of {args.repeats} fresh processes; "
-            f"goal: under 0.5 s cold; {cpu_name()}, load average {load_before:.1f} → {load_average():.1f}")
+            "goal: under 0.5 s cold")
     report("compiling a 200-line effect", info, header, rows, args.record)
-    header = ("| `gammac check`, whole process | s | bare `python -c pass` s | check − bare s |\n"
-              "|---|---|---|---|")
-    rows = [f"| {name} | {t:.3f} | {bare:.3f} | {t - bare:.3f} |"
-            for name, t in (("cold (no cached parser tables)", check_cold), ("parser tables cached", check_warm))]
-    info = (f"`gammac check` of the same 200-line effect, best of {args.repeats} fresh processes; goal: under "
-            f"0.3 s cold, start-up included; load average {load_average():.1f}")
-    report("gammac check of a 200-line effect", info, header, rows, args.record)
 
 
 if __name__ == "__main__":

@@ -21,9 +21,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
+
 from .. import abi
 from ..ir import effect as ir
-from ..ir import float32
 import dataclasses
 
 from ..ir.builtins import (FUNCTIONS, MAX_OCTAVES, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS,
@@ -62,9 +63,16 @@ def load(path: str, overrides: dict[str, float] | None = None) -> Effect:
     return check(parse(source, path), overrides)
 
 
-_f32 = float32.f32
-#: One float32 operation on constants, rounded as the machine would.
-_fold = float32.fold
+def _f32(value: float) -> float:
+    with np.errstate(over="ignore"):
+        return float(np.float32(value))
+
+
+def _fold(op: str, a: float, b: float) -> float:
+    """One float32 operation on constants, rounded as the machine would."""
+    a, b = np.float32(a), np.float32(b)
+    with np.errstate(all="ignore"):
+        return float({"+": a + b, "-": a - b, "*": a * b, "/": a / b}[op])
 
 
 # ---- declarations ------------------------------------------------------------------------

@@ -22,33 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-import math
+import numpy as np
 
-from .float32 import f32 as _round_f32
-
-
-class _LazyNumpy:
-    """numpy, imported on first use: the checker reads this module's tables
-    and needs no numpy (``gammac check``'s start-up time)."""
-
-    def __getattr__(self, name: str):
-        import numpy
-
-        globals()["np"] = numpy
-        return getattr(numpy, name)
-
-
-np = _LazyNumpy()
-
-
-def f32(value):
-    """``numpy.float32``; this name is bound to it on first use (see _LazyNumpy)."""
-    global f32
-    import numpy
-
-    f32 = numpy.float32
-    return f32(value)
-
+f32 = np.float32
 
 #: Kinds of values: numbers, truth values (comparisons), colours (rgb triples)
 #: and vectors (x, y, z triples: positions, directions, SPEC §10).
@@ -175,7 +151,7 @@ NOISE_CLAMP = 2.0 ** 30
 NOISE_BITS = 21
 #: The signed noise lies within +-sqrt(3)/2 (Perlin's gradients on the unit
 #: cube); times this (1/sqrt(3), rounded to float32) it spans about +-0.5.
-NOISE_SCALE = _round_f32(1.0 / math.sqrt(3.0))
+NOISE_SCALE = float(np.float32(1.0 / np.sqrt(3.0)))
 
 
 def noise_salt(octave: int) -> int:
