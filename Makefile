@@ -78,9 +78,9 @@ stain: install
 erosion: install
 	$(PY) examples/scenes/make_arch.py examples/scenes/arch.obj
 	$(VENV)/bin/gammac run examples/erosion.gamma --scene examples/scenes/arch.obj \
-	  --assign ground=Ground --assign arch=Sandstone --show stone --view -1,0.45,0.9 \
+	  --assign ground=Ground --assign arch=Sandstone --view -1,0.45,0.9 \
 	  --surfels 60000 --iterations 30 --out out/erosion
-	@echo "Erosion of the arch: $(abspath out/erosion)/renders/ (false colour of stone),"
+	@echo "Erosion of the arch: $(abspath out/erosion)/renders/ (stone laid bare pales, sand drifts at the foot),"
 	@echo "  meshes/iter_0001.ply ... iter_0030.ply (the deformed mesh), summary.json (geometry, mass books)"
 
 # The paper's other results (examples/gallery.py holds scenes, options and

@@ -68,7 +68,7 @@ EXAMPLES = [
           ["--surfels", "100000", "--iterations", "30"]),
     Entry("erosion", "examples/erosion.gamma", "examples/scenes/arch.obj",
           "Erosion: wind-driven sand wears a sandstone arch, after 1 and 30 iterations (Fig. 11)",
-          ["--assign", "ground=Ground", "--assign", "arch=Sandstone", "--show", "stone",
+          ["--assign", "ground=Ground", "--assign", "arch=Sandstone",
            "--view", "-1,0.45,0.9"], ["--surfels", "60000", "--iterations", "30"],
           ["--surfels", "60000", "--iterations", "30"], compare=["--iterations", "1"]),
 ]

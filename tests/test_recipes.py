@@ -64,10 +64,10 @@ def test_gammac_recipes_lists_them_with_parameters():
     assert r.returncode == 0, r.stderr
     for stem in RECIPES:
         assert f"{stem}.gamma  " in r.stdout
-    assert re.search(r"param rate = 0.015 +rust per unit of humidity and iteration", r.stdout)
+    assert re.search(r"param rate = 0.04 +rust per unit of humidity and iteration", r.stdout)
     assert f"{len(RECIPES)} recipes" in r.stdout
     verbose = run_gammac("recipes", "--verbose")
-    assert 'import "rust.gamma" (rate = 0.03)' in verbose.stdout
+    assert 'import "rust.gamma" (rate = 0.08)' in verbose.stdout
 
 
 @pytest.mark.parametrize("stem", RECIPES)

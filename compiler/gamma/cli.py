@@ -131,11 +131,23 @@ def _version() -> str:
     return f"gammac {__version__}"
 
 
+class _VersionAction(argparse.Action):
+    """--version, looked up only when asked for (the package metadata costs start-up time)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0,
+                         help=help or "show the version and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(_version())
+        parser.exit()
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="gammac", description="Compile and run .gamma weathering effects.",
                                 epilog="Exit status: 0 success, 1 an error in the input (effect, mesh, "
                                        "files), 2 a usage error (options, --param, --assign), 130 interrupted.")
-    p.add_argument("--version", action="version", version=_version())
+    p.add_argument("--version", action=_VersionAction)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     sub_parser = sub.add_parser
 

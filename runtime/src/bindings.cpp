@@ -238,6 +238,20 @@ NB_MODULE(_runtime, m) {
         .def_rw("row_width", &gammart::Config::row_width)
         .def_rw("surface_rows", &gammart::Config::surface_rows)
         .def_prop_rw(
+            "code_owner",
+            [](const gammart::Config& c) -> nb::object {
+                return c.code_owner ? *static_cast<const nb::object*>(c.code_owner.get()) : nb::none();
+            },
+            [](gammart::Config& c, nb::object owner) {
+                // The last reference may go from a thread without the GIL (a
+                // reconfigure or destructor under gil_scoped_release): take it.
+                c.code_owner = std::shared_ptr<const void>(new nb::object(std::move(owner)), [](const void* p) {
+                    nb::gil_scoped_acquire gil;
+                    delete static_cast<const nb::object*>(p);
+                });
+            },
+            "The object that owns the kernels' machine code (e.g. the JIT); kept alive with the config.")
+        .def_prop_rw(
             "triangle_surface",
             [](const gammart::Config& c) -> nb::object {
                 return nb::cast(to_numpy<int32_t>(c.triangle_surface, {c.triangle_surface.size()}),

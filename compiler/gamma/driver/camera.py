@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 #: Direction from the scene's centre toward the camera when --view is not given.
 DEFAULT_VIEW = (-0.6, 0.35, 1.0)   # front-left-above for a +z-facing, y-up model
 
@@ -18,6 +16,8 @@ class CameraError(ValueError):
 def auto_camera(bounds, view=DEFAULT_VIEW, down=(0.0, -1.0, 0.0), fov_deg: float = 30.0):
     """Eye, target and up framing the scene's bounding box; ``view`` points from
     the scene's centre toward the camera, "up" is against gravity."""
+    import numpy as np
+
     lo, hi = np.asarray(bounds[0], float), np.asarray(bounds[1], float)
     centre = (lo + hi) / 2
     radius = np.linalg.norm(hi - lo) / 2
@@ -34,6 +34,8 @@ def auto_camera(bounds, view=DEFAULT_VIEW, down=(0.0, -1.0, 0.0), fov_deg: float
 
 def sun_direction(camera) -> tuple[float, float, float]:
     """Toward the sun: above the scene, over the camera's left shoulder."""
+    import numpy as np
+
     eye, target, up, _ = (np.asarray(v, float) if i < 3 else v for i, v in enumerate(camera))
     view = eye - target
     view /= np.linalg.norm(view)
@@ -45,6 +47,8 @@ def sun_direction(camera) -> tuple[float, float, float]:
 def choose_camera(bounds, down, view=None, eye=None, look_at=None, up=None, fov_deg: float = 30.0):
     """The camera of the command-line options: ``view`` (or ``eye``) around
     ``look_at`` (default the scene's centre), ``up`` (default against gravity)."""
+    import numpy as np
+
     eye0, target, up0, fov = auto_camera(bounds, view or DEFAULT_VIEW, down, fov_deg)
     if look_at is not None:     # the same view direction and distance, around the new target
         shift = np.asarray(look_at, float) - np.asarray(target, float)

@@ -85,7 +85,8 @@ class _RecordingConfig:
         return value
 
     def __setattr__(self, name, value):
-        self._calls.append(("set", name, value))
+        if name != "code_owner":        # a worker compiles its own kernels and owns them
+            self._calls.append(("set", name, value))
 
     def __getattr__(self, name):
         def call(*args, **kwargs):
@@ -162,6 +163,7 @@ def worker_simulation(job: TraceJob, threads: int):
             resolve = (lambda v: kernels.address[v] if isinstance(v, _Symbol) else v)
             getattr(cfg, name)(*map(resolve, args), **{k: resolve(v) for k, v in kwargs.items()})
     cfg.threads = threads
+    cfg.code_owner = kernels
     cfg.triangle_surface = job.triangle_surface
     sim = rt.Simulation(rt.Mesh.from_arrays(job.vertices, job.triangles), cfg)
     if surfel_digest(sim) != job.surfel_digest:

@@ -182,6 +182,7 @@ def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bo
     for name in mass_properties(effect):
         cfg.add_mass_property([s.properties.get(name, -1) for s in effect.surfaces.values()],
                               [t.carry.get(name, -1) for t in effect.tons.values()])
+    cfg.code_owner = kernels            # the simulation keeps the machine code its addresses point into
     return cfg
 
 

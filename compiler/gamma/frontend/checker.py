@@ -21,14 +21,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
-
 from .. import abi
 from ..ir import effect as ir
 import dataclasses
 
 from ..ir.builtins import (FUNCTIONS, MAX_OCTAVES, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS,
                            VECTOR_COMPONENTS, context_kind)
+from ..ir.float32 import arith_f32, round_f32
 from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
@@ -63,16 +62,8 @@ def load(path: str, overrides: dict[str, float] | None = None) -> Effect:
     return check(parse(source, path), overrides)
 
 
-def _f32(value: float) -> float:
-    with np.errstate(over="ignore"):
-        return float(np.float32(value))
-
-
-def _fold(op: str, a: float, b: float) -> float:
-    """One float32 operation on constants, rounded as the machine would."""
-    a, b = np.float32(a), np.float32(b)
-    with np.errstate(all="ignore"):
-        return float({"+": a + b, "-": a - b, "*": a * b, "/": a / b}[op])
+_f32 = round_f32
+_fold = arith_f32          # one float32 operation on constants, rounded as the machine would
 
 
 # ---- declarations ------------------------------------------------------------------------

@@ -19,12 +19,36 @@ llvmlite nor the back ends.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
-import numpy as np
+from .float32 import round_f32
 
-f32 = np.float32
+
+class _Numpy:
+    """numpy, imported on first use: the checker reads this module's tables,
+    and `gammac check` should not pay for numpy (only the reference
+    interpreter computes with it).  The first access replaces the module
+    global ``np`` with numpy itself."""
+
+    def __getattr__(self, name):
+        import numpy
+
+        globals()["np"] = numpy
+        return getattr(numpy, name)
+
+
+np = _Numpy()
+
+
+def f32(x):
+    """numpy.float32 (the interpreter's number type); replaces itself on first call."""
+    global f32
+    import numpy
+
+    f32 = numpy.float32
+    return f32(x)
 
 #: Kinds of values: numbers, truth values (comparisons), colours (rgb triples)
 #: and vectors (x, y, z triples: positions, directions, SPEC §10).
@@ -151,7 +175,7 @@ NOISE_CLAMP = 2.0 ** 30
 NOISE_BITS = 21
 #: The signed noise lies within +-sqrt(3)/2 (Perlin's gradients on the unit
 #: cube); times this (1/sqrt(3), rounded to float32) it spans about +-0.5.
-NOISE_SCALE = float(np.float32(1.0 / np.sqrt(3.0)))
+NOISE_SCALE = round_f32(1.0 / math.sqrt(3.0))
 
 
 def noise_salt(octave: int) -> int:

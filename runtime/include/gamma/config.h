@@ -4,6 +4,7 @@
 #pragma once
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -95,6 +96,10 @@ struct Config {
     // Per-surfel measures computed when the surfels are placed (SPEC §12):
     // only those some kernel reads, as they cost setup time.
     bool measure_accessibility = false, measure_curvature = false, measure_uv = false;
+    // Whatever owns the machine code at the kernel addresses above (the host's
+    // JIT): a simulation keeps it alive for as long as it keeps this config,
+    // so dropping the host's handle early cannot leave dangling addresses.
+    std::shared_ptr<const void> code_owner;
 
     int add_ton_type(float ks, float kp, float kf, std::vector<float> carry, float bounce_distance = 1.0f,
                      float flow_step = 1.0f, float drip_angle_deg = 10.0f) {
