@@ -459,6 +459,7 @@ NB_MODULE(_runtime, m) {
                  d["changed"] = st.changed;
                  d["retiled"] = st.retiled;
                  d["retiled_triangles"] = st.retiled_triangles;
+                 d["slivers_left"] = st.slivers_left;
                  d["moved_vertices"] = st.moved_vertices;
                  d["clamped_vertices"] = st.clamped_vertices;
                  d["inversion_limited"] = st.inversion_limited;

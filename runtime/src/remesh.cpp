@@ -4,6 +4,7 @@
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Polygon_mesh_processing/detect_features.h>
 #include <CGAL/Polygon_mesh_processing/remesh.h>
+#include <CGAL/Polygon_mesh_processing/repair_degeneracies.h>
 #include <CGAL/Surface_mesh.h>
 
 #include <algorithm>
@@ -13,6 +14,7 @@
 #include <utility>
 
 #include "gamma/error.h"
+#include "gamma/triangle_quality.h"
 
 namespace gammart {
 
@@ -43,6 +45,8 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
                int iterations, const std::vector<uint8_t>* region) {
     if (!(target_edge_length > 0) || !std::isfinite(target_edge_length))
         throw Error("retile: target edge length must be positive");
+    Retiled out;
+    size_t& out_slivers = out.slivers_left;
     SurfaceMesh sm;
     std::vector<VertexIndex> vi(mesh.num_vertices());
     for (size_t i = 0; i < mesh.num_vertices(); ++i)
@@ -74,12 +78,90 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
         const auto h = sm.halfedge(e), o = sm.opposite(h);
         if (sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)]) constrained[e] = true;
     }
+    const unsigned rounds = unsigned(std::max(iterations, 1));
     PMP::isotropic_remeshing(faces, target_edge_length, sm,
-                             CGAL::parameters::number_of_iterations(unsigned(std::max(iterations, 1)))
+                             CGAL::parameters::number_of_iterations(rounds)
                                  .face_patch_map(patch)
                                  .edge_is_constrained_map(constrained)
                                  .relax_constraints(false));
     sm.collect_garbage();
+
+    // Sliver passes (SPEC §13.12): isotropic remeshing does not promise an
+    // angle bound, and slivers survive where its region or a sharp-edge
+    // polyline held it back (a local region's border; the creases noise and
+    // erosion make on a scanned surface).  Every triangle with an angle below
+    // kMinRetiledAngleDeg at a corner not between two kept edges (borders,
+    // seams: that corner is the input's) is re-tiled again with the
+    // triangles within kSliverPassRings vertex rings, its sharp edges no
+    // longer kept (a crease there rounds off, as wear does).
+    constexpr double kCapDeg = 120.0, kNeedleRatio = 4.0;
+    const double cos_max = cos_of_deg(kMinRetiledAngleDeg);
+    auto kept_edge = [&](SurfaceMesh::Halfedge_index h) {
+        const auto o = sm.opposite(h);
+        return sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)];
+    };
+    auto is_sliver = [&](FaceIndex f) {
+        const auto h0 = sm.halfedge(f);
+        const SurfaceMesh::Halfedge_index hs[3] = {h0, sm.next(h0), sm.next(sm.next(h0))};
+        double p[3][3];
+        for (int k = 0; k < 3; ++k) {   // p[k] = source of hs[k]
+            const Point& q = sm.point(sm.source(hs[k]));
+            p[k][0] = q.x(); p[k][1] = q.y(); p[k][2] = q.z();
+        }
+        for (int k = 0; k < 3; ++k)   // corner k lies between hs[k] (out) and hs[k + 2] (in)
+            if (corner_below(p[k], p[(k + 1) % 3], p[(k + 2) % 3], cos_max) &&
+                !(kept_edge(hs[k]) && kept_edge(hs[(k + 2) % 3])))
+                return true;
+        return false;
+    };
+    // The slivers and the triangles within kSliverPassRings vertex rings of
+    // them, as a face range (empty when there is no sliver).
+    auto sliver_region = [&](std::vector<uint8_t>& in) {
+        in.assign(sm.num_faces(), 0);
+        std::vector<FaceIndex> range;
+        for (FaceIndex f : sm.faces())
+            if (is_sliver(f)) in[f.idx()] = 1;
+        if (std::find(in.begin(), in.end(), uint8_t(1)) == in.end()) return range;
+        for (int ring = 0; ring < kSliverPassRings; ++ring) {
+            std::vector<uint8_t> near(sm.num_vertices(), 0);
+            for (FaceIndex f : sm.faces())
+                if (in[f.idx()])
+                    for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) near[x.idx()] = 1;
+            for (FaceIndex f : sm.faces())
+                for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) in[f.idx()] |= near[x.idx()];
+        }
+        for (FaceIndex f : sm.faces())
+            if (in[f.idx()]) range.push_back(f);
+        return range;
+    };
+    std::vector<uint8_t> in;
+    for (int pass = 0; pass < kSliverPasses; ++pass) {
+        faces = sliver_region(in);
+        if (faces.empty()) break;
+        for (EdgeIndex e : sm.edges()) {
+            const auto h = sm.halfedge(e);
+            if (constrained[e] && !kept_edge(h) && in[sm.face(h).idx()] && in[sm.face(sm.opposite(h)).idx()])
+                constrained[e] = false;
+        }
+        // Isotropic remeshing flips edges for valence, not angles, and its
+        // relaxation cannot pull a vertex off a fold of the surface it
+        // projects onto: a cap (an angle above kCapDeg) is flipped and a
+        // needle (longest / shortest edge above kNeedleRatio, about
+        // 1 / sin 15°) collapsed first, edges kept by `constrained` untouched.
+        PMP::experimental::remove_almost_degenerate_faces(faces, sm, std::cos(kCapDeg * M_PI / 180.0), kNeedleRatio,
+                                                          target_edge_length,
+                                                          CGAL::parameters::edge_is_constrained_map(constrained));
+        sm.collect_garbage();
+        faces = sliver_region(in);
+        if (faces.empty()) break;
+        PMP::isotropic_remeshing(faces, target_edge_length, sm,
+                                 CGAL::parameters::number_of_iterations(rounds)
+                                     .face_patch_map(patch)
+                                     .edge_is_constrained_map(constrained)
+                                     .relax_constraints(false));
+        sm.collect_garbage();
+    }
+    for (FaceIndex f : sm.faces()) out_slivers += is_sliver(f);
     std::vector<float> v;
     v.reserve(3 * sm.number_of_vertices());
     // After collect_garbage the vertex indices are 0 .. n-1 in order.
@@ -119,7 +201,6 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
         surf.push_back(patch[f]);
         same.push_back(kept ? face_input[f] : -1);
     }
-    Retiled out;
     out.mesh = Mesh::from_arrays(v.data(), v.size() / 3, t.data(), t.size() / 3, mesh.name);
     out.tri_surface.resize(out.mesh.num_triangles());
     out.kept.resize(out.mesh.num_triangles());

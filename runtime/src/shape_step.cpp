@@ -16,6 +16,7 @@
 #include "gamma/splat.h"
 #include "gamma/surfels.h"
 #include "gamma/threads.h"
+#include "gamma/triangle_quality.h"
 
 namespace gammart {
 
@@ -111,32 +112,6 @@ void require_surfels(const SceneIndex& index, int iteration) {
 
 V3 vertex(const Mesh& m, size_t i) { return {m.vertices[3 * i], m.vertices[3 * i + 1], m.vertices[3 * i + 2]}; }
 
-// The fraction of triangles with an angle below min_deg.
-double sliver_fraction(const Mesh& mesh, double min_deg) {
-    const size_t m = mesh.num_triangles();
-    if (m == 0) return 0.0;
-    const double cos_max = std::cos(min_deg * 3.14159265358979323846 / 180.0);
-    size_t bad = 0;
-    for (size_t t = 0; t < m; ++t) {
-        double p[3][3];
-        for (int k = 0; k < 3; ++k)
-            for (int d = 0; d < 3; ++d) p[k][d] = mesh.vertices[3 * size_t(mesh.triangles[3 * t + size_t(k)]) + size_t(d)];
-        for (int k = 0; k < 3; ++k) {
-            const double* a = p[k];
-            const double* b = p[(k + 1) % 3];
-            const double* c = p[(k + 2) % 3];
-            const double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-            const double uu = u[0] * u[0] + u[1] * u[1] + u[2] * u[2], vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-            const double uv = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-            if (!(uu > 0 && vv > 0) || uv > cos_max * std::sqrt(uu * vv)) {   // angle at a below min_deg
-                ++bad;
-                break;
-            }
-        }
-    }
-    return double(bad) / double(m);
-}
-
 // Surfels carried by their triangles from `before` to `after` (same
 // connectivity): the same barycentric coordinates, the new face normal.
 void carry_surfels(const Mesh& before, const Mesh& after, SurfelSet& surf, int threads) {
@@ -181,24 +156,20 @@ void carry_surfels(const Mesh& before, const Mesh& after, SurfelSet& surf, int t
 
 }  // namespace
 
-std::vector<uint8_t> retiling_region(const Mesh& mesh, double target, double min_deg) {
+std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target,
+                                     double min_deg) {
     const size_t m = mesh.num_triangles();
-    const double cos_max = std::cos(min_deg * 3.14159265358979323846 / 180.0);
     const double lo2 = kRegionShortEdge * kRegionShortEdge * target * target;
     const double hi2 = kRegionLongEdge * kRegionLongEdge * target * target;
-    std::vector<uint8_t> bad(m, 0);
+    std::vector<uint8_t> bad = sliver_triangles(mesh, tri_surface, min_deg);
     for (size_t t = 0; t < m; ++t) {
         double p[3][3];
-        for (int k = 0; k < 3; ++k)
-            for (int d = 0; d < 3; ++d) p[k][d] = mesh.vertices[3 * size_t(mesh.triangles[3 * t + size_t(k)]) + size_t(d)];
+        triangle_corners(mesh, t, p);
         for (int k = 0; k < 3 && !bad[t]; ++k) {
             const double* a = p[k];
             const double* b = p[(k + 1) % 3];
-            const double* c = p[(k + 2) % 3];
-            const double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-            const double uu = u[0] * u[0] + u[1] * u[1] + u[2] * u[2], vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-            const double uv = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-            if (!(uu > 0 && vv > 0) || uv > cos_max * std::sqrt(uu * vv) || uu < lo2 || uu > hi2) bad[t] = 1;
+            const double uu = (b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) + (b[2] - a[2]) * (b[2] - a[2]);
+            if (uu < lo2 || uu > hi2) bad[t] = 1;
         }
     }
     // and the triangles within kRegionRings vertex rings of one (room to fix it)
@@ -304,24 +275,24 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
         displaced.vertices[3 * v + 2] = p.z;
     }
     // Re-tile only when the triangles need it (SPEC §13.12): the first time
-    // (the input's own tiling), when a sliver (an angle under kSliverDeg)
-    // appeared on a mesh the last re-tiling left without any, or their share
-    // grew by more than half a per cent of the triangles where it could not
-    // avoid them (constrained boundaries), when the area drifted by more than 10 % from it,
-    // or after kMaxIterationsWithoutRetiling.  Otherwise the vertices move
-    // and the surfels ride on their triangles.
+    // (the input's own tiling), when a sliver (an angle under kSliverDeg not
+    // forced by two kept edges) appeared, when the area drifted by more than
+    // 10 % from the last re-tiling, or after kMaxIterationsWithoutRetiling.
+    // Otherwise the vertices move and the surfels ride on their triangles.
+    // Every re-tiling leaves no sliver (remesh.h), so the bound holds after
+    // every shape step.
     const MeshMeasures q = measure(displaced);
-    const double slivers = sliver_fraction(displaced, kSliverDeg);
+    const std::vector<uint8_t> sliver = sliver_triangles(displaced, index->tri_surface(), kSliverDeg);
+    const bool has_sliver = std::find(sliver.begin(), sliver.end(), uint8_t(1)) != sliver.end();
     const bool first = retiled_area_ == 0;
     const bool drifted = std::fabs(q.area - retiled_area_) > 0.1 * retiled_area_;
-    bool keep_tiling = !first && !drifted && kept_iterations_ < kMaxIterationsWithoutRetiling &&
-                       slivers <= retiled_slivers_ + (retiled_slivers_ > 0 ? 0.005 : 0.0);
+    bool keep_tiling = !first && !drifted && kept_iterations_ < kMaxIterationsWithoutRetiling && !has_sliver;
     // After the first re-tiling, only the triangles that need it are re-tiled
     // (unless the area drifted: then the whole mesh); if none does, the
     // surfels ride.
     std::vector<uint8_t> region;
     if (!keep_tiling && !first && !drifted) {
-        region = retiling_region(displaced, target, kSliverDeg);
+        region = retiling_region(displaced, index->tri_surface(), target, kSliverDeg);
         if (std::find(region.begin(), region.end(), uint8_t(1)) == region.end()) {
             keep_tiling = true;
             kept_iterations_ = -1;  // checked now: counts again from here
@@ -361,7 +332,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
             resample(iteration, rt, mesh, state, index, st);
         else
             resample_region(iteration, rt, mesh, displaced, state, index, st);
-        retiled_slivers_ = sliver_fraction(mesh, kSliverDeg);
+        st.slivers_left = int64_t(rt.slivers_left);
         retiled_area_ = mesh.area();
     }
 

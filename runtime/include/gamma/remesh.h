@@ -10,8 +10,13 @@
 
 namespace gammart {
 
-// The smallest triangle angle re-tiling is tested to keep (SPEC §13.12).
+// The smallest triangle angle re-tiling keeps (SPEC §13.12), except at a
+// corner between two kept edges (open boundaries, seams between surfaces)
+// that the input itself makes that narrow.
 constexpr double kMinRetiledAngleDeg = 15.0;
+// Re-tiling passes after the first over the slivers left (and the triangles
+// within kSliverPassRings vertex rings of them), sharp edges there released.
+constexpr int kSliverPasses = 4, kSliverPassRings = 2;
 
 // Edges whose faces' normals differ by more than this are kept by re-tiling.
 constexpr double kSharpEdgeDeg = 60.0;
@@ -22,6 +27,10 @@ struct Retiled {
     // Per triangle: the input triangle it is (same three vertices, at
     // bit-identical positions, same orientation), or -1 if re-tiling made it.
     std::vector<int32_t> kept;
+    // Triangles still with an angle below kMinRetiledAngleDeg (not at a
+    // corner between two kept edges) after the sliver passes: 0 unless they
+    // could not remove them all.
+    size_t slivers_left = 0;
 };
 
 // Isotropic remeshing towards `target_edge_length` (`iterations` rounds of
@@ -30,15 +39,21 @@ struct Retiled {
 // surfaces, the mesh's open boundaries and its sharp edges (kSharpEdgeDeg)
 // are kept as polylines (their edges may be split or collapsed, never
 // flipped, their vertices not relaxed), and every new triangle keeps the
-// surface id of the triangle it came from.  Deterministic (single-threaded).
+// surface id of the triangle it came from.  Then up to kSliverPasses sliver
+// passes re-tile the slivers left (an angle below kMinRetiledAngleDeg at a
+// corner not between two border / seam edges) with the triangles within
+// kSliverPassRings vertex rings, sharp edges there released: CGAL's removal
+// of almost-degenerate faces (cap flips, needle collapses), then isotropic
+// remeshing (SPEC §13.12).  Deterministic (single-threaded).
 // Texture coordinates and part labels do not survive (the result has none).
 // Throws gammart::Error if the input is not a valid triangle mesh for CGAL.
 //
 // With `region` (one flag per triangle), only the flagged triangles are
 // re-tiled (CGAL's face range): the border of the region is kept as a
 // constraint like a seam, so apart from the region only triangles along its
-// border can change (where a border edge is split or collapsed); every other
-// triangle comes out as it was (Retiled::kept).
+// border can change (where a border edge is split or collapsed), and those
+// the sliver passes re-tile around a sliver left along that border; every
+// other triangle comes out as it was (Retiled::kept).
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
                int iterations, const std::vector<uint8_t>* region = nullptr);
 

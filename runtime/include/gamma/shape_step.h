@@ -21,6 +21,7 @@ struct ShapeStats {
     bool changed = false;              // the geometry moved (and the scene index was rebuilt)
     bool retiled = false;              // ... re-tiled with new surfels (else the surfels rode on their triangles)
     int64_t retiled_triangles = 0;     // triangles the re-tiling made (the rest it kept as they were)
+    int64_t slivers_left = 0;          // slivers the re-tiling could not remove (Retiled::slivers_left)
     int64_t moved_vertices = 0;
     int64_t clamped_vertices = 0;      // |displacement| cut to the per-iteration bound
     int64_t inversion_limited = 0;     // vertices whose move was shortened so that no triangle flips
@@ -52,13 +53,15 @@ std::vector<V3> vertex_normals(const Mesh& mesh);
 void transfer_rows(const SurfelState& old_state, double old_area, const SceneIndex& old_index,
                    SurfelState& state, double new_area, const SceneIndex& index, int threads);
 
-// The triangles a re-tiling after the first re-tiles (SPEC §13.12): those
-// with an angle below min_deg or an edge shorter than kRegionShortEdge or
-// longer than kRegionLongEdge x target, and the triangles within
-// kRegionRings vertex rings of one.  One flag per triangle.
+// The triangles a re-tiling after the first re-tiles (SPEC §13.12): the
+// slivers (sliver_triangles: an angle below min_deg not between two kept
+// edges), those with an edge shorter than kRegionShortEdge or longer than
+// kRegionLongEdge x target, and the triangles within kRegionRings vertex
+// rings of one.  One flag per triangle.
 constexpr double kRegionShortEdge = 0.4, kRegionLongEdge = 2.0;
 constexpr int kRegionRings = 1;
-std::vector<uint8_t> retiling_region(const Mesh& mesh, double target, double min_deg);
+std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target,
+                                     double min_deg);
 
 class ShapeStep {
 public:
@@ -79,7 +82,7 @@ public:
     // Re-tilings are skipped while the triangles stay good: at most this
     // many iterations in a row (SPEC §13.12).
     static constexpr int kMaxIterationsWithoutRetiling = 8;
-    static constexpr double kSliverDeg = 15.0;   // a triangle with a smaller angle is a sliver
+    static constexpr double kSliverDeg = kMinRetiledAngleDeg;   // a triangle with a smaller angle is a sliver
 
 private:
     // New surfels on the re-tiled mesh, rows transferred, scene index rebuilt.
@@ -95,7 +98,7 @@ private:
     std::vector<float> before_;
     int rebuilds_ = 0;
     int kept_iterations_ = 0;           // shape steps since the last re-tiling
-    double retiled_slivers_ = 0, retiled_area_ = 0;   // sliver share and area right after it
+    double retiled_area_ = 0;           // area right after the last re-tiling
 };
 
 }  // namespace gammart
