@@ -508,9 +508,13 @@ NB_MODULE(_runtime, m) {
                          d["sample"] = s.setup_seconds().sample;
                          d["geometry"] = s.setup_seconds().geometry;
                          d["surfels"] = s.setup_seconds().surfels;
+                         d["splat"] = s.setup_seconds().splat;
+                         d["measures"] = s.setup_seconds().measures;
+                         d["normals"] = s.setup_seconds().normals;
                          return d;
                      },
-                     "Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle lookup.")
+                     "Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle lookup, "
+                     "splat kernel, per-surfel measures, the renders' corner normals.")
         .def_prop_ro("lookup_stats",
                      [](const gammart::Simulation& s) {
                          const gammart::SceneIndex& ix = s.scene_index();

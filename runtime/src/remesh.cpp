@@ -28,6 +28,10 @@ using FaceIndex = SurfaceMesh::Face_index;
 using EdgeIndex = SurfaceMesh::Edge_index;
 namespace PMP = CGAL::Polygon_mesh_processing;
 
+// A local re-tiling converts the region and this many vertex rings around it
+// (room for the sliver passes) into CGAL's mesh, not the whole mesh.
+constexpr int kSubmeshMarginRings = 4;
+
 double angle_deg(const float* a, const float* b, const float* c) {  // angle at a
     double u[3], v[3];
     for (int k = 0; k < 3; ++k) {
@@ -39,32 +43,64 @@ double angle_deg(const float* a, const float* b, const float* c) {  // angle at 
     return std::atan2(std::sqrt(cx * cx + cy * cy + cz * cz), uv) * 180.0 / M_PI;
 }
 
-}  // namespace
-
-Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
-               int iterations, const std::vector<uint8_t>* region) {
-    if (!(target_edge_length > 0) || !std::isfinite(target_edge_length))
-        throw Error("retile: target edge length must be positive");
+// `cut`: convert only the region and its margin (see below), else the
+// whole mesh.
+Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
+                    int iterations, const std::vector<uint8_t>* region, bool cut) {
     Retiled out;
     size_t& out_slivers = out.slivers_left;
-    SurfaceMesh sm;
-    std::vector<VertexIndex> vi(mesh.num_vertices());
-    for (size_t i = 0; i < mesh.num_vertices(); ++i)
-        vi[i] = sm.add_vertex(Point(mesh.vertices[3 * i], mesh.vertices[3 * i + 1], mesh.vertices[3 * i + 2]));
     if (region && region->size() != mesh.num_triangles()) throw Error("retile: one region flag per triangle expected");
+    const size_t m = mesh.num_triangles(), n = mesh.num_vertices();
+    // A local re-tiling hands CGAL only the region and kSubmeshMarginRings
+    // vertex rings around it (CGAL's relaxation recomputes the normals of
+    // every vertex of the mesh it is given, each round): `sub` flags the
+    // triangles converted, `frozen` the vertices on the sub-mesh's cut (it
+    // shares them with triangles left outside, so no face touching one is
+    // ever re-tiled).
+    std::vector<uint8_t> sub(m, 1), frozen(n, 0);
+    if (region && cut) {
+        sub = *region;
+        for (int ring = 0; ring < kSubmeshMarginRings; ++ring) {
+            std::vector<uint8_t> near(n, 0);
+            for (size_t t = 0; t < m; ++t)
+                if (sub[t])
+                    for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+            for (size_t t = 0; t < m; ++t)
+                for (int k = 0; k < 3; ++k) sub[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
+        }
+        for (size_t t = 0; t < m; ++t)
+            if (!sub[t])
+                for (int k = 0; k < 3; ++k) frozen[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+    }
+    SurfaceMesh sm;
     auto patch = sm.add_property_map<FaceIndex, int32_t>("f:surface", 0).first;
     // Which input vertex / triangle an element was (-1: made by the remeshing;
     // CGAL resets properties of recycled elements).
     auto vertex_input = sm.add_property_map<VertexIndex, int32_t>("v:input", -1).first;
     auto face_input = sm.add_property_map<FaceIndex, int32_t>("f:input", -1).first;
-    for (size_t i = 0; i < mesh.num_vertices(); ++i) vertex_input[vi[i]] = int32_t(i);
+    auto vertex_frozen = sm.add_property_map<VertexIndex, bool>("v:frozen", false).first;
+    std::vector<VertexIndex> vi(n, SurfaceMesh::null_vertex());
+    std::vector<uint8_t> used(n, region && cut ? 0 : 1);   // the whole mesh: every vertex, isolated ones too
+    for (size_t t = 0; t < m; ++t)
+        if (sub[t])
+            for (int k = 0; k < 3; ++k) used[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+    for (size_t i = 0; i < n; ++i) {
+        if (!used[i]) continue;
+        vi[i] = sm.add_vertex(Point(mesh.vertices[3 * i], mesh.vertices[3 * i + 1], mesh.vertices[3 * i + 2]));
+        vertex_input[vi[i]] = int32_t(i);
+        vertex_frozen[vi[i]] = frozen[i] != 0;
+    }
     std::vector<FaceIndex> faces;
-    for (size_t t = 0; t < mesh.num_triangles(); ++t) {
+    for (size_t t = 0; t < m; ++t) {
+        if (!sub[t]) continue;
         const FaceIndex f = sm.add_face(vi[size_t(mesh.triangles[3 * t])], vi[size_t(mesh.triangles[3 * t + 1])],
                                         vi[size_t(mesh.triangles[3 * t + 2])]);
-        if (f == SurfaceMesh::null_face())
+        if (f == SurfaceMesh::null_face()) {
+            if (region && cut)   // the cut made a vertex CGAL cannot hold (two fans): re-tile in the whole mesh
+                return retile_impl(mesh, tri_surface, target_edge_length, iterations, region, false);
             throw Error("retile: " + mesh.name + " is not an oriented 2-manifold (triangle " + std::to_string(t) +
                         " cannot be added); re-tiling needs a manifold mesh");
+        }
         patch[f] = tri_surface[t];
         face_input[f] = int32_t(t);
         if (!region || (*region)[t]) faces.push_back(f);
@@ -130,8 +166,12 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
             for (FaceIndex f : sm.faces())
                 for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) in[f.idx()] |= near[x.idx()];
         }
-        for (FaceIndex f : sm.faces())
-            if (in[f.idx()]) range.push_back(f);
+        for (FaceIndex f : sm.faces()) {
+            if (!in[f.idx()]) continue;
+            bool cut = false;
+            for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) cut = cut || vertex_frozen[x];
+            if (!cut) range.push_back(f);
+        }
         return range;
     };
     std::vector<uint8_t> in;
@@ -162,15 +202,26 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
         sm.collect_garbage();
     }
     for (FaceIndex f : sm.faces()) out_slivers += is_sliver(f);
+    // The output: the input's vertices that were not converted, then the
+    // sub-mesh's (after collect_garbage its indices are 0 .. k-1 in order);
+    // the triangles left outside, then the sub-mesh's.  For the whole mesh
+    // this is the sub-mesh alone, in CGAL's order.
     std::vector<float> v;
-    v.reserve(3 * sm.number_of_vertices());
-    // After collect_garbage the vertex indices are 0 .. n-1 in order.
-    auto id = [](VertexIndex x) { return int32_t(x.idx()); };
+    v.reserve(3 * (n + sm.number_of_vertices()));
+    std::vector<int32_t> out_of_input(n, -1);
+    for (size_t i = 0; i < n; ++i)
+        if (!used[i]) {
+            out_of_input[i] = int32_t(v.size() / 3);
+            v.insert(v.end(), &mesh.vertices[3 * i], &mesh.vertices[3 * i] + 3);
+        }
+    const int32_t first_sub = int32_t(v.size() / 3);
+    auto id = [&](VertexIndex x) { return first_sub + int32_t(x.idx()); };
     for (VertexIndex x : sm.vertices()) {
         const Point& p = sm.point(x);
         v.push_back(float(p.x()));
         v.push_back(float(p.y()));
         v.push_back(float(p.z()));
+        if (vertex_frozen[x]) out_of_input[size_t(vertex_input[x])] = id(x);   // the cut's vertices never move
     }
     // A vertex is the input's if it is the same element at the same place.
     auto unchanged = [&](VertexIndex x) {
@@ -182,7 +233,13 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
     };
     std::vector<int32_t> t;
     std::vector<int32_t> surf, same;
-    t.reserve(3 * sm.number_of_faces());
+    t.reserve(3 * (m + sm.number_of_faces()));
+    for (size_t o = 0; o < m; ++o) {
+        if (sub[o]) continue;
+        for (int k = 0; k < 3; ++k) t.push_back(out_of_input[size_t(mesh.triangles[3 * o + size_t(k)])]);
+        surf.push_back(tri_surface[o]);
+        same.push_back(int32_t(o));
+    }
     for (FaceIndex f : sm.faces()) {
         int32_t in[3];
         int k = 0;
@@ -209,6 +266,15 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
         out.kept[k] = same[size_t(out.mesh.original_triangle[k])];
     }
     return out;
+}
+
+}  // namespace
+
+Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
+               int iterations, const std::vector<uint8_t>* region) {
+    if (!(target_edge_length > 0) || !std::isfinite(target_edge_length))
+        throw Error("retile: target edge length must be positive");
+    return retile_impl(mesh, tri_surface, target_edge_length, iterations, region, true);
 }
 
 MeshMeasures measure(const Mesh& mesh) {

@@ -73,15 +73,21 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
                           float(std::sqrt(mesh_.area() / double(state_.size()))), c.threads);
     setup_seconds_.surfels = seconds_since(t0);
     require_surfels_on_every_surface(mesh_, *index_, c.surfels);
+    t0 = std::chrono::steady_clock::now();
     run_with_threads(c.threads, [&] {
         state_.splat = build_splat_kernel(state_.surf.position.data(), state_.surf.normal.data(),
                                           state_.surface.data(), state_.size(), index_->sigma());
     });
+    setup_seconds_.splat = seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
     state_.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh_, *index_,
                                       state_.surf, kAoLengthFraction * frame_.diag, c.seed, c.threads);
+    setup_seconds_.measures = seconds_since(t0);
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
     tracer_->set_cancel_flag(&cancel_);
+    t0 = std::chrono::steady_clock::now();
     update_corner_normals();
+    setup_seconds_.normals = seconds_since(t0);
 }
 
 Simulation::~Simulation() = default;
@@ -173,7 +179,9 @@ void Simulation::bake_prepared(int iteration, int threads, float* rows_out, floa
     gammart::bake_prepared(render_scene(), prepared_, iteration, threads, rows_out, rgb_out);
 }
 
-void Simulation::update_corner_normals() { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); }
+void Simulation::update_corner_normals() {
+    run_with_threads(cfg_.threads, [&] { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); });
+}
 
 void Simulation::set_rows(const float* data) {
     std::memcpy(state_.rows.data(), data, sizeof(float) * state_.rows.size());

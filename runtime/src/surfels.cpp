@@ -48,6 +48,12 @@ public:
         }
     }
     bool contains(uint32_t i) const { return pos_[i] != kRemoved; }
+    // Cache hints for i's position, then (once that is in) its entry.
+    void prefetch_position(uint32_t i) const { __builtin_prefetch(&pos_[i]); }
+    void prefetch_entry(uint32_t i) const {
+        const uint32_t p = pos_[i];
+        if (p != kRemoved) __builtin_prefetch(&h_[p], 1);
+    }
     // Subtracts d from i's weight (d >= 0, so i can only move down).
     void decrease(uint32_t i, double d) {
         const uint32_t p = pos_[i];
@@ -71,6 +77,9 @@ private:
             const size_t c0 = 4 * i + 1;
             if (c0 >= n_) break;
             const size_t ce = std::min(c0 + 4, n_);
+            // The next level down (the children's children, one line each)
+            // is requested now, while this level is compared.
+            for (size_t c = c0; c < ce && 4 * c + 1 < n_; ++c) __builtin_prefetch(&h_[4 * c + 1]);
             size_t best = c0;
             for (size_t c = c0 + 1; c < ce; ++c)
                 if (before(h_[c], h_[best])) best = c;
@@ -253,18 +262,22 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
     // lose its contribution.
     EliminationHeap heap(w);
     w = {};
+    // The loop is bound by memory latency (random places in the heap): the
+    // neighbours' positions, coordinates and heap entries are requested in
+    // two waves before they are used, so their cache misses overlap.
+    std::vector<uint32_t> nb;
     for (size_t left = m; left > keep; --left) {
         const uint32_t i = heap.top();
         heap.pop();
-        for (uint64_t a = b_offs[i]; a < b_offs[i + 1]; ++a) {
-            const uint32_t j = bwd[a];
-            if (heap.contains(j)) heap.decrease(j, weight(j, i));
+        nb.assign(bwd.begin() + std::ptrdiff_t(b_offs[i]), bwd.begin() + std::ptrdiff_t(b_offs[i + 1]));
+        nb.insert(nb.end(), f_first[i], f_first[i] + f_count[i]);
+        for (const uint32_t j : nb) {
+            heap.prefetch_position(j);
+            __builtin_prefetch(&sp[3 * size_t(j)]);
         }
-        const uint32_t* fl = f_first[i];
-        for (uint32_t k = 0, n = f_count[i]; k < n; ++k) {
-            const uint32_t j = fl[k];
+        for (const uint32_t j : nb) heap.prefetch_entry(j);
+        for (const uint32_t j : nb)
             if (heap.contains(j)) heap.decrease(j, weight(j, i));
-        }
     }
     kept.reserve(keep);
     for (size_t a = 0; a < m; ++a)

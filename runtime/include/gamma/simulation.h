@@ -164,8 +164,10 @@ public:
     RenderStats last_render;
     // Wall time of the constructor's phases: surfel sampling, the BVH, the
     // surfel kd-trees + triangle lookup.
+    // Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle
+    // lookup, splat kernel, per-surfel measures, the renders' corner normals.
     struct SetupSeconds {
-        double sample = 0, geometry = 0, surfels = 0;
+        double sample = 0, geometry = 0, surfels = 0, splat = 0, measures = 0, normals = 0;
     };
     const SetupSeconds& setup_seconds() const { return setup_seconds_; }
 
