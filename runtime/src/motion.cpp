@@ -11,12 +11,8 @@ bool Walker::straight(V3 org, V3 d, float tnear, float tfar) {
     if (record) record->push_back(RecordedRay{{org.x, org.y, org.z}, {d.x, d.y, d.z}, tnear, tfar});
     index.cast(rh, org, d, tnear, tfar);
     ++st.rays;
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
-    p = org + d * rh.ray.tfar;
-    n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
-    if (dot(n, d) > 0) n = n * -1.0f;
+    if (!land(rh, org, d, p, n, prim)) return false;
     dir = d;
-    prim = rh.hit.primID;
     return true;
 }
 

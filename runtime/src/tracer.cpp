@@ -18,6 +18,12 @@
 
 namespace gammart {
 
+namespace {
+// Gamma-tons emitted and cast ahead together (see run_chunks): enough casts
+// to hide a miss each, few enough that their heads and rows stay in L1/L2.
+constexpr int64_t kEmitGroup = 32;
+}  // namespace
+
 int64_t trace_batch_chunks(const Config& c) {
     if (c.trace_batch_chunks > 0) return c.trace_batch_chunks;
     return std::max<int64_t>(64, 8 * int64_t(resolve_threads(c.threads)));
@@ -244,85 +250,143 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         Walker w(index, frame, st);
         if (rays_out) w.record = &rays_out[size_t(ci - first)];
 
-        for (int64_t g = begin; g < end; ++g) {
-            while (g >= start[a + 1]) ++a;
-            const size_t src = sched.active[a];
-            const int type = c.sources[src].ton_type;
-            const TonType& tt = c.ton_types[size_t(type)];
-            ton_weight = weight[a];
-            PhiloxStream rng(seed, iter_u, uint64_t(g));
-            float ks = tt.ks, kp = tt.kp, kf = tt.kf;
-            std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
-            V3 org, d0;
-            emit(sources_[src], rng, org, d0);
-            int inter = 0;
-            ++st.emitted;
-            for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type) * ton_weight;
-            if (!w.straight(org, d0, 0.0f)) {
-                ++st.escaped;
-                ++st.missed;
-                end_life(type, false);
-                continue;
+        // The gamma-tons go in groups of kEmitGroup, in three passes: emit
+        // and cast every emission ray (starting the fetch of each hit
+        // triangle's lookup head), then find each hit's surfel (starting the
+        // fetch of its row), then run each gamma-ton's life in order.  The
+        // two dependent cache misses of a first interaction (head, then row)
+        // overlap with the other gamma-tons' casts and scans instead of
+        // following one another.  Emission and the first cast depend only on
+        // the gamma-ton's own stream and the scene, and the lives run in
+        // gamma-ton order as before: the same draws, rays, records and sums,
+        // the same bytes.
+        const bool need_normal = !measures.accessibility.empty() || !measures.curvature.empty();
+        const bool need_uv = !measures.uv.empty();
+        struct Emitted {
+            PhiloxStream rng;
+            V3 org, d0, p, n;
+            uint32_t prim, s;
+            size_t a;  // active source
+            bool hit;
+        };
+        std::vector<Emitted> group;
+        group.reserve(kEmitGroup);
+        for (int64_t g0 = begin; g0 < end; g0 += kEmitGroup) {
+            const int64_t g1 = std::min(end, g0 + kEmitGroup);
+            group.clear();
+            for (int64_t g = g0; g < g1; ++g) {
+                while (g >= start[a + 1]) ++a;
+                Emitted& e = group.emplace_back(Emitted{PhiloxStream(seed, iter_u, uint64_t(g)), {}, {}, {}, {},
+                                                        0, 0, a, false});
+                emit(sources_[sched.active[a]], e.rng, e.org, e.d0);
+                index.cast(w.rh, e.org, e.d0, 0.0f);
+                e.hit = land(w.rh, e.org, e.d0, e.p, e.n, e.prim);
+                if (e.hit) index.prefetch_lookup(e.prim);
             }
-            for (;;) {
-                ++inter;
-                const V3 p = w.p, n = w.n, dir = w.dir;
-                const float pa[3] = {p.x, p.y, p.z};
-                const uint32_t s = index.nearest_on_triangle(w.prim, pa);
-                // The surfel's row (read by the kernels and the roulette) and
-                // normal are random accesses: their misses overlap with the
-                // context's filling instead of following one another.
-                __builtin_prefetch(rows + size_t(s) * W);
-                __builtin_prefetch(rows + size_t(s) * W + (W - 1));
-                __builtin_prefetch(state.surf.normal.data() + 3 * size_t(s));
-                const int surface = surf_of[s];
-                GammaContext ctx;
-                ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
-                ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
-                ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
-                ctx.height = dot(p, up) - frame.min_up;
-                ctx.iteration = iteration;
-                ctx.interactions = inter;
-                // the measures of the surfel the rules run on (SPEC §12)
-                ctx.uv[0] = measures.uv.empty() ? 0.0f : measures.uv[2 * size_t(s)];
-                ctx.uv[1] = measures.uv.empty() ? 0.0f : measures.uv[2 * size_t(s) + 1];
-                ctx.up[0] = up.x; ctx.up[1] = up.y; ctx.up[2] = up.z;
-                // on the side the gamma-ton came from (n is turned toward it)
-                const float* sn = state.surf.normal.data() + 3 * size_t(s);
-                const bool back = n.x * sn[0] + n.y * sn[1] + n.z * sn[2] < 0.0f;
-                ctx.accessibility = measures.accessibility.empty() ? 0.0f
-                                  : back ? measures.accessibility_back[s] : measures.accessibility[s];
-                ctx.curvature = measures.curvature.empty() ? 0.0f
-                              : back ? -measures.curvature[s] : measures.curvature[s];
-                const float xi = rng.next();
-                const float c1 = std::min(ks, 1.0f);
-                const float c2 = std::min(c1 + kp, 1.0f);
-                const float c3 = std::min(c2 + kf, 1.0f);
-                const int event = xi < c1 ? GAMMA_EVENT_REFLECT
-                                : xi < c2 ? GAMMA_EVENT_BOUNCE
-                                : xi < c3 ? GAMMA_EVENT_FLOW
-                                          : GAMMA_EVENT_SETTLE;
-                const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
-                const TransportSlot& ev = K.slot(event, type, surface);
-                if (hit.fn || ev.fn) {
-                    const uint64_t key = mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(inter));
-                    if (hit.fn) call(hit, s, ctx, key);
-                    if (ev.fn) call(ev, s, ctx, key);
+            for (Emitted& e : group) {
+                if (!e.hit) continue;
+                const float pa[3] = {e.p.x, e.p.y, e.p.z};
+                e.s = index.nearest_on_triangle(e.prim, pa);
+                const float* row = rows + size_t(e.s) * W;
+                __builtin_prefetch(row);
+                __builtin_prefetch(row + (W - 1));
+                __builtin_prefetch(surf_of + e.s);
+                if (need_uv) __builtin_prefetch(measures.uv.data() + 2 * size_t(e.s));
+                if (need_normal) __builtin_prefetch(state.surf.normal.data() + 3 * size_t(e.s));
+            }
+            for (size_t k = 0; k < group.size(); ++k) {
+                Emitted& e = group[k];
+                const int64_t g = g0 + int64_t(k);
+                const size_t src = sched.active[e.a];
+                const int type = c.sources[src].ton_type;
+                const TonType& tt = c.ton_types[size_t(type)];
+                ton_weight = weight[e.a];
+                PhiloxStream& rng = e.rng;
+                float ks = tt.ks, kp = tt.kp, kf = tt.kf;
+                std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
+                int inter = 0;
+                ++st.emitted;
+                for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type) * ton_weight;
+                // the emission ray, counted and recorded as Walker::straight does
+                if (w.record) w.record->push_back(RecordedRay{{e.org.x, e.org.y, e.org.z}, {e.d0.x, e.d0.y, e.d0.z},
+                                                              0.0f, std::numeric_limits<float>::infinity()});
+                ++st.rays;
+                if (!e.hit) {
+                    ++st.escaped;
+                    ++st.missed;
+                    end_life(type, false);
+                    continue;
                 }
-                if (event == GAMMA_EVENT_SETTLE) { ++st.settled; end_life(type, true); break; }
-                if (inter >= max_inter) { ++st.capped; end_life(type, false); break; }
-                const float* row = rows + size_t(s) * W;
-                const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
-                            df = row[GAMMA_ROW_REFLECTANCE_FLOW];
-                const float kp_left = std::max(kp - dp, 0.0f);
-                ks = std::max(ks - ds, 0.0f);
-                kf = std::max(kf + kp_left - df, 0.0f);
-                kp = kp_left;
-                const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
-                if (fe == FlightEnd::Escaped) { ++st.escaped; end_life(type, false); break; }
-                if (fe == FlightEnd::Capped) { ++st.capped; end_life(type, false); break; }
+                w.p = e.p;
+                w.n = e.n;
+                w.dir = e.d0;
+                w.prim = e.prim;
+                for (;;) {
+                    ++inter;
+                    const V3 p = w.p, n = w.n, dir = w.dir;
+                    uint32_t s = e.s;  // found in the group's second pass
+                    if (inter > 1) {
+                        const float pa[3] = {p.x, p.y, p.z};
+                        s = index.nearest_on_triangle(w.prim, pa);
+                        // The surfel's row (read by the kernels and the roulette)
+                        // is a random access: its miss overlaps with the
+                        // context's filling.
+                        __builtin_prefetch(rows + size_t(s) * W);
+                        __builtin_prefetch(rows + size_t(s) * W + (W - 1));
+                    }
+                    const int surface = surf_of[s];
+                    GammaContext ctx;
+                    ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
+                    ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
+                    ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
+                    ctx.height = dot(p, up) - frame.min_up;
+                    ctx.iteration = iteration;
+                    ctx.interactions = inter;
+                    // the measures of the surfel the rules run on (SPEC §12)
+                    ctx.uv[0] = need_uv ? measures.uv[2 * size_t(s)] : 0.0f;
+                    ctx.uv[1] = need_uv ? measures.uv[2 * size_t(s) + 1] : 0.0f;
+                    ctx.up[0] = up.x; ctx.up[1] = up.y; ctx.up[2] = up.z;
+                    // on the side the gamma-ton came from (n is turned toward it);
+                    // the surfel's normal (a cache miss) only when a measure needs it
+                    ctx.accessibility = 0.0f;
+                    ctx.curvature = 0.0f;
+                    if (need_normal) {
+                        const float* sn = state.surf.normal.data() + 3 * size_t(s);
+                        const bool back = n.x * sn[0] + n.y * sn[1] + n.z * sn[2] < 0.0f;
+                        if (!measures.accessibility.empty())
+                            ctx.accessibility = back ? measures.accessibility_back[s] : measures.accessibility[s];
+                        if (!measures.curvature.empty()) ctx.curvature = back ? -measures.curvature[s] : measures.curvature[s];
+                    }
+                    const float xi = rng.next();
+                    const float c1 = std::min(ks, 1.0f);
+                    const float c2 = std::min(c1 + kp, 1.0f);
+                    const float c3 = std::min(c2 + kf, 1.0f);
+                    const int event = xi < c1 ? GAMMA_EVENT_REFLECT
+                                    : xi < c2 ? GAMMA_EVENT_BOUNCE
+                                    : xi < c3 ? GAMMA_EVENT_FLOW
+                                              : GAMMA_EVENT_SETTLE;
+                    const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
+                    const TransportSlot& ev = K.slot(event, type, surface);
+                    if (hit.fn || ev.fn) {
+                        const uint64_t key = mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(inter));
+                        if (hit.fn) call(hit, s, ctx, key);
+                        if (ev.fn) call(ev, s, ctx, key);
+                    }
+                    if (event == GAMMA_EVENT_SETTLE) { ++st.settled; end_life(type, true); break; }
+                    if (inter >= max_inter) { ++st.capped; end_life(type, false); break; }
+                    const float* row = rows + size_t(s) * W;
+                    const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
+                                df = row[GAMMA_ROW_REFLECTANCE_FLOW];
+                    const float kp_left = std::max(kp - dp, 0.0f);
+                    ks = std::max(ks - ds, 0.0f);
+                    kf = std::max(kf + kp_left - df, 0.0f);
+                    kp = kp_left;
+                    const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
+                    if (fe == FlightEnd::Escaped) { ++st.escaped; end_life(type, false); break; }
+                    if (fe == FlightEnd::Capped) { ++st.capped; end_life(type, false); break; }
+                }
+                st.interactions += inter;
             }
-            st.interactions += inter;
         }
         log.st = st;
     };

@@ -27,6 +27,19 @@ struct RecordedRay {
     float org[3], dir[3], tnear, tfar;
 };
 
+// The interaction point of a cast ray org + t*d: false on a miss, else p,
+// the unit normal turned toward the arriving ray, and the triangle.  The
+// tracer's emission rays (cast ahead in groups) and Walker::straight land
+// through this one function, so both give the same bits.
+inline bool land(const RTCRayHit& rh, V3 org, V3 d, V3& p, V3& n, uint32_t& prim) {
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    p = org + d * rh.ray.tfar;
+    n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+    if (dot(n, d) > 0) n = n * -1.0f;
+    prim = rh.hit.primID;
+    return true;
+}
+
 // One gamma-ton's position on the surface and the ray queries that move it.
 struct Walker {
     const SceneIndex& index;

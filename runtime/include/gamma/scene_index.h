@@ -90,6 +90,15 @@ public:
     // triangle prim (anywhere else it falls back to the kd-tree): a scan of
     // the triangle's candidates.  Equidistant surfels go to the lower index.
     uint32_t nearest_on_triangle(uint32_t prim, const float p[3]) const;
+    // Starts fetching what nearest_on_triangle(prim, .) reads first (the
+    // triangle's head), so a caller with other work can overlap the miss.
+    void prefetch_lookup(uint32_t prim) const {
+        if (prim < lookup_head_.size()) {
+            const char* h = reinterpret_cast<const char*>(lookup_head_.data() + prim);
+            __builtin_prefetch(h);
+            __builtin_prefetch(h + 64);
+        }
+    }
     // The scan's answer alone: UINT32_MAX where nearest_on_triangle asks the
     // kd-tree instead (tests measure how often the lookup answers).
     uint32_t lookup_scan(uint32_t prim, const float p[3]) const;
