@@ -152,6 +152,7 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
     struct Cell {
         uint64_t key;
         uint32_t begin, end;
+        uint32_t c[3];  // cell coordinates
     };
     std::vector<Cell> cell_list;
     // Tiles: runs of cells with the same key >> 3, as [begin, end) of points.
@@ -166,7 +167,9 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
             // The tile's parity in x, y, z: bits 0, 1, 2 of its Morton code.
             tile_colour.push_back(uint8_t((key >> 3) & 7));
         }
-        cell_list.push_back({key, uint32_t(a), uint32_t(b)});
+        cell_list.push_back({key, uint32_t(a), uint32_t(b),
+                             {uint32_t(cell_of(original[a], 0)), uint32_t(cell_of(original[a], 1)),
+                              uint32_t(cell_of(original[a], 2))}});
         a = b;
     }
     tile_begin.push_back(uint32_t(m));
@@ -207,18 +210,14 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
     });
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
         std::vector<std::pair<uint32_t, uint32_t>> ranges;  // neighbouring cells of larger key
+        std::vector<uint32_t> scratch;
         for (size_t b = br.begin(); b < br.end(); ++b) {
             std::vector<uint32_t>& nbr = fwd[b];
             const size_t c_begin = b * kCellsPerTask, c_end = std::min(cell_list.size(), c_begin + kCellsPerTask);
             nbr.reserve(size_t(cell_list[c_end - 1].end - cell_list[c_begin].begin) * 10);
             for (size_t ci = c_begin; ci < c_end; ++ci) {
                 const Cell& cl = cell_list[ci];
-                const uint64_t tile = cl.key >> 3;
-                // Recover the cell coordinates from the key.
-                uint64_t c[3] = {0, 0, 0};
-                for (int bit = 0; bit < 21; ++bit)
-                    for (int k = 0; k < 3; ++k) c[k] |= ((tile >> (3 * bit + k)) & 1) << (bit + 1);
-                for (int k = 0; k < 3; ++k) c[k] |= (cl.key >> k) & 1;
+                const uint64_t c[3] = {cl.c[0], cl.c[1], cl.c[2]};
                 ranges.clear();
                 for (int dx = -1; dx <= 1; ++dx)
                     for (int dy = -1; dy <= 1; ++dy)
@@ -232,23 +231,29 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
                             ranges.emplace_back(nc.begin, nc.end);
                         }
                 std::sort(ranges.begin(), ranges.end());
+                size_t span = cl.end - cl.begin;
+                for (const auto& rg : ranges) span += rg.second - rg.first;
+                if (scratch.size() < span) scratch.resize(span);
                 for (uint32_t i = cl.begin; i < cl.end; ++i) {
-                    const size_t before = nbr.size();
                     const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+                    // Every j is written, the cursor advanced only for the
+                    // neighbours: no branch to mispredict.
+                    uint32_t* hit = scratch.data();
                     auto scan = [&](uint32_t j0, uint32_t j1) {
                         for (uint32_t j = j0; j < j1; ++j) {
                             const double dx = px - sp[3 * size_t(j)], dy = py - sp[3 * size_t(j) + 1],
                                          dz = pz - sp[3 * size_t(j) + 2];
-                            if (dx * dx + dy * dy + dz * dz < r2sq) {
-                                nbr.push_back(j);
-                                b_count[j].fetch_add(1, std::memory_order_relaxed);
-                            }
+                            *hit = j;
+                            hit += dx * dx + dy * dy + dz * dz < r2sq;
                         }
                     };
                     scan(i + 1, cl.end);
                     for (const auto& rg : ranges) scan(rg.first, rg.second);
-                    f_count[i] = uint32_t(nbr.size() - before);
-                    f_start[i] = before;
+                    f_start[i] = nbr.size();
+                    f_count[i] = uint32_t(hit - scratch.data());
+                    nbr.insert(nbr.end(), scratch.data(), hit);
+                    for (const uint32_t* h = scratch.data(); h < hit; ++h)
+                        b_count[*h].fetch_add(1, std::memory_order_relaxed);
                 }
             }
         }
@@ -512,6 +517,16 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         cum[t] = total;
         for (int k = 0; k < 3; ++k) tri_normal[3 * t + k] = float(len > 0 ? cr[k] / len : 0.0);
     }
+    // A guide table over the cumulative areas: the triangle of a target is
+    // searched only between the answers for the two bucket bounds around it
+    // (the same answer as a search of the whole table, found in cache).
+    const size_t n_buckets = std::max<size_t>(1, m);
+    std::vector<uint32_t> guide(n_buckets + 1);
+    auto bound = [&](size_t b) { return double(b) * (total / double(n_buckets)); };
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_buckets + 1, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t b = r.begin(); b < r.end(); ++b)
+            guide[b] = uint32_t(std::upper_bound(cum.begin(), cum.end(), bound(b)) - cum.begin());
+    });
     const size_t nc = 5 * n;
     std::vector<float> cand(3 * nc);
     std::vector<int32_t> cand_tri(nc);
@@ -524,7 +539,12 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         // very large meshes), 24-bit floats for the barycentrics.
         double u = (double(r[0] >> 5) * 67108864.0 + double(r[1] >> 6)) * (1.0 / 9007199254740992.0);
         double target = u * total;
-        size_t t = size_t(std::upper_bound(cum.begin(), cum.end(), target) - cum.begin());
+        size_t g = size_t(std::clamp(target / total * double(n_buckets), 0.0, double(n_buckets - 1)));
+        while (g > 0 && bound(g) > target) --g;                     // bound(g) <= target
+        while (g + 1 < n_buckets && !(bound(g + 1) > target)) ++g;  // target < bound(g + 1)
+        const auto first = cum.begin() + guide[g];
+        const auto last = g + 1 < n_buckets ? cum.begin() + guide[g + 1] : cum.end();
+        size_t t = size_t(std::upper_bound(first, last, target) - cum.begin());
         if (t >= m) t = m - 1;
         double r1 = std::sqrt(double(u01(r[2]))), r2 = u01(r[3]);
         double ba = 1.0 - r1, bb = r1 * (1.0 - r2), bc = r1 * r2;
@@ -552,7 +572,7 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         }
         order[a] = {expand_bits21(q[0]) | (expand_bits21(q[1]) << 1) | (expand_bits21(q[2]) << 2), i};
     }
-    std::sort(order.begin(), order.end());
+    tbb::parallel_sort(order.begin(), order.end());  // (key, index) pairs are unique
     out.position.resize(3 * order.size());
     out.normal.resize(3 * order.size());
     out.triangle.resize(order.size());
