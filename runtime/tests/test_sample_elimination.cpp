@@ -142,7 +142,9 @@ std::vector<uint32_t> expect_exact_and_thread_count_free(const std::vector<float
     const std::vector<uint32_t> one = eliminate_at(1, pts, keep, r_max);
     EXPECT_EQ(one.size(), keep);
     EXPECT_TRUE(std::adjacent_find(one.begin(), one.end()) == one.end()) << "a candidate kept twice";
-    if (!one.empty()) EXPECT_LT(one.back(), pts.size() / 3);
+    if (!one.empty()) {
+        EXPECT_LT(one.back(), pts.size() / 3);
+    }
     for (int threads : {2, 4}) EXPECT_EQ(eliminate_at(threads, pts, keep, r_max), one) << threads << " threads";
     return one;
 }
