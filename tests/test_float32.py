@@ -58,3 +58,18 @@ def test_check_does_not_import_numpy(tmp_path):
             "assert 'numpy' not in sys.modules, 'gammac check imported numpy'\nsys.exit(rc)\n")
     r = subprocess.run([sys.executable, "-c", code, str(effect)], capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0, r.stderr
+
+
+def test_compiling_kernels_does_not_import_numpy(tmp_path):
+    # codegen folds constant operations with arith_f32 too; numpy's import
+    # (a third of a cold compile) is left to whoever needs arrays.
+    effect = tmp_path / "e.gamma"
+    effect.write_text("ton T { carry a = 1 }\nsurface S { property a = 0 }\n"
+                      "source s = directional(down) emits T count 10\n"
+                      "on settle(t: T, s: S) { s.a += t.a * (0.1 + 0.2) * smoothstep(0, 1, height) / 3 }\n")
+    code = ("import os, sys\nos.environ['GAMMA_CACHE_DIR'] = 'off'\n"
+            "from gamma.frontend.checker import load\nfrom gamma.backends.jit import JitKernels\n"
+            "jit = JitKernels(load(sys.argv[1]))\nassert not jit.from_cache\n"
+            "assert 'numpy' not in sys.modules, 'compiling imported numpy'\n")
+    r = subprocess.run([sys.executable, "-c", code, str(effect)], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr

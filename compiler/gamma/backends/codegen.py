@@ -19,6 +19,7 @@ from .. import abi
 from ..ir import effect as I
 from ..ir.builtins import FUNCTIONS, NOISE_BITS, NOISE_CLAMP, noise_salt
 from ..ir.effect import Effect, Kernel
+from ..ir.float32 import arith_f32
 
 F32 = ir.FloatType()
 I32 = ir.IntType(32)
@@ -128,12 +129,7 @@ class _KernelBuilder:
             rights = right if isinstance(right, tuple) else (right,) * 3
             return tuple(self.arith(op, a, b) for a, b in zip(lefts, rights))
         if isinstance(left, ir.Constant) and isinstance(right, ir.Constant):
-            import numpy as np
-
-            a, b = np.float32(left.constant), np.float32(right.constant)
-            with np.errstate(all="ignore"):
-                value = {"+": a + b, "-": a - b, "*": a * b, "/": a / b}[op]
-            return ir.Constant(F32, float(np.float32(value)))
+            return ir.Constant(F32, arith_f32(op, left.constant, right.constant))
         b = self.b
         return {"+": b.fadd, "-": b.fsub, "*": b.fmul, "/": b.fdiv}[op](left, right)
 

@@ -43,9 +43,8 @@ _sink: list[Token] = []
 @lru_cache(maxsize=1)
 def _tree_parser() -> lark.Lark:
     """A second parser from the same grammar that also hands us the comments."""
-    return lark.Lark(_gamma_parser.grammar_path().read_text(encoding="utf-8"), parser="lalr",
-                     propagate_positions=True, maybe_placeholders=True,
-                     lexer_callbacks={"COMMENT": _sink.append, "BLOCK_COMMENT": _sink.append})
+    return _gamma_parser.parser_from_grammar(
+        lexer_callbacks={"COMMENT": _sink.append, "BLOCK_COMMENT": _sink.append})
 
 
 # ---- expressions --------------------------------------------------------------

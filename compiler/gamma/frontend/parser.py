@@ -17,6 +17,7 @@ import lark
 from lark import Token, Transformer, v_args
 
 from . import ast as A
+from . import lalr_tables
 from .diagnostics import Diagnostic, GammaError, Report
 
 _DECL_START = re.compile(r"^[ \t]*(ton|surface|source|on|update|param|import|assign|appearance)\b", re.MULTILINE)
@@ -32,12 +33,19 @@ def grammar_path() -> Path:
 
 @lru_cache(maxsize=1)
 def _parser() -> lark.Lark:
-    # cache=True: lark keeps the analysed LALR tables in a temporary file keyed
-    # by the grammar's hash, so a fresh gammac skips the grammar analysis
-    # (start-up time).  GAMMA_CACHE_DIR=off turns every cache off.
-    return lark.Lark(grammar_path().read_text(encoding="utf-8"), parser="lalr",
-                     propagate_positions=True, maybe_placeholders=True,
-                     cache=os.environ.get("GAMMA_CACHE_DIR") != "off")
+    return parser_from_grammar()
+
+
+def parser_from_grammar(**extra) -> lark.Lark:
+    """gammac's LALR parser: from the tables built with the package when they
+    match the grammar (``lalr_tables``), else by analysing the grammar, with
+    lark's own cache of the analysis unless GAMMA_CACHE_DIR=off."""
+    grammar = grammar_path()
+    text = grammar.read_text(encoding="utf-8")
+    prebuilt = lalr_tables.load(grammar.with_name(lalr_tables.TABLES_NAME), text, **extra)
+    if prebuilt is not None:
+        return prebuilt
+    return lalr_tables.build(text, cache=os.environ.get("GAMMA_CACHE_DIR") != "off", **extra)
 
 
 def _pos(tok) -> A.Pos:
