@@ -1,101 +1,76 @@
-// Surfel sampling: 5N candidates uniform by area, Yuksel's weighted sample
-// elimination down to N (see gamma/surfels.h).  The candidates, the cell sort
-// and the neighbour lists are built in parallel, the elimination itself is
-// serial; the result is that of the serial algorithm at any thread count.
+// Surfel sampling: 5N candidates uniform by area, then a tiled variant of
+// Yuksel's weighted sample elimination down to exactly N (see gamma/surfels.h).
+//
+// Yuksel (2015) removes, one at a time, the candidate of largest weight
+// (the sum of (1 - d / 2r_max)^8 over its neighbours closer than 2 r_max) and
+// lowers its neighbours' weights.  Done literally that is a serial loop over
+// a heap of 5N entries in weight order, i.e. at random places in memory: on a
+// machine where a cache miss costs ~300 ns it was most of the setup.  Here the
+// same rule is applied in bands of weight, on spatial tiles:
+//   - candidates are grouped into tiles (cubes of side >= 4 r_max, stored
+//     contiguously) and the tiles coloured by the parity of their coordinates
+//     (8 colours), so that two tiles of one colour are at least 4 r_max apart
+//     and no candidate is a neighbour of both;
+//   - a pass takes a threshold weight (the weight above which lie a fixed
+//     fraction of the candidates still to be removed) and, colour after
+//     colour, lets every tile of that colour remove its own candidates in
+//     decreasing weight order while their weight is above the threshold, in
+//     parallel (a tile writes only its own and its neighbours' weights, which
+//     no other tile of the colour touches);
+//   - passes repeat with lower thresholds until few removals are left, and
+//     those are done by the serial rule on the whole set, which makes the
+//     count exact.
+// Within a band the order across tiles departs from the global order, so the
+// result is not the serial algorithm's, but it is the same at any thread
+// count: every choice depends only on the candidates, never on scheduling.
+// tests/test_sample_elimination.cpp measures the blue-noise quality against
+// the serial algorithm.
 #include "gamma/surfels.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <queue>
 #include <unordered_map>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 #include <tbb/parallel_sort.h>
 
 #include "gamma/error.h"
 #include "gamma/philox.h"
 
+#ifdef GAMMA_SURFEL_TIMING
+#include <chrono>
+#include <cstdio>
+#include <ctime>
+inline double surfel_cpu_now() {
+    timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+#define SURFEL_TIMEPOINT(name)                                                                        \
+    do {                                                                                              \
+        const auto now_ = std::chrono::steady_clock::now();                                          \
+        const double cpu_ = surfel_cpu_now();                                                         \
+        std::fprintf(stderr, "  %s %.4f/%.4f", name, std::chrono::duration<double>(now_ - tp_).count(), cpu_ - tc_); \
+        tp_ = now_;                                                                                   \
+        tc_ = cpu_;                                                                                   \
+    } while (0)
+#define SURFEL_TIMING_START auto tp_ = std::chrono::steady_clock::now(); double tc_ = surfel_cpu_now()
+#else
+#define SURFEL_TIMEPOINT(name) \
+    do {                       \
+    } while (0)
+#define SURFEL_TIMING_START \
+    do {                    \
+    } while (0)
+#endif
+
 namespace gammart {
 
 namespace {
-
-// Max-heap of candidates keyed by (weight, rank): larger weight first, ties
-// larger rank (index in the sorted points) first.  The key is a strict total order, so the sequence of
-// eliminations depends only on the weights, never on the heap's layout.
-// 4-ary with each entry holding its weight (16 bytes): the four children of
-// a node share one 64-byte cache line, and no indirection to a weight array.
-class EliminationHeap {
-public:
-    explicit EliminationHeap(const std::vector<double>& w) : n_(w.size()) {
-        // Entries live at slot k + 3 of a 64-byte-aligned block, so the
-        // children 4k+1..4k+4 of node k sit at slots 4(k+1)..4(k+1)+3.
-        storage_.resize(n_ + 3 + 4);
-        const uintptr_t p = reinterpret_cast<uintptr_t>(storage_.data());
-        const size_t skew = ((64 - p % 64) % 64) / sizeof(Entry);
-        h_ = storage_.data() + skew + 3;
-        pos_.resize(n_);
-        for (size_t i = 0; i < n_; ++i) { h_[i] = {w[i], uint32_t(i), 0}; pos_[i] = uint32_t(i); }
-        for (size_t i = n_ / 4 + 1; i-- > 0;) down(i);
-    }
-    uint32_t top() const { return h_[0].index; }
-    void pop() {
-        pos_[h_[0].index] = kRemoved;
-        --n_;
-        if (n_ > 0) {
-            h_[0] = h_[n_];
-            pos_[h_[0].index] = 0;
-            down(0);
-        }
-    }
-    bool contains(uint32_t i) const { return pos_[i] != kRemoved; }
-    // Cache hints for i's position, then (once that is in) its entry.
-    void prefetch_position(uint32_t i) const { __builtin_prefetch(&pos_[i]); }
-    void prefetch_entry(uint32_t i) const {
-        const uint32_t p = pos_[i];
-        if (p != kRemoved) __builtin_prefetch(&h_[p], 1);
-    }
-    // Subtracts d from i's weight (d >= 0, so i can only move down).
-    void decrease(uint32_t i, double d) {
-        const uint32_t p = pos_[i];
-        h_[p].weight -= d;
-        down(p);
-    }
-
-private:
-    struct Entry {
-        double weight;
-        uint32_t index, pad;
-    };
-    static_assert(sizeof(Entry) == 16, "four entries per cache line");
-    static constexpr uint32_t kRemoved = 0xFFFFFFFFu;
-    static bool before(const Entry& a, const Entry& b) {  // a has higher priority than b
-        return a.weight > b.weight || (a.weight == b.weight && a.index > b.index);
-    }
-    void down(size_t i) {
-        const Entry item = h_[i];
-        for (;;) {
-            const size_t c0 = 4 * i + 1;
-            if (c0 >= n_) break;
-            const size_t ce = std::min(c0 + 4, n_);
-            // The next level down (the children's children, one line each)
-            // is requested now, while this level is compared.
-            for (size_t c = c0; c < ce && 4 * c + 1 < n_; ++c) __builtin_prefetch(&h_[4 * c + 1]);
-            size_t best = c0;
-            for (size_t c = c0 + 1; c < ce; ++c)
-                if (before(h_[c], h_[best])) best = c;
-            if (!before(h_[best], item)) break;
-            h_[i] = h_[best];
-            pos_[h_[i].index] = uint32_t(i);
-            i = best;
-        }
-        h_[i] = item;
-        pos_[item.index] = uint32_t(i);
-    }
-    size_t n_;
-    std::vector<Entry> storage_;
-    Entry* h_ = nullptr;
-    std::vector<uint32_t> pos_;
-};
 
 inline uint64_t expand_bits21(uint64_t v) {
     v &= 0x1fffff;
@@ -107,9 +82,27 @@ inline uint64_t expand_bits21(uint64_t v) {
     return v;
 }
 
-// Cells per parallel work item of the neighbour search (fixed: the lists do
-// not depend on the thread count, and each item's lists are contiguous).
-constexpr size_t kCellsPerTask = 512;
+// A cell's key: its tile (the cell coordinates halved) along a Morton curve,
+// then which of the tile's 2x2x2 cells it is.  Sorting by it stores each
+// tile's candidates contiguously, and neighbouring tiles mostly nearby.
+inline uint64_t cell_key(uint64_t x, uint64_t y, uint64_t z) {
+    const uint64_t tile = expand_bits21(x >> 1) | (expand_bits21(y >> 1) << 1) | (expand_bits21(z >> 1) << 2);
+    return (tile << 3) | ((x & 1) | ((y & 1) << 1) | ((z & 1) << 2));
+}
+
+// Fraction of the removals still to do that a pass's threshold lets through,
+// and the remaining count below which the serial rule finishes.
+constexpr double kPassFraction = 0.25;
+constexpr size_t kSerialFinishMin = 64;
+constexpr size_t kSerialFinishDivisor = 256;  // of the kept count
+// The pass threshold is estimated on every kThresholdStride-th candidate.
+constexpr size_t kThresholdStride = 64;
+
+// Candidates per parallel work item of the neighbour search (fixed: the lists
+// do not depend on the thread count).
+constexpr size_t kCellsPerTask = 256;
+
+constexpr double kRemoved = -INFINITY;
 
 }  // namespace
 
@@ -120,6 +113,7 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
         for (size_t i = 0; i < m; ++i) kept.push_back(uint32_t(i));
         return kept;
     }
+    SURFEL_TIMING_START;
     const double r2 = 2.0 * r_max;  // neighbourhood radius
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t i = 0; i < m; ++i)
@@ -127,16 +121,15 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
             lo[k] = std::min(lo[k], double(pts[3 * i + k]));
             hi[k] = std::max(hi[k], double(pts[3 * i + k]));
         }
-    double cell = r2;
+    // Cells a little larger than the radius, so that a neighbour is always in
+    // one of the 27 cells around and two tiles (2x2x2 cells) of one colour are
+    // farther apart than twice the radius even after rounding.
+    double cell = r2 * (1.0 + 1e-6);
     for (int k = 0; k < 3; ++k) cell = std::max(cell, (hi[k] - lo[k]) / 1.0e6);
     if (!(cell > 0)) cell = 1.0;
-    auto cell_of = [&](size_t i, int k) { return int64_t((pts[3 * i + k] - lo[k]) / cell); };
-    auto key_of = [](int64_t x, int64_t y, int64_t z) {
-        return (uint64_t(x) << 42) | (uint64_t(y) << 21) | uint64_t(z);
-    };
-    // Sort points by cell key and work on a copy in that order, so that the
-    // points of a cell (and of neighbouring z-cells) are contiguous in memory.
-    // (key, index) pairs are unique: the parallel sort's order is the serial one.
+    auto cell_of = [&](size_t i, int k) { return uint64_t((double(pts[3 * i + k]) - lo[k]) / cell); };
+    // Sort the points by cell key and work on a copy in that order.  (key,
+    // index) pairs are unique: the parallel sort's order is the serial one.
     std::vector<uint32_t> original(m);
     std::vector<float> sp(3 * m);
     std::vector<uint64_t> sorted_key(m);
@@ -144,7 +137,7 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
         std::vector<std::pair<uint64_t, uint32_t>> order(m);
         tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
             for (size_t i = r.begin(); i < r.end(); ++i)
-                order[i] = {key_of(cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)), uint32_t(i)};
+                order[i] = {cell_key(cell_of(i, 0), cell_of(i, 1), cell_of(i, 2)), uint32_t(i)};
         });
         tbb::parallel_sort(order.begin(), order.end());
         tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
@@ -155,18 +148,37 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
             }
         });
     }
-    struct Cell { uint64_t key; uint32_t begin, end; };
+    SURFEL_TIMEPOINT("sort");
+    struct Cell {
+        uint64_t key;
+        uint32_t begin, end;
+        uint32_t c[3];  // cell coordinates
+    };
     std::vector<Cell> cell_list;
+    // Tiles: runs of cells with the same key >> 3, as [begin, end) of points.
+    std::vector<uint32_t> tile_begin;
+    std::vector<uint8_t> tile_colour;
     for (size_t a = 0; a < m;) {
         size_t b = a;
         while (b < m && sorted_key[b] == sorted_key[a]) ++b;
-        cell_list.push_back({sorted_key[a], uint32_t(a), uint32_t(b)});
+        const uint64_t key = sorted_key[a];
+        if (cell_list.empty() || (cell_list.back().key >> 3) != (key >> 3)) {
+            tile_begin.push_back(uint32_t(a));
+            // The tile's parity in x, y, z: bits 0, 1, 2 of its Morton code.
+            tile_colour.push_back(uint8_t((key >> 3) & 7));
+        }
+        cell_list.push_back({key, uint32_t(a), uint32_t(b),
+                             {uint32_t(cell_of(original[a], 0)), uint32_t(cell_of(original[a], 1)),
+                              uint32_t(cell_of(original[a], 2))}});
         a = b;
     }
+    tile_begin.push_back(uint32_t(m));
+    const size_t n_tiles = tile_colour.size();
     sorted_key = {};
     std::unordered_map<uint64_t, uint32_t> cells;  // key -> index in cell_list
     cells.reserve(cell_list.size());
     for (size_t c = 0; c < cell_list.size(); ++c) cells.emplace(cell_list[c].key, uint32_t(c));
+    SURFEL_TIMEPOINT("cells");
 
     const double r2sq = r2 * r2;
     const double inv_r2 = 1.0 / r2;
@@ -182,106 +194,305 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
         t = t * t;  // ^4
         return t * t;  // ^8
     };
-    // Neighbour lists in rank order (the order of the sorted points), each
-    // pair found once: F(i) = neighbours ranked after i, searched in the own
-    // cell and the 13 neighbouring cells of larger key, in parallel over
-    // fixed blocks of cells (block b's lists contiguous in fwd[b]); then
-    // B(j) = neighbours ranked before j, the transpose of F.  B(i) then F(i)
-    // is i's whole neighbourhood in rank order, which is the order of the
-    // sum of its weights.
+    // Neighbour lists, each pair found once: F(i) = neighbours j > i, searched
+    // in the own cell and the neighbouring cells of larger key, in parallel
+    // over fixed blocks of cells; then each list is completed with B(i) =
+    // {j < i : i in F(j)} (filled with atomic cursors, then sorted, so that
+    // the lists do not depend on the scheduling).  List of i = B(i) then F(i),
+    // ascending, which is the order of the sum of its weights.
     const size_t nblocks = (cell_list.size() + kCellsPerTask - 1) / kCellsPerTask;
     std::vector<std::vector<uint32_t>> fwd(nblocks);
-    std::vector<const uint32_t*> f_first(m);
     std::vector<uint32_t> f_count(m);
+    std::vector<uint64_t> f_start(m);  // offset of F(i) in its block's list
+    std::vector<std::atomic<uint32_t>> b_count(m);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 8192), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) b_count[i].store(0, std::memory_order_relaxed);
+    });
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
-        std::vector<std::pair<uint32_t, uint32_t>> ranges;  // later cells, ascending key
+        std::vector<std::pair<uint32_t, uint32_t>> ranges;  // neighbouring cells of larger key
+        std::vector<uint32_t> scratch;
         for (size_t b = br.begin(); b < br.end(); ++b) {
             std::vector<uint32_t>& nbr = fwd[b];
             const size_t c_begin = b * kCellsPerTask, c_end = std::min(cell_list.size(), c_begin + kCellsPerTask);
             nbr.reserve(size_t(cell_list[c_end - 1].end - cell_list[c_begin].begin) * 10);
             for (size_t ci = c_begin; ci < c_end; ++ci) {
                 const Cell& cl = cell_list[ci];
-                const int64_t cx = int64_t(cl.key >> 42), cy = int64_t((cl.key >> 21) & 0x1fffff),
-                              cz = int64_t(cl.key & 0x1fffff);
+                const uint64_t c[3] = {cl.c[0], cl.c[1], cl.c[2]};
                 ranges.clear();
-                for (int64_t dx = 0; dx <= 1; ++dx)
-                    for (int64_t dy = dx ? -1 : 0; dy <= 1; ++dy)
-                        for (int64_t dz = (dx || dy) ? -1 : 1; dz <= 1; ++dz) {
-                            if (cy + dy < 0 || cz + dz < 0) continue;
-                            auto it = cells.find(key_of(cx + dx, cy + dy, cz + dz));
+                for (int dx = -1; dx <= 1; ++dx)
+                    for (int dy = -1; dy <= 1; ++dy)
+                        for (int dz = -1; dz <= 1; ++dz) {
+                            if ((dx < 0 && c[0] == 0) || (dy < 0 && c[1] == 0) || (dz < 0 && c[2] == 0)) continue;
+                            const uint64_t key = cell_key(c[0] + dx, c[1] + dy, c[2] + dz);
+                            if (key <= cl.key) continue;
+                            auto it = cells.find(key);
                             if (it == cells.end()) continue;
                             const Cell& nc = cell_list[it->second];
                             ranges.emplace_back(nc.begin, nc.end);
                         }
+                std::sort(ranges.begin(), ranges.end());
+                size_t span = cl.end - cl.begin;
+                for (const auto& rg : ranges) span += rg.second - rg.first;
+                if (scratch.size() < span) scratch.resize(span);
                 for (uint32_t i = cl.begin; i < cl.end; ++i) {
-                    const size_t before = nbr.size();
                     const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+                    // Every j is written, the cursor advanced only for the
+                    // neighbours: no branch to mispredict.
+                    uint32_t* hit = scratch.data();
                     auto scan = [&](uint32_t j0, uint32_t j1) {
                         for (uint32_t j = j0; j < j1; ++j) {
                             const double dx = px - sp[3 * size_t(j)], dy = py - sp[3 * size_t(j) + 1],
                                          dz = pz - sp[3 * size_t(j) + 2];
-                            if (dx * dx + dy * dy + dz * dz < r2sq) nbr.push_back(j);
+                            *hit = j;
+                            hit += dx * dx + dy * dy + dz * dz < r2sq;
                         }
                     };
                     scan(i + 1, cl.end);
                     for (const auto& rg : ranges) scan(rg.first, rg.second);
-                    f_count[i] = uint32_t(nbr.size() - before);
+                    f_start[i] = nbr.size();
+                    f_count[i] = uint32_t(hit - scratch.data());
+                    nbr.insert(nbr.end(), scratch.data(), hit);
+                    for (const uint32_t* h = scratch.data(); h < hit; ++h)
+                        b_count[*h].fetch_add(1, std::memory_order_relaxed);
                 }
-            }
-            nbr.shrink_to_fit();
-            // Pointers only once the block's list no longer moves.
-            const uint32_t* p = nbr.data();
-            for (uint32_t i = cell_list[c_begin].begin; i < cell_list[c_end - 1].end; ++i) {
-                f_first[i] = p;
-                p += f_count[i];
             }
         }
     });
-    // The transpose, in rank order of i (so each B(j) is ascending).
-    std::vector<uint64_t> b_offs(m + 1, 0);
-    for (size_t i = 0; i < m; ++i)
-        for (uint32_t k = 0; k < f_count[i]; ++k) ++b_offs[f_first[i][k] + 1];
-    for (size_t j = 0; j < m; ++j) b_offs[j + 1] += b_offs[j];
-    std::vector<uint32_t> bwd(b_offs[m]);
-    {
-        std::vector<uint64_t> fill(b_offs.begin(), b_offs.end() - 1);
-        for (size_t i = 0; i < m; ++i)
-            for (uint32_t k = 0; k < f_count[i]; ++k) bwd[fill[f_first[i][k]]++] = uint32_t(i);
-    }
-    // Initial weights: the sum over B(i) then F(i), i.e. in rank order.
-    std::vector<double> w(m, 0.0);
+    SURFEL_TIMEPOINT("forward");
+    // Offsets of the whole lists: |B(i)| + |F(i)| each.
+    std::vector<uint64_t> offs(m + 1);
+    offs[0] = 0;
+    for (size_t i = 0; i < m; ++i) offs[i + 1] = offs[i] + b_count[i].load(std::memory_order_relaxed) + f_count[i];
+    std::vector<uint32_t> nbrs(offs[m]);
+    // F(i) goes after B(i); B(j) is filled from the front by cursors.
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) b_count[i].store(0, std::memory_order_relaxed);
+    });
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
+        for (size_t b = br.begin(); b < br.end(); ++b) {
+            const size_t c_begin = b * kCellsPerTask, c_end = std::min(cell_list.size(), c_begin + kCellsPerTask);
+            for (uint32_t i = cell_list[c_begin].begin; i < cell_list[c_end - 1].end; ++i) {
+                const uint32_t* f = fwd[b].data() + f_start[i];
+                std::copy(f, f + f_count[i], nbrs.begin() + std::ptrdiff_t(offs[i + 1] - f_count[i]));
+                for (uint32_t k = 0; k < f_count[i]; ++k) {
+                    const uint32_t j = f[k];
+                    nbrs[offs[j] + b_count[j].fetch_add(1, std::memory_order_relaxed)] = i;
+                }
+            }
+            fwd[b] = {};
+        }
+    });
+    fwd = {};
+    f_start = {};
+    // B(i) in ascending order, then the initial weights: the sum over the
+    // list in its order.
+    std::vector<double> w(m);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i) {
+            const uint64_t b0 = offs[i], b1 = offs[i + 1] - f_count[i];
+            std::sort(nbrs.begin() + std::ptrdiff_t(b0), nbrs.begin() + std::ptrdiff_t(b1));
             double sum = 0;
-            for (uint64_t a = b_offs[i]; a < b_offs[i + 1]; ++a) sum += weight(uint32_t(i), bwd[a]);
-            for (uint32_t k = 0; k < f_count[i]; ++k) sum += weight(uint32_t(i), f_first[i][k]);
+            for (uint64_t a = b0; a < offs[i + 1]; ++a) sum += weight(uint32_t(i), nbrs[a]);
             w[i] = sum;
         }
     });
-    // Sequential elimination: the heaviest candidate goes, its neighbours
-    // lose its contribution.
-    EliminationHeap heap(w);
-    w = {};
-    // The loop is bound by memory latency (random places in the heap): the
-    // neighbours' positions, coordinates and heap entries are requested in
-    // two waves before they are used, so their cache misses overlap.
-    std::vector<uint32_t> nb;
-    for (size_t left = m; left > keep; --left) {
-        const uint32_t i = heap.top();
-        heap.pop();
-        nb.assign(bwd.begin() + std::ptrdiff_t(b_offs[i]), bwd.begin() + std::ptrdiff_t(b_offs[i + 1]));
-        nb.insert(nb.end(), f_first[i], f_first[i] + f_count[i]);
-        for (const uint32_t j : nb) {
-            heap.prefetch_position(j);
-            __builtin_prefetch(&sp[3 * size_t(j)]);
+    b_count = std::vector<std::atomic<uint32_t>>();
+    f_count = {};
+    SURFEL_TIMEPOINT("lists+weights");
+
+    // (weight, rank) is a strict total order (ranks are unique): which
+    // candidate is removed first never depends on a layout or a schedule.
+    // A removed candidate's weight is kRemoved.
+    auto above = [&](uint32_t a, uint32_t b) { return w[a] > w[b] || (w[a] == w[b] && a > b); };
+    auto remove = [&](uint32_t i) {
+        w[i] = kRemoved;
+        for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) {
+            const uint32_t j = nbrs[a];
+            if (w[j] != kRemoved) w[j] -= weight(j, i);
         }
-        for (const uint32_t j : nb) heap.prefetch_entry(j);
-        for (const uint32_t j : nb)
-            if (heap.contains(j)) heap.decrease(j, weight(j, i));
+    };
+    std::vector<std::vector<uint32_t>> tiles_of_colour(8);
+    for (size_t t = 0; t < n_tiles; ++t) tiles_of_colour[tile_colour[t]].push_back(uint32_t(t));
+    // Per tile an upper bound of its weights (weights only decrease), so that
+    // a pass skips the tiles with nothing above its threshold.
+    std::vector<double> tile_max(n_tiles);
+    auto rescan_max = [&](size_t t) {
+        double mx = kRemoved;
+        for (uint32_t i = tile_begin[t]; i < tile_begin[t + 1]; ++i) mx = std::max(mx, w[i]);
+        tile_max[t] = mx;
+    };
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tiles, 256), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t t = r.begin(); t < r.end(); ++t) rescan_max(t);
+    });
+    // Fixed blocks of tiles for the parallel gathers (results concatenated in
+    // block order, i.e. ascending: independent of the thread count).
+    constexpr size_t kTilesPerBlock = 512;
+    const size_t n_tile_blocks = (n_tiles + kTilesPerBlock - 1) / kTilesPerBlock;
+    std::vector<std::vector<uint32_t>> block_pool(n_tile_blocks);
+    auto gather = [&](std::vector<uint32_t>& all, auto&& tile_wanted, auto&& wanted) {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tile_blocks, 1), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t b = r.begin(); b < r.end(); ++b) {
+                std::vector<uint32_t>& out = block_pool[b];
+                out.clear();
+                const size_t t1 = std::min(n_tiles, (b + 1) * kTilesPerBlock);
+                for (size_t t = b * kTilesPerBlock; t < t1; ++t)
+                    if (tile_wanted(t))
+                        for (uint32_t i = tile_begin[t]; i < tile_begin[t + 1]; ++i)
+                            if (wanted(i)) out.push_back(i);
+            }
+        });
+        all.clear();
+        for (const auto& v : block_pool) all.insert(all.end(), v.begin(), v.end());
+    };
+    size_t to_remove = m - keep;
+    size_t alive = m;
+    const size_t serial_finish = std::max(kSerialFinishMin, keep / kSerialFinishDivisor);
+    size_t passes = 0;
+    std::vector<uint32_t> sub, over;
+    std::vector<uint32_t> over_begin(n_tiles + 1);
+    while (to_remove > serial_finish) {
+        // Threshold: about the weight of the k-th heaviest candidate left, k a
+        // fixed fraction of the removals left, estimated on every
+        // kThresholdStride-th candidate (by rank: spread over the scene).  A pass removes only candidates that were
+        // above the threshold at its start: if the estimate lets through more
+        // than the removals left, the exact k-th of those is taken instead.
+        const size_t k = std::max<size_t>(1, size_t(double(to_remove) * kPassFraction));
+        sub.clear();
+        for (size_t i = 0; i < m; i += kThresholdStride)
+            if (w[i] != kRemoved) sub.push_back(uint32_t(i));
+        uint32_t th = 0;
+        double th_w = INFINITY;
+        if (!sub.empty()) {
+            const size_t k_sub =
+                std::min(sub.size(), std::max<size_t>(1, size_t(double(k) * double(sub.size()) / double(alive))));
+            std::nth_element(sub.begin(), sub.begin() + std::ptrdiff_t(k_sub - 1), sub.end(), above);
+            th = sub[k_sub - 1];
+            th_w = w[th];
+        }
+        gather(over, [&](size_t t) { return tile_max[t] >= th_w; },
+               [&](uint32_t i) { return w[i] != kRemoved && (w[i] > th_w || (w[i] == th_w && i > th)); });
+        if (over.size() > to_remove || over.empty()) {
+            // Too many let through (or none): the exact k-th heaviest.
+            if (over.empty()) gather(over, [](size_t) { return true; }, [&](uint32_t i) { return w[i] != kRemoved; });
+            std::vector<uint32_t> pick(over);
+            std::nth_element(pick.begin(), pick.begin() + std::ptrdiff_t(k - 1), pick.end(), above);
+            th = pick[k - 1];
+            th_w = w[th];
+            std::vector<uint32_t> kept_over;
+            for (const uint32_t i : over)
+                if (w[i] > th_w || (w[i] == th_w && i >= th)) kept_over.push_back(i);
+            over.swap(kept_over);
+            // th itself is let through: the threshold is just below it.
+            if (th == 0) th_w = std::nextafter(th_w, -INFINITY);
+            else --th;
+        }
+        auto is_above = [&](uint32_t i) { return w[i] > th_w || (w[i] == th_w && i > th); };
+        // Each tile's candidates above the threshold: a run of `over`.
+        {
+            size_t a = 0;
+            for (size_t t = 0; t < n_tiles; ++t) {
+                over_begin[t] = uint32_t(a);
+                while (a < over.size() && over[a] < tile_begin[t + 1]) ++a;
+            }
+            over_begin[n_tiles] = uint32_t(a);
+        }
+        std::atomic<size_t> removed{0};
+        for (int colour = 0; colour < 8; ++colour) {
+            const std::vector<uint32_t>& tiles = tiles_of_colour[size_t(colour)];
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, tiles.size(), 64), [&](const tbb::blocked_range<size_t>& r) {
+                // The removals are bound by memory latency, not arithmetic:
+                // tiles go through a pipeline that requests their data ahead
+                // of use (a tile's candidates above the threshold do not
+                // change before it is processed: no other tile of the colour
+                // touches them).
+                //   q + 3: the list offsets of its candidates above the threshold;
+                //   q + 2: their neighbour lists;
+                //   q + 1: their neighbours' weights and positions;
+                //   q:     its removals.
+                size_t removed_here = 0;
+                auto each_active = [&](size_t q, auto&& f) {
+                    const uint32_t t = tiles[q];
+                    for (uint32_t a = over_begin[t]; a < over_begin[t + 1]; ++a) f(over[a]);
+                };
+                auto stage_offsets = [&](size_t q) { each_active(q, [&](uint32_t i) { __builtin_prefetch(&offs[i]); }); };
+                auto stage_lists = [&](size_t q) {
+                    each_active(q, [&](uint32_t i) {
+                        __builtin_prefetch(&nbrs[offs[i]]);
+                        __builtin_prefetch(&nbrs[offs[i]] + 16);
+                    });
+                };
+                auto stage_neighbours = [&](size_t q) {
+                    each_active(q, [&](uint32_t i) {
+                        for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) {
+                            __builtin_prefetch(&w[nbrs[a]], 1);
+                            __builtin_prefetch(&sp[3 * size_t(nbrs[a])]);
+                        }
+                    });
+                };
+                for (size_t q = r.begin(); q < std::min(r.end(), r.begin() + 3); ++q) stage_offsets(q);
+                for (size_t q = r.begin(); q < std::min(r.end(), r.begin() + 2); ++q) stage_lists(q);
+                stage_neighbours(r.begin());
+                std::vector<uint32_t> active;
+                for (size_t q = r.begin(); q < r.end(); ++q) {
+                    if (q + 3 < r.end()) stage_offsets(q + 3);
+                    if (q + 2 < r.end()) stage_lists(q + 2);
+                    if (q + 1 < r.end()) stage_neighbours(q + 1);
+                    const uint32_t t = tiles[q];
+                    if (over_begin[t] == over_begin[t + 1]) continue;
+                    active.assign(over.begin() + over_begin[t], over.begin() + over_begin[t + 1]);
+                    // Candidates of this tile removed heaviest first while above
+                    // the threshold (nothing below it at the start can rise).
+                    while (!active.empty()) {
+                        size_t best = 0;
+                        for (size_t a = 1; a < active.size(); ++a)
+                            if (above(active[a], active[best])) best = a;
+                        const uint32_t i = active[best];
+                        if (!is_above(i)) break;
+                        active[best] = active.back();
+                        active.pop_back();
+                        remove(i);
+                        ++removed_here;
+                    }
+                    rescan_max(t);
+                }
+                removed.fetch_add(removed_here, std::memory_order_relaxed);
+            });
+        }
+        to_remove -= removed.load();
+        alive -= removed.load();
+        ++passes;
     }
+    SURFEL_TIMEPOINT("passes");
+    // The last removals by the serial rule, on a heap with lazy updates: an
+    // entry whose weight has dropped since it was pushed is pushed again
+    // with its current weight (weights only decrease, so the top entry that
+    // is current is the heaviest candidate).
+    {
+        using Entry = std::pair<double, uint32_t>;  // (weight, rank): the same order as `above`
+        std::vector<Entry> entries;
+        entries.reserve(alive);
+        for (size_t i = 0; i < m; ++i)
+            if (w[i] != kRemoved) entries.emplace_back(w[i], uint32_t(i));
+        std::priority_queue<Entry> heap(std::less<Entry>(), std::move(entries));
+        while (to_remove > 0) {
+            const Entry e = heap.top();
+            heap.pop();
+            if (w[e.second] == kRemoved) continue;
+            if (e.first != w[e.second]) {
+                heap.emplace(w[e.second], e.second);
+                continue;
+            }
+            remove(e.second);
+            --to_remove;
+        }
+    }
+    SURFEL_TIMEPOINT("serial");
+#ifdef GAMMA_SURFEL_TIMING
+    std::fprintf(stderr, "  [%zu tiles, %zu passes]\n", n_tiles, passes);
+#endif
     kept.reserve(keep);
     for (size_t a = 0; a < m; ++a)
-        if (heap.contains(uint32_t(a))) kept.push_back(original[a]);
+        if (w[a] != kRemoved) kept.push_back(original[a]);
     return kept;
 }
 
@@ -306,6 +517,16 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         cum[t] = total;
         for (int k = 0; k < 3; ++k) tri_normal[3 * t + k] = float(len > 0 ? cr[k] / len : 0.0);
     }
+    // A guide table over the cumulative areas: the triangle of a target is
+    // searched only between the answers for the two bucket bounds around it
+    // (the same answer as a search of the whole table, found in cache).
+    const size_t n_buckets = std::max<size_t>(1, m);
+    std::vector<uint32_t> guide(n_buckets + 1);
+    auto bound = [&](size_t b) { return double(b) * (total / double(n_buckets)); };
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_buckets + 1, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t b = r.begin(); b < r.end(); ++b)
+            guide[b] = uint32_t(std::upper_bound(cum.begin(), cum.end(), bound(b)) - cum.begin());
+    });
     const size_t nc = 5 * n;
     std::vector<float> cand(3 * nc);
     std::vector<int32_t> cand_tri(nc);
@@ -318,7 +539,12 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         // very large meshes), 24-bit floats for the barycentrics.
         double u = (double(r[0] >> 5) * 67108864.0 + double(r[1] >> 6)) * (1.0 / 9007199254740992.0);
         double target = u * total;
-        size_t t = size_t(std::upper_bound(cum.begin(), cum.end(), target) - cum.begin());
+        size_t g = size_t(std::clamp(target / total * double(n_buckets), 0.0, double(n_buckets - 1)));
+        while (g > 0 && bound(g) > target) --g;                     // bound(g) <= target
+        while (g + 1 < n_buckets && !(bound(g + 1) > target)) ++g;  // target < bound(g + 1)
+        const auto first = cum.begin() + guide[g];
+        const auto last = g + 1 < n_buckets ? cum.begin() + guide[g + 1] : cum.end();
+        size_t t = size_t(std::upper_bound(first, last, target) - cum.begin());
         if (t >= m) t = m - 1;
         double r1 = std::sqrt(double(u01(r[2]))), r2 = u01(r[3]);
         double ba = 1.0 - r1, bb = r1 * (1.0 - r2), bc = r1 * r2;
@@ -346,7 +572,7 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         }
         order[a] = {expand_bits21(q[0]) | (expand_bits21(q[1]) << 1) | (expand_bits21(q[2]) << 2), i};
     }
-    std::sort(order.begin(), order.end());
+    tbb::parallel_sort(order.begin(), order.end());  // (key, index) pairs are unique
     out.position.resize(3 * order.size());
     out.normal.resize(3 * order.size());
     out.triangle.resize(order.size());
