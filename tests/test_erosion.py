@@ -49,6 +49,8 @@ def test_erosion_writes_meshes_geometry_and_balanced_books(erosion_run):
         g = record["geometry"]
         assert g["triangles"] > 0 and g["area"] > 0
         assert g["min_angle_deg"] >= 15.0
+        # the bound's own measure: corners not between two boundary or seam edges
+        assert g["min_free_angle_deg"] >= max(15.0, g["min_angle_deg"])
         books = record["mass"]["stone"]
         assert books["removed"] > 0 and books["deposited"] > 0
         assert books["emitted"] == 0 and books["dropped"] == 0 and books["in_flight"] == 0

@@ -51,6 +51,7 @@ nb::dict geometry_dict(const gammart::MeshMeasures& g) {
     d["area"] = g.area;
     d["triangles"] = g.triangles;
     d["min_angle_deg"] = g.min_angle_deg;
+    d["min_free_angle_deg"] = g.min_free_angle_deg;
     d["closed"] = g.closed;
     return d;
 }
@@ -473,8 +474,12 @@ NB_MODULE(_runtime, m) {
                  return d;
              },
              "iteration"_a, "The shape step after the update pass (SPEC §19): a dict of counters, timings and geometry.")
-        .def("geometry", [](const gammart::Simulation& s) { return geometry_dict(gammart::measure(s.mesh())); },
-             "{volume (None if open), area, triangles, min_angle_deg, closed} of the current mesh.")
+        .def("geometry",
+             [](const gammart::Simulation& s) {
+                 return geometry_dict(gammart::measure(s.mesh(), s.scene_index().tri_surface()));
+             },
+             "{volume (None if open), area, triangles, min_angle_deg, min_free_angle_deg, closed} of the current "
+             "mesh (min_free_angle_deg: at corners not between two boundary or seam edges).")
         .def("mesh_arrays",
              [](const gammart::Simulation& s) {
                  const gammart::Mesh& m = s.mesh();

@@ -43,6 +43,21 @@ double angle_deg(const float* a, const float* b, const float* c) {  // angle at 
     return std::atan2(std::sqrt(cx * cx + cy * cy + cz * cz), uv) * 180.0 / M_PI;
 }
 
+// CGAL's isotropic remeshing of `faces` towards `target_edge_length`, as
+// every pass of a re-tiling runs it: `rounds` rounds, each surface a patch,
+// the `constrained` edges kept as polylines (split or collapsed, never
+// flipped; their vertices not relaxed).
+template <class FacePatch, class EdgeConstrained>
+void remesh_faces(const std::vector<FaceIndex>& faces, double target_edge_length, unsigned rounds, SurfaceMesh& sm,
+                  FacePatch patch, EdgeConstrained constrained) {
+    PMP::isotropic_remeshing(faces, target_edge_length, sm,
+                             CGAL::parameters::number_of_iterations(rounds)
+                                 .face_patch_map(patch)
+                                 .edge_is_constrained_map(constrained)
+                                 .relax_constraints(false));
+    sm.collect_garbage();
+}
+
 // `cut`: convert only the region and its margin (see below), else the
 // whole mesh.
 Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
@@ -115,12 +130,7 @@ Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         if (sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)]) constrained[e] = true;
     }
     const unsigned rounds = unsigned(std::max(iterations, 1));
-    PMP::isotropic_remeshing(faces, target_edge_length, sm,
-                             CGAL::parameters::number_of_iterations(rounds)
-                                 .face_patch_map(patch)
-                                 .edge_is_constrained_map(constrained)
-                                 .relax_constraints(false));
-    sm.collect_garbage();
+    remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
 
     // Sliver passes (SPEC §13.12): isotropic remeshing does not promise an
     // angle bound, and slivers survive where its region or a sharp-edge
@@ -140,15 +150,13 @@ Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         const auto h0 = sm.halfedge(f);
         const SurfaceMesh::Halfedge_index hs[3] = {h0, sm.next(h0), sm.next(sm.next(h0))};
         double p[3][3];
-        for (int k = 0; k < 3; ++k) {   // p[k] = source of hs[k]
+        uint8_t kept[3];
+        for (int k = 0; k < 3; ++k) {   // p[k] = source of hs[k]: corner k lies between hs[k] and hs[k + 2]
             const Point& q = sm.point(sm.source(hs[k]));
             p[k][0] = q.x(); p[k][1] = q.y(); p[k][2] = q.z();
+            kept[k] = kept_edge(hs[k]);
         }
-        for (int k = 0; k < 3; ++k)   // corner k lies between hs[k] (out) and hs[k + 2] (in)
-            if (corner_below(p[k], p[(k + 1) % 3], p[(k + 2) % 3], cos_max) &&
-                !(kept_edge(hs[k]) && kept_edge(hs[(k + 2) % 3])))
-                return true;
-        return false;
+        return is_sliver_triangle(p, kept, cos_max);
     };
     // The slivers and the triangles within kSliverPassRings vertex rings of
     // them, as a face range (empty when there is no sliver).
@@ -194,12 +202,7 @@ Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         sm.collect_garbage();
         faces = sliver_region(in);
         if (faces.empty()) break;
-        PMP::isotropic_remeshing(faces, target_edge_length, sm,
-                                 CGAL::parameters::number_of_iterations(rounds)
-                                     .face_patch_map(patch)
-                                     .edge_is_constrained_map(constrained)
-                                     .relax_constraints(false));
-        sm.collect_garbage();
+        remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
     }
     for (FaceIndex f : sm.faces()) out_slivers += is_sliver(f);
     // The output: the input's vertices that were not converted, then the
@@ -277,11 +280,15 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
     return retile_impl(mesh, tri_surface, target_edge_length, iterations, region, true);
 }
 
-MeshMeasures measure(const Mesh& mesh) {
+MeshMeasures measure(const Mesh& mesh, const std::vector<int32_t>& tri_surface) {
+    if (!tri_surface.empty() && tri_surface.size() != mesh.num_triangles())
+        throw Error("measure: one surface id per triangle expected");
     MeshMeasures m;
     m.triangles = mesh.num_triangles();
     m.area = mesh.area();
     m.min_angle_deg = m.triangles ? 180.0 : 0.0;
+    m.min_free_angle_deg = m.min_angle_deg;
+    const std::vector<uint8_t> kept = kept_edge_slots(mesh, tri_surface);
     // Closed: every directed edge (a, b) appears once and its reverse once.
     std::vector<uint64_t> directed;
     directed.reserve(3 * m.triangles);
@@ -291,7 +298,11 @@ MeshMeasures measure(const Mesh& mesh) {
         const float* a = &mesh.vertices[3 * size_t(tri[0])];
         const float* b = &mesh.vertices[3 * size_t(tri[1])];
         const float* c = &mesh.vertices[3 * size_t(tri[2])];
-        m.min_angle_deg = std::min({m.min_angle_deg, angle_deg(a, b, c), angle_deg(b, c, a), angle_deg(c, a, b)});
+        const double corner[3] = {angle_deg(a, b, c), angle_deg(b, c, a), angle_deg(c, a, b)};
+        for (size_t k = 0; k < 3; ++k) {   // corner k lies between edge slots k and k + 2
+            m.min_angle_deg = std::min(m.min_angle_deg, corner[k]);
+            if (!(kept[3 * t + k] && kept[3 * t + (k + 2) % 3])) m.min_free_angle_deg = std::min(m.min_free_angle_deg, corner[k]);
+        }
         vol += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
                 double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
                 double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6.0;

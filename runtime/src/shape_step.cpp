@@ -156,24 +156,38 @@ void carry_surfels(const Mesh& before, const Mesh& after, SurfelSet& surf, int t
 
 }  // namespace
 
-std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target,
-                                     double min_deg) {
+std::vector<uint8_t> triangle_defects(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target,
+                                      double min_deg) {
     const size_t m = mesh.num_triangles();
     const double lo2 = kRegionShortEdge * kRegionShortEdge * target * target;
     const double hi2 = kRegionLongEdge * kRegionLongEdge * target * target;
-    std::vector<uint8_t> bad = sliver_triangles(mesh, tri_surface, min_deg);
+    const double cos_max = cos_of_deg(min_deg);
+    const std::vector<uint8_t> kept = kept_edge_slots(mesh, tri_surface);
+    std::vector<uint8_t> defects(m, 0);
     for (size_t t = 0; t < m; ++t) {
         double p[3][3];
         triangle_corners(mesh, t, p);
-        for (int k = 0; k < 3 && !bad[t]; ++k) {
+        if (is_sliver_triangle(p, &kept[3 * t], cos_max)) defects[t] |= kSliverDefect;
+        for (int k = 0; k < 3; ++k) {
             const double* a = p[k];
             const double* b = p[(k + 1) % 3];
             const double uu = (b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) + (b[2] - a[2]) * (b[2] - a[2]);
-            if (uu < lo2 || uu > hi2) bad[t] = 1;
+            if (uu < lo2 || uu > hi2) defects[t] |= kEdgeDefect;
         }
     }
-    // and the triangles within kRegionRings vertex rings of one (room to fix it)
-    std::vector<uint8_t> region = bad;
+    return defects;
+}
+
+std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target,
+                                     double min_deg) {
+    return retiling_region(mesh, triangle_defects(mesh, tri_surface, target, min_deg));
+}
+
+std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<uint8_t>& defects) {
+    const size_t m = mesh.num_triangles();
+    // the defective triangles and those within kRegionRings vertex rings of one (room to fix them)
+    std::vector<uint8_t> region(m, 0);
+    for (size_t t = 0; t < m; ++t) region[t] = defects[t] != 0;
     for (int ring = 0; ring < kRegionRings; ++ring) {
         std::vector<uint8_t> near(mesh.num_vertices(), 0);
         for (size_t t = 0; t < m; ++t)
@@ -259,7 +273,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     }
     st.displace_seconds = seconds_since(t0);
     if (st.moved_vertices == 0) {
-        st.geometry = measure(mesh);
+        st.geometry = measure(mesh, index->tri_surface());
         return st;
     }
     st.changed = true;
@@ -281,18 +295,19 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     // Otherwise the vertices move and the surfels ride on their triangles.
     // Every re-tiling leaves no sliver (remesh.h), so the bound holds after
     // every shape step.
-    const MeshMeasures q = measure(displaced);
-    const std::vector<uint8_t> sliver = sliver_triangles(displaced, index->tri_surface(), kSliverDeg);
-    const bool has_sliver = std::find(sliver.begin(), sliver.end(), uint8_t(1)) != sliver.end();
+    const double displaced_area = displaced.area();
+    const std::vector<uint8_t> defects = triangle_defects(displaced, index->tri_surface(), target, kSliverDeg);
+    const bool has_sliver = std::any_of(defects.begin(), defects.end(), [](uint8_t d) { return d & kSliverDefect; });
     const bool first = retiled_area_ == 0;
-    const bool drifted = std::fabs(q.area - retiled_area_) > 0.1 * retiled_area_;
+    const bool drifted = std::fabs(displaced_area - retiled_area_) > 0.1 * retiled_area_;
     bool keep_tiling = !first && !drifted && kept_iterations_ < kMaxIterationsWithoutRetiling && !has_sliver;
     // After the first re-tiling, only the triangles that need it are re-tiled
     // (unless the area drifted: then the whole mesh); if none does, the
     // surfels ride.
     std::vector<uint8_t> region;
+    std::vector<uint32_t> replaced;   // after a local re-tiling: the surfels it replaced
     if (!keep_tiling && !first && !drifted) {
-        region = retiling_region(displaced, index->tri_surface(), target, kSliverDeg);
+        region = retiling_region(displaced, defects);
         if (std::find(region.begin(), region.end(), uint8_t(1)) == region.end()) {
             keep_tiling = true;
             kept_iterations_ = -1;  // checked now: counts again from here
@@ -304,7 +319,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
         st.retiled = false;
         st.retile_seconds = seconds_since(t0);
         t0 = std::chrono::steady_clock::now();
-        const double old_area = mesh.area(), new_area = q.area;
+        const double old_area = mesh.area(), new_area = displaced_area;
         carry_surfels(mesh, displaced, state.surf, c.threads);
         // the amounts stay where they are: the integral of each property
         // (value x area / N) is kept by scaling with the change of area
@@ -331,18 +346,23 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
         if (region.empty())
             resample(iteration, rt, mesh, state, index, st);
         else
-            resample_region(iteration, rt, mesh, displaced, state, index, st);
+            replaced = resample_region(iteration, rt, mesh, displaced, state, index, st);
         st.slivers_left = int64_t(rt.slivers_left);
         retiled_area_ = mesh.area();
     }
 
     // New surfels need their own splat neighbourhoods (SPEC §13.2); the old
     // kernel's offsets no longer match and would silently switch spreading off.
-    // Riding surfels keep their neighbourhoods, with weights for the new distances.
+    // Riding surfels keep their neighbourhoods, with weights for the new
+    // distances; after a local re-tiling, so do the surfels it kept away
+    // from the ones it replaced.
     t0 = std::chrono::steady_clock::now();
     run_with_threads(c.threads, [&] {
         if (keep_tiling)
             reweight_splat_kernel(state.splat, state.surf.position.data(), state.size(), index->sigma());
+        else if (!region.empty())
+            state.splat = update_splat_kernel(state.splat, state.surf.position.data(), state.surf.normal.data(),
+                                              state.surface.data(), state.size(), index->sigma(), replaced);
         else
             state.splat = build_splat_kernel(state.surf.position.data(), state.surf.normal.data(),
                                              state.surface.data(), state.size(), index->sigma());
@@ -352,7 +372,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     state.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh, *index,
                                      state.surf, kAoLengthFraction * frame.diag, c.seed, c.threads);
     before_ = state.rows;
-    st.geometry = keep_tiling ? q : measure(mesh);
+    st.geometry = measure(mesh, index->tri_surface());
     st.rebuild_seconds += seconds_since(t0);
     return st;
 }
@@ -383,8 +403,9 @@ void ShapeStep::resample(int iteration, Retiled& rt, Mesh& mesh, SurfelState& st
     index = std::move(rebuilt);
 }
 
-void ShapeStep::resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced, SurfelState& state,
-                                std::unique_ptr<SceneIndex>& index, ShapeStats& st) const {
+std::vector<uint32_t> ShapeStep::resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced,
+                                                 SurfelState& state, std::unique_ptr<SceneIndex>& index,
+                                                 ShapeStats& st) const {
     const Config& c = cfg_;
     auto t0 = std::chrono::steady_clock::now();
     const size_t n = state.size();
@@ -410,6 +431,7 @@ void ShapeStep::resample_region(int iteration, Retiled& rt, Mesh& mesh, const Me
     fresh.surf = state.surf;
     fresh.surface = state.surface;
     fresh.rows = state.rows;
+    fresh.splat = state.splat;   // the kept surfels' neighbourhoods (update_splat_kernel)
     for (size_t i = 0; i < n; ++i) {
         const int32_t t = new_of_old[size_t(state.surf.triangle[i])];
         if (t >= 0) fresh.surf.triangle[i] = t;
@@ -495,6 +517,7 @@ void ShapeStep::resample_region(int iteration, Retiled& rt, Mesh& mesh, const Me
     mesh = std::move(rt.mesh);
     state = std::move(fresh);
     index = std::move(rebuilt);
+    return removed;
 }
 
 }  // namespace gammart

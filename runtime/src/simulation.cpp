@@ -180,7 +180,19 @@ void Simulation::bake_prepared(int iteration, int threads, float* rows_out, floa
 }
 
 void Simulation::update_corner_normals() {
+    std::lock_guard<std::mutex> lock(corner_normals_mutex_);
     run_with_threads(cfg_.threads, [&] { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); });
+    corner_normals_stale_ = false;
+}
+
+const std::vector<float>& Simulation::corner_normals() const {
+    std::lock_guard<std::mutex> lock(corner_normals_mutex_);
+    if (corner_normals_stale_) {
+        run_with_threads(cfg_.threads,
+                         [&] { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); });
+        corner_normals_stale_ = false;
+    }
+    return corner_normals_;
 }
 
 void Simulation::set_rows(const float* data) {
@@ -209,9 +221,10 @@ ShapeStats Simulation::shape(int iteration) {
             shading_flat_.resize(tri_surface.size());
             for (size_t t = 0; t < tri_surface.size(); ++t) shading_flat_[t] = flat_surface_[size_t(tri_surface[t])];
         }
-        const auto t0 = std::chrono::steady_clock::now();
-        update_corner_normals();
-        st.rebuild_seconds += seconds_since(t0);  // the renders' normals belong to the rebuild
+        {
+            std::lock_guard<std::mutex> lock(corner_normals_mutex_);
+            corner_normals_stale_ = true;   // recomputed by the next render or bake (corner_normals())
+        }
         prepared_ = BakePoints{};      // new surfels and triangles: the caller prepares its points again
     }
     return st;

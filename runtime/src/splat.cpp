@@ -24,6 +24,59 @@ using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<fl
 constexpr float kRadiusInSigmas = 2.0f;
 constexpr float kMinNormalDot = 0.5f;  // cos 60°
 constexpr float kMaxPlaneOffsetInSigmas = 0.5f;  // a neighbour lies on the surfel's tangent plane
+
+using Scatter = std::vector<std::vector<std::pair<uint32_t, float>>>;  // per source: (target, weight)
+
+// The neighbourhood of source s, computed afresh: the surfels the tree finds
+// within kRadiusInSigmas x sigma that pass the surface, normal and plane
+// tests, and s itself, as (target, weight) in ascending target order.
+void fresh_neighbourhood(const Tree& tree, size_t s, const float* position, const float* normal,
+                         const int32_t* surface, float sigma, std::vector<std::pair<uint32_t, float>>& found,
+                         std::vector<std::pair<uint32_t, float>>& out) {
+    const float r = kRadiusInSigmas * sigma;
+    const float r2 = r * r;
+    const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
+    nanoflann::SearchParams params;
+    params.sorted = false;
+    found.clear();
+    out.clear();
+    const float* ps = position + 3 * s;
+    const float* ns = normal + 3 * s;
+    if (r2 > 0) tree.radiusSearch(ps, r2, found, params);
+    double sum = 0;
+    std::vector<double> w;
+    for (const auto& [j, d2] : found) {
+        if (j == s || surface[j] != surface[s]) continue;
+        const float* nj = normal + 3 * size_t(j);
+        if (ns[0] * nj[0] + ns[1] * nj[1] + ns[2] * nj[2] < kMinNormalDot) continue;
+        // Not on a parallel face nearby (the top of a step over the floor of a joint).
+        const float* pj = position + 3 * size_t(j);
+        const float off = (pj[0] - ps[0]) * ns[0] + (pj[1] - ps[1]) * ns[1] + (pj[2] - ps[2]) * ns[2];
+        if (std::fabs(off) > kMaxPlaneOffsetInSigmas * sigma) continue;
+        out.emplace_back(j, float(d2));
+    }
+    out.emplace_back(uint32_t(s), 0.0f);  // always in its own neighbourhood
+    std::sort(out.begin(), out.end());
+    w.resize(out.size());
+    for (size_t i = 0; i < out.size(); ++i) sum += (w[i] = std::exp(-double(out[i].second) * inv2s2));
+    for (size_t i = 0; i < out.size(); ++i) out[i].second = float(w[i] / sum);
+}
+
+// The squared distance between surfels s and j as the kd-tree measures it
+// from query s (float, term by term), 0 for s itself.
+float kernel_distance2(const float* position, size_t s, size_t j) {
+    if (s == j) return 0.0f;
+    const float* ps = position + 3 * s;
+    const float* pj = position + 3 * j;
+    float d2 = 0.0f;
+    for (int c = 0; c < 3; ++c) {
+        const float d = ps[c] - pj[c];
+        d2 += d * d;
+    }
+    return d2;
+}
+
+SplatKernel gather_form(const Scatter& scatter, size_t n);
 }  // namespace
 
 SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
@@ -34,40 +87,74 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
     Points pts{position, n};
     Tree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
     tree.buildIndex();
-    const float r = kRadiusInSigmas * sigma;
-    const float r2 = r * r;
-    const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
     // Scatter lists per source surfel: (target, weight), computed in parallel.
-    std::vector<std::vector<std::pair<uint32_t, float>>> scatter(n);
+    Scatter scatter(n);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& range) {
         std::vector<std::pair<uint32_t, float>> found;
+        for (size_t s = range.begin(); s < range.end(); ++s)
+            fresh_neighbourhood(tree, s, position, normal, surface, sigma, found, scatter[s]);
+    });
+    return gather_form(scatter, n);
+}
+
+SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, const float* normal,
+                                const int32_t* surface, size_t n, float sigma, const std::vector<uint32_t>& replaced) {
+    if (old.offset.size() != n + 1) return build_splat_kernel(position, normal, surface, n, sigma);
+    Points pts{position, n};
+    Tree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+    tree.buildIndex();
+    // Which sources get a fresh neighbourhood: the replaced surfels, the
+    // sources whose neighbourhood held one (they lost a target), and every
+    // surfel within the kernel radius of a replaced surfel's new position
+    // (it may gain one).  The radius test is symmetric (the same float
+    // metric both ways), so no source the fresh rule would give a new
+    // surfel keeps its old neighbourhood.
+    std::vector<uint8_t> fresh(n, 0);
+    for (uint32_t r : replaced) {
+        fresh[r] = 1;
+        for (uint32_t e = old.offset[r]; e < old.offset[size_t(r) + 1]; ++e) fresh[old.source[e]] = 1;
+    }
+    const float radius = kRadiusInSigmas * sigma;
+    std::vector<std::vector<std::pair<uint32_t, float>>> near(replaced.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, replaced.size(), 64), [&](const tbb::blocked_range<size_t>& range) {
         nanoflann::SearchParams params;
         params.sorted = false;
+        for (size_t k = range.begin(); k < range.end(); ++k)
+            if (radius > 0) tree.radiusSearch(position + 3 * size_t(replaced[k]), radius * radius, near[k], params);
+    });
+    for (const auto& found : near)
+        for (const auto& f : found) fresh[f.first] = 1;
+    // The others keep their targets (old scatter lists, ascending target
+    // order), with reweight_splat_kernel's weights.
+    Scatter scatter(n);
+    for (size_t j = 0; j < n; ++j)
+        for (uint32_t e = old.offset[j]; e < old.offset[j + 1]; ++e)
+            if (!fresh[old.source[e]]) scatter[old.source[e]].emplace_back(uint32_t(j), 0.0f);
+    const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& range) {
+        std::vector<std::pair<uint32_t, float>> found;
+        std::vector<double> w;
         for (size_t s = range.begin(); s < range.end(); ++s) {
-            found.clear();
-            const float* ps = position + 3 * s;
-            const float* ns = normal + 3 * s;
-            if (r2 > 0) tree.radiusSearch(ps, r2, found, params);
-            auto& out = scatter[s];
-            double sum = 0;
-            std::vector<double> w;
-            for (const auto& [j, d2] : found) {
-                if (j == s || surface[j] != surface[s]) continue;
-                const float* nj = normal + 3 * size_t(j);
-                if (ns[0] * nj[0] + ns[1] * nj[1] + ns[2] * nj[2] < kMinNormalDot) continue;
-                // Not on a parallel face nearby (the top of a step over the floor of a joint).
-                const float* pj = position + 3 * size_t(j);
-                const float off = (pj[0] - ps[0]) * ns[0] + (pj[1] - ps[1]) * ns[1] + (pj[2] - ps[2]) * ns[2];
-                if (std::fabs(off) > kMaxPlaneOffsetInSigmas * sigma) continue;
-                out.emplace_back(j, float(d2));
+            if (fresh[s]) {
+                fresh_neighbourhood(tree, s, position, normal, surface, sigma, found, scatter[s]);
+                continue;
             }
-            out.emplace_back(uint32_t(s), 0.0f);  // always in its own neighbourhood
-            std::sort(out.begin(), out.end());
+            auto& out = scatter[s];
             w.resize(out.size());
-            for (size_t i = 0; i < out.size(); ++i) sum += (w[i] = std::exp(-double(out[i].second) * inv2s2));
+            double sum = 0;
+            for (size_t i = 0; i < out.size(); ++i)
+                sum += (w[i] = std::exp(-double(kernel_distance2(position, s, out[i].first)) * inv2s2));
             for (size_t i = 0; i < out.size(); ++i) out[i].second = float(w[i] / sum);
         }
     });
+    return gather_form(scatter, n);
+}
+
+namespace {
+SplatKernel gather_form(const Scatter& scatter, size_t n) {
+    SplatKernel k;
+    k.offset.assign(n + 1, 0);
+    if (n == 0) return k;
     // Transpose into gather form; iterating sources in ascending order keeps
     // every target's list sorted by source.
     size_t total = 0;
@@ -88,6 +175,7 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
     k.mean_neighbours = double(total) / double(n);
     return k;
 }
+}  // namespace
 
 void reweight_splat_kernel(SplatKernel& k, const float* position, size_t n, float sigma) {
     if (k.offset.size() != n + 1) return;  // no kernel (spreading off): nothing to refresh
@@ -95,17 +183,8 @@ void reweight_splat_kernel(SplatKernel& k, const float* position, size_t n, floa
     std::vector<double> w(k.source.size());
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
         for (size_t j = range.begin(); j < range.end(); ++j)
-            for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e) {
-                // the kd-tree's float metric, query (source) minus point (target), as at build
-                const float* ps = position + 3 * size_t(k.source[e]);
-                const float* pj = position + 3 * j;
-                float d2 = 0.0f;
-                for (int c = 0; c < 3; ++c) {
-                    const float d = ps[c] - pj[c];
-                    d2 += d * d;
-                }
-                w[e] = std::exp(-double(k.source[e] == j ? 0.0f : d2) * inv2s2);
-            }
+            for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e)
+                w[e] = std::exp(-double(kernel_distance2(position, k.source[e], j)) * inv2s2);
     });
     // Each source's sum over its targets in ascending target order, as at build.
     std::vector<double> sum(n, 0.0);

@@ -473,3 +473,22 @@ TEST(ShapeStep, EveryLocalRetilingKeepsTheAngleBoundOnTheBunny) {
     }
     EXPECT_GE(local, 2) << "later steps should re-tile locally";
 }
+
+// The geometry summary's two angles: min_angle_deg over every corner,
+// min_free_angle_deg over the corners the 15° bound applies to (not between
+// two kept edges: boundary or seam).
+TEST(ShapeStep, MinFreeAngleLeavesOutCornersBetweenBoundaryAndSeamEdges) {
+    const float tan10 = float(std::tan(10.0 * M_PI / 180.0));
+    const float v[] = {0, 0, 0, 1, 0, 0, 1, tan10, 0, 0, 1, 0};
+    const int32_t one[] = {0, 1, 2};
+    const MeshMeasures lone = measure(Mesh::from_arrays(v, 4, one, 1, "lone"));
+    EXPECT_NEAR(lone.min_angle_deg, 10.0, 1e-4);
+    EXPECT_EQ(lone.min_free_angle_deg, 180.0);   // every corner between two boundary edges
+    // A second triangle on edge (2, 0): the 10° corner now has an inner edge.
+    const int32_t two[] = {0, 1, 2, 0, 2, 3};
+    const Mesh pair = Mesh::from_arrays(v, 4, two, 2, "pair");
+    EXPECT_NEAR(measure(pair).min_free_angle_deg, 10.0, 1e-4);
+    // The same edge as a seam between two surfaces: exempt again.
+    EXPECT_EQ(measure(pair, {0, 1}).min_free_angle_deg, 180.0);
+    EXPECT_NEAR(measure(pair, {0, 1}).min_angle_deg, 10.0, 1e-4);
+}

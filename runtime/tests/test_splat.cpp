@@ -105,3 +105,52 @@ TEST(Splat, ReweightingKeepsNeighbourhoodsAndConserves) {
     EXPECT_TRUE(changed);
     for (size_t s = 0; s < n; ++s) EXPECT_NEAR(sum[s], 1.0, 1e-5) << s;
 }
+
+// After a local re-tiling (SPEC §13.12) only the neighbourhoods near the
+// replaced surfels are computed afresh: where the kept surfels did not move,
+// that is exactly the kernel built from scratch; with nothing replaced it is
+// exactly the riding kernel (reweighting); and the same at 1 and 2 threads.
+TEST(Splat, LocalUpdateMatchesAFreshBuildWhereNothingElseMoved) {
+    const float h = 0.1f;
+    Grid g = make_grid(14, h);
+    const size_t n = g.surf.size();
+    for (size_t i = 0; i < n; ++i) {   // a little jitter: distinct distances
+        g.pos[3 * i] += 0.13f * h * float((i * 7919) % 17) / 17.0f;
+        g.pos[3 * i + 2] += 0.11f * h * float((i * 104729) % 13) / 13.0f;
+    }
+    const SplatKernel before = build_splat_kernel(g.pos.data(), g.nrm.data(), g.surf.data(), n, h);
+    // Replace the surfels of a patch (x in [4h, 7h]) by others at new places,
+    // one of them on the other surface and tilted.
+    std::vector<uint32_t> replaced;
+    for (size_t i = 0; i < n; ++i)
+        if (g.pos[3 * i] >= 4 * h && g.pos[3 * i] <= 7 * h && g.pos[3 * i + 2] < 20 * h) replaced.push_back(uint32_t(i));
+    ASSERT_GT(replaced.size(), 10u);
+    ASSERT_LT(replaced.size(), n / 4);
+    for (size_t k = 0; k < replaced.size(); ++k) {
+        const size_t i = replaced[k];
+        g.pos[3 * i] += 0.37f * h;
+        g.pos[3 * i + 2] -= 0.29f * h;
+    }
+    g.surf[replaced[0]] = 1 - g.surf[replaced[0]];
+    g.nrm[3 * replaced[1]] = 0.6f, g.nrm[3 * replaced[1] + 1] = 0.8f;
+    const SplatKernel fresh = build_splat_kernel(g.pos.data(), g.nrm.data(), g.surf.data(), n, h);
+    SplatKernel local[2];
+    for (int t = 0; t < 2; ++t)
+        run_with_threads(t + 1, [&] {
+            local[t] = update_splat_kernel(before, g.pos.data(), g.nrm.data(), g.surf.data(), n, h, replaced);
+        });
+    EXPECT_NE(fresh.source, before.source);   // the replacement changed neighbourhoods
+    for (int t = 0; t < 2; ++t) {
+        EXPECT_EQ(local[t].offset, fresh.offset);
+        EXPECT_EQ(local[t].source, fresh.source);
+        EXPECT_EQ(local[t].weight, fresh.weight);
+    }
+    // Nothing replaced, every surfel moved: the riding kernel.
+    for (size_t i = 0; i < n; ++i) g.pos[3 * i] *= 1.05f;
+    SplatKernel riding = fresh;
+    reweight_splat_kernel(riding, g.pos.data(), n, h);
+    const SplatKernel kept = update_splat_kernel(fresh, g.pos.data(), g.nrm.data(), g.surf.data(), n, h, {});
+    EXPECT_EQ(kept.offset, riding.offset);
+    EXPECT_EQ(kept.source, riding.source);
+    EXPECT_EQ(kept.weight, riding.weight);
+}

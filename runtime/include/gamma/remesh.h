@@ -61,10 +61,16 @@ struct MeshMeasures {
     double area = 0;
     double volume = 0;       // enclosed volume (divergence theorem); NaN when not closed
     bool closed = false;     // every edge has exactly two triangles, consistently oriented
-    double min_angle_deg = 0;
+    double min_angle_deg = 0;       // the smallest angle of any triangle corner
+    // The smallest angle at a corner the kMinRetiledAngleDeg bound applies
+    // to: not between two kept edges (open boundary, non-manifold, or a seam
+    // between surfaces; kept_edge_slots).  180 when there is none.
+    double min_free_angle_deg = 0;
     size_t triangles = 0;
 };
 
-MeshMeasures measure(const Mesh& mesh);
+// `tri_surface`: the surface of every triangle (for the seams), or empty
+// (then only boundary and non-manifold edges are kept edges).
+MeshMeasures measure(const Mesh& mesh, const std::vector<int32_t>& tri_surface = {});
 
 }  // namespace gammart

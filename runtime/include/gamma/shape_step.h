@@ -53,13 +53,21 @@ std::vector<V3> vertex_normals(const Mesh& mesh);
 void transfer_rows(const SurfelState& old_state, double old_area, const SceneIndex& old_index,
                    SurfelState& state, double new_area, const SceneIndex& index, int threads);
 
-// The triangles a re-tiling after the first re-tiles (SPEC §13.12): the
-// slivers (sliver_triangles: an angle below min_deg not between two kept
-// edges), those with an edge shorter than kRegionShortEdge or longer than
-// kRegionLongEdge x target, and the triangles within kRegionRings vertex
-// rings of one.  One flag per triangle.
+// What a triangle needs re-tiling for (SPEC §13.12), one byte per
+// triangle: kSliverDefect when it is a sliver (is_sliver_triangle: an angle
+// below min_deg not between two kept edges), kEdgeDefect when an edge is
+// shorter than kRegionShortEdge or longer than kRegionLongEdge x target.
+// One pass over the triangles (their corners read once).
 constexpr double kRegionShortEdge = 0.4, kRegionLongEdge = 2.0;
+constexpr uint8_t kSliverDefect = 1, kEdgeDefect = 2;
+std::vector<uint8_t> triangle_defects(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target,
+                                      double min_deg);
+
+// The triangles a re-tiling after the first re-tiles: those with a defect
+// (triangle_defects) and the triangles within kRegionRings vertex rings of
+// one.  One flag per triangle.
 constexpr int kRegionRings = 1;
+std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<uint8_t>& defects);
 std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target,
                                      double min_deg);
 
@@ -91,8 +99,10 @@ private:
     // After a local re-tiling: surfels on kept triangles stay, those on
     // replaced ones are replaced by as many new surfels sampled on the new
     // triangles, whose amounts spread over the new surfels around them.
-    void resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced, SurfelState& state,
-                         std::unique_ptr<SceneIndex>& index, ShapeStats& st) const;
+    // Returns the indices of the replaced surfels (ascending).
+    std::vector<uint32_t> resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced,
+                                          SurfelState& state, std::unique_ptr<SceneIndex>& index,
+                                          ShapeStats& st) const;
 
     const Config& cfg_;
     std::vector<float> before_;

@@ -16,6 +16,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -112,7 +113,8 @@ public:
     // Throws gammart::Error if flat has the wrong size or crease_deg is not
     // finite.
     void set_shading(std::vector<uint8_t> flat, float crease_deg);
-    const std::vector<float>& corner_normals() const { return corner_normals_; }
+    // (Computed on first use after a shape step changed the mesh.)
+    const std::vector<float>& corner_normals() const;
 
     // Textures for the appearance kernels (kernel argument `textures`, 3
     // floats per texture in this order).  Throws gammart::Error.
@@ -184,7 +186,7 @@ public:
 
 private:
     RenderScene render_scene() const {
-        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals_, base_};
+        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals(), base_};
     }
 
     Mesh mesh_;
@@ -204,7 +206,11 @@ private:
     BakePoints prepared_;
     std::vector<int32_t> surface_material_;  // per surface: its one material, else -1
     float crease_deg_ = kDefaultCreaseDeg;
-    std::vector<float> corner_normals_;
+    // The renders' normals: a shape step only marks them stale (most
+    // iterations render nothing), the first render or bake recomputes them.
+    mutable std::vector<float> corner_normals_;
+    mutable bool corner_normals_stale_ = false;
+    mutable std::mutex corner_normals_mutex_;
     void update_corner_normals();
     SetupSeconds setup_seconds_;
 };

@@ -34,6 +34,18 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
 // would not change is reproduced bit for bit.
 void reweight_splat_kernel(SplatKernel& k, const float* position, size_t n, float sigma);
 
+// After a local re-tiling replaced the surfels `replaced` (their new
+// positions and normals are in place; every other surfel rode): the
+// replaced surfels, the surfels whose neighbourhood held one, and every
+// surfel within the kernel radius of a replaced one get their neighbourhood
+// afresh (as build_splat_kernel); every other keeps its neighbourhood with
+// the weights of reweight_splat_kernel (SPEC §13.12).  When `old` was built
+// afresh at the kept surfels' present positions and normals with this
+// sigma, the result is build_splat_kernel's bit for bit.  `old` of another
+// size: built afresh.
+SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, const float* normal,
+                                const int32_t* surface, size_t n, float sigma, const std::vector<uint32_t>& replaced);
+
 // out[j*P + c] = sum over sources s of weight * in[s*P + c] (n rows of P).
 void apply_splat(const SplatKernel& k, const float* in, float* out, size_t n, int P);
 

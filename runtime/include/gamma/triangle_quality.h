@@ -62,24 +62,16 @@ inline std::vector<uint8_t> kept_edge_slots(const Mesh& mesh, const std::vector<
     return kept;
 }
 
-// Per triangle: 1 when it has an angle below min_deg at a corner that is not
-// between two kept edges (kept_edge_slots).  A corner between two kept edges
+// True when the triangle with corners p has an angle below the one whose
+// cosine is cos_max at a corner that is not between two kept edges (`kept`:
+// the triangle's three kept_edge_slots).  A corner between two kept edges
 // is the input's own (a boundary or seam turning sharply): no re-tiling can
 // widen it, so it does not count.
-inline std::vector<uint8_t> sliver_triangles(const Mesh& mesh, const std::vector<int32_t>& tri_surface,
-                                             double min_deg) {
-    const size_t m = mesh.num_triangles();
-    const double cos_max = cos_of_deg(min_deg);
-    const std::vector<uint8_t> kept = kept_edge_slots(mesh, tri_surface);
-    std::vector<uint8_t> sliver(m, 0);
-    for (size_t t = 0; t < m; ++t) {
-        double p[3][3];
-        triangle_corners(mesh, t, p);
-        for (size_t k = 0; k < 3 && !sliver[t]; ++k)
-            if (corner_below(p[k], p[(k + 1) % 3], p[(k + 2) % 3], cos_max) && !(kept[3 * t + k] && kept[3 * t + (k + 2) % 3]))
-                sliver[t] = 1;
-    }
-    return sliver;
+inline bool is_sliver_triangle(const double p[3][3], const uint8_t kept[3], double cos_max) {
+    for (size_t k = 0; k < 3; ++k)
+        if (corner_below(p[k], p[(k + 1) % 3], p[(k + 2) % 3], cos_max) && !(kept[k] && kept[(k + 2) % 3]))
+            return true;
+    return false;
 }
 
 }  // namespace gammart
