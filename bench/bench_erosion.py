@@ -90,9 +90,11 @@ def main() -> None:
     riding = [r for r in later if not r["retiled"]]
     mean = sum(r["total"] for r in later) / len(later)
     rows = []
-    for label, chosen in (("surfels ride (best)", riding), ("re-tiled (best)", retiling)):
+    # the slowest step too: the goal is every iteration under 1 s, not the mean
+    for label, chosen, pick in (("surfels ride (best)", riding, min), ("re-tiled (best)", retiling, min),
+                                ("slowest step", later, max)):
         if chosen:
-            b = min(chosen, key=lambda r: r["total"])
+            b = pick(chosen, key=lambda r: r["total"])
             rows.append(f"| {label} | {b['total']:.3f} | {b['trace']:.3f} | {b['update']:.3f} | "
                         f"{b['displace']:.3f} | {b['retile']:.3f} | {b['resample']:.3f} | {b['rebuild']:.3f} | "
                         f"{b['made']:,} | {paint_best:.3f} | {b['total'] / paint_best:.2f} |")
