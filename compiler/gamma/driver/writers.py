@@ -121,6 +121,11 @@ class FalseColourWriter(Writer):
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         self.history.append(event.properties[self.property].copy())
 
+    #: Largest picture whose rays are kept for every iteration's picture
+    #: (a FalseColourView holds ~100 bytes per pixel); a larger one casts them
+    #: again per picture.
+    VIEW_PIXELS = 1 << 20
+
     def on_run_finished(self, event: RunFinished) -> None:
         from .outputs import FalseColourCanvas
 
@@ -131,20 +136,34 @@ class FalseColourWriter(Writer):
         if vmax <= vmin:
             vmax = vmin + 1.0
         eye, target, up, fov = run.camera
-        canvas = None
-        for it, values in enumerate(self.history, start=1):
-            values = np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin).astype(np.float32)
+        width, height = run.opts.width, run.opts.height
+        # one frame (colour bar, ticks) for every picture of the run
+        canvas = FalseColourCanvas(width, height, vmin, vmax, shown)
+        view = None
+        if width * height <= self.VIEW_PIXELS:
+            # the geometry no longer changes: the rays of every picture are cast once, and
+            # the pictures are coloured behind the loop, in the runtime (threads, no GIL)
             with run.behind.timings.timed("renders"):
-                value, shade = run.call(run.sim.render, np.ascontiguousarray(values), eye, target, up,
-                                        fov, run.opts.width, run.opts.height, run.threads)
-            if canvas is None:     # one frame (colour bar, ticks) for every picture of the run
-                canvas = FalseColourCanvas(value.shape[1], value.shape[0], vmin, vmax, shown)
-            run.behind.timed("renders", _write_false_colour, self.folder / f"iter_{it:04d}.png", canvas,
-                             value, shade, f"{shown}, iteration {it}")
+                view = run.call(run.sim.false_colour_view, eye, target, up, fov, width, height, run.threads)
+        for it, values in enumerate(self.history, start=1):
+            values = np.ascontiguousarray(np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin), np.float32)
+            path, title = self.folder / f"iter_{it:04d}.png", f"{shown}, iteration {it}"
+            if view is not None:
+                run.behind.timed("renders", _write_false_colour_view, path, canvas, view, values, vmin, vmax,
+                                 title, run.threads)
+                continue
+            with run.behind.timings.timed("renders"):
+                value, shade = run.call(run.sim.render, values, eye, target, up, fov, width, height, run.threads)
+            run.behind.timed("renders", _write_false_colour, path, canvas, value, shade, title)
 
 
 def _write_false_colour(path: Path, canvas, value, shade, title) -> None:
     atomic_write(path, canvas.png(value, shade, title))
+
+
+def _write_false_colour_view(path: Path, canvas, view, values, vmin, vmax, title, threads) -> None:
+    picture = view.picture(values, vmin, vmax, canvas.background, threads)
+    atomic_write(path, canvas.png(None, None, title, picture=picture))
 
 
 class AppearanceWriter(Writer):
