@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <string>
 #include <utility>
@@ -28,9 +29,14 @@ using FaceIndex = SurfaceMesh::Face_index;
 using EdgeIndex = SurfaceMesh::Edge_index;
 namespace PMP = CGAL::Polygon_mesh_processing;
 
-// A local re-tiling converts the region and this many vertex rings around it
-// (room for the sliver passes) into CGAL's mesh, not the whole mesh.
-constexpr int kSubmeshMarginRings = 4;
+// Vertex rings around the region converted into CGAL's mesh with it.  In a
+// remeshing pass one ring holds every triangle a split or collapse of a
+// region-border edge can change, so the vertices of the cut (shared with
+// triangles left outside) are never touched; a sliver pass's collapses can
+// cascade into the triangles around the ones they change, so it gets more.
+// Should a pass still move or remove a vertex of the cut, it is run again
+// in the whole mesh.
+constexpr int kRemeshMarginRings = 1, kSliverMarginRings = 3;
 
 double angle_deg(const float* a, const float* b, const float* c) {  // angle at a
     double u[3], v[3];
@@ -58,15 +64,38 @@ void remesh_faces(const std::vector<FaceIndex>& faces, double target_edge_length
     sm.collect_garbage();
 }
 
-// `cut`: convert only the region and its margin (see below), else the
-// whole mesh.
-Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
-                    int iterations, const std::vector<uint8_t>* region, bool cut) {
+// `region` flags grown by `rings` vertex rings (every triangle sharing a
+// vertex with a flagged one joins, per ring).
+void grow_by_rings(const Mesh& mesh, std::vector<uint8_t>& flags, int rings) {
+    const size_t m = mesh.num_triangles();
+    for (int ring = 0; ring < rings; ++ring) {
+        std::vector<uint8_t> near(mesh.num_vertices(), 0);
+        for (size_t t = 0; t < m; ++t)
+            if (flags[t])
+                for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+        for (size_t t = 0; t < m; ++t)
+            for (int k = 0; k < 3; ++k) flags[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
+    }
+}
+
+// Test hook (remesh.h): cuts still to refuse.
+int g_refuse_cuts_for_testing = 0;
+
+enum class Pass { Remesh, Slivers };
+
+// One pass of a re-tiling on `region` (all triangles when null).
+// Pass::Remesh: isotropic remeshing of the region, sharp edges kept.
+// Pass::Slivers (region = slivers and the triangles around them): sharp
+// edges not kept, CGAL's removal of almost-degenerate faces, then isotropic
+// remeshing of the slivers still left and the triangles within
+// kSliverPassRings vertex rings of them.
+// `cut`: convert only the region and the margin rings around it,
+// else the whole mesh.  slivers_left is not filled in.
+Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
+                    int iterations, const std::vector<uint8_t>* region, bool cut, Pass pass) {
     Retiled out;
-    size_t& out_slivers = out.slivers_left;
-    if (region && region->size() != mesh.num_triangles()) throw Error("retile: one region flag per triangle expected");
     const size_t m = mesh.num_triangles(), n = mesh.num_vertices();
-    // A local re-tiling hands CGAL only the region and kSubmeshMarginRings
+    // A pass on a region hands CGAL only the region and a few
     // vertex rings around it (CGAL's relaxation recomputes the normals of
     // every vertex of the mesh it is given, each round): `sub` flags the
     // triangles converted, `frozen` the vertices on the sub-mesh's cut (it
@@ -75,14 +104,7 @@ Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
     std::vector<uint8_t> sub(m, 1), frozen(n, 0);
     if (region && cut) {
         sub = *region;
-        for (int ring = 0; ring < kSubmeshMarginRings; ++ring) {
-            std::vector<uint8_t> near(n, 0);
-            for (size_t t = 0; t < m; ++t)
-                if (sub[t])
-                    for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
-            for (size_t t = 0; t < m; ++t)
-                for (int k = 0; k < 3; ++k) sub[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
-        }
+        grow_by_rings(mesh, sub, pass == Pass::Remesh ? kRemeshMarginRings : kSliverMarginRings);
         for (size_t t = 0; t < m; ++t)
             if (!sub[t])
                 for (int k = 0; k < 3; ++k) frozen[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
@@ -106,13 +128,18 @@ Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         vertex_frozen[vi[i]] = frozen[i] != 0;
     }
     std::vector<FaceIndex> faces;
+    const bool refuse = region && cut && g_refuse_cuts_for_testing > 0 && g_refuse_cuts_for_testing-- > 0;
     for (size_t t = 0; t < m; ++t) {
         if (!sub[t]) continue;
-        const FaceIndex f = sm.add_face(vi[size_t(mesh.triangles[3 * t])], vi[size_t(mesh.triangles[3 * t + 1])],
-                                        vi[size_t(mesh.triangles[3 * t + 2])]);
+        const FaceIndex f = refuse ? SurfaceMesh::null_face()
+                                   : sm.add_face(vi[size_t(mesh.triangles[3 * t])], vi[size_t(mesh.triangles[3 * t + 1])],
+                                                 vi[size_t(mesh.triangles[3 * t + 2])]);
         if (f == SurfaceMesh::null_face()) {
-            if (region && cut)   // the cut made a vertex CGAL cannot hold (two fans): re-tile in the whole mesh
-                return retile_impl(mesh, tri_surface, target_edge_length, iterations, region, false);
+            if (region && cut) {   // the cut made a vertex CGAL cannot hold (two fans): the pass in the whole mesh
+                Retiled whole = retile_pass(mesh, tri_surface, target_edge_length, iterations, region, false, pass);
+                whole.whole_mesh_fallbacks += 1;
+                return whole;
+            }
             throw Error("retile: " + mesh.name + " is not an oriented 2-manifold (triangle " + std::to_string(t) +
                         " cannot be added); re-tiling needs a manifold mesh");
         }
@@ -120,52 +147,51 @@ Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         face_input[f] = int32_t(t);
         if (!region || (*region)[t]) faces.push_back(f);
     }
-    // Sharp edges (faces meeting at more than kSharpEdgeDeg), borders between
-    // surfaces and open boundaries stay where they are (as polylines):
-    // otherwise flips and relaxation would cut creases and shrink the solid.
+    // Borders between surfaces and open boundaries stay where they are (as
+    // polylines); so do sharp edges (faces meeting at more than
+    // kSharpEdgeDeg) in a remeshing pass: otherwise flips and relaxation
+    // would cut creases and shrink the solid.  A sliver pass releases them
+    // (a crease there rounds off, as wear does).
     auto constrained = sm.add_property_map<EdgeIndex, bool>("e:constrained", false).first;
-    PMP::detect_sharp_edges(sm, kSharpEdgeDeg, constrained);
-    for (EdgeIndex e : sm.edges()) {
-        const auto h = sm.halfedge(e), o = sm.opposite(h);
-        if (sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)]) constrained[e] = true;
-    }
-    const unsigned rounds = unsigned(std::max(iterations, 1));
-    remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
-
-    // Sliver passes (SPEC §13.12): isotropic remeshing does not promise an
-    // angle bound, and slivers survive where its region or a sharp-edge
-    // polyline held it back (a local region's border; the creases noise and
-    // erosion make on a scanned surface).  Every triangle with an angle below
-    // kMinRetiledAngleDeg at a corner not between two kept edges (borders,
-    // seams: that corner is the input's) is re-tiled again with the
-    // triangles within kSliverPassRings vertex rings, its sharp edges no
-    // longer kept (a crease there rounds off, as wear does).
-    constexpr double kCapDeg = 120.0, kNeedleRatio = 4.0;
-    const double cos_max = cos_of_deg(kMinRetiledAngleDeg);
+    if (pass == Pass::Remesh) PMP::detect_sharp_edges(sm, kSharpEdgeDeg, constrained);
     auto kept_edge = [&](SurfaceMesh::Halfedge_index h) {
         const auto o = sm.opposite(h);
         return sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)];
     };
-    auto is_sliver = [&](FaceIndex f) {
-        const auto h0 = sm.halfedge(f);
-        const SurfaceMesh::Halfedge_index hs[3] = {h0, sm.next(h0), sm.next(sm.next(h0))};
-        double p[3][3];
-        uint8_t kept[3];
-        for (int k = 0; k < 3; ++k) {   // p[k] = source of hs[k]: corner k lies between hs[k] and hs[k + 2]
-            const Point& q = sm.point(sm.source(hs[k]));
-            p[k][0] = q.x(); p[k][1] = q.y(); p[k][2] = q.z();
-            kept[k] = kept_edge(hs[k]);
-        }
-        return is_sliver_triangle(p, kept, cos_max);
-    };
-    // The slivers and the triangles within kSliverPassRings vertex rings of
-    // them, as a face range (empty when there is no sliver).
-    auto sliver_region = [&](std::vector<uint8_t>& in) {
-        in.assign(sm.num_faces(), 0);
-        std::vector<FaceIndex> range;
+    for (EdgeIndex e : sm.edges())
+        if (kept_edge(sm.halfedge(e))) constrained[e] = true;
+    const unsigned rounds = unsigned(std::max(iterations, 1));
+    if (pass == Pass::Remesh) {
+        remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
+    } else {
+        // Isotropic remeshing flips edges for valence, not angles, and its
+        // relaxation cannot pull a vertex off a fold of the surface it
+        // projects onto: a cap (an angle above kCapDeg) is flipped and a
+        // needle (longest / shortest edge above kNeedleRatio, about
+        // 1 / sin 15°) collapsed first, edges kept by `constrained` untouched.
+        constexpr double kCapDeg = 120.0, kNeedleRatio = 4.0;
+        PMP::experimental::remove_almost_degenerate_faces(faces, sm, std::cos(kCapDeg * M_PI / 180.0), kNeedleRatio,
+                                                          target_edge_length,
+                                                          CGAL::parameters::edge_is_constrained_map(constrained));
+        sm.collect_garbage();
+        // The slivers still left and the triangles within kSliverPassRings
+        // vertex rings of them (none touching the cut), remeshed.
+        const double cos_max = cos_of_deg(kMinRetiledAngleDeg);
+        auto is_sliver = [&](FaceIndex f) {
+            const auto h0 = sm.halfedge(f);
+            const SurfaceMesh::Halfedge_index hs[3] = {h0, sm.next(h0), sm.next(sm.next(h0))};
+            double p[3][3];
+            uint8_t kept[3];
+            for (int k = 0; k < 3; ++k) {   // p[k] = source of hs[k]: corner k lies between hs[k] and hs[k + 2]
+                const Point& q = sm.point(sm.source(hs[k]));
+                p[k][0] = q.x(); p[k][1] = q.y(); p[k][2] = q.z();
+                kept[k] = kept_edge(hs[k]);
+            }
+            return is_sliver_triangle(p, kept, cos_max);
+        };
+        std::vector<uint8_t> in(sm.num_faces(), 0);
         for (FaceIndex f : sm.faces())
             if (is_sliver(f)) in[f.idx()] = 1;
-        if (std::find(in.begin(), in.end(), uint8_t(1)) == in.end()) return range;
         for (int ring = 0; ring < kSliverPassRings; ++ring) {
             std::vector<uint8_t> near(sm.num_vertices(), 0);
             for (FaceIndex f : sm.faces())
@@ -174,37 +200,30 @@ Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
             for (FaceIndex f : sm.faces())
                 for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) in[f.idx()] |= near[x.idx()];
         }
+        faces.clear();
         for (FaceIndex f : sm.faces()) {
             if (!in[f.idx()]) continue;
-            bool cut = false;
-            for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) cut = cut || vertex_frozen[x];
-            if (!cut) range.push_back(f);
+            bool touches_cut = false;
+            for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) touches_cut = touches_cut || vertex_frozen[x];
+            if (!touches_cut) faces.push_back(f);
         }
-        return range;
-    };
-    std::vector<uint8_t> in;
-    for (int pass = 0; pass < kSliverPasses; ++pass) {
-        faces = sliver_region(in);
-        if (faces.empty()) break;
-        for (EdgeIndex e : sm.edges()) {
-            const auto h = sm.halfedge(e);
-            if (constrained[e] && !kept_edge(h) && in[sm.face(h).idx()] && in[sm.face(sm.opposite(h)).idx()])
-                constrained[e] = false;
-        }
-        // Isotropic remeshing flips edges for valence, not angles, and its
-        // relaxation cannot pull a vertex off a fold of the surface it
-        // projects onto: a cap (an angle above kCapDeg) is flipped and a
-        // needle (longest / shortest edge above kNeedleRatio, about
-        // 1 / sin 15°) collapsed first, edges kept by `constrained` untouched.
-        PMP::experimental::remove_almost_degenerate_faces(faces, sm, std::cos(kCapDeg * M_PI / 180.0), kNeedleRatio,
-                                                          target_edge_length,
-                                                          CGAL::parameters::edge_is_constrained_map(constrained));
-        sm.collect_garbage();
-        faces = sliver_region(in);
-        if (faces.empty()) break;
-        remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
+        if (!faces.empty()) remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
     }
-    for (FaceIndex f : sm.faces()) out_slivers += is_sliver(f);
+    if (region && cut) {   // every vertex of the cut still there, where it was
+        size_t cut_vertices = 0, held = 0;
+        for (size_t i = 0; i < n; ++i) cut_vertices += used[i] && frozen[i];
+        for (VertexIndex x : sm.vertices()) {
+            if (!vertex_frozen[x]) continue;
+            const Point& p = sm.point(x);
+            const float* q = &mesh.vertices[3 * size_t(vertex_input[x])];
+            held += float(p.x()) == q[0] && float(p.y()) == q[1] && float(p.z()) == q[2];
+        }
+        if (held != cut_vertices) {
+            Retiled whole = retile_pass(mesh, tri_surface, target_edge_length, iterations, region, false, pass);
+            whole.whole_mesh_fallbacks += 1;
+            return whole;
+        }
+    }
     // The output: the input's vertices that were not converted, then the
     // sub-mesh's (after collect_garbage its indices are 0 .. k-1 in order);
     // the triangles left outside, then the sub-mesh's.  For the whole mesh
@@ -271,14 +290,92 @@ Retiled retile_impl(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
     return out;
 }
 
+// The slivers of `mesh` (is_sliver_triangle, one flag per triangle).  Which
+// edges are kept is looked up only for the triangles with a narrow corner
+// (a sort of their edges, not of the whole mesh's: this runs after every
+// pass).
+std::vector<uint8_t> sliver_flags(const Mesh& mesh, const std::vector<int32_t>& tri_surface) {
+    const size_t m = mesh.num_triangles();
+    const double cos_max = cos_of_deg(kMinRetiledAngleDeg);
+    const uint8_t none_kept[3] = {0, 0, 0};
+    std::vector<uint8_t> flags(m, 0);
+    std::vector<uint32_t> narrow;
+    for (size_t t = 0; t < m; ++t) {
+        double p[3][3];
+        triangle_corners(mesh, t, p);
+        if (is_sliver_triangle(p, none_kept, cos_max)) narrow.push_back(uint32_t(t));
+    }
+    if (narrow.empty()) return flags;
+    auto key = [&](size_t t, size_t k) {
+        const uint32_t a = uint32_t(mesh.triangles[3 * t + k]), b = uint32_t(mesh.triangles[3 * t + (k + 1) % 3]);
+        return uint64_t(std::min(a, b)) << 32 | std::max(a, b);
+    };
+    // kept_edge_slots' rule for the narrow triangles' edges: kept unless
+    // exactly two triangles of one surface share it
+    std::vector<uint64_t> keys;
+    for (uint32_t t : narrow)
+        for (size_t k = 0; k < 3; ++k) keys.push_back(key(t, k));
+    std::sort(keys.begin(), keys.end());
+    keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+    std::vector<uint32_t> count(keys.size(), 0);
+    std::vector<int32_t> surface(keys.size(), INT32_MIN);
+    std::vector<uint8_t> seam(keys.size(), 0);
+    for (size_t t = 0; t < m; ++t)
+        for (size_t k = 0; k < 3; ++k) {
+            const auto it = std::lower_bound(keys.begin(), keys.end(), key(t, k));
+            if (it == keys.end() || *it != key(t, k)) continue;
+            const size_t e = size_t(it - keys.begin());
+            ++count[e];
+            const int32_t s = tri_surface.empty() ? 0 : tri_surface[t];
+            if (surface[e] != INT32_MIN && surface[e] != s) seam[e] = 1;
+            surface[e] = s;
+        }
+    for (uint32_t t : narrow) {
+        double p[3][3];
+        uint8_t kept[3];
+        triangle_corners(mesh, t, p);
+        for (size_t k = 0; k < 3; ++k) {
+            const size_t e = size_t(std::lower_bound(keys.begin(), keys.end(), key(t, k)) - keys.begin());
+            kept[k] = count[e] != 2 || seam[e];
+        }
+        flags[t] = is_sliver_triangle(p, kept, cos_max);
+    }
+    return flags;
+}
+
 }  // namespace
 
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
                int iterations, const std::vector<uint8_t>* region) {
     if (!(target_edge_length > 0) || !std::isfinite(target_edge_length))
         throw Error("retile: target edge length must be positive");
-    return retile_impl(mesh, tri_surface, target_edge_length, iterations, region, true);
+    if (region && region->size() != mesh.num_triangles()) throw Error("retile: one region flag per triangle expected");
+    Retiled out = retile_pass(mesh, tri_surface, target_edge_length, iterations, region, true, Pass::Remesh);
+    // Sliver passes (SPEC §13.12): isotropic remeshing does not promise an
+    // angle bound, and slivers survive where its region or a sharp-edge
+    // polyline held it back (a local region's border; the creases noise and
+    // erosion make on a scanned surface).  Each pass re-tiles the slivers
+    // left and the triangles within kSliverPassRings vertex rings of them,
+    // cut from the rest of the mesh on their own (a few hundred triangles,
+    // not the whole region again).
+    std::vector<uint8_t> slivers = sliver_flags(out.mesh, out.tri_surface);
+    for (int pass = 0; pass < kSliverPasses; ++pass) {
+        if (std::find(slivers.begin(), slivers.end(), uint8_t(1)) == slivers.end()) break;
+        std::vector<uint8_t> around = slivers;
+        grow_by_rings(out.mesh, around, kSliverPassRings);
+        Retiled next = retile_pass(out.mesh, out.tri_surface, target_edge_length, iterations, &around, true,
+                                   Pass::Slivers);
+        for (int32_t& k : next.kept)   // kept from the input: kept by every pass
+            if (k >= 0) k = out.kept[size_t(k)];
+        next.whole_mesh_fallbacks += out.whole_mesh_fallbacks;
+        out = std::move(next);
+        slivers = sliver_flags(out.mesh, out.tri_surface);
+    }
+    out.slivers_left = size_t(std::count(slivers.begin(), slivers.end(), uint8_t(1)));
+    return out;
 }
+
+void refuse_retile_cuts_for_testing(int cuts) { g_refuse_cuts_for_testing = cuts; }
 
 MeshMeasures measure(const Mesh& mesh, const std::vector<int32_t>& tri_surface) {
     if (!tri_surface.empty() && tri_surface.size() != mesh.num_triangles())

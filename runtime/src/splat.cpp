@@ -124,30 +124,77 @@ SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, c
     });
     for (const auto& found : near)
         for (const auto& f : found) fresh[f.first] = 1;
-    // The others keep their targets (old scatter lists, ascending target
-    // order), with reweight_splat_kernel's weights.
-    Scatter scatter(n);
-    for (size_t j = 0; j < n; ++j)
-        for (uint32_t e = old.offset[j]; e < old.offset[j + 1]; ++e)
-            if (!fresh[old.source[e]]) scatter[old.source[e]].emplace_back(uint32_t(j), 0.0f);
+    // The others keep their targets: the old kernel turned into scatter
+    // form by a counting pass over flat arrays (iterating targets in
+    // ascending order leaves every source's targets ascending), weighted as
+    // reweight_splat_kernel does (the same exponentials, each source's sum
+    // in ascending target order).
+    std::vector<uint32_t> kept_at(n + 1, 0);
+    for (size_t e = 0; e < old.source.size(); ++e)
+        if (!fresh[old.source[e]]) ++kept_at[size_t(old.source[e]) + 1];
+    for (size_t s = 0; s < n; ++s) kept_at[s + 1] += kept_at[s];
+    std::vector<uint32_t> kept_target(kept_at[n]);
+    std::vector<float> kept_weight(kept_at[n]);
+    {
+        std::vector<uint32_t> fill(kept_at.begin(), kept_at.end() - 1);
+        for (size_t j = 0; j < n; ++j)
+            for (uint32_t e = old.offset[j]; e < old.offset[j + 1]; ++e)
+                if (!fresh[old.source[e]]) kept_target[fill[old.source[e]]++] = uint32_t(j);
+    }
+    std::vector<uint32_t> fresh_sources;
+    for (size_t s = 0; s < n; ++s)
+        if (fresh[s]) fresh_sources.push_back(uint32_t(s));
+    Scatter fresh_lists(fresh_sources.size());
     const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& range) {
-        std::vector<std::pair<uint32_t, float>> found;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, fresh_sources.size(), 64),
+                      [&](const tbb::blocked_range<size_t>& range) {
+                          std::vector<std::pair<uint32_t, float>> found;
+                          for (size_t k = range.begin(); k < range.end(); ++k)
+                              fresh_neighbourhood(tree, fresh_sources[k], position, normal, surface, sigma, found,
+                                                  fresh_lists[k]);
+                      });
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
         std::vector<double> w;
         for (size_t s = range.begin(); s < range.end(); ++s) {
-            if (fresh[s]) {
-                fresh_neighbourhood(tree, s, position, normal, surface, sigma, found, scatter[s]);
-                continue;
-            }
-            auto& out = scatter[s];
-            w.resize(out.size());
+            const uint32_t b = kept_at[s], e = kept_at[s + 1];
+            w.resize(e - b);
             double sum = 0;
-            for (size_t i = 0; i < out.size(); ++i)
-                sum += (w[i] = std::exp(-double(kernel_distance2(position, s, out[i].first)) * inv2s2));
-            for (size_t i = 0; i < out.size(); ++i) out[i].second = float(w[i] / sum);
+            for (uint32_t i = b; i < e; ++i)
+                sum += (w[i - b] = std::exp(-double(kernel_distance2(position, s, kept_target[i])) * inv2s2));
+            for (uint32_t i = b; i < e; ++i) kept_weight[i] = float(w[i - b] / sum);
         }
     });
-    return gather_form(scatter, n);
+    // Gather form, sources in ascending order (as gather_form).
+    SplatKernel k;
+    k.offset.assign(n + 1, 0);
+    size_t total = kept_at[n];
+    for (uint32_t t : kept_target) ++k.offset[size_t(t) + 1];
+    for (const auto& list : fresh_lists) {
+        total += list.size();
+        for (const auto& e : list) ++k.offset[size_t(e.first) + 1];
+    }
+    for (size_t j = 0; j < n; ++j) k.offset[j + 1] += k.offset[j];
+    k.source.resize(total);
+    k.weight.resize(total);
+    std::vector<uint32_t> fill(k.offset.begin(), k.offset.end() - 1);
+    size_t next_fresh = 0;
+    for (size_t s = 0; s < n; ++s) {
+        if (fresh[s]) {
+            for (const auto& [j, w] : fresh_lists[next_fresh++]) {
+                const uint32_t at = fill[j]++;
+                k.source[at] = uint32_t(s);
+                k.weight[at] = w;
+            }
+            continue;
+        }
+        for (uint32_t i = kept_at[s]; i < kept_at[s + 1]; ++i) {
+            const uint32_t at = fill[kept_target[i]]++;
+            k.source[at] = uint32_t(s);
+            k.weight[at] = kept_weight[i];
+        }
+    }
+    k.mean_neighbours = double(total) / double(n);
+    return k;
 }
 
 namespace {

@@ -235,22 +235,28 @@ TEST(MassBooks, PickUpBalancesAndCreationIsReported) {
     EXPECT_EQ(k3.escaped, k2.escaped);
 }
 
-// Local re-tiling (SPEC §13.12 step 4): only the flagged region and the
-// triangles along its border may change; every other triangle comes out with
-// the same corners at bit-identical positions, the mesh stays closed.
-TEST(ShapeStep, LocalRetilingKeepsTrianglesOutsideTheRegion) {
-    Mesh m = gamma_test::icosphere(4, 1.0f);
-    double target = 0;  // the mean edge length of the sphere
+namespace {
+// An icosphere whose x > 0.85 cap is pinched (every vertex there pulled 80 %
+// of the way to a neighbour: short edges and slivers there, nothing
+// elsewhere), the region a local re-tiling would take, and the target edge
+// length (the sphere's mean edge).
+struct PinchedSphere {
+    Mesh mesh;
+    double target = 0;
+    std::vector<uint8_t> region;
+};
+PinchedSphere pinched_sphere() {
+    PinchedSphere p;
+    Mesh& m = p.mesh;
+    m = gamma_test::icosphere(4, 1.0f);
     for (size_t t = 0; t < m.num_triangles(); ++t)
         for (int k = 0; k < 3; ++k) {
             const float* a = &m.vertices[3 * size_t(m.triangles[3 * t + size_t(k)])];
             const float* b = &m.vertices[3 * size_t(m.triangles[3 * t + size_t((k + 1) % 3)])];
-            target += std::sqrt(double((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
-                                       (a[2] - b[2]) * (a[2] - b[2])));
+            p.target += std::sqrt(double((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+                                         (a[2] - b[2]) * (a[2] - b[2])));
         }
-    target /= 3.0 * double(m.num_triangles());
-    // Pull every vertex of the x > 0.85 cap 80 % of the way to a neighbour:
-    // short edges and slivers there, nothing elsewhere.
+    p.target /= 3.0 * double(m.num_triangles());
     const std::vector<float> orig = m.vertices;
     for (size_t v = 0; v < m.num_vertices(); ++v) {
         if (orig[3 * v] <= 0.85f) continue;
@@ -263,19 +269,23 @@ TEST(ShapeStep, LocalRetilingKeepsTrianglesOutsideTheRegion) {
             break;
         }
     }
-    const std::vector<int32_t> ts(m.num_triangles(), 0);
-    const std::vector<uint8_t> region = retiling_region(m, std::vector<int32_t>(m.num_triangles(), 0), target, 15.0);
-    size_t flagged = 0;
-    for (uint8_t f : region) flagged += f;
-    ASSERT_GT(flagged, 0u);
-    ASSERT_LT(flagged, m.num_triangles() / 2);
-    const Retiled rt = retile(m, ts, target, 3, &region);
-    EXPECT_TRUE(measure(rt.mesh).closed);
-    // Triangles that share no vertex with the region: all kept, exactly.
+    p.region = retiling_region(m, std::vector<int32_t>(m.num_triangles(), 0), p.target, 15.0);
+    return p;
+}
+
+// What a local re-tiling of `region` promises (SPEC §13.12 step 4): the
+// mesh stays closed, it made triangles, no sliver is left, and every
+// triangle that shares no vertex with the region comes out kept, with the
+// same corners at bit-identical positions in the same orientation.
+void expect_local_retiling(const Mesh& m, const std::vector<uint8_t>& region, const Retiled& rt) {
+    const MeshMeasures g = measure(rt.mesh);
+    EXPECT_TRUE(g.closed);
+    EXPECT_EQ(rt.slivers_left, 0u);
+    EXPECT_GE(g.min_angle_deg, kMinRetiledAngleDeg);
     std::vector<uint8_t> near(m.num_vertices(), 0);
     for (size_t t = 0; t < m.num_triangles(); ++t)
         if (region[t])
-            for (int k = 0; k < 3; ++k) near[size_t(m.triangles[3 * t + k])] = 1;
+            for (int k = 0; k < 3; ++k) near[size_t(m.triangles[3 * t + size_t(k)])] = 1;
     std::vector<int> found(m.num_triangles(), 0);
     size_t made = 0;
     for (size_t t = 0; t < rt.kept.size(); ++t) {
@@ -306,6 +316,46 @@ TEST(ShapeStep, LocalRetilingKeepsTrianglesOutsideTheRegion) {
         }
         EXPECT_LE(found[t], 1);
     }
+}
+}  // namespace
+
+// Local re-tiling (SPEC §13.12 step 4): only the flagged region and the
+// triangles along its border may change; every other triangle comes out with
+// the same corners at bit-identical positions, the mesh stays closed.
+TEST(ShapeStep, LocalRetilingKeepsTrianglesOutsideTheRegion) {
+    const PinchedSphere p = pinched_sphere();
+    size_t flagged = 0;
+    for (uint8_t f : p.region) flagged += f;
+    ASSERT_GT(flagged, 0u);
+    ASSERT_LT(flagged, p.mesh.num_triangles() / 2);
+    const Retiled rt = retile(p.mesh, std::vector<int32_t>(p.mesh.num_triangles(), 0), p.target, 3, &p.region);
+    EXPECT_EQ(rt.whole_mesh_fallbacks, 0);
+    expect_local_retiling(p.mesh, p.region, rt);
+}
+
+// When CGAL cannot hold the sub-mesh cut around a region (a vertex of the
+// cut with two fans of triangles), the pass runs in the whole mesh, same
+// region (SPEC §13.12 step 4).  No natural input was found that makes CGAL
+// refuse a cut, so the test hook refuses them: the first pass alone, then
+// every pass; the result keeps every promise of a local re-tiling.
+TEST(ShapeStep, ARefusedCutFallsBackToTheWholeMesh) {
+    const PinchedSphere p = pinched_sphere();
+    const std::vector<int32_t> ts(p.mesh.num_triangles(), 0);
+    refuse_retile_cuts_for_testing(1);
+    const Retiled first = retile(p.mesh, ts, p.target, 3, &p.region);
+    refuse_retile_cuts_for_testing(1000);
+    const Retiled every = retile(p.mesh, ts, p.target, 3, &p.region);
+    refuse_retile_cuts_for_testing(0);
+    EXPECT_EQ(first.whole_mesh_fallbacks, 1);
+    EXPECT_GE(every.whole_mesh_fallbacks, 1);
+    expect_local_retiling(p.mesh, p.region, first);
+    expect_local_retiling(p.mesh, p.region, every);
+    // In the whole mesh every vertex goes through CGAL: the output's vertex
+    // order is CGAL's (the cut keeps the unconverted vertices first, in the
+    // input's order), so the fallback really ran.
+    const Retiled cut = retile(p.mesh, ts, p.target, 3, &p.region);
+    EXPECT_EQ(cut.whole_mesh_fallbacks, 0);
+    EXPECT_NE(first.mesh.vertices, cut.mesh.vertices);
 }
 
 namespace {
@@ -412,6 +462,31 @@ AngleCheck check_angles(const Mesh& m) {
     }
     return r;
 }
+
+// One iteration (trace, update, shape step) and what every shape step
+// promises (SPEC §13.12): the geometry moved, no sliver is left, no angle
+// below kMinRetiledAngleDeg except at a corner between two boundary edges,
+// an oriented manifold, closed (no boundary edge) or with its boundary, and
+// finite.  Returns whether the step re-tiled locally (fewer than half the
+// triangles made).
+bool well_shaped_step(Simulation& sim, int it, bool closed) {
+    sim.trace(it);
+    sim.update(it);
+    const ShapeStats s = sim.shape(it);
+    EXPECT_TRUE(s.changed) << "iteration " << it;
+    EXPECT_EQ(s.slivers_left, 0) << "iteration " << it;
+    const AngleCheck a = check_angles(sim.mesh());
+    EXPECT_GE(a.min_free_deg, kMinRetiledAngleDeg) << "iteration " << it;
+    EXPECT_DOUBLE_EQ(s.geometry.min_free_angle_deg, a.min_free_deg) << "iteration " << it;
+    EXPECT_TRUE(a.oriented_manifold) << "iteration " << it;
+    EXPECT_EQ(s.geometry.closed, closed) << "iteration " << it;
+    if (closed)
+        EXPECT_EQ(a.boundary_edges, 0u) << "iteration " << it;
+    else
+        EXPECT_GT(a.boundary_edges, 0u) << "iteration " << it;
+    for (float x : sim.mesh().vertices) EXPECT_TRUE(std::isfinite(x)) << "iteration " << it;
+    return it > 1 && s.retiled && size_t(s.retiled_triangles) < s.geometry.triangles / 2;
+}
 }  // namespace
 
 // The angle bound holds after every shape step, local re-tilings included
@@ -423,17 +498,8 @@ TEST(ShapeStep, EveryLocalRetilingKeepsTheAngleBoundOnASphere) {
     Simulation sim(m, sphere_config(5000, -0.05f, reinterpret_cast<const void*>(&k_erode_band)));
     int local = 0;
     for (int it = 1; it <= 8; ++it) {
-        sim.trace(it);
-        sim.update(it);
-        const ShapeStats s = sim.shape(it);
-        ASSERT_TRUE(s.changed);
-        local += it > 1 && s.retiled && size_t(s.retiled_triangles) < s.geometry.triangles / 2;
-        EXPECT_EQ(s.slivers_left, 0) << "iteration " << it;
-        EXPECT_TRUE(s.geometry.closed) << "iteration " << it;
-        EXPECT_GE(s.geometry.min_angle_deg, kMinRetiledAngleDeg) << "iteration " << it;
-        const AngleCheck a = check_angles(sim.mesh());
-        EXPECT_TRUE(a.oriented_manifold) << "iteration " << it;
-        EXPECT_EQ(a.boundary_edges, 0u) << "iteration " << it;
+        local += well_shaped_step(sim, it, /*closed=*/true);
+        if (::testing::Test::HasFatalFailure()) return;
     }
     EXPECT_GE(local, 2) << "the groove should need local re-tilings";
 }
@@ -458,18 +524,8 @@ TEST(ShapeStep, EveryLocalRetilingKeepsTheAngleBoundOnTheBunny) {
     Simulation sim(m, c);
     int local = 0;
     for (int it = 1; it <= 6; ++it) {
-        sim.trace(it);
-        sim.update(it);
-        const ShapeStats s = sim.shape(it);
-        ASSERT_TRUE(s.changed);
-        local += it > 1 && s.retiled && size_t(s.retiled_triangles) < s.geometry.triangles / 2;
-        EXPECT_EQ(s.slivers_left, 0) << "iteration " << it;
-        const AngleCheck a = check_angles(sim.mesh());
-        EXPECT_GE(a.min_free_deg, kMinRetiledAngleDeg) << "iteration " << it;
-        EXPECT_TRUE(a.oriented_manifold) << "iteration " << it;
-        EXPECT_GT(a.boundary_edges, 0u) << "iteration " << it;
-        EXPECT_FALSE(s.geometry.closed);
-        for (float x : sim.mesh().vertices) ASSERT_TRUE(std::isfinite(x));
+        local += well_shaped_step(sim, it, /*closed=*/false);
+        if (::testing::Test::HasFatalFailure()) return;
     }
     EXPECT_GE(local, 2) << "later steps should re-tile locally";
 }

@@ -31,6 +31,9 @@ struct Retiled {
     // corner between two kept edges) after the sliver passes: 0 unless they
     // could not remove them all.
     size_t slivers_left = 0;
+    // Passes whose sub-mesh CGAL could not hold (a vertex of the cut with two
+    // fans of triangles), run in the whole mesh instead (same region).
+    int whole_mesh_fallbacks = 0;
 };
 
 // Isotropic remeshing towards `target_edge_length` (`iterations` rounds of
@@ -44,18 +47,28 @@ struct Retiled {
 // corner not between two border / seam edges) with the triangles within
 // kSliverPassRings vertex rings, sharp edges there released: CGAL's removal
 // of almost-degenerate faces (cap flips, needle collapses), then isotropic
-// remeshing (SPEC §13.12).  Deterministic (single-threaded).
+// remeshing (SPEC §13.12).  Each sliver pass is cut from the mesh on its
+// own (its region and a few vertex rings are converted, not the whole mesh
+// nor the first pass's region again).  Deterministic (single-threaded).
 // Texture coordinates and part labels do not survive (the result has none).
 // Throws gammart::Error if the input is not a valid triangle mesh for CGAL.
 //
 // With `region` (one flag per triangle), only the flagged triangles are
-// re-tiled (CGAL's face range): the border of the region is kept as a
+// re-tiled (CGAL's face range; only they and one vertex ring around them
+// are converted into CGAL's mesh): the border of the region is kept as a
 // constraint like a seam, so apart from the region only triangles along its
 // border can change (where a border edge is split or collapsed), and those
 // the sliver passes re-tile around a sliver left along that border; every
-// other triangle comes out as it was (Retiled::kept).
+// other triangle comes out as it was (Retiled::kept).  A pass whose cut
+// CGAL cannot hold, or that would move a vertex of the cut, runs in the
+// whole mesh instead (Retiled::whole_mesh_fallbacks).
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
                int iterations, const std::vector<uint8_t>* region = nullptr);
+
+// Test hook: the next `cuts` sub-meshes a pass on a region would hand CGAL
+// are refused as if CGAL could not hold them, so the pass falls back to the
+// whole mesh (Retiled::whole_mesh_fallbacks).  Not thread-safe; tests only.
+void refuse_retile_cuts_for_testing(int cuts);
 
 struct MeshMeasures {
     double area = 0;
