@@ -89,11 +89,14 @@ def test_rust_bleeds_below_the_chain_and_down_the_risers(tmp_path):
     below = np.abs(x + 0.3) < 0.15
     stairs = cement & (z > 0.6) & (z < 1.5) & (m["y"] > 0.005)
     assert rust[stairs & below].mean() > 5 * rust[cement & ~below].mean()
-    risers = cement & (m["nz"] > 0.9) & (z > 0.85) & (z < 1.25)
-    # At this reduced scale the risers' ratio is noisy: 3.1 / 2.2 / 3.9 for
-    # seeds 1 / 2 / 3 with the serial sample elimination, 2.9 / 2.5 / 4.1 with
-    # the tiled one (the stairs' ratio above: 26-33 for both).
-    assert rust[risers & below].mean() > 2 * rust[risers & ~below].mean()
+    # The risers downstream of the chain's tread (z = 0.9, 1.2, 1.5) against
+    # the same risers on the far half of the staircase.  Rust also spreads
+    # to the strip between the chain and the wall (x < -0.45, about as much),
+    # so "everywhere but below" mixes that strip in and made the ratio seed
+    # noise (2.2-4.9 over seeds 1-8); against the far half it is 7.4-11.8.
+    risers = cement & (m["nz"] > 0.9) & (z > 0.85) & (z < 1.55)
+    far_half = x > 0
+    assert rust[risers & below].mean() > 5 * rust[risers & far_half].mean()
     assert rust[risers & below].mean() > 0
 
 
