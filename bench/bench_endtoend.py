@@ -9,7 +9,10 @@ summary.json) in a fresh process, timing the whole process from outside
 (start-up, compilation, setup, the loop and every output written), and reads
 the run's own trace and update times from its summary.json.  The ratio
 wall / (trace + update) is the figure: 1.0 would mean everything but the
-simulation itself is free.  Best of ``--repeats`` (by ratio).
+simulation itself is free.  Best of ``--repeats`` (by ratio); that run's wall
+time is split by the clocks summary.json reports (start-up, scene, compile,
+setup, the loop, after the loop; the remainder is the interpreter's start and
+the process's exit), with the outputs' busy time by kind.
 """
 
 from __future__ import annotations
@@ -41,9 +44,21 @@ def one_run(args, out: Path) -> dict:
     iters = summary["iterations"]
     trace = sum(r["trace_seconds"] for r in iters)
     update = sum(r["update_seconds"] for r in iters)
-    return {"wall": wall, "trace_update": trace + update, "setup": summary.get("setup_seconds", float("nan")),
-            "startup": summary.get("startup_seconds", float("nan")),
-            "compile": summary.get("compile_seconds", float("nan"))}
+    nan = float("nan")
+    run = {"wall": wall, "trace_update": trace + update, "setup": summary.get("setup_seconds", nan),
+           "startup": summary.get("startup_seconds", nan), "compile": summary.get("compile_seconds", nan),
+           "scene": summary.get("scene_seconds", nan), "start": summary.get("start_seconds", nan),
+           "loop": summary.get("loop_seconds", nan), "finish": summary.get("finish_seconds", nan),
+           "outputs": summary.get("output_seconds", {}), "wait": summary.get("writer_wait_seconds", nan)}
+    # where the wall time went, in the order it is spent (summary.json's own clocks):
+    # start-up (imports, parse, check) | scene | compile | setup | the rest of start
+    # (output folder, camera, ...) | the loop's trace + update | the loop's other work
+    # (writers' handlers, waits for the writer) | after the loop (false-colour renders,
+    # the writer's last jobs) | outside (interpreter start, process exit)
+    run["start_other"] = run["start"] - run["scene"] - run["compile"] - run["setup"]
+    run["loop_other"] = run["loop"] - run["trace_update"]
+    run["outside"] = wall - run["startup"] - run["start"] - run["loop"] - run["finish"]
+    return run
 
 
 def main() -> None:
@@ -63,16 +78,22 @@ def main() -> None:
             runs.append(one_run(args, Path(tmp) / f"run{rep}"))
     best = min(runs, key=lambda r: r["wall"] / r["trace_update"])
     n = args.iterations
-    header = ("| s/iteration end-to-end | trace + update s/iteration | ratio | start-up s | compile s | setup s |\n"
-              "|---|---|---|---|---|---|")
+    header = ("| s/iteration end-to-end | trace + update s/iteration | ratio | start-up s | scene s | compile s "
+              "| setup s | rest of start s | loop besides trace + update s | after the loop s "
+              "| outside (interpreter start, exit) s |\n"
+              "|---|---|---|---|---|---|---|---|---|---|---|")
     row = (f"| {best['wall'] / n:.3f} | {best['trace_update'] / n:.3f} | "
-           f"{best['wall'] / best['trace_update']:.2f}× | {best['startup']:.2f} | {best['compile']:.2f} | "
-           f"{best['setup']:.2f} |")
+           f"{best['wall'] / best['trace_update']:.2f}× | {best['startup']:.2f} | {best['scene']:.2f} | "
+           f"{best['compile']:.2f} | {best['setup']:.2f} | {best['start_other']:.2f} | "
+           f"{best['loop_other']:.2f} | {best['finish']:.2f} | {best['outside']:.2f} |")
+    busy = ", ".join(f"{kind} {seconds:.2f} s" for kind, seconds in sorted(best["outputs"].items()))
     info = (f"`gammac run examples/patina.gamma`, bunny, {args.surfels:,} surfels, {args.tons:,} γ-tons/iteration, "
             f"{n} iterations, {args.threads} threads, default outputs; wall time of the whole process "
             f"(start-up, compile, setup, outputs) / the run's own trace + update time; best of {args.repeats} "
-            f"by ratio; {cpu_name()}, {os.cpu_count()} cores, load average {load_before:.1f} → "
-            f"{load_average():.1f}")
+            f"by ratio; whole seconds of the best run split by summary.json's clocks; outputs' busy time "
+            f"(any thread, overlapping the loop behind it): {busy or 'not reported'}, the loop waited "
+            f"{best['wait']:.2f} s for the writer; {cpu_name()}, {os.cpu_count()} cores, load average "
+            f"{load_before:.1f} → {load_average():.1f}")
     report("end-to-end gammac run (patina, bunny)", info, header, [row], args.record)
 
 

@@ -132,3 +132,90 @@ def test_appearance_renders_sequence_and_false_colour(tmp_path):
     pixels = np.asarray(Image.open(out / "renders" / "iter_0001.png").convert("RGB")).reshape(-1, 3).astype(int)
     assert np.any(pixels[:, 0] > pixels[:, 2] + 40)     # the red texture shows somewhere
     assert json.loads((out / "summary.json").read_text())["appearance"] is True
+
+
+def _false_colour_reference(value, shade, vmin, vmax, label, title) -> bytes:
+    """The false-colour picture drawn in one go, every part of it (the way
+    ``false_colour_png`` drew it before the frame was shared between pictures)."""
+    import io
+
+    from PIL import ImageDraw, ImageFont
+
+    from gamma.driver.outputs import viridis
+
+    h, w = value.shape
+    span = vmax - vmin if vmax > vmin else 1.0
+    rgb = viridis((np.nan_to_num(value, nan=vmin) - vmin) / span) * shade[..., None]
+    background = np.linspace(0.97, 0.85, h)[:, None, None] * np.ones((1, w, 3))
+    rgb = np.where(np.isnan(value)[..., None], background, rgb)
+    canvas = Image.new("RGB", (w + 150, h), (255, 255, 255))
+    canvas.paste(Image.fromarray((rgb * 255 + 0.5).astype(np.uint8)), (0, 0))
+    draw = ImageDraw.Draw(canvas)
+    font = ImageFont.load_default(size=max(11, h // 40))
+    top, bottom = int(h * 0.12), int(h * 0.88)
+    x0 = w + 20
+    ramp = viridis(np.linspace(1.0, 0.0, bottom - top))
+    canvas.paste(Image.fromarray((np.repeat(ramp[:, None, :], 24, axis=1) * 255 + 0.5).astype(np.uint8)),
+                 (x0, top))
+    draw.rectangle([x0 - 1, top - 1, x0 + 24, bottom], outline=(0, 0, 0))
+    for k in range(5):
+        y = bottom - k / 4 * (bottom - top)
+        draw.line([x0 + 24, y, x0 + 30, y], fill=(0, 0, 0))
+        draw.text((x0 + 34, y), f"{vmin + k / 4 * span:.3g}", fill=(0, 0, 0), font=font, anchor="lm")
+    draw.text((x0 - 4, top - 10), label, fill=(0, 0, 0), font=font, anchor="lb")
+    draw.text((10, 10), title, fill=(0, 0, 0), font=font)
+    out = io.BytesIO()
+    canvas.save(out, format="PNG")
+    return out.getvalue()
+
+
+@pytest.mark.parametrize("size", [(64, 90), (200, 200)])
+def test_a_shared_false_colour_frame_gives_the_bytes_of_drawing_everything(size):
+    """The run draws the colour bar once and only the picture per iteration:
+    the files are byte for byte those of drawing each picture whole, also with
+    NaN background, infinite values and an empty scale."""
+    from gamma.driver.outputs import FalseColourCanvas
+
+    rng = np.random.default_rng(7)
+    h, w = size
+    for vmin, vmax in ((0.0, 1.7), (-0.25, 0.5), (0.3, 0.3)):
+        canvas = FalseColourCanvas(w, h, vmin, vmax, "patina")
+        for it in range(3):
+            value = (rng.random((h, w)) * 2.5 - 0.5).astype(np.float32)
+            value[rng.random((h, w)) < 0.5] = np.nan
+            value[1, 2], value[2, 1] = np.inf, -np.inf
+            shade = np.where(np.isnan(value), np.nan, 0.25 + 0.75 * rng.random((h, w))).astype(np.float32)
+            title = f"patina, iteration {it + 1}"
+            with np.errstate(over="ignore", invalid="ignore"):
+                want = _false_colour_reference(value, shade, vmin, vmax, "patina", title)
+            assert canvas.png(value, shade, title) == want
+
+
+def test_unique_rows_is_numpys_unique_over_rows():
+    from gamma.driver.scene import unique_rows
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 5, 300):
+        for high in (0, 1, 4, 40):
+            labels = rng.integers(-1, high + 1, size=(n, 3)).astype(np.int64)
+            keys, inverse = unique_rows(labels)
+            want_keys, want_inverse = np.unique(labels, axis=0, return_inverse=True)
+            assert np.array_equal(keys, want_keys)
+            assert np.array_equal(inverse, want_inverse.reshape(-1))
+    huge = np.array([[2**40, 2**40, 2**40], [-1, 0, 0]], np.int64)    # too wide for one number
+    keys, inverse = unique_rows(huge)
+    assert np.array_equal(keys, np.unique(huge, axis=0)) and list(inverse) == [1, 0]
+
+
+def test_summary_splits_the_wall_time(patina_run):
+    """summary.json reports where the run's time went (bench_endtoend.py prints it)."""
+    out, _ = patina_run
+    summary = json.loads((out / "summary.json").read_text())
+    traced = sum(it["trace_seconds"] + it["update_seconds"] for it in summary["iterations"])
+    assert summary["startup_seconds"] > 0 and summary["scene_seconds"] > 0
+    assert summary["start_seconds"] >= (summary["scene_seconds"] + summary["compile_seconds"]
+                                        + summary["setup_seconds"])
+    assert summary["loop_seconds"] >= traced
+    assert summary["finish_seconds"] > 0 and summary["writer_wait_seconds"] >= 0
+    assert set(summary["output_seconds"]) == {"maps", "summary", "renders"}
+    assert all(seconds > 0 for seconds in summary["output_seconds"].values())

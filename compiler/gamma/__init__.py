@@ -15,7 +15,15 @@ Dependencies point one way: cli -> driver -> backends -> ir <- frontend; all -> 
 
 def _installed_version() -> str:
     # One version: CMakeLists.txt's project(VERSION), which pyproject.toml reads
-    # (scikit-build-core regex provider) into the package metadata.
+    # (scikit-build-core regex provider) into the package metadata and CMake
+    # compiles into the runtime.  The runtime's copy costs nothing to read (a
+    # run loads it anyway); importlib.metadata costs ~40 ms of start-up.
+    try:
+        from ._runtime import RUNTIME_VERSION
+
+        return RUNTIME_VERSION
+    except ImportError:
+        pass
     from importlib.metadata import PackageNotFoundError, version
 
     try:

@@ -312,6 +312,52 @@ NB_MODULE(_runtime, m) {
         .def_prop_ro("num_ton_types", [](const gammart::Config& c) { return c.ton_types.size(); })
         .def_prop_ro("num_sources", [](const gammart::Config& c) { return c.sources.size(); });
 
+    nb::class_<gammart::FalseColourView>(m, "FalseColourView",
+                                         "Simulation.false_colour_view's rays, cast once for many pictures.")
+        .def_prop_ro("width", [](const gammart::FalseColourView& v) { return v.width; })
+        .def_prop_ro("height", [](const gammart::FalseColourView& v) { return v.height; })
+        .def("shade",
+             [](const gammart::FalseColourView& v) {
+                 return to_numpy<float>(v.shade, {size_t(v.height), size_t(v.width)});
+             },
+             "float32[height, width]: Simulation.render's shade (a copy).")
+        .def("values",
+             [](const gammart::FalseColourView& v, nb::handle values) {
+                 F32 a = as_f32(values);
+                 if (a.ndim() != 1 || a.shape(0) != v.surfels)
+                     throw Error("values: values must have shape (" + std::to_string(v.surfels) + ",)");
+                 const size_t npx = size_t(v.width) * size_t(v.height);
+                 std::vector<float> out(npx);
+                 {
+                     nb::gil_scoped_release nogil;
+                     for (size_t px = 0; px < npx; ++px) out[px] = v.value(px, a.data());
+                 }
+                 return to_numpy<float>(std::move(out), {size_t(v.height), size_t(v.width)});
+             },
+             "values"_a, "float32[height, width]: Simulation.render's value image of `values` (one per surfel "
+             "of the simulation the view was made from).")
+        .def("picture",
+             [](const gammart::FalseColourView& v, nb::handle values, double vmin, double vmax, nb::handle background,
+                int threads) {
+                 F32 a = as_f32(values);
+                 if (a.ndim() != 1 || a.shape(0) != v.surfels)
+                     throw Error("picture: values must have shape (" + std::to_string(v.surfels) + ",)");
+                 using U8 = nb::ndarray<const uint8_t, nb::c_contig, nb::device::cpu>;
+                 U8 bg = nb::cast<U8>(numpy_asarray(background, "uint8"));
+                 const size_t npx = size_t(v.width) * size_t(v.height);
+                 if (bg.size() != 3 * npx) throw Error("picture: background must have shape (height, width, 3)");
+                 if (!(vmax > vmin)) throw Error("picture: vmax must be greater than vmin");
+                 std::vector<uint8_t> out(3 * npx);
+                 {
+                     nb::gil_scoped_release nogil;
+                     v.picture(a.data(), vmin, vmax, bg.data(), threads, out.data());
+                 }
+                 return to_numpy<uint8_t>(std::move(out), {size_t(v.height), size_t(v.width), 3});
+             },
+             "values"_a, "vmin"_a, "vmax"_a, "background"_a, "threads"_a,
+             "uint8[height, width, 3]: the false-colour picture of `values` on the scale vmin..vmax, as "
+             "gamma.driver.outputs.FalseColourCanvas.picture makes it from Simulation.render's images.");
+
     nb::class_<gammart::Simulation>(m, "Simulation")
         .def(
             "__init__",
@@ -583,6 +629,17 @@ NB_MODULE(_runtime, m) {
                                        to_numpy<float>(std::move(shade), {size_t(height), size_t(width)}));
              },
              "values"_a, "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a)
+        .def("false_colour_view",
+             [](const gammart::Simulation& s, std::array<float, 3> eye, std::array<float, 3> target,
+                std::array<float, 3> up, float fov_deg, int width, int height, int threads) {
+                 if (width < 1 || height < 1) throw Error("false_colour_view: width and height must be positive");
+                 if (!(fov_deg > 0 && fov_deg < 180)) throw Error("false_colour_view: fov_deg must be in (0, 180)");
+                 nb::gil_scoped_release nogil;
+                 return s.false_colour_view(eye, target, up, fov_deg, width, height, threads);
+             },
+             "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a,
+             "The rays of render() cast once (a FalseColourView): the pictures of many values without "
+             "casting again (the geometry must not change in between).")
         .def("set_textures",
              [](gammart::Simulation& s, nb::handle list) {
                  std::vector<gammart::Texture> tex;

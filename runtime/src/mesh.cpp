@@ -248,9 +248,16 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
             face_src.clear();
             face_vt.clear();
             face_vt_src.clear();
-            std::istringstream ls(line.substr(b));
+            // The whitespace-separated tokens `istringstream >> std::string` would give
+            // (lines hold no '\n'), without a stream per face: ~70 ms on the bunny.
             std::string tok;
-            while (ls >> tok) {
+            for (size_t q = b;;) {
+                while (q < line.size() && is_space(line[q])) ++q;
+                if (q >= line.size()) break;
+                size_t e = q;
+                while (e < line.size() && !is_space(line[e])) ++e;
+                tok.assign(line, q, e - q);
+                q = e;
                 // Texture index: between the first and the second '/'.
                 const size_t s1 = tok.find('/');
                 std::string tpart;

@@ -158,39 +158,146 @@ int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3]
     return bad;
 }
 
+namespace {
+
+// The false-colour render's camera ray through pixel (x, y): false where it
+// misses; else the smoothing's neighbours (idx, w; their number in *k) at the
+// hit point and the shade there.
+bool false_colour_pixel(const RenderScene& rs, const Camera& cam, const V3& light, int x, int y,
+                        uint32_t idx[kSmoothingNeighbours], double w[kSmoothingNeighbours], size_t* k,
+                        float* shade) {
+    const SceneIndex& I = rs.index;
+    const V3 dir = cam.dir(float(x) + 0.5f, float(y) + 0.5f);
+    RTCRayHit rh;
+    I.cast(rh, cam.eye, dir, 0.0f);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    const V3 p = cam.eye + dir * rh.ray.tfar;
+    const float q[3] = {p.x, p.y, p.z};
+    *k = I.smooth(I.tri_surface()[rh.hit.primID], q, idx, w);
+    V3 ng = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
+    if (dot(ng, dir) > 0) ng = ng * -1.0f;
+    const V3 n = shading_normal(rs.corner_normals, rh.hit.primID, rh.hit.u, rh.hit.v, ng);
+    *shade = 0.25f + 0.75f * std::fabs(dot(n, light));
+    return true;
+}
+
+V3 false_colour_light(const Camera& cam) { return normalize(cam.fwd * -1.0f + cam.camup * 0.35f - cam.right * 0.35f); }
+
+}  // namespace
+
+FalseColourView false_colour_view(const RenderScene& rs, std::array<float, 3> eye, std::array<float, 3> target,
+                                  std::array<float, 3> up, float fov_deg, int width, int height, int threads) {
+    const Camera cam(eye, target, up, fov_deg, width, height);
+    const V3 light = false_colour_light(cam);
+    constexpr size_t K = kSmoothingNeighbours;
+    FalseColourView view;
+    view.width = width;
+    view.height = height;
+    view.surfels = rs.state.size();
+    const size_t npx = size_t(width) * size_t(height);
+    view.count.assign(npx, FalseColourView::kMissed);
+    view.index.assign(npx * K, 0);
+    view.weight.assign(npx * K, 0.0);
+    view.shade.assign(npx, std::numeric_limits<float>::quiet_NaN());
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
+            for (int y = r.begin(); y < r.end(); ++y)
+                for (int x = 0; x < width; ++x) {
+                    const size_t px = size_t(y) * size_t(width) + size_t(x);
+                    size_t k = 0;
+                    if (false_colour_pixel(rs, cam, light, x, y, &view.index[px * K], &view.weight[px * K], &k,
+                                           &view.shade[px]))
+                        view.count[px] = uint8_t(k);
+                }
+        });
+    });
+    return view;
+}
+
+float FalseColourView::value(size_t px, const float* values) const {
+    constexpr size_t K = kSmoothingNeighbours;
+    if (count[px] == kMissed) return std::numeric_limits<float>::quiet_NaN();
+    double sv = 0;
+    for (size_t j = 0; j < count[px]; ++j) sv += weight[px * K + j] * values[index[px * K + j]];
+    return float(sv);
+}
+
+namespace {
+
+// Polynomial fit of matplotlib's viridis (the coefficients of
+// gamma/driver/outputs.py's _VIRIDIS, row 0 the constant term).
+constexpr double kViridis[7][3] = {
+    {0.2777273272234177, 0.005407344544966578, 0.3340998053353061},
+    {0.1050930431085774, 1.404613529898575, 1.384590162594685},
+    {-0.3308618287255563, 0.214847559468213, 0.09509516302823659},
+    {-4.634230498983486, -5.799100973351585, -19.33244095627987},
+    {6.228269936347081, 14.17993336680509, 56.69055260068105},
+    {4.776384997670288, -13.74514537774601, -65.35303263337234},
+    {-5.435455855934631, 4.645852612178535, 26.3124352495832},
+};
+
+// numpy's clip(x, 0, 1): NaN stays NaN.
+inline double clip01(double x) { return x != x ? x : (x < 0.0 ? 0.0 : (x > 1.0 ? 1.0 : x)); }
+
+}  // namespace
+
+void FalseColourView::picture(const float* values, double vmin, double vmax, const uint8_t* background, int threads,
+                              uint8_t* out_rgb) const {
+    const float low = float(vmin), span = float(vmax - vmin);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
+            for (int y = r.begin(); y < r.end(); ++y)
+                for (int x = 0; x < width; ++x) {
+                    const size_t px = size_t(y) * size_t(width) + size_t(x);
+                    uint8_t* o = out_rgb + 3 * px;
+                    const float v = value(px, values);
+                    if (std::isnan(v)) {
+                        for (int c = 0; c < 3; ++c) o[c] = background[3 * px + size_t(c)];
+                        continue;
+                    }
+                    // Separate statements, each rounded: float32, then double, as numpy does.
+                    const float shifted = v - low;
+                    const float t32 = shifted / span;
+                    const double t = clip01(double(t32));
+                    for (int c = 0; c < 3; ++c) {
+                        double rgb = kViridis[6][c];
+                        for (int k = 5; k >= 0; --k) {
+                            const double scaled = t * rgb;
+                            rgb = kViridis[k][c] + scaled;
+                        }
+                        const double shaded = clip01(rgb) * double(shade[px]);
+                        const double byte = shaded * 255.0 + 0.5;
+                        o[c] = uint8_t(byte);
+                    }
+                }
+        });
+    });
+}
+
 void render_false_colour(const RenderScene& rs, const float* values, std::array<float, 3> eye,
                          std::array<float, 3> target, std::array<float, 3> up, float fov_deg, int width,
                          int height, int threads, float* out_value, float* out_shade) {
-    const SceneIndex& I = rs.index;
     const Camera cam(eye, target, up, fov_deg, width, height);
-    const V3 light = normalize(cam.fwd * -1.0f + cam.camup * 0.35f - cam.right * 0.35f);
+    const V3 light = false_colour_light(cam);
     const float nan = std::numeric_limits<float>::quiet_NaN();
     constexpr size_t K = kSmoothingNeighbours;
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
             for (int y = r.begin(); y < r.end(); ++y)
                 for (int x = 0; x < width; ++x) {
-                    const V3 dir = cam.dir(float(x) + 0.5f, float(y) + 0.5f);
-                    RTCRayHit rh;
-                    I.cast(rh, cam.eye, dir, 0.0f);
                     const size_t px = size_t(y) * size_t(width) + size_t(x);
-                    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
+                    uint32_t idx[K];
+                    double w[K];
+                    size_t k = 0;
+                    if (!false_colour_pixel(rs, cam, light, x, y, idx, w, &k, &out_shade[px])) {
                         out_value[px] = nan;
                         out_shade[px] = nan;
                         continue;
                     }
-                    const V3 p = cam.eye + dir * rh.ray.tfar;
-                    const float q[3] = {p.x, p.y, p.z};
-                    uint32_t idx[K];
-                    double w[K];
-                    const size_t k = I.smooth(I.tri_surface()[rh.hit.primID], q, idx, w);
+                    // the sum of FalseColourView::value, in the same order
                     double sv = 0;
                     for (size_t j = 0; j < k; ++j) sv += w[j] * values[idx[j]];
                     out_value[px] = float(sv);
-                    V3 ng = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
-                    if (dot(ng, dir) > 0) ng = ng * -1.0f;
-                    const V3 n = shading_normal(rs.corner_normals, rh.hit.primID, rh.hit.u, rh.hit.v, ng);
-                    out_shade[px] = 0.25f + 0.75f * std::fabs(dot(n, light));
                 }
         });
     });

@@ -284,6 +284,12 @@ void Simulation::render(const float* values, std::array<float, 3> eye, std::arra
                         out_shade);
 }
 
+FalseColourView Simulation::false_colour_view(std::array<float, 3> eye, std::array<float, 3> target,
+                                              std::array<float, 3> up, float fov_deg, int width, int height,
+                                              int threads) const {
+    return gammart::false_colour_view(render_scene(), eye, target, up, fov_deg, width, height, threads);
+}
+
 size_t Simulation::smoothing_weights(int surface, const float p[3], uint32_t idx[kSmoothingNeighbours],
                                      double w[kSmoothingNeighbours]) const {
     return index_->smooth(surface, p, idx, w);

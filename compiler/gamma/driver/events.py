@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -114,6 +116,32 @@ def publish(writers: list[Writer], event: Event) -> None:
 
 # ---- jobs behind the loop ----------------------------------------------------------------
 
+class Timings:
+    """Seconds spent per kind of output ("maps", "renders", ...), summed over
+    the loop's thread and the writer's (summary.json's ``output_seconds``):
+    busy time, which overlaps the loop where it runs behind it."""
+
+    def __init__(self):
+        self._seconds: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    @contextmanager
+    def timed(self, kind: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.add(kind, time.perf_counter() - t0)
+
+    def add(self, kind: str, seconds: float) -> None:
+        with self._lock:
+            self._seconds[kind] = self._seconds.get(kind, 0.0) + seconds
+
+    def snapshot(self) -> dict[str, float]:
+        with self._lock:
+            return dict(self._seconds)
+
+
 @dataclass
 class WriteQueue:
     """One background thread running jobs in order; bounded.  Use as a context
@@ -125,6 +153,11 @@ class WriteQueue:
     _thread: threading.Thread | None = None
     _error: BaseException | None = None   # the first failed job's; later jobs are skipped
     _raised: bool = False
+    timings: Timings = field(default_factory=Timings)   # what the outputs cost, by kind
+
+    def timed(self, kind: str, job: Callable, *args, **kwargs) -> None:
+        """``self(job, ...)``, its time counted under ``kind`` in ``timings``."""
+        self(_timed_job, self.timings, kind, job, args, kwargs)
 
     def __call__(self, job: Callable, *args, **kwargs) -> None:
         """Run ``job(*args, **kwargs)`` behind the loop, after every earlier job."""
@@ -132,7 +165,11 @@ class WriteQueue:
         if self._thread is None:
             self._thread = threading.Thread(target=self._work, name="gamma-writer", daemon=True)
             self._thread.start()
-        self._jobs.put((job, args, kwargs))
+        if self._jobs.full():          # the loop waits for the writer: count it
+            with self.timings.timed("waiting for the writer"):
+                self._jobs.put((job, args, kwargs))
+        else:
+            self._jobs.put((job, args, kwargs))
 
     def _work(self) -> None:
         while True:
@@ -165,3 +202,8 @@ class WriteQueue:
         self.drain()
         if kind is None:
             self._raise()
+
+
+def _timed_job(timings: Timings, kind: str, job: Callable, args, kwargs) -> None:
+    with timings.timed(kind):
+        job(*args, **kwargs)

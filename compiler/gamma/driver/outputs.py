@@ -118,37 +118,69 @@ def viridis(t: np.ndarray) -> np.ndarray:
 def false_colour_png(value: np.ndarray, shade: np.ndarray, vmin: float, vmax: float,
                      label: str, title: str) -> bytes:
     """Shaded false-colour image of ``value`` (NaN = background) with a colour bar."""
-    from PIL import Image, ImageDraw, ImageFont
-
     h, w = value.shape
-    span = vmax - vmin if vmax > vmin else 1.0
-    rgb = viridis((np.nan_to_num(value, nan=vmin) - vmin) / span) * shade[..., None]
-    background = np.linspace(0.97, 0.85, h)[:, None, None] * np.ones((1, w, 3))
-    rgb = np.where(np.isnan(value)[..., None], background, rgb)
-    bar_w = 150
-    canvas = Image.new("RGB", (w + bar_w, h), (255, 255, 255))
-    canvas.paste(Image.fromarray((rgb * 255 + 0.5).astype(np.uint8)), (0, 0))
-    draw = ImageDraw.Draw(canvas)
-    try:
-        font = ImageFont.load_default(size=max(11, h // 40))
-    except TypeError:  # Pillow without FreeType
-        font = ImageFont.load_default()
-    top, bottom = int(h * 0.12), int(h * 0.88)
-    x0 = w + 20
-    ramp = viridis(np.linspace(1.0, 0.0, bottom - top))
-    bar = Image.fromarray((np.repeat(ramp[:, None, :], 24, axis=1) * 255 + 0.5).astype(np.uint8))
-    canvas.paste(bar, (x0, top))
-    draw.rectangle([x0 - 1, top - 1, x0 + 24, bottom], outline=(0, 0, 0))
-    for k in range(5):
-        frac = k / 4
-        y = bottom - frac * (bottom - top)
-        draw.line([x0 + 24, y, x0 + 30, y], fill=(0, 0, 0))
-        draw.text((x0 + 34, y), f"{vmin + frac * span:.3g}", fill=(0, 0, 0), font=font, anchor="lm")
-    draw.text((x0 - 4, top - 10), label, fill=(0, 0, 0), font=font, anchor="lb")
-    draw.text((10, 10), title, fill=(0, 0, 0), font=font)
-    out = io.BytesIO()
-    canvas.save(out, format="PNG")
-    return out.getvalue()
+    return FalseColourCanvas(w, h, vmin, vmax, label).png(value, shade, title)
+
+
+class FalseColourCanvas:
+    """The frame every false-colour picture of one scale shares (background
+    gradient, colour bar, tick labels), drawn once; ``png`` adds one picture.
+    A run's renders all have the same size and scale, so only the picture and
+    its title are drawn per iteration (the bytes are those of drawing
+    everything each time)."""
+
+    BAR_WIDTH = 150
+
+    def __init__(self, width: int, height: int, vmin: float, vmax: float, label: str):
+        from PIL import Image, ImageDraw, ImageFont
+
+        w, h = width, height
+        self.width, self.height, self.vmin = w, h, vmin
+        self.span = span = vmax - vmin if vmax > vmin else 1.0
+        background = np.linspace(0.97, 0.85, h)[:, None, None] * np.ones((1, w, 3))
+        self.background = (background * 255 + 0.5).astype(np.uint8)
+        canvas = Image.new("RGB", (w + self.BAR_WIDTH, h), (255, 255, 255))
+        draw = ImageDraw.Draw(canvas)
+        try:
+            font = ImageFont.load_default(size=max(11, h // 40))
+        except TypeError:  # Pillow without FreeType
+            font = ImageFont.load_default()
+        self.font = font
+        top, bottom = int(h * 0.12), int(h * 0.88)
+        x0 = w + 20
+        ramp = viridis(np.linspace(1.0, 0.0, bottom - top))
+        bar = Image.fromarray((np.repeat(ramp[:, None, :], 24, axis=1) * 255 + 0.5).astype(np.uint8))
+        canvas.paste(bar, (x0, top))
+        draw.rectangle([x0 - 1, top - 1, x0 + 24, bottom], outline=(0, 0, 0))
+        for k in range(5):
+            frac = k / 4
+            y = bottom - frac * (bottom - top)
+            draw.line([x0 + 24, y, x0 + 30, y], fill=(0, 0, 0))
+            draw.text((x0 + 34, y), f"{vmin + frac * span:.3g}", fill=(0, 0, 0), font=font, anchor="lm")
+        draw.text((x0 - 4, top - 10), label, fill=(0, 0, 0), font=font, anchor="lb")
+        self.frame = canvas   # everything right of the picture (nothing is drawn over it)
+
+    def picture(self, value: np.ndarray, shade: np.ndarray) -> np.ndarray:
+        """uint8 [h, w, 3]: the shaded colours where ``value`` is a number, the
+        background where it is NaN."""
+        hit = ~np.isnan(value)
+        # float32 arithmetic as numpy does it on the whole image (the bounds are weak scalars)
+        t = (value[hit] - self.vmin) / self.span
+        rgb = viridis(t) * shade[hit][:, None]
+        out = self.background.copy()
+        out[hit] = (rgb * 255 + 0.5).astype(np.uint8)
+        return out
+
+    def png(self, value: np.ndarray, shade: np.ndarray, title: str, picture: np.ndarray | None = None) -> bytes:
+        """The PNG of one picture (``picture``: ``self.picture(value, shade)`` made elsewhere)."""
+        from PIL import Image, ImageDraw
+
+        canvas = self.frame.copy()
+        canvas.paste(Image.fromarray(self.picture(value, shade) if picture is None else picture), (0, 0))
+        ImageDraw.Draw(canvas).text((10, 10), title, fill=(0, 0, 0), font=self.font)
+        out = io.BytesIO()
+        canvas.save(out, format="PNG")
+        return out.getvalue()
 
 
 def _finite_or_text(obj):

@@ -289,6 +289,7 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
         try:
             with session.behind:   # leaving it waits for the writers' queued jobs
                 publish(subscribers, SetupDone(session))
+                loop_started = time.perf_counter()
                 for it in range(session.first_iteration, opts.iterations + 1):
                     traced = stop.call(session.trace, it)
                     publish(subscribers, IterationTraced(session, it, traced))
@@ -296,6 +297,9 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
                     publish(subscribers, IterationUpdated(session, it, rows, props, record))
                     done = it
                     stop.check()
+                session.loop_ended = time.perf_counter()
+                # the iterations with their outputs' work on the loop's thread
+                session.summary["loop_seconds"] = session.loop_ended - loop_started
                 session.summary["completed"] = True
                 publish(subscribers, RunFinished(session, session.summary))
             folder.drop(session.out)
@@ -379,6 +383,7 @@ class Run:
     lock: object = None            # folder.OutputLock, held for the run
     call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
     tracer: object = None          # distributed.RayTracer with --ray / --ray-address
+    loop_ended: float | None = None  # time.perf_counter() when the last iteration was done
 
     def trace(self, it: int) -> dict:
         """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
@@ -475,10 +480,12 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -
         raise GammaError(effect.path, effect.source, [Diagnostic(
             Pos(1, 1), "the effect declares no source, so no gamma-ton would be traced")])
     rt = runtime_module()
+    t0 = time.perf_counter()
     try:
         scene = scene or load_scene(rt, opts.scene, effect, opts.assign, opts.down)
     except SceneError as err:
         raise RunError(str(err)) from None
+    scene_seconds = time.perf_counter() - t0
     mesh = scene.mesh
     if mesh.degenerate_dropped:
         print(f"gammac: warning: {mesh.degenerate_dropped} degenerate triangles of "
@@ -519,6 +526,10 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -
         lock.__exit__()
         raise
     session.lock = lock
+    # reading the mesh and binding its triangles to surfaces; all of start (scene,
+    # compile, setup, the earlier run's files set aside)
+    session.summary["scene_seconds"] = scene_seconds
+    session.summary["start_seconds"] = time.perf_counter() - entered
     return session
 
 
@@ -598,6 +609,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         # compile: code generation and JIT of the kernels (or the cache)
         "startup_seconds": None if opts.started is None else entered - opts.started,
         "compile_seconds": compile_seconds,
+        "scene_seconds": None,         # filled in by start()
+        "start_seconds": None,
         "setup_phases": dict(getattr(sim, "setup_seconds", {})),
         "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
                      "llvm": ".".join(map(str, llvm_version())),

@@ -203,7 +203,7 @@ def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect, use: _RuleU
     if m == 0:
         return np.zeros(0, np.int32)
     labels = np.stack([np.asarray(a, np.int64) for a in part.mesh.triangle_labels()], axis=1)
-    keys, inverse = np.unique(labels, axis=0, return_inverse=True)
+    keys, inverse = unique_rows(labels)
     chosen = np.full(len(keys), -1, np.int32)
     for k, key in enumerate(keys):
         candidates = [part.stem, *part.names] + [names[i] for i in key if i >= 0]
@@ -231,6 +231,28 @@ def _bind(part: _Part, rules: list[tuple[str, str]], effect: Effect, use: _RuleU
         raise SceneError(f"no surface for {', '.join(described)}{more} of '{part.stem}': "
                          "add --assign PATTERN=SURFACE")
     return chosen[inverse.reshape(-1)]
+
+
+def unique_rows(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(labels, axis=0, return_inverse=True)`` for int64 labels >= -1
+    (object, group, material per triangle), sorted the same way: the rows as
+    one mixed-radix number each, which sorts as the rows do, so a 1-D unique
+    (a plain sort) does the work; ``np.unique`` with ``axis=0`` sorts rows as
+    records, about 50 times slower on the bunny."""
+    shifted = labels + 1
+    bases = shifted.max(axis=0) + 1 if len(labels) else np.ones(labels.shape[1], np.int64)
+    if labels.min(initial=0) < -1 or float(np.prod(bases.astype(float))) >= 2.0 ** 62:
+        keys, inverse = np.unique(labels, axis=0, return_inverse=True)
+        return keys, inverse.reshape(-1)
+    number = np.zeros(len(labels), np.int64)
+    for j in range(labels.shape[1]):
+        number = number * bases[j] + shifted[:, j]
+    values, inverse = np.unique(number, return_inverse=True)
+    keys = np.empty((len(values), labels.shape[1]), np.int64)
+    for j in range(labels.shape[1] - 1, -1, -1):
+        keys[:, j] = values % bases[j] - 1
+        values = values // bases[j]
+    return keys, inverse.reshape(-1)
 
 
 def _warn_shadowed(cli_rules: list[tuple[str, str]], use: _RuleUse) -> None:

@@ -32,7 +32,18 @@ from .. import abi, __version__
 from ..files import atomic_write
 from .camera import sun_direction
 from .events import IterationUpdated, RunFinished, Writer
-from .outputs import false_colour_png, mesh_ply_bytes, ply_bytes, write_json
+from .outputs import mesh_ply_bytes, ply_bytes, write_json
+
+
+def _timed_on_loop(kind: str):
+    """A handler whose time on the loop's thread counts under ``kind`` (events.Timings)."""
+    def wrap(handler):
+        def timed(self, event):
+            with event.run.behind.timings.timed(kind):
+                handler(self, event)
+        timed.__doc__, timed.__name__ = handler.__doc__, handler.__name__
+        return timed
+    return wrap
 
 
 class MapWriter(Writer):
@@ -44,12 +55,31 @@ class MapWriter(Writer):
         for j, name in enumerate(abi.REFLECTANCE_SLOTS):
             columns[f"reflectance_{name}"] = event.rows[:, j]
         comments = [f"gamma {__version__}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
-        run.behind(_write_ply, run.out / "maps" / f"iter_{it:04d}.ply", columns, comments)
+        run.behind.timed("maps", _write_ply, run.out / "maps" / f"iter_{it:04d}.ply", columns, comments)
 
 
 def _write_final_summary(run, summary: dict) -> None:
     summary["nonfinite"] = copy.deepcopy(run.summary["nonfinite"])   # with the last renders' reports
+    add_output_times(run, summary)
     write_json(run.out / "summary.json", summary)
+
+
+#: Timings kinds that are not outputs (events.WriteQueue).
+WAITING = "waiting for the writer"
+
+
+def add_output_times(run, summary: dict) -> None:
+    """What the outputs cost (every job before this one is done): seconds per
+    kind of output, on any thread (busy time: behind the loop it overlaps the
+    trace), the loop's waits for the writer, and the wall time from the end of
+    the loop to now (what a user waits for once the last iteration is traced)."""
+    import time
+
+    seconds = run.behind.timings.snapshot()
+    summary["writer_wait_seconds"] = seconds.pop(WAITING, 0.0)
+    summary["output_seconds"] = seconds
+    if run.loop_ended is not None:
+        summary["finish_seconds"] = time.perf_counter() - run.loop_ended
 
 
 def _write_ply(path: Path, columns: dict, comments: list[str]) -> None:
@@ -60,7 +90,8 @@ class SummaryWriter(Writer):
     """summary.json as it stands after each iteration (a snapshot: the loop goes on)."""
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
-        event.run.behind(write_json, event.run.out / "summary.json", copy.deepcopy(event.run.summary))
+        event.run.behind.timed("summary", write_json, event.run.out / "summary.json",
+                               copy.deepcopy(event.run.summary))
 
 
 class CompletionWriter(Writer):
@@ -90,7 +121,14 @@ class FalseColourWriter(Writer):
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         self.history.append(event.properties[self.property].copy())
 
+    #: Largest picture whose rays are kept for every iteration's picture
+    #: (a FalseColourView holds ~100 bytes per pixel); a larger one casts them
+    #: again per picture.
+    VIEW_PIXELS = 1 << 20
+
     def on_run_finished(self, event: RunFinished) -> None:
+        from .outputs import FalseColourCanvas
+
         run, shown = event.run, self.property
         finite = [h[np.isfinite(h)] for h in self.history]
         vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
@@ -98,16 +136,34 @@ class FalseColourWriter(Writer):
         if vmax <= vmin:
             vmax = vmin + 1.0
         eye, target, up, fov = run.camera
+        width, height = run.opts.width, run.opts.height
+        # one frame (colour bar, ticks) for every picture of the run
+        canvas = FalseColourCanvas(width, height, vmin, vmax, shown)
+        view = None
+        if width * height <= self.VIEW_PIXELS:
+            # the geometry no longer changes: the rays of every picture are cast once, and
+            # the pictures are coloured behind the loop, in the runtime (threads, no GIL)
+            with run.behind.timings.timed("renders"):
+                view = run.call(run.sim.false_colour_view, eye, target, up, fov, width, height, run.threads)
         for it, values in enumerate(self.history, start=1):
-            values = np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin).astype(np.float32)
-            value, shade = run.call(run.sim.render, np.ascontiguousarray(values), eye, target, up,
-                                    fov, run.opts.width, run.opts.height, run.threads)
-            run.behind(_write_false_colour, self.folder / f"iter_{it:04d}.png", value, shade,
-                       vmin, vmax, shown, f"{shown}, iteration {it}")
+            values = np.ascontiguousarray(np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin), np.float32)
+            path, title = self.folder / f"iter_{it:04d}.png", f"{shown}, iteration {it}"
+            if view is not None:
+                run.behind.timed("renders", _write_false_colour_view, path, canvas, view, values, vmin, vmax,
+                                 title, run.threads)
+                continue
+            with run.behind.timings.timed("renders"):
+                value, shade = run.call(run.sim.render, values, eye, target, up, fov, width, height, run.threads)
+            run.behind.timed("renders", _write_false_colour, path, canvas, value, shade, title)
 
 
-def _write_false_colour(path: Path, value, shade, vmin, vmax, label, title) -> None:
-    atomic_write(path, false_colour_png(value, shade, vmin, vmax, label, title))
+def _write_false_colour(path: Path, canvas, value, shade, title) -> None:
+    atomic_write(path, canvas.png(value, shade, title))
+
+
+def _write_false_colour_view(path: Path, canvas, view, values, vmin, vmax, title, threads) -> None:
+    picture = view.picture(values, vmin, vmax, canvas.background, threads)
+    atomic_write(path, canvas.png(None, None, title, picture=picture))
 
 
 class AppearanceWriter(Writer):
@@ -131,17 +187,18 @@ class AppearanceWriter(Writer):
         run, it = event.run, event.iteration
         eye, target, up, fov = run.camera
         opts = run.opts
-        image = run.call(run.sim.render_appearance, eye, target, up, fov, opts.width, opts.height,
-                         run.threads, opts.samples, sun_direction(run.camera), opts.ao_samples, it)
+        with run.behind.timings.timed("renders"):
+            image = run.call(run.sim.render_appearance, eye, target, up, fov, opts.width, opts.height,
+                             run.threads, opts.samples, sun_direction(run.camera), opts.ao_samples, it)
         run.nonfinite.add_appearance(it, run.sim.last_render_stats()["nonfinite"])
         rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
         picture = Image.fromarray((rgb * 255 + 0.5).astype(np.uint8))
         self.frames.append(picture)
-        run.behind(_write_png, run.out / "renders" / f"iter_{it:04d}.png", picture)
+        run.behind.timed("renders", _write_png, run.out / "renders" / f"iter_{it:04d}.png", picture)
 
     def on_run_finished(self, event: RunFinished) -> None:
         if self.frames:
-            event.run.behind(write_sequence, list(self.frames), event.run.out / "renders")
+            event.run.behind.timed("sequence", write_sequence, list(self.frames), event.run.out / "renders")
 
 
 def _write_png(path: Path, picture) -> None:
@@ -198,6 +255,7 @@ class MeshWriter(Writer):
     """meshes/iter_NNNN.ply: the deformed mesh with per-vertex normals and
     every property (smoothed from the surfels at each vertex)."""
 
+    @_timed_on_loop("meshes")
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         from .export import vertex_normals
         from .runner import property_columns
@@ -216,7 +274,8 @@ class MeshWriter(Writer):
                    "nx": normals[:, 0], "ny": normals[:, 1], "nz": normals[:, 2]}
         columns.update(property_columns(run.effect, rows, surface))
         comments = [f"gamma {__version__}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
-        run.behind(_write_mesh, run.out / "meshes" / f"iter_{it:04d}.ply", columns, triangles, comments)
+        run.behind.timed("meshes", _write_mesh, run.out / "meshes" / f"iter_{it:04d}.ply", columns, triangles,
+                         comments)
 
 
 def _write_mesh(path: Path, columns: dict, triangles, comments: list[str]) -> None:
@@ -232,6 +291,7 @@ class ExportWriter(Writer):
         self.ranges = ranges    # property -> (low, high) of every 16-bit map; None: each map's own
         self.pieces = None      # the scene's objects, made on first use
 
+    @_timed_on_loop("export")
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         from .export import bake, pieces, vertex_data
         from .runner import property_columns
@@ -247,9 +307,9 @@ class ExportWriter(Writer):
             attributes = property_columns(run.effect, rows, triangle_surface[owner])
             colour, texels, texel_tris, texel_rows = bake(run.sim, piece, self.bake_size, it, run.threads)
             texel_columns = property_columns(run.effect, texel_rows, triangle_surface[texel_tris])
-            run.behind(_write_export, run.out / "export" / _safe_name(piece.name), it, piece.name,
-                       self.bake_size, (positions, normals, uvs, tris, rgb), attributes, colour,
-                       texels, texel_columns, self.ranges)
+            run.behind.timed("export", _write_export, run.out / "export" / _safe_name(piece.name), it,
+                             piece.name, self.bake_size, (positions, normals, uvs, tris, rgb), attributes,
+                             colour, texels, texel_columns, self.ranges)
 
 
 def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, colour, texels,

@@ -138,6 +138,7 @@ class Watcher:
         except (GammaError, UsageError, OSError, UnicodeDecodeError) as err:
             self._fail(err)
             return
+        self._check()
         self.files = [self.path] + [str(Path(f)) for f in effect.files if Path(f) != Path(self.path)]
         self.stamps.update({f: s for f, s in self._stamp().items() if f not in self.stamps})
         try:
@@ -149,6 +150,10 @@ class Watcher:
             self._fail(err)
 
     def _fail(self, err) -> None:
+        # An editor writing the file in place (truncate, then write) can be
+        # read half-written: a file that changed since it was read is read
+        # again instead of reported.
+        self._check()
         if isinstance(err, GammaError):
             text = err.render()
             n = len(err.diagnostics)

@@ -62,6 +62,38 @@ void render_false_colour(const RenderScene& rs, const float* values, std::array<
                          std::array<float, 3> target, std::array<float, 3> up, float fov_deg, int width,
                          int height, int threads, float* out_value, float* out_shade);
 
+// What a false-colour render needs of the scene for one camera, kept so that
+// the pictures of every iteration cast their rays once: per pixel whether the
+// ray hit, SceneIndex::smooth's neighbours and weights at the hit point, and
+// the shade.  value() gives render_false_colour's out_value for any values.
+struct FalseColourView {
+    int width = 0, height = 0;
+    size_t surfels = 0;            // the values read have one per surfel
+    std::vector<uint8_t> count;    // neighbours per pixel; kMissed where the ray missed
+    std::vector<uint32_t> index;   // kSmoothingNeighbours per pixel
+    std::vector<double> weight;    // kSmoothingNeighbours per pixel
+    std::vector<float> shade;      // height*width; NaN on the background
+    static constexpr uint8_t kMissed = 0xFF;
+
+    // The smoothed value at pixel px (NaN where the ray missed): the same
+    // sum, in the same order, as render_false_colour's.
+    float value(size_t px, const float* values) const;
+
+    // The false-colour picture (height*width*3 bytes) of `values`, as
+    // gamma/driver/outputs.py's FalseColourCanvas.picture computes it from
+    // render_false_colour's images: t = float32((v - vmin) / (vmax - vmin))
+    // (the bounds as float32, the arithmetic in float32), viridis(t) in double
+    // (the same polynomial, no fused multiply-add), times the shade, to bytes
+    // as uint8(x * 255 + 0.5); `background` (height*width*3) where the value
+    // is NaN.  vmax > vmin.
+    void picture(const float* values, double vmin, double vmax, const uint8_t* background, int threads,
+                 uint8_t* out_rgb) const;
+};
+
+// Casts the camera's rays once (out arrays as render_false_colour's).
+FalseColourView false_colour_view(const RenderScene& rs, std::array<float, 3> eye, std::array<float, 3> target,
+                                  std::array<float, 3> up, float fov_deg, int width, int height, int threads);
+
 // Appearance render into out_rgba (height*width*4).  Throws gammart::Error
 // on bad parameters.
 RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& params, float* out_rgba);

@@ -106,6 +106,10 @@ public:
     void render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads,
                 float* out_value, float* out_shade) const;
+    // The false-colour render's rays cast once, for the pictures of many values (renderer.h).
+    FalseColourView false_colour_view(std::array<float, 3> eye, std::array<float, 3> target,
+                                      std::array<float, 3> up, float fov_deg, int width, int height,
+                                      int threads) const;
 
     // Shading of the renders (shading.h): flat[t] != 0 renders triangle t
     // flat (empty: none), crease_deg <= 0 renders every triangle flat.  After
