@@ -294,17 +294,24 @@ void SceneIndex::build_lookup(int threads) {
                     });
                     const double r = std::sqrt(double(L.reach2));
                     const size_t nx = std::min(found.size(), kPruningSurfels);
+                    // y can lose to x only if |c-y| + |c-x| > 2r (with
+                    // |y-x| >= |c-y| - |c-x| the test's left side is at most
+                    // 2r|y-x| otherwise, below its right side by the whole
+                    // margin): the pairs that cannot pass skip the distance.
+                    double from_c[kPruningSurfels];
+                    for (size_t k = 0; k < nx; ++k) from_c[k] = std::sqrt(double(found[k].second));
                     kept.clear();
                     for (const auto& f : found) {
                         const float* y = &tree.pos[3 * size_t(f.first)];
                         const double cy2 = double(f.second);
+                        const double cy = std::sqrt(cy2);
                         bool never = false;
                         for (size_t k = 0; k < nx && !never; ++k) {
-                            if (found[k].first == f.first) continue;
+                            if (found[k].first == f.first || cy + from_c[k] <= 2.0 * r) continue;
                             const float* x = &tree.pos[3 * size_t(found[k].first)];
                             const double ex = double(y[0]) - x[0], ey = double(y[1]) - x[1], ez = double(y[2]) - x[2];
                             const double yx = std::sqrt(ex * ex + ey * ey + ez * ez);
-                            const double scale = r + std::sqrt(cy2) + yx;
+                            const double scale = r + cy + yx;
                             never = cy2 - double(found[k].second) > 2.0 * r * yx + 1e-3 * scale * scale;
                         }
                         if (!never) kept.push_back(f);

@@ -28,6 +28,7 @@
 #include "gamma/surfels.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <queue>
@@ -503,11 +504,20 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     const int32_t* T = mesh.triangles.data();
     std::vector<double> cum(m);
     std::vector<float> tri_normal(3 * m);
+    // The corners of each triangle side by side: a candidate falls on a
+    // random triangle, and reads one record instead of an index row and
+    // three vertex rows at four random places.
+    std::vector<std::array<float, 9>> corners(m);
     double total = 0;
     for (size_t t = 0; t < m; ++t) {
         const float* a = V + 3 * size_t(T[3 * t]);
         const float* b = V + 3 * size_t(T[3 * t + 1]);
         const float* c = V + 3 * size_t(T[3 * t + 2]);
+        for (size_t k = 0; k < 3; ++k) {
+            corners[t][k] = a[k];
+            corners[t][3 + k] = b[k];
+            corners[t][6 + k] = c[k];
+        }
         double e1[3], e2[3];
         for (int k = 0; k < 3; ++k) { e1[k] = double(b[k]) - a[k]; e2[k] = double(c[k]) - a[k]; }
         double cr[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
@@ -548,9 +558,9 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         if (t >= m) t = m - 1;
         double r1 = std::sqrt(double(u01(r[2]))), r2 = u01(r[3]);
         double ba = 1.0 - r1, bb = r1 * (1.0 - r2), bc = r1 * r2;
-        const float* a = V + 3 * size_t(T[3 * t]);
-        const float* b = V + 3 * size_t(T[3 * t + 1]);
-        const float* c = V + 3 * size_t(T[3 * t + 2]);
+        const float* a = corners[t].data();
+        const float* b = a + 3;
+        const float* c = a + 6;
         for (int k = 0; k < 3; ++k) cand[3 * i + k] = float(ba * a[k] + bb * b[k] + bc * c[k]);
         cand_tri[i] = int32_t(t);
     }
