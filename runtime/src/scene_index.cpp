@@ -58,6 +58,9 @@ constexpr size_t kPruningSurfels = 8;
 // spacings, doubled up to kNearestAttempts times (then the kd-tree).
 constexpr double kColumnSpacings = 2.0, kNearestStartSpacings = 1.0;
 constexpr int kNearestAttempts = 4;
+// Above this many surfels found for a sphere, only the nearest few are put in
+// order before the pruning (fewer: a whole sort is as cheap).
+constexpr size_t kPartialSortFrom = 96;
 
 V3 unit(const std::array<float, 3>& a) {
     const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
@@ -315,11 +318,21 @@ void SceneIndex::build_lookup(int threads) {
                     // |p-x|^2 - |p-y|^2 over B), here with a margin far above
                     // float rounding, so the scan's answer (ties included)
                     // is unchanged.  x: the few surfels nearest to c.
-                    std::sort(found.begin(), found.end(), [](const auto& a, const auto& b2) {
+                    // Only the kPruningSurfels nearest need their order here
+                    // (the kept ones are sorted again below): many found
+                    // (a triangle much larger than the spacing, about to be
+                    // cut into cells) are not sorted all.
+                    const auto nearer = [](const auto& a, const auto& b2) {
                         return a.second < b2.second || (a.second == b2.second && a.first < b2.first);
-                    });
-                    const double r = std::sqrt(double(L.reach2));
+                    };
                     const size_t nx = std::min(found.size(), kPruningSurfels);
+                    if (found.size() > kPartialSortFrom) {
+                        std::nth_element(found.begin(), found.begin() + std::ptrdiff_t(nx), found.end(), nearer);
+                        std::sort(found.begin(), found.begin() + std::ptrdiff_t(nx), nearer);
+                    } else {
+                        std::sort(found.begin(), found.end(), nearer);
+                    }
+                    const double r = std::sqrt(double(L.reach2));
                     // y can lose to x only if |c-y| + |c-x| > 2r (with
                     // |y-x| >= |c-y| - |c-x| the test's left side is at most
                     // 2r|y-x| otherwise, below its right side by the whole
