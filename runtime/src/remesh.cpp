@@ -8,6 +8,7 @@
 #include <CGAL/Surface_mesh.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -64,22 +65,16 @@ void remesh_faces(const std::vector<FaceIndex>& faces, double target_edge_length
     sm.collect_garbage();
 }
 
-// `region` flags grown by `rings` vertex rings (every triangle sharing a
-// vertex with a flagged one joins, per ring).
-void grow_by_rings(const Mesh& mesh, std::vector<uint8_t>& flags, int rings) {
-    const size_t m = mesh.num_triangles();
-    for (int ring = 0; ring < rings; ++ring) {
-        std::vector<uint8_t> near(mesh.num_vertices(), 0);
-        for (size_t t = 0; t < m; ++t)
-            if (flags[t])
-                for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
-        for (size_t t = 0; t < m; ++t)
-            for (int k = 0; k < 3; ++k) flags[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
-    }
-}
-
 // Test hook (remesh.h): cuts still to refuse.
-int g_refuse_cuts_for_testing = 0;
+std::atomic<int> g_refuse_cuts_for_testing{0};
+
+// Takes one refusal if any is left (the counter never goes below 0).
+bool take_refusal_for_testing() {
+    int left = g_refuse_cuts_for_testing.load();
+    while (left > 0 && !g_refuse_cuts_for_testing.compare_exchange_weak(left, left - 1)) {
+    }
+    return left > 0;
+}
 
 enum class Pass { Remesh, Slivers };
 
@@ -128,7 +123,7 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         vertex_frozen[vi[i]] = frozen[i] != 0;
     }
     std::vector<FaceIndex> faces;
-    const bool refuse = region && cut && g_refuse_cuts_for_testing > 0 && g_refuse_cuts_for_testing-- > 0;
+    const bool refuse = region && cut && take_refusal_for_testing();
     for (size_t t = 0; t < m; ++t) {
         if (!sub[t]) continue;
         const FaceIndex f = refuse ? SurfaceMesh::null_face()
@@ -345,6 +340,20 @@ std::vector<uint8_t> sliver_flags(const Mesh& mesh, const std::vector<int32_t>& 
 
 }  // namespace
 
+// `region` flags grown by `rings` vertex rings (every triangle sharing a
+// vertex with a flagged one joins, per ring).
+void grow_by_rings(const Mesh& mesh, std::vector<uint8_t>& flags, int rings) {
+    const size_t m = mesh.num_triangles();
+    for (int ring = 0; ring < rings; ++ring) {
+        std::vector<uint8_t> near(mesh.num_vertices(), 0);
+        for (size_t t = 0; t < m; ++t)
+            if (flags[t])
+                for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+        for (size_t t = 0; t < m; ++t)
+            for (int k = 0; k < 3; ++k) flags[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
+    }
+}
+
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
                int iterations, const std::vector<uint8_t>* region) {
     if (!(target_edge_length > 0) || !std::isfinite(target_edge_length))
@@ -375,7 +384,7 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
     return out;
 }
 
-void refuse_retile_cuts_for_testing(int cuts) { g_refuse_cuts_for_testing = cuts; }
+void refuse_retile_cuts_for_testing(int cuts) { g_refuse_cuts_for_testing.store(cuts); }
 
 MeshMeasures measure(const Mesh& mesh, const std::vector<int32_t>& tri_surface) {
     if (!tri_surface.empty() && tri_surface.size() != mesh.num_triangles())

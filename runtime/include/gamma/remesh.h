@@ -65,9 +65,13 @@ struct Retiled {
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
                int iterations, const std::vector<uint8_t>* region = nullptr);
 
+// `flags` (one per triangle) grown by `rings` vertex rings: per ring, every
+// triangle sharing a vertex with a flagged one is flagged.
+void grow_by_rings(const Mesh& mesh, std::vector<uint8_t>& flags, int rings);
+
 // Test hook: the next `cuts` sub-meshes a pass on a region would hand CGAL
 // are refused as if CGAL could not hold them, so the pass falls back to the
-// whole mesh (Retiled::whole_mesh_fallbacks).  Not thread-safe; tests only.
+// whole mesh (Retiled::whole_mesh_fallbacks).  An atomic counter; tests only.
 void refuse_retile_cuts_for_testing(int cuts);
 
 struct MeshMeasures {
