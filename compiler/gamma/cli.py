@@ -561,6 +561,10 @@ def main(argv=None) -> int:
             return EXIT_OK
         if args.command == "sweep":
             return _sweep(args)
+        if args.command == "run":
+            from .driver import prefetch
+
+            prefetch.start(args.scene)      # read while the effect is read and checked
         effect = _load(args.file, getattr(args, "param", ()))
         if args.command == "check":
             return EXIT_OK

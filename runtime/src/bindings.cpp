@@ -184,7 +184,14 @@ NB_MODULE(_runtime, m) {
         "Landing on the plane dot(x, up) = floor_height: (piecewise-linear as traced, analytic).");
 
     nb::class_<gammart::Mesh>(m, "Mesh")
-        .def_static("load", [](const std::string& path) { return gammart::Mesh::load(path); }, "path"_a)
+        .def_static(
+            "load",
+            [](const std::string& path) {
+                // pure C++ (no Python object): gammac reads the mesh on a thread while it starts up
+                nb::gil_scoped_release nogil;
+                return gammart::Mesh::load(path);
+            },
+            "path"_a)
         .def_static(
             "from_arrays",
             [](nb::handle verts, nb::handle tris, nb::handle uvs) {

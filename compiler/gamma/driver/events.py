@@ -204,6 +204,7 @@ class WriteQueue:
             self._raise()
 
 
-def _timed_job(timings: Timings, kind: str, job: Callable, args, kwargs) -> None:
+def _timed_job(timings: Timings, kind: str, job: Callable, args, kwargs):
+    """``job(*args, **kwargs)``, its time counted under ``kind``."""
     with timings.timed(kind):
-        job(*args, **kwargs)
+        return job(*args, **kwargs)

@@ -283,7 +283,7 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
     from .writers import standard_writers
 
     with Interruptions() as stop:
-        session = start(effect, opts, stop, scene, reuse)
+        session = start(effect, opts, stop, scene, reuse, warm_outputs=standard)
         subscribers = (standard_writers(session) if standard else []) + list(writers)
         done = session.first_iteration - 1
         try:
@@ -464,9 +464,10 @@ def static_columns(sim, surfel_surface: np.ndarray) -> dict:
     return static
 
 
-def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -> Run:
+def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None, warm_outputs: bool = False) -> Run:
     """Check the options, load the scene, compile, build the simulation and
-    set the earlier run's files aside; every user error is raised before any output."""
+    set the earlier run's files aside; every user error is raised before any output.
+    ``warm_outputs``: the standard outputs will be written (see ``warmup.py``)."""
     from .scene import SceneError, load_scene
 
     entered = time.perf_counter()
@@ -521,7 +522,8 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -
     except folder.FolderError as err:
         raise RunError(str(err)) from None
     try:
-        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse)
+        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse,
+                                warm_outputs)
     except BaseException:
         lock.__exit__()
         raise
@@ -533,7 +535,8 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None) -
     return session
 
 
-def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse=None) -> Run:
+def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse=None,
+                  warm_outputs=False) -> Run:
     """The rest of ``start``, with the output folder locked."""
     from . import folder
     from .events import WriteQueue
@@ -556,6 +559,10 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
             except (ValueError, RuntimeError):
                 sim = None              # another surfel set is needed: build it
         if sim is None:
+            if warm_outputs:
+                from .warmup import prepare_outputs
+
+                prepare_outputs(opts.progress, shown is not None or looks, opts.height)
             sim = call(rt.Simulation, mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
         message = str(err).removeprefix("config: ")

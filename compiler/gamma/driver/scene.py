@@ -86,6 +86,11 @@ def _load_mesh(rt, path: Path):
     problem = file_problem(path)
     if problem:
         raise SceneError(f"cannot read mesh '{path}': {problem}")
+    from . import prefetch
+
+    mesh = prefetch.take(path)          # read ahead by gammac run (prefetch.py)
+    if mesh is not None:
+        return mesh
     try:
         return rt.Mesh.load(str(path))
     except (ValueError, RuntimeError) as err:

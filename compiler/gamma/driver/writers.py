@@ -31,7 +31,7 @@ import numpy as np
 from .. import abi, __version__
 from ..files import atomic_write
 from .camera import sun_direction
-from .events import IterationUpdated, RunFinished, Writer
+from .events import IterationUpdated, RunFinished, Writer, _timed_job
 from .outputs import mesh_ply_bytes, ply_bytes, write_json
 
 
@@ -130,21 +130,30 @@ class FalseColourWriter(Writer):
         from .outputs import FalseColourCanvas
 
         run, shown = event.run, self.property
-        finite = [h[np.isfinite(h)] for h in self.history]
-        vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
-        vmin = min(0.0, min((float(f.min()) for f in finite if f.size), default=0.0))
-        if vmax <= vmin:
-            vmax = vmin + 1.0
         eye, target, up, fov = run.camera
         width, height = run.opts.width, run.opts.height
-        # one frame (colour bar, ticks) for every picture of the run
-        canvas = FalseColourCanvas(width, height, vmin, vmax, shown)
-        view = None
+        casting = None
         if width * height <= self.VIEW_PIXELS:
             # the geometry no longer changes: the rays of every picture are cast once, and
-            # the pictures are coloured behind the loop, in the runtime (threads, no GIL)
-            with run.behind.timings.timed("renders"):
-                view = run.call(run.sim.false_colour_view, eye, target, up, fov, width, height, run.threads)
+            # the pictures are coloured behind the loop, in the runtime (threads, no GIL);
+            # the rays are cast (no GIL) while the scale and the frame are worked out here
+            casting = _Background(_timed_job, run.behind.timings, "renders", run.sim.false_colour_view,
+                                  (eye, target, up, fov, width, height, run.threads), {})
+        try:
+            finite = [h[np.isfinite(h)] for h in self.history]
+            vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
+            vmin = min(0.0, min((float(f.min()) for f in finite if f.size), default=0.0))
+            if vmax <= vmin:
+                vmax = vmin + 1.0
+            # one frame (colour bar, ticks) for every picture of the run
+            canvas = FalseColourCanvas(width, height, vmin, vmax, shown)
+        except BaseException:
+            if casting is not None:
+                casting.wait()          # the simulation must outlive the rays it casts
+            raise
+        view = None
+        if casting is not None:
+            view = run.call(casting.result)
         for it, values in enumerate(self.history, start=1):
             values = np.ascontiguousarray(np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin), np.float32)
             path, title = self.folder / f"iter_{it:04d}.png", f"{shown}, iteration {it}"
@@ -155,6 +164,34 @@ class FalseColourWriter(Writer):
             with run.behind.timings.timed("renders"):
                 value, shade = run.call(run.sim.render, values, eye, target, up, fov, width, height, run.threads)
             run.behind.timed("renders", _write_false_colour, path, canvas, value, shade, title)
+
+
+class _Background:
+    """``fn(*args)`` on a thread of its own, started at once; ``result()``
+    waits for it and returns its value or raises its error."""
+
+    def __init__(self, fn, *args):
+        import threading
+
+        self._outcome: dict = {}
+        self._thread = threading.Thread(target=self._work, args=(fn, args), name="gamma-background",
+                                        daemon=True)
+        self._thread.start()
+
+    def _work(self, fn, args) -> None:
+        try:
+            self._outcome["value"] = fn(*args)
+        except BaseException as err:  # noqa: BLE001 - raised again by result()
+            self._outcome["error"] = err
+
+    def wait(self) -> None:
+        self._thread.join()
+
+    def result(self):
+        self._thread.join()
+        if "error" in self._outcome:
+            raise self._outcome["error"]
+        return self._outcome["value"]
 
 
 def _write_false_colour(path: Path, canvas, value, shade, title) -> None:
