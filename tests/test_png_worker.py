@@ -9,11 +9,14 @@ import textwrap
 SCRIPT = textwrap.dedent("""
     import os, signal, sys, tempfile, time
     from pathlib import Path
-    import numpy as np
     from gamma.driver import png_worker
     png_worker.start()                       # no other thread yet: it forks
+    import numpy as np
     worker = png_worker.worker()
     assert worker is not None, "no worker"
+    time.sleep(0.5)
+    with open(f"/proc/{worker.pid}/maps") as maps:   # the worker needs Pillow, not numpy
+        assert "_multiarray_umath" not in maps.read()
     from gamma.driver.outputs import FalseColourCanvas
     from gamma.driver.writers import _write_false_colour_views
 
@@ -33,19 +36,20 @@ SCRIPT = textwrap.dedent("""
                        picture=view.picture(v, -0.5, 2.0, canvas.background, 1)) for i, v in enumerate(values)]
     # the worker's bytes are ours
     for i, v in enumerate(values):
-        worker.send(args, f"rust, iteration {i}", view.picture(v, -0.5, 2.0, canvas.background, 1))
+        worker.send(canvas.frame, canvas.height, f"rust, iteration {i}",
+                    view.picture(v, -0.5, 2.0, canvas.background, 1))
         assert worker.receive() == here[i], i
     folder = Path(tempfile.mkdtemp())
     items = [(folder / f"a{i}.png", f"rust, iteration {i}", v) for i, v in enumerate(values)]
     for k in range(0, 5, 2):
-        _write_false_colour_views(items[k:k + 2], canvas, args, view, -0.5, 2.0, 1, worker)
+        _write_false_colour_views(items[k:k + 2], canvas, view, -0.5, 2.0, 1, worker)
     assert [p.read_bytes() for p, _, _ in items] == here
     # a worker that died: everything encoded here, same files
     os.kill(worker.pid, signal.SIGKILL)
     os.waitpid(worker.pid, 0)
     items = [(folder / f"b{i}.png", f"rust, iteration {i}", v) for i, v in enumerate(values)]
     for k in range(0, 5, 2):
-        _write_false_colour_views(items[k:k + 2], canvas, args, view, -0.5, 2.0, 1, worker)
+        _write_false_colour_views(items[k:k + 2], canvas, view, -0.5, 2.0, 1, worker)
     assert [p.read_bytes() for p, _, _ in items] == here
     assert png_worker.worker() is None       # known dead
     print("ok")

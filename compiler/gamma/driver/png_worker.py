@@ -4,18 +4,19 @@ The false-colour pictures of a run can only be drawn once the loop is done
 (they share the scale of the whole run), and Pillow's PNG encoder holds the
 GIL for the whole encoding (~30 ms for a 512 x 512 picture), so threads cannot
 share them; a process can.  ``start`` forks the worker at the very beginning
-of ``gammac run``, while no other thread exists; it imports numpy and Pillow
-at once (on the core the command's start-up leaves idle), then waits for
-pictures.  ``FalseColourWriter`` hands it every other picture of the run
-(``encode``) and encodes the others itself meanwhile.
+of ``gammac run``, while no other thread exists; it imports Pillow (only:
+~0.05 s, on the core the command's start-up leaves idle), then waits.
+``FalseColourWriter`` hands it every other picture of the run and encodes
+the others itself meanwhile.
 
-The worker runs the code this process would run (``FalseColourCanvas.png``,
-same Pillow), so its bytes are the same; the files are still written here,
-in order.  Whatever goes wrong with the worker (it died, it failed) only
-means the picture is encoded here.  The worker ignores SIGINT and SIGTERM
-(the run handles them), holds none of this process's files (its standard
-streams are /dev/null, every other descriptor closed) and leaves when this
-process closes its end of the pipe, or exits, or dies.
+Both sides make the PNG with ``titled_png`` from the same pixels (the
+canvas's frame, the picture) and the same font (``canvas_font``), so the
+worker's bytes are those this process would write; the files are still
+written here, in order.  Whatever goes wrong with the worker (it died, it
+failed) only means the picture is encoded here.  The worker ignores SIGINT
+and SIGTERM (the run handles them), holds none of this process's files (its
+standard streams are /dev/null, every other descriptor closed) and leaves
+when this process closes its end of the pipe, or exits, or dies.
 """
 
 from __future__ import annotations
@@ -37,11 +38,14 @@ class PngWorker:
         self.pid, self._jobs, self._results = pid, jobs, results
         self.alive = True
 
-    def send(self, canvas_args: tuple, title: str, picture) -> None:
-        """Give the worker a picture to encode on the canvas of ``canvas_args``
-        (FalseColourCanvas's arguments); ``receive`` returns its PNG."""
+    def send(self, frame, font_height: int, title: str, picture) -> None:
+        """Give the worker a picture (uint8 [h, w, 3]) to encode as
+        ``titled_png(frame, picture, title, canvas_font(font_height))`` does;
+        ``receive`` returns the PNG."""
+        job = (frame.size, frame.tobytes(), font_height, title, (picture.shape[1], picture.shape[0]),
+               picture.tobytes())
         try:
-            pickle.dump((canvas_args, title, picture), self._jobs, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump(job, self._jobs, protocol=pickle.HIGHEST_PROTOCOL)
             self._jobs.flush()
         except (OSError, ValueError, pickle.PickleError) as err:
             self.alive = False
@@ -68,6 +72,34 @@ class PngWorker:
             os.waitpid(self.pid, os.WNOHANG)
         except OSError:
             pass
+
+
+def canvas_font(height: int):
+    """The font of a false-colour picture ``height`` pixels high: Pillow's
+    default font, scaled (its bitmap font where Pillow lacks FreeType); a new
+    one each time (loading it costs ~0.2 ms; a FreeType face is not shared
+    between threads)."""
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=max(11, height // 40))
+    except TypeError:  # Pillow without FreeType
+        return ImageFont.load_default()
+
+
+def titled_png(frame, picture, title: str, font) -> bytes:
+    """The PNG of ``picture`` (an RGB image) at the top left of ``frame`` (the
+    canvas: colour bar and ticks), ``title`` written over it."""
+    import io
+
+    from PIL import ImageDraw
+
+    canvas = frame.copy()
+    canvas.paste(picture, (0, 0))
+    ImageDraw.Draw(canvas).text((10, 10), title, fill=(0, 0, 0), font=font)
+    out = io.BytesIO()
+    canvas.save(out, format="PNG")
+    return out.getvalue()
 
 
 def start() -> None:
@@ -120,21 +152,15 @@ def _serve(jobs_fd: int, results_fd: int, keep: tuple) -> None:
         jobs, results = os.fdopen(jobs_fd, "rb"), os.fdopen(results_fd, "wb")
         from PIL import Image
 
-        from .outputs import FalseColourCanvas
-
         Image.preinit()
-        canvases: dict = {}
         while True:
             try:
-                canvas_args, title, picture = pickle.load(jobs)
+                frame_size, frame, font_height, title, size, picture = pickle.load(jobs)
             except EOFError:
                 break
             try:
-                canvas = canvases.get(canvas_args)
-                if canvas is None:
-                    canvases.clear()
-                    canvas = canvases[canvas_args] = FalseColourCanvas(*canvas_args)
-                reply = ("ok", canvas.png(None, None, title, picture=picture))
+                reply = ("ok", titled_png(Image.frombytes("RGB", frame_size, frame),
+                                          Image.frombytes("RGB", size, picture), title, canvas_font(font_height)))
             except Exception as err:  # noqa: BLE001 - reported to the parent, which encodes instead
                 reply = ("error", f"{type(err).__name__}: {err}")
             pickle.dump(reply, results, protocol=pickle.HIGHEST_PROTOCOL)

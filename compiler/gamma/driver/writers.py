@@ -171,8 +171,8 @@ class FalseColourWriter(Writer):
         worker = png_worker.worker()
         step = 2 if worker is not None else 1
         for k in range(0, len(pictures), step):
-            run.behind.timed("renders", _write_false_colour_views, pictures[k:k + step], canvas,
-                             (width, height, vmin, vmax, shown), view, vmin, vmax, run.threads, worker)
+            run.behind.timed("renders", _write_false_colour_views, pictures[k:k + step], canvas, view, vmin, vmax,
+                             run.threads, worker)
 
 
 class _Background:
@@ -207,8 +207,7 @@ def _write_false_colour(path: Path, canvas, value, shade, title) -> None:
     atomic_write(path, canvas.png(value, shade, title))
 
 
-def _write_false_colour_views(items: list, canvas, canvas_args: tuple, view, vmin, vmax, threads,
-                              worker=None) -> None:
+def _write_false_colour_views(items: list, canvas, view, vmin, vmax, threads, worker=None) -> None:
     """The pictures of ``items`` [(path, title, values)], the second one (if
     any) encoded by ``worker`` (png_worker.py) while this thread encodes the
     first; each encoded here instead if the worker fails.  Written in order."""
@@ -220,7 +219,7 @@ def _write_false_colour_views(items: list, canvas, canvas_args: tuple, view, vmi
     if worker is not None and worker.alive:
         for i in range(1, len(items)):
             try:
-                worker.send(canvas_args, items[i][1], pictures[i])
+                worker.send(canvas.frame, canvas.height, items[i][1], pictures[i])
                 sent.append(i)
             except WorkerFailed:
                 break
