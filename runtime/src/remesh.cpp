@@ -2,12 +2,14 @@
 #include "gamma/remesh.h"
 
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/boost/graph/Euler_operations.h>
 #include <CGAL/Polygon_mesh_processing/detect_features.h>
 #include <CGAL/Polygon_mesh_processing/remesh.h>
 #include <CGAL/Polygon_mesh_processing/repair_degeneracies.h>
 #include <CGAL/Surface_mesh.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -64,22 +66,74 @@ void remesh_faces(const std::vector<FaceIndex>& faces, double target_edge_length
     sm.collect_garbage();
 }
 
-// `region` flags grown by `rings` vertex rings (every triangle sharing a
-// vertex with a flagged one joins, per ring).
-void grow_by_rings(const Mesh& mesh, std::vector<uint8_t>& flags, int rings) {
-    const size_t m = mesh.num_triangles();
-    for (int ring = 0; ring < rings; ++ring) {
-        std::vector<uint8_t> near(mesh.num_vertices(), 0);
-        for (size_t t = 0; t < m; ++t)
-            if (flags[t])
-                for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
-        for (size_t t = 0; t < m; ++t)
-            for (int k = 0; k < 3; ++k) flags[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
+// Flattens the spikes at the corners of `slivers`: a vertex of valence 3,
+// not on the mesh's border, a `constrained` edge or the cut (`frozen`),
+// whose three triangles are replaced by the one triangle of its three
+// neighbours (CGAL::Euler::remove_center_vertex) when that triangle faces
+// the way they do together (the sum of their area vectors) and is not the
+// mirror of a triangle already on its other side.  The surface loses the
+// tetrahedron between the spike and its neighbours.  Returns how many were
+// flattened (their elements are left as garbage).
+template <class EdgeConstrained, class VertexFrozen>
+int flatten_spikes(SurfaceMesh& sm, const std::vector<FaceIndex>& slivers, const EdgeConstrained& constrained,
+                   const VertexFrozen& frozen) {
+    using Halfedge = SurfaceMesh::Halfedge_index;
+    std::vector<VertexIndex> spikes;
+    for (FaceIndex f : slivers)
+        for (VertexIndex v : sm.vertices_around_face(sm.halfedge(f))) spikes.push_back(v);
+    std::sort(spikes.begin(), spikes.end());
+    spikes.erase(std::unique(spikes.begin(), spikes.end()), spikes.end());
+    int flattened = 0;
+    for (VertexIndex v : spikes) {
+        if (sm.is_removed(v) || frozen[v] || sm.is_border(v) || sm.degree(v) != 3) continue;
+        bool movable = true;
+        // next_of[k]: around the spike, the neighbour after neighbour k in
+        // the orientation of the triangles (v, a, next_of[a]).
+        VertexIndex nb[3], next_of[3];
+        Kernel::Vector_3 sum(0, 0, 0);
+        int k = 0;
+        for (Halfedge h : sm.halfedges_around_target(sm.halfedge(v))) {   // h: a -> v, in the triangle (v, b, a)
+            movable = movable && !constrained[sm.edge(h)];
+            const VertexIndex a = sm.source(h), b = sm.target(sm.next(h));
+            nb[k] = b;
+            next_of[k] = a;
+            sum = sum + CGAL::cross_product(sm.point(b) - sm.point(v), sm.point(a) - sm.point(v));
+            ++k;
+        }
+        if (!movable || k != 3) continue;
+        auto after = [&](VertexIndex a) {
+            for (int j = 0; j < 3; ++j)
+                if (nb[j] == a) return next_of[j];
+            return SurfaceMesh::null_vertex();
+        };
+        const VertexIndex x0 = nb[0], x1 = after(x0), x2 = after(x1);
+        if (x1 == SurfaceMesh::null_vertex() || x2 == SurfaceMesh::null_vertex() || after(x2) != x0) continue;
+        const auto n = CGAL::cross_product(sm.point(x1) - sm.point(x0), sm.point(x2) - sm.point(x0));
+        if (!(n * sum > 0)) continue;
+        // a triangle (x1, x0, x2) etc. beyond an outer edge would become the new one's mirror
+        bool mirror = false;
+        const VertexIndex x[3] = {x0, x1, x2};
+        for (int j = 0; j < 3; ++j) {
+            const auto [h, found] = CGAL::halfedge(x[(j + 1) % 3], x[j], sm);   // outer edge, seen from beyond
+            mirror = mirror || (found && !sm.is_border(h) && sm.target(sm.next(h)) == x[(j + 2) % 3]);
+        }
+        if (mirror) continue;
+        CGAL::Euler::remove_center_vertex(sm.halfedge(v), sm);
+        ++flattened;
     }
+    return flattened;
 }
 
 // Test hook (remesh.h): cuts still to refuse.
-int g_refuse_cuts_for_testing = 0;
+std::atomic<int> g_refuse_cuts_for_testing{0};
+
+// Takes one refusal if any is left (the counter never goes below 0).
+bool take_refusal_for_testing() {
+    int left = g_refuse_cuts_for_testing.load();
+    while (left > 0 && !g_refuse_cuts_for_testing.compare_exchange_weak(left, left - 1)) {
+    }
+    return left > 0;
+}
 
 enum class Pass { Remesh, Slivers };
 
@@ -128,7 +182,7 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         vertex_frozen[vi[i]] = frozen[i] != 0;
     }
     std::vector<FaceIndex> faces;
-    const bool refuse = region && cut && g_refuse_cuts_for_testing > 0 && g_refuse_cuts_for_testing-- > 0;
+    const bool refuse = region && cut && take_refusal_for_testing();
     for (size_t t = 0; t < m; ++t) {
         if (!sub[t]) continue;
         const FaceIndex f = refuse ? SurfaceMesh::null_face()
@@ -208,6 +262,32 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
             if (!touches_cut) faces.push_back(f);
         }
         if (!faces.empty()) remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
+        // The slivers the remeshing itself left (at a sharp fold its flips
+        // and collapses are refused and its relaxation cannot widen them):
+        // a spike (a free vertex of valence 3 at a sliver's corner) is
+        // flattened first, its three triangles replaced by the one its
+        // neighbours make -- otherwise its two neighbours' short edge fails
+        // the link condition and cannot be collapsed -- then CGAL's removal
+        // of almost-degenerate faces runs on the slivers with a needle ratio
+        // that catches every one (below kAllSliversNeedleRatio, a triangle
+        // with an angle under kMinRetiledAngleDeg has an angle over kCapDeg),
+        // vertices of the cut held.  Nothing is remeshed after it.
+        constexpr double kAllSliversNeedleRatio = 3.3;   // < sin(kCapDeg) / sin(kMinRetiledAngleDeg) = 3.35
+        std::vector<FaceIndex> left;
+        for (FaceIndex f : sm.faces())
+            if (is_sliver(f)) left.push_back(f);
+        if (!left.empty()) {
+            if (flatten_spikes(sm, left, constrained, vertex_frozen) > 0) {
+                sm.collect_garbage();
+                left.clear();
+                for (FaceIndex f : sm.faces())
+                    if (is_sliver(f)) left.push_back(f);
+            }
+            PMP::experimental::remove_almost_degenerate_faces(
+                left, sm, std::cos(kCapDeg * M_PI / 180.0), kAllSliversNeedleRatio, target_edge_length,
+                CGAL::parameters::edge_is_constrained_map(constrained).vertex_is_constrained_map(vertex_frozen));
+            sm.collect_garbage();
+        }
     }
     if (region && cut) {   // every vertex of the cut still there, where it was
         size_t cut_vertices = 0, held = 0;
@@ -345,6 +425,20 @@ std::vector<uint8_t> sliver_flags(const Mesh& mesh, const std::vector<int32_t>& 
 
 }  // namespace
 
+// `region` flags grown by `rings` vertex rings (every triangle sharing a
+// vertex with a flagged one joins, per ring).
+void grow_by_rings(const Mesh& mesh, std::vector<uint8_t>& flags, int rings) {
+    const size_t m = mesh.num_triangles();
+    for (int ring = 0; ring < rings; ++ring) {
+        std::vector<uint8_t> near(mesh.num_vertices(), 0);
+        for (size_t t = 0; t < m; ++t)
+            if (flags[t])
+                for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+        for (size_t t = 0; t < m; ++t)
+            for (int k = 0; k < 3; ++k) flags[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
+    }
+}
+
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
                int iterations, const std::vector<uint8_t>* region) {
     if (!(target_edge_length > 0) || !std::isfinite(target_edge_length))
@@ -375,7 +469,7 @@ Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double
     return out;
 }
 
-void refuse_retile_cuts_for_testing(int cuts) { g_refuse_cuts_for_testing = cuts; }
+void refuse_retile_cuts_for_testing(int cuts) { g_refuse_cuts_for_testing.store(cuts); }
 
 MeshMeasures measure(const Mesh& mesh, const std::vector<int32_t>& tri_surface) {
     if (!tri_surface.empty() && tri_surface.size() != mesh.num_triangles())

@@ -11,6 +11,7 @@
 #include <stdexcept>
 
 #include "gamma/error.h"
+#include "gamma/point_columns.h"
 #include "gamma/threads.h"
 
 namespace gammart {
@@ -52,6 +53,11 @@ struct PointTree {
 // Candidates of a sphere tested against its nearest this many surfels when
 // the lookup drops the ones that can never be the nearest.
 constexpr size_t kPruningSurfels = 8;
+// The lookup's column index: columns this many surfel spacings wide; the
+// nearest surfel to a sphere's centre searched first within this many
+// spacings, doubled up to kNearestAttempts times (then the kd-tree).
+constexpr double kColumnSpacings = 2.0, kNearestStartSpacings = 1.0;
+constexpr int kNearestAttempts = 4;
 
 V3 unit(const std::array<float, 3>& a) {
     const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
@@ -261,6 +267,17 @@ void SceneIndex::build_lookup(int threads) {
     constexpr size_t kBlock = 2048;  // triangles per work item (fixed: the result is thread-count free)
     const size_t nblocks = (m + kBlock - 1) / kBlock;
     std::vector<LookupBlock> blocks(nblocks);
+    // The candidates' searches go to a column index per surface (the same
+    // sets as the surface's kd-tree gives, found with less pointer chasing),
+    // built here and dropped after.
+    std::vector<PointColumns> columns(T.surface.size());
+    const double spacing = double(sigma_);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(size_t(0), T.surface.size(), [&](size_t s) {
+            const PointTree& tree = T.surface[s];
+            columns[s].build(tree.pos.data(), tree.pos.size() / 3, kColumnSpacings * spacing);
+        });
+    });
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
             std::vector<std::pair<uint32_t, float>> found, kept;
@@ -271,18 +288,27 @@ void SceneIndex::build_lookup(int threads) {
                 LookupBlock& out = blocks[b];
                 // The candidates of sphere L (surface tree): appended to the
                 // block, L.begin block-relative; false if more than `limit`.
-                auto collect = [&](const PointTree& tree, TriangleLookup& L, size_t limit) {
+                auto collect = [&](const PointTree& tree, const PointColumns& cols, TriangleLookup& L, size_t limit) {
                     L.begin = 0;
                     L.count = 0;
                     const float c[3] = {L.cx, L.cy, L.cz};
-                    uint32_t q = 0;
-                    float q2 = 0;
-                    nanoflann::KNNResultSet<float, uint32_t> rs(1);
-                    rs.init(&q, &q2);
-                    tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
+                    // The distance to the nearest surfel: the least of the
+                    // surfels closer than rho, if there are any (every
+                    // other one is farther); rho grows until some are, then
+                    // the kd-tree answers.
+                    float q2 = INFINITY;
+                    double rho = kNearestStartSpacings * spacing;
+                    for (int attempt = 0; attempt < kNearestAttempts && q2 == INFINITY; ++attempt, rho *= 2.0)
+                        cols.within(c, float(rho * rho), [&](uint32_t, float d2) { q2 = std::min(q2, d2); });
+                    if (q2 == INFINITY) {
+                        uint32_t q = 0;
+                        nanoflann::KNNResultSet<float, uint32_t> rs(1);
+                        rs.init(&q, &q2);
+                        tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
+                    }
                     const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
                     found.clear();
-                    tree.kd->radiusSearch(c, float(R * R), found, nanoflann::SearchParams(32, 0.0f, false));
+                    cols.within(c, float(R * R), [&](uint32_t i, float d2) { found.emplace_back(i, d2); });
                     // Drop the surfels that are never the nearest in the
                     // sphere B(c, r): y loses to x everywhere in B when
                     // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
@@ -350,7 +376,8 @@ void SceneIndex::build_lookup(int threads) {
                         continue;
                     }
                     const PointTree& tree = T.surface[size_t(s)];
-                    const size_t n_found = collect(tree, L, kMaxCandidates);
+                    const PointColumns& cols = columns[size_t(s)];
+                    const size_t n_found = collect(tree, cols, L, kMaxCandidates);
                     if (L.count || n_found == 0) continue;
                     // Too many: cut the triangle into cells.
                     const float* v = &lookup_vertices_[9 * t];
@@ -403,7 +430,7 @@ void SceneIndex::build_lookup(int threads) {
                                         const double reach = std::sqrt(r2) * (1.0 + 1e-5) + pad;
                                         C = TriangleLookup{float(c[0]), float(c[1]), float(c[2]),
                                                            float(reach * reach), 0, 0, kNoGrid};
-                                        overflow += collect(tree, C, kMaxCandidates) > kMaxCandidates;
+                                        overflow += collect(tree, cols, C, kMaxCandidates) > kMaxCandidates;
                                     }
                                     out.cells.push_back(C);
                                 }

@@ -188,14 +188,7 @@ std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<uint8_t
     // the defective triangles and those within kRegionRings vertex rings of one (room to fix them)
     std::vector<uint8_t> region(m, 0);
     for (size_t t = 0; t < m; ++t) region[t] = defects[t] != 0;
-    for (int ring = 0; ring < kRegionRings; ++ring) {
-        std::vector<uint8_t> near(mesh.num_vertices(), 0);
-        for (size_t t = 0; t < m; ++t)
-            if (region[t])
-                for (int k = 0; k < 3; ++k) near[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
-        for (size_t t = 0; t < m; ++t)
-            for (int k = 0; k < 3; ++k) region[t] |= near[size_t(mesh.triangles[3 * t + size_t(k)])];
-    }
+    grow_by_rings(mesh, region, kRegionRings);
     return region;
 }
 

@@ -9,6 +9,8 @@
 #include <nanoflann.hpp>
 #include <utility>
 
+#include "gamma/point_columns.h"
+
 namespace gammart {
 
 namespace {
@@ -22,6 +24,7 @@ struct Points {
 };
 using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Points>, Points, 3, uint32_t>;
 constexpr float kRadiusInSigmas = 2.0f;
+constexpr double kColumnSpacings = 2.0;  // column width of the build's index, in sigmas
 constexpr float kMinNormalDot = 0.5f;  // cos 60°
 constexpr float kMaxPlaneOffsetInSigmas = 0.5f;  // a neighbour lies on the surfel's tangent plane
 
@@ -30,19 +33,30 @@ using Scatter = std::vector<std::vector<std::pair<uint32_t, float>>>;  // per so
 // The neighbourhood of source s, computed afresh: the surfels the tree finds
 // within kRadiusInSigmas x sigma that pass the surface, normal and plane
 // tests, and s itself, as (target, weight) in ascending target order.
-void fresh_neighbourhood(const Tree& tree, size_t s, const float* position, const float* normal,
+// `search` is a kd-tree or a PointColumns over the same positions (the same
+// sets, in different orders; only the set matters here).
+void radius_search(const Tree& tree, const float* q, float r2, std::vector<std::pair<uint32_t, float>>& found) {
+    nanoflann::SearchParams params;
+    params.sorted = false;
+    tree.radiusSearch(q, r2, found, params);
+}
+void radius_search(const PointColumns& cols, const float* q, float r2,
+                   std::vector<std::pair<uint32_t, float>>& found) {
+    cols.within(q, r2, [&](uint32_t i, float d2) { found.emplace_back(i, d2); });
+}
+
+template <class Search>
+void fresh_neighbourhood(const Search& search, size_t s, const float* position, const float* normal,
                          const int32_t* surface, float sigma, std::vector<std::pair<uint32_t, float>>& found,
                          std::vector<std::pair<uint32_t, float>>& out) {
     const float r = kRadiusInSigmas * sigma;
     const float r2 = r * r;
     const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
-    nanoflann::SearchParams params;
-    params.sorted = false;
     found.clear();
     out.clear();
     const float* ps = position + 3 * s;
     const float* ns = normal + 3 * s;
-    if (r2 > 0) tree.radiusSearch(ps, r2, found, params);
+    if (r2 > 0) radius_search(search, ps, r2, found);
     double sum = 0;
     std::vector<double> w;
     for (const auto& [j, d2] : found) {
@@ -84,15 +98,16 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
     SplatKernel k;
     k.offset.assign(n + 1, 0);
     if (n == 0) return k;
-    Points pts{position, n};
-    Tree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
-    tree.buildIndex();
+    // The neighbourhoods' radius searches on a column index (the sets a
+    // kd-tree gives, found in contiguous memory).
+    PointColumns cols;
+    cols.build(position, n, kColumnSpacings * double(sigma));
     // Scatter lists per source surfel: (target, weight), computed in parallel.
     Scatter scatter(n);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& range) {
         std::vector<std::pair<uint32_t, float>> found;
         for (size_t s = range.begin(); s < range.end(); ++s)
-            fresh_neighbourhood(tree, s, position, normal, surface, sigma, found, scatter[s]);
+            fresh_neighbourhood(cols, s, position, normal, surface, sigma, found, scatter[s]);
     });
     return gather_form(scatter, n);
 }

@@ -47,7 +47,10 @@ struct Retiled {
 // corner not between two border / seam edges) with the triangles within
 // kSliverPassRings vertex rings, sharp edges there released: CGAL's removal
 // of almost-degenerate faces (cap flips, needle collapses), then isotropic
-// remeshing (SPEC §13.12).  Each sliver pass is cut from the mesh on its
+// remeshing, then a clean-up of the slivers that remeshing left: spikes
+// (free valence-3 vertices at a sliver's corner) flattened, and the removal
+// of almost-degenerate faces again with thresholds that make every sliver
+// a needle or a cap (SPEC §13.12).  Each sliver pass is cut from the mesh on its
 // own (its region and a few vertex rings are converted, not the whole mesh
 // nor the first pass's region again).  Deterministic (single-threaded).
 // Texture coordinates and part labels do not survive (the result has none).
@@ -65,9 +68,13 @@ struct Retiled {
 Retiled retile(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
                int iterations, const std::vector<uint8_t>* region = nullptr);
 
+// `flags` (one per triangle) grown by `rings` vertex rings: per ring, every
+// triangle sharing a vertex with a flagged one is flagged.
+void grow_by_rings(const Mesh& mesh, std::vector<uint8_t>& flags, int rings);
+
 // Test hook: the next `cuts` sub-meshes a pass on a region would hand CGAL
 // are refused as if CGAL could not hold them, so the pass falls back to the
-// whole mesh (Retiled::whole_mesh_fallbacks).  Not thread-safe; tests only.
+// whole mesh (Retiled::whole_mesh_fallbacks).  An atomic counter; tests only.
 void refuse_retile_cuts_for_testing(int cuts);
 
 struct MeshMeasures {

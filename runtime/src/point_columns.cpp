@@ -1,0 +1,70 @@
+// Column index for exact fixed-radius queries (see gamma/point_columns.h).
+#include "gamma/point_columns.h"
+
+#include <algorithm>
+#include <numeric>
+
+namespace gammart {
+
+void PointColumns::build(const float* p, size_t n, double side) {
+    start_.clear();
+    key_.clear();
+    pos_.clear();
+    id_.clear();
+    if (n == 0) {
+        start_.assign(2, 0);
+        nu_ = nv_ = 1;
+        return;
+    }
+    double lo[3], hi[3];
+    for (int k = 0; k < 3; ++k) lo[k] = hi[k] = p[k];
+    for (size_t i = 1; i < n; ++i)
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], double(p[3 * i + k]));
+            hi[k] = std::max(hi[k], double(p[3 * i + k]));
+        }
+    // Columns over the two widest axes; binary searches along the narrowest.
+    int axes[3] = {0, 1, 2};
+    std::sort(axes, axes + 3, [&](int a, int b) { return hi[a] - lo[a] > hi[b] - lo[b] || (hi[a] - lo[a] == hi[b] - lo[b] && a < b); });
+    u_ = axes[0], v_ = axes[1], w_ = axes[2];
+    const double eu = hi[u_] - lo[u_], ev = hi[v_] - lo[v_];
+    // At most about 2 columns per point and 4096 a side.
+    if (!(side > 0) || !std::isfinite(side)) side = std::max(eu, ev) + 1.0;
+    const double max_columns = 2.0 * double(n) + 64.0;
+    side = std::max({side, eu / 4096.0, ev / 4096.0});
+    while ((std::floor(eu / side) + 1) * (std::floor(ev / side) + 1) > max_columns) side *= 1.5;
+    lo_u_ = lo[u_], lo_v_ = lo[v_];
+    inv_side_ = 1.0 / side;
+    nu_ = int(std::floor(eu * inv_side_)) + 1;
+    nv_ = int(std::floor(ev * inv_side_)) + 1;
+    const size_t ncol = size_t(nu_) * size_t(nv_);
+    std::vector<uint32_t> col(n);
+    start_.assign(ncol + 1, 0);
+    for (size_t i = 0; i < n; ++i) {
+        col[i] = uint32_t(size_t(column_of(double(p[3 * i + u_]), lo_u_, nu_)) * size_t(nv_) +
+                          size_t(column_of(double(p[3 * i + v_]), lo_v_, nv_)));
+        ++start_[col[i] + 1];
+    }
+    for (size_t c = 0; c < ncol; ++c) start_[c + 1] += start_[c];
+    id_.resize(n);
+    {
+        std::vector<uint32_t> fill(start_.begin(), start_.end() - 1);
+        for (size_t i = 0; i < n; ++i) id_[fill[col[i]]++] = uint32_t(i);
+    }
+    // within each column: by the third coordinate (then index: a fixed order)
+    for (size_t c = 0; c < ncol; ++c)
+        std::sort(id_.begin() + std::ptrdiff_t(start_[c]), id_.begin() + std::ptrdiff_t(start_[c + 1]),
+                  [&](uint32_t a, uint32_t b) {
+                      const float za = p[3 * size_t(a) + w_], zb = p[3 * size_t(b) + w_];
+                      return za < zb || (za == zb && a < b);
+                  });
+    key_.resize(n);
+    pos_.resize(3 * n);
+    for (size_t k = 0; k < n; ++k) {
+        const size_t i = id_[k];
+        key_[k] = p[3 * i + w_];
+        for (int d = 0; d < 3; ++d) pos_[3 * k + size_t(d)] = p[3 * i + size_t(d)];
+    }
+}
+
+}  // namespace gammart
