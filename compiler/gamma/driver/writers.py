@@ -210,19 +210,20 @@ def _write_false_colour(path: Path, canvas, value, shade, title) -> None:
 def _write_false_colour_views(items: list, canvas, view, vmin, vmax, threads, worker=None) -> None:
     """The pictures of ``items`` [(path, title, values)], the second one (if
     any) encoded by ``worker`` (png_worker.py) while this thread encodes the
-    first; each encoded here instead if the worker fails.  Written in order."""
+    others; encoded here instead if the worker fails.  Written in order."""
     from .png_worker import WorkerFailed
 
     pictures = [view.picture(values, vmin, vmax, canvas.background, threads) for _, _, values in items]
     encoded: list = [None] * len(items)
     sent = []
-    if worker is not None and worker.alive:
-        for i in range(1, len(items)):
-            try:
-                worker.send(canvas.frame, canvas.height, items[i][1], pictures[i])
-                sent.append(i)
-            except WorkerFailed:
-                break
+    if worker is not None and worker.alive and len(items) > 1:
+        # one picture in flight at most: a second job could wait for the worker to read it
+        # while the worker waits for its first reply to be read
+        try:
+            worker.send(canvas.frame, canvas.height, items[1][1], pictures[1])
+            sent.append(1)
+        except WorkerFailed:
+            pass
     for i in range(len(items)):
         if i not in sent:
             encoded[i] = canvas.png(None, None, items[i][1], picture=pictures[i])
