@@ -546,6 +546,13 @@ def _sweep(args) -> int:
 
 
 def main(argv=None) -> int:
+    try:
+        return _main(argv)
+    finally:
+        _stop_png_worker()
+
+
+def _main(argv=None) -> int:
     args = _parser().parse_args(_join_negative_vectors(list(sys.argv[1:] if argv is None else argv)))
     try:
         if args.command == "fmt":
@@ -562,8 +569,9 @@ def main(argv=None) -> int:
         if args.command == "sweep":
             return _sweep(args)
         if args.command == "run":
-            from .driver import prefetch
+            from .driver import prefetch, png_worker
 
+            png_worker.start()              # before any thread: it forks (png_worker.py)
             prefetch.start(args.scene)      # read while the effect is read and checked
         effect = _load(args.file, getattr(args, "param", ()))
         if args.command == "check":
@@ -649,6 +657,13 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("gammac: interrupted", file=sys.stderr)
         return 130
+
+
+def _stop_png_worker() -> None:
+    """End ``gammac run``'s PNG worker process, if it was started."""
+    png_worker = sys.modules.get("gamma.driver.png_worker")
+    if png_worker is not None:
+        png_worker.stop()
 
 
 def _leave(status: int) -> None:

@@ -66,60 +66,135 @@ void remesh_faces(const std::vector<FaceIndex>& faces, double target_edge_length
     sm.collect_garbage();
 }
 
-// Flattens the spikes at the corners of `slivers`: a vertex of valence 3,
-// not on the mesh's border, a `constrained` edge or the cut (`frozen`),
-// whose three triangles are replaced by the one triangle of its three
-// neighbours (CGAL::Euler::remove_center_vertex) when that triangle faces
-// the way they do together (the sum of their area vectors) and is not the
-// mirror of a triangle already on its other side.  The surface loses the
-// tetrahedron between the spike and its neighbours.  Returns how many were
-// flattened (their elements are left as garbage).
+// Pockets at most this many triangles big are flattened (flatten_pockets):
+// about 25 squared edge lengths of surface, a pit or spike a few edge
+// lengths deep.  On the bunny benchmark at 50k surfels pits behind mouths
+// narrower than an edge are born at about 40 triangles; left alone they
+// grow into caves of hundreds, with slivers at their mouths.
+constexpr size_t kMaxPocketFaces = 64;
+
+// The triangles on the side of the 3-cycle of edges (a, b), (b, x), (x, a)
+// that `h` (a halfedge of the cycle, not on the border) looks at, or none
+// if that side has more than kMaxPocketFaces triangles.
+std::vector<FaceIndex> pocket_side(const SurfaceMesh& sm, SurfaceMesh::Halfedge_index h, const EdgeIndex cycle[3]) {
+    std::vector<FaceIndex> side{sm.face(h)};
+    for (size_t i = 0; i < side.size(); ++i) {
+        if (side.size() > kMaxPocketFaces) return {};
+        for (SurfaceMesh::Halfedge_index g : sm.halfedges_around_face(sm.halfedge(side[i]))) {
+            const EdgeIndex e = sm.edge(g);
+            if (e == cycle[0] || e == cycle[1] || e == cycle[2] || sm.is_border(sm.opposite(g))) continue;
+            const FaceIndex o = sm.face(sm.opposite(g));
+            if (std::find(side.begin(), side.end(), o) == side.end()) side.push_back(o);
+        }
+    }
+    return side;
+}
+
+// Flattens the pocket the 3-cycle of edges (a, b), (b, x), (x, a) cuts
+// off, if one side of the cycle is small (at most kMaxPocketFaces
+// triangles; the other side larger) with no kept edge and no vertex of the
+// mesh's border or of the cut (`frozen`) inside: its triangles are replaced
+// by the one triangle (a, b, x), oriented as they are -- unless that
+// triangle is degenerate or the mirror of a triangle already beyond one of
+// its edges.  (Any surface on the cycle has the same vector area, so the
+// triangle faces the way the pocket does on the whole.)  Returns whether it
+// did (the pocket's elements are left as garbage).
 template <class EdgeConstrained, class VertexFrozen>
-int flatten_spikes(SurfaceMesh& sm, const std::vector<FaceIndex>& slivers, const EdgeConstrained& constrained,
+bool flatten_cycle(SurfaceMesh& sm, VertexIndex a, VertexIndex b, VertexIndex x, const EdgeConstrained& constrained,
                    const VertexFrozen& frozen) {
     using Halfedge = SurfaceMesh::Halfedge_index;
-    std::vector<VertexIndex> spikes;
-    for (FaceIndex f : slivers)
-        for (VertexIndex v : sm.vertices_around_face(sm.halfedge(f))) spikes.push_back(v);
-    std::sort(spikes.begin(), spikes.end());
-    spikes.erase(std::unique(spikes.begin(), spikes.end()), spikes.end());
+    const VertexIndex cyc[3] = {a, b, x};
+    EdgeIndex cycle[3];
+    Halfedge ch[3];
+    for (int j = 0; j < 3; ++j) {
+        const auto [h, found] = CGAL::halfedge(cyc[j], cyc[(j + 1) % 3], sm);
+        if (!found) return false;
+        ch[j] = h;
+        cycle[j] = sm.edge(h);
+    }
+    // the two sides, seen from the cycle's halfedges a -> b and b -> a
+    const Halfedge sides[2] = {ch[0], sm.opposite(ch[0])};
+    if (sm.is_border(sides[0]) || sm.is_border(sides[1])) return false;
+    std::vector<FaceIndex> side[2];
+    for (int k = 0; k < 2; ++k) side[k] = pocket_side(sm, sides[k], cycle);
+    const bool small0 = !side[0].empty(), small1 = !side[1].empty();
+    if (small0 == small1) return false;   // both small (a tiny closed piece) or neither
+    const std::vector<FaceIndex>& pocket = small0 ? side[0] : side[1];
+    // the new triangle keeps the pocket's orientation along (a, b)
+    const VertexIndex u = small0 ? a : b, v = small0 ? b : a;
+    for (FaceIndex g : pocket)
+        for (Halfedge h : sm.halfedges_around_face(sm.halfedge(g))) {
+            const EdgeIndex e = sm.edge(h);
+            if (e != cycle[0] && e != cycle[1] && e != cycle[2] && constrained[e]) return false;
+            const VertexIndex w = sm.target(h);
+            if (w != a && w != b && w != x && (frozen[w] || sm.is_border(w))) return false;
+        }
+    if (CGAL::collinear(sm.point(u), sm.point(v), sm.point(x))) return false;
+    const VertexIndex t[3] = {u, v, x};
+    for (int j = 0; j < 3; ++j) {
+        const auto [h, found] = CGAL::halfedge(t[(j + 1) % 3], t[j], sm);
+        if (found && !sm.is_border(h) && sm.target(sm.next(h)) == t[(j + 2) % 3]) return false;   // the mirror
+    }
+    for (FaceIndex g : pocket) CGAL::Euler::remove_face(sm.halfedge(g), sm);
+    const auto [hole, found] = CGAL::halfedge(u, v, sm);
+    if (!found || !sm.is_border(hole)) throw Error("retile: flattening a pocket left no hole (internal error)");
+    CGAL::Euler::fill_hole(hole, sm);
+    return true;
+}
+
+// Flattens the small pockets (flatten_cycle) at the slivers: the star of a
+// spike (a corner of valence 3: the cycle of its three neighbours), and a
+// pocket that keeps the sliver's shortest edge (a, b) from being collapsed
+// -- a neighbour x of both a and b that is not the apex of a triangle on
+// (a, b) fails the link condition (collapsing would make the mesh
+// non-manifold), and the cycle (a, b, x) cuts the surface in two (a spike,
+// a fin, or a bulb erosion made on a neck narrower than an edge).  The
+// solid loses (or gains) what lay between the pocket and its new triangle.
+// Returns how many pockets were flattened.
+template <class EdgeConstrained, class VertexFrozen, class IsSliver>
+int flatten_pockets(SurfaceMesh& sm, const EdgeConstrained& constrained, const VertexFrozen& frozen,
+                    IsSliver is_sliver) {
+    using Halfedge = SurfaceMesh::Halfedge_index;
+    std::vector<FaceIndex> slivers;
+    for (FaceIndex f : sm.faces())
+        if (is_sliver(f)) slivers.push_back(f);
     int flattened = 0;
-    for (VertexIndex v : spikes) {
-        if (sm.is_removed(v) || frozen[v] || sm.is_border(v) || sm.degree(v) != 3) continue;
-        bool movable = true;
-        // next_of[k]: around the spike, the neighbour after neighbour k in
-        // the orientation of the triangles (v, a, next_of[a]).
-        VertexIndex nb[3], next_of[3];
-        Kernel::Vector_3 sum(0, 0, 0);
-        int k = 0;
-        for (Halfedge h : sm.halfedges_around_target(sm.halfedge(v))) {   // h: a -> v, in the triangle (v, b, a)
-            movable = movable && !constrained[sm.edge(h)];
-            const VertexIndex a = sm.source(h), b = sm.target(sm.next(h));
-            nb[k] = b;
-            next_of[k] = a;
-            sum = sum + CGAL::cross_product(sm.point(b) - sm.point(v), sm.point(a) - sm.point(v));
-            ++k;
+    for (FaceIndex f : slivers) {
+        if (sm.is_removed(f)) continue;
+        std::vector<VertexIndex> corners;
+        for (VertexIndex w : sm.vertices_around_face(sm.halfedge(f))) corners.push_back(w);
+        for (VertexIndex w : corners) {
+            if (sm.is_removed(f)) break;
+            if (sm.is_removed(w) || sm.is_border(w) || sm.degree(w) != 3) continue;
+            std::vector<VertexIndex> link;
+            for (VertexIndex n : sm.vertices_around_target(sm.halfedge(w))) link.push_back(n);
+            flattened += flatten_cycle(sm, link[0], link[1], link[2], constrained, frozen);
         }
-        if (!movable || k != 3) continue;
-        auto after = [&](VertexIndex a) {
-            for (int j = 0; j < 3; ++j)
-                if (nb[j] == a) return next_of[j];
-            return SurfaceMesh::null_vertex();
-        };
-        const VertexIndex x0 = nb[0], x1 = after(x0), x2 = after(x1);
-        if (x1 == SurfaceMesh::null_vertex() || x2 == SurfaceMesh::null_vertex() || after(x2) != x0) continue;
-        const auto n = CGAL::cross_product(sm.point(x1) - sm.point(x0), sm.point(x2) - sm.point(x0));
-        if (!(n * sum > 0)) continue;
-        // a triangle (x1, x0, x2) etc. beyond an outer edge would become the new one's mirror
-        bool mirror = false;
-        const VertexIndex x[3] = {x0, x1, x2};
-        for (int j = 0; j < 3; ++j) {
-            const auto [h, found] = CGAL::halfedge(x[(j + 1) % 3], x[j], sm);   // outer edge, seen from beyond
-            mirror = mirror || (found && !sm.is_border(h) && sm.target(sm.next(h)) == x[(j + 2) % 3]);
+        if (sm.is_removed(f)) continue;
+        Halfedge hs = sm.halfedge(f);   // the sliver's shortest edge
+        double shortest = std::numeric_limits<double>::infinity();
+        for (Halfedge h : sm.halfedges_around_face(sm.halfedge(f))) {
+            const double l = CGAL::squared_distance(sm.point(sm.source(h)), sm.point(sm.target(h)));
+            if (l < shortest) {
+                shortest = l;
+                hs = h;
+            }
         }
-        if (mirror) continue;
-        CGAL::Euler::remove_center_vertex(sm.halfedge(v), sm);
-        ++flattened;
+        const VertexIndex a = sm.source(hs), b = sm.target(hs);
+        const VertexIndex apex0 = sm.target(sm.next(hs));
+        const VertexIndex apex1 =
+            sm.is_border(sm.opposite(hs)) ? SurfaceMesh::null_vertex() : sm.target(sm.next(sm.opposite(hs)));
+        std::vector<VertexIndex> around_a, common;
+        for (VertexIndex v : sm.vertices_around_target(sm.halfedge(a))) around_a.push_back(v);
+        std::sort(around_a.begin(), around_a.end());
+        for (VertexIndex v : sm.vertices_around_target(sm.halfedge(b)))
+            if (v != apex0 && v != apex1 && v != a && std::binary_search(around_a.begin(), around_a.end(), v))
+                common.push_back(v);
+        std::sort(common.begin(), common.end());
+        for (VertexIndex x : common) {
+            if (sm.is_removed(f) || sm.is_removed(a) || sm.is_removed(b) || sm.is_removed(x)) break;
+            flattened += flatten_cycle(sm, a, b, x, constrained, frozen);
+        }
     }
     return flattened;
 }
@@ -264,20 +339,20 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         if (!faces.empty()) remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
         // The slivers the remeshing itself left (at a sharp fold its flips
         // and collapses are refused and its relaxation cannot widen them):
-        // a spike (a free vertex of valence 3 at a sliver's corner) is
-        // flattened first, its three triangles replaced by the one its
-        // neighbours make -- otherwise its two neighbours' short edge fails
-        // the link condition and cannot be collapsed -- then CGAL's removal
-        // of almost-degenerate faces runs on the slivers with a needle ratio
-        // that catches every one (below kAllSliversNeedleRatio, a triangle
-        // with an angle under kMinRetiledAngleDeg has an angle over kCapDeg),
-        // vertices of the cut held.  Nothing is remeshed after it.
+        // the small pockets at them are flattened first (flatten_pockets: a
+        // spike, or a pit or fin whose 3-edge neck keeps a short edge from
+        // being collapsed), then CGAL's removal of almost-degenerate faces
+        // runs on the slivers with a needle ratio that catches every one
+        // (below kAllSliversNeedleRatio, a triangle with an angle under
+        // kMinRetiledAngleDeg has an angle over kCapDeg), vertices of the
+        // cut held, and once more for caps alone.  Nothing is remeshed
+        // after it.
         constexpr double kAllSliversNeedleRatio = 3.3;   // < sin(kCapDeg) / sin(kMinRetiledAngleDeg) = 3.35
         std::vector<FaceIndex> left;
         for (FaceIndex f : sm.faces())
             if (is_sliver(f)) left.push_back(f);
         if (!left.empty()) {
-            if (flatten_spikes(sm, left, constrained, vertex_frozen) > 0) {
+            if (flatten_pockets(sm, constrained, vertex_frozen, is_sliver) > 0) {
                 sm.collect_garbage();
                 left.clear();
                 for (FaceIndex f : sm.faces())
@@ -287,6 +362,19 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
                 left, sm, std::cos(kCapDeg * M_PI / 180.0), kAllSliversNeedleRatio, target_edge_length,
                 CGAL::parameters::edge_is_constrained_map(constrained).vertex_is_constrained_map(vertex_frozen));
             sm.collect_garbage();
+            // A sliver that is both a needle and a cap is only ever treated
+            // as a needle; where its collapse would invert a triangle, its
+            // cap is flipped instead (no needle threshold).
+            left.clear();
+            for (FaceIndex f : sm.faces())
+                if (is_sliver(f)) left.push_back(f);
+            if (!left.empty()) {
+                PMP::experimental::remove_almost_degenerate_faces(
+                    left, sm, std::cos(kCapDeg * M_PI / 180.0), 1e6,
+                    target_edge_length,
+                    CGAL::parameters::edge_is_constrained_map(constrained).vertex_is_constrained_map(vertex_frozen));
+                sm.collect_garbage();
+            }
         }
     }
     if (region && cut) {   // every vertex of the cut still there, where it was

@@ -7,7 +7,6 @@ half-written file.  Nothing here touches the simulation.
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
@@ -132,7 +131,9 @@ class FalseColourCanvas:
     BAR_WIDTH = 150
 
     def __init__(self, width: int, height: int, vmin: float, vmax: float, label: str):
-        from PIL import Image, ImageDraw, ImageFont
+        from PIL import Image, ImageDraw
+
+        from .png_worker import canvas_font
 
         w, h = width, height
         self.width, self.height, self.vmin = w, h, vmin
@@ -141,11 +142,7 @@ class FalseColourCanvas:
         self.background = (background * 255 + 0.5).astype(np.uint8)
         canvas = Image.new("RGB", (w + self.BAR_WIDTH, h), (255, 255, 255))
         draw = ImageDraw.Draw(canvas)
-        try:
-            font = ImageFont.load_default(size=max(11, h // 40))
-        except TypeError:  # Pillow without FreeType
-            font = ImageFont.load_default()
-        self.font = font
+        self.font = font = canvas_font(h)
         top, bottom = int(h * 0.12), int(h * 0.88)
         x0 = w + 20
         ramp = viridis(np.linspace(1.0, 0.0, bottom - top))
@@ -173,14 +170,12 @@ class FalseColourCanvas:
 
     def png(self, value: np.ndarray, shade: np.ndarray, title: str, picture: np.ndarray | None = None) -> bytes:
         """The PNG of one picture (``picture``: ``self.picture(value, shade)`` made elsewhere)."""
-        from PIL import Image, ImageDraw
+        from PIL import Image
 
-        canvas = self.frame.copy()
-        canvas.paste(Image.fromarray(self.picture(value, shade) if picture is None else picture), (0, 0))
-        ImageDraw.Draw(canvas).text((10, 10), title, fill=(0, 0, 0), font=self.font)
-        out = io.BytesIO()
-        canvas.save(out, format="PNG")
-        return out.getvalue()
+        from .png_worker import titled_png
+
+        picture = Image.fromarray(self.picture(value, shade) if picture is None else picture)
+        return titled_png(self.frame, picture, title, self.font)
 
 
 def _finite_or_text(obj):

@@ -154,16 +154,25 @@ class FalseColourWriter(Writer):
         view = None
         if casting is not None:
             view = run.call(casting.result)
+        pictures = []
         for it, values in enumerate(self.history, start=1):
             values = np.ascontiguousarray(np.nan_to_num(values, nan=vmin, posinf=vmax, neginf=vmin), np.float32)
             path, title = self.folder / f"iter_{it:04d}.png", f"{shown}, iteration {it}"
             if view is not None:
-                run.behind.timed("renders", _write_false_colour_view, path, canvas, view, values, vmin, vmax,
-                                 title, run.threads)
+                pictures.append((path, title, values))
                 continue
             with run.behind.timings.timed("renders"):
                 value, shade = run.call(run.sim.render, values, eye, target, up, fov, width, height, run.threads)
             run.behind.timed("renders", _write_false_colour, path, canvas, value, shade, title)
+        # two pictures at a time: one encoded here, one in the PNG worker (png_worker.py) if there is
+        # one; written in order
+        from . import png_worker
+
+        worker = png_worker.worker()
+        step = 2 if worker is not None else 1
+        for k in range(0, len(pictures), step):
+            run.behind.timed("renders", _write_false_colour_views, pictures[k:k + step], canvas, view, vmin, vmax,
+                             run.threads, worker)
 
 
 class _Background:
@@ -198,9 +207,33 @@ def _write_false_colour(path: Path, canvas, value, shade, title) -> None:
     atomic_write(path, canvas.png(value, shade, title))
 
 
-def _write_false_colour_view(path: Path, canvas, view, values, vmin, vmax, title, threads) -> None:
-    picture = view.picture(values, vmin, vmax, canvas.background, threads)
-    atomic_write(path, canvas.png(None, None, title, picture=picture))
+def _write_false_colour_views(items: list, canvas, view, vmin, vmax, threads, worker=None) -> None:
+    """The pictures of ``items`` [(path, title, values)], the second one (if
+    any) encoded by ``worker`` (png_worker.py) while this thread encodes the
+    others; encoded here instead if the worker fails.  Written in order."""
+    from .png_worker import WorkerFailed
+
+    pictures = [view.picture(values, vmin, vmax, canvas.background, threads) for _, _, values in items]
+    encoded: list = [None] * len(items)
+    sent = []
+    if worker is not None and worker.alive and len(items) > 1:
+        # one picture in flight at most: a second job could wait for the worker to read it
+        # while the worker waits for its first reply to be read
+        try:
+            worker.send(canvas.frame, canvas.height, items[1][1], pictures[1])
+            sent.append(1)
+        except WorkerFailed:
+            pass
+    for i in range(len(items)):
+        if i not in sent:
+            encoded[i] = canvas.png(None, None, items[i][1], picture=pictures[i])
+    for i in sent:
+        try:
+            encoded[i] = worker.receive()
+        except WorkerFailed:
+            encoded[i] = canvas.png(None, None, items[i][1], picture=pictures[i])
+    for (path, _, _), data in zip(items, encoded):
+        atomic_write(path, data)
 
 
 class AppearanceWriter(Writer):

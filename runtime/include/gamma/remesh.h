@@ -47,10 +47,12 @@ struct Retiled {
 // corner not between two border / seam edges) with the triangles within
 // kSliverPassRings vertex rings, sharp edges there released: CGAL's removal
 // of almost-degenerate faces (cap flips, needle collapses), then isotropic
-// remeshing, then a clean-up of the slivers that remeshing left: spikes
-// (free valence-3 vertices at a sliver's corner) flattened, and the removal
-// of almost-degenerate faces again with thresholds that make every sliver
-// a needle or a cap (SPEC §13.12).  Each sliver pass is cut from the mesh on its
+// remeshing, then a clean-up of the slivers that remeshing left: small
+// pockets at them flattened (a spike of valence 3, or a pit, fin or spike
+// of at most 64 triangles behind a neck of three edges that keeps a
+// sliver's short edge from being collapsed, replaced by one triangle), and
+// the removal of almost-degenerate faces again with thresholds that make
+// every sliver a needle or a cap, then for caps alone (SPEC §13.12).  Each sliver pass is cut from the mesh on its
 // own (its region and a few vertex rings are converted, not the whole mesh
 // nor the first pass's region again).  Deterministic (single-threaded).
 // Texture coordinates and part labels do not survive (the result has none).
