@@ -1,7 +1,6 @@
 // Embree BVH + per-surface surfel kd-trees (see gamma/scene_index.h).
 #include "gamma/scene_index.h"
 
-#include <nanoflann.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -11,6 +10,7 @@
 #include <stdexcept>
 
 #include "gamma/error.h"
+#include "gamma/float_points.h"
 #include "gamma/point_columns.h"
 #include "gamma/threads.h"
 
@@ -18,27 +18,17 @@ namespace gammart {
 
 namespace {
 
-struct Cloud {
-    const float* p = nullptr;
-    size_t n = 0;
-    size_t kdtree_get_point_count() const { return n; }
-    float kdtree_get_pt(size_t i, size_t d) const { return p[3 * i + d]; }
-    template <class BBOX>
-    bool kdtree_get_bbox(BBOX&) const { return false; }
-};
-using KDTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Cloud>,
-                                                   Cloud, 3, uint32_t>;
-
 // kd-tree over a point set; `index` maps to global surfel ids (empty = identity).
 struct PointTree {
     std::vector<float> pos;
     std::vector<uint32_t> index;
-    Cloud cloud;
-    std::unique_ptr<KDTree> kd;
+    FloatPoints cloud;
+    std::unique_ptr<FloatPointsKdTree> kd;
 
     void build() {
         cloud = {pos.data(), pos.size() / 3};
-        kd = cloud.n ? std::make_unique<KDTree>(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10)) : nullptr;
+        kd = cloud.n ? std::make_unique<FloatPointsKdTree>(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10))
+                      : nullptr;
     }
     uint32_t query(const float p[3]) const {
         uint32_t idx = 0;
@@ -210,7 +200,7 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
     sigma_ = sigma;
     T.all.pos.assign(positions, positions + 3 * n);
     T.all.index.clear();
-    T.surface.clear();  // trees hold references into their own Cloud: never copied or moved once built
+    T.surface.clear();  // trees point into their own pos: never copied or moved once built
     T.surface.resize(size_t(n_surfaces_));
     for (size_t i = 0; i < n; ++i) {
         const int s = surfel_surface[i];

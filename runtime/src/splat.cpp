@@ -6,23 +6,14 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
-#include <nanoflann.hpp>
 #include <utility>
 
+#include "gamma/float_points.h"
 #include "gamma/point_columns.h"
 
 namespace gammart {
 
 namespace {
-struct Points {
-    const float* p = nullptr;
-    size_t n = 0;
-    size_t kdtree_get_point_count() const { return n; }
-    float kdtree_get_pt(size_t i, size_t d) const { return p[3 * i + d]; }
-    template <class BBOX>
-    bool kdtree_get_bbox(BBOX&) const { return false; }
-};
-using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Points>, Points, 3, uint32_t>;
 constexpr float kRadiusInSigmas = 2.0f;
 constexpr double kColumnSpacings = 2.0;  // column width of the build's index, in sigmas
 constexpr float kMinNormalDot = 0.5f;  // cos 60°
@@ -35,7 +26,8 @@ using Scatter = std::vector<std::vector<std::pair<uint32_t, float>>>;  // per so
 // tests, and s itself, as (target, weight) in ascending target order.
 // `search` is a kd-tree or a PointColumns over the same positions (the same
 // sets, in different orders; only the set matters here).
-void radius_search(const Tree& tree, const float* q, float r2, std::vector<std::pair<uint32_t, float>>& found) {
+void radius_search(const FloatPointsKdTree& tree, const float* q, float r2,
+                   std::vector<std::pair<uint32_t, float>>& found) {
     nanoflann::SearchParams params;
     params.sorted = false;
     tree.radiusSearch(q, r2, found, params);
@@ -115,8 +107,8 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
 SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, const float* normal,
                                 const int32_t* surface, size_t n, float sigma, const std::vector<uint32_t>& replaced) {
     if (old.offset.size() != n + 1) return build_splat_kernel(position, normal, surface, n, sigma);
-    Points pts{position, n};
-    Tree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+    FloatPoints pts{position, n};
+    FloatPointsKdTree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
     tree.buildIndex();
     // Which sources get a fresh neighbourhood: the replaced surfels, the
     // sources whose neighbourhood held one (they lost a target), and every

@@ -8,10 +8,10 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <nanoflann.hpp>
 #include <memory>
 #include <utility>
 
+#include "gamma/float_points.h"
 #include "gamma/philox.h"
 #include "gamma/sampling.h"
 #include "gamma/threads.h"
@@ -19,16 +19,6 @@
 namespace gammart {
 
 namespace {
-
-struct Points {
-    const float* p = nullptr;
-    size_t n = 0;
-    size_t kdtree_get_point_count() const { return n; }
-    float kdtree_get_pt(size_t i, size_t d) const { return p[3 * i + d]; }
-    template <class BBOX>
-    bool kdtree_get_bbox(BBOX&) const { return false; }
-};
-using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Points>, Points, 3, uint32_t>;
 
 V3 at(const float* a, size_t i) { return {a[3 * i], a[3 * i + 1], a[3 * i + 2]}; }
 
@@ -72,7 +62,7 @@ bool solve6(std::array<std::array<double, 7>, 6>& m, std::array<double, 6>& x) {
 // tangent plane (u, v along it, h along the normal), then the mean curvature
 // of that graph at the origin, its sign turned so that a surface bending away
 // from the normal (convex) is positive.
-float curvature_of(const Tree& tree, const float* pos, const float* nrm, size_t i, float radius,
+float curvature_of(const FloatPointsKdTree& tree, const float* pos, const float* nrm, size_t i, float radius,
                    std::vector<std::pair<uint32_t, float>>& found) {
     const V3 p = at(pos, i), n = at(nrm, i);
     V3 t, s;
@@ -121,10 +111,10 @@ SurfelMeasures measure_surfels(const MeasureRequest& want, const Mesh& mesh, con
     if (n == 0) return out;
     const float spacing = float(std::sqrt(mesh.area() / double(n)));
     const float eps = 1e-5f * (2.0f * ao_length);   // the tracer's ray offset (1e-5 x diagonal)
-    Points pts{pos, n};
-    std::unique_ptr<Tree> tree;
+    FloatPoints pts{pos, n};
+    std::unique_ptr<FloatPointsKdTree> tree;
     if (want.curvature) {
-        tree = std::make_unique<Tree>(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+        tree = std::make_unique<FloatPointsKdTree>(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
         tree->buildIndex();
     }
     run_with_threads(threads, [&] {

@@ -5,25 +5,16 @@
 
 #include <algorithm>
 #include <cmath>
-#include <nanoflann.hpp>
 #include <random>
 #include <utility>
 #include <vector>
 
+#include "gamma/float_points.h"
 #include "gamma/point_columns.h"
 
 using namespace gammart;
 
 namespace {
-struct Cloud {
-    const float* p = nullptr;
-    size_t n = 0;
-    size_t kdtree_get_point_count() const { return n; }
-    float kdtree_get_pt(size_t i, size_t d) const { return p[3 * i + d]; }
-    template <class BBOX>
-    bool kdtree_get_bbox(BBOX&) const { return false; }
-};
-using KDTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Cloud>, Cloud, 3, uint32_t>;
 
 using Found = std::vector<std::pair<uint32_t, float>>;
 
@@ -37,8 +28,8 @@ Found sorted(Found f) {
 // at something).
 size_t expect_same_sets(const std::vector<float>& pts, const std::vector<float>& queries,
                         const std::vector<float>& radii, double side) {
-    Cloud cloud{pts.data(), pts.size() / 3};
-    KDTree kd(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+    FloatPoints cloud{pts.data(), pts.size() / 3};
+    FloatPointsKdTree kd(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
     kd.buildIndex();
     PointColumns cols;
     cols.build(pts.data(), pts.size() / 3, side);
