@@ -39,13 +39,15 @@ void require_surfels_on_every_surface(const Mesh& mesh, const SceneIndex& index,
     const double total = mesh.area();
     for (size_t s = 0; s < per.size(); ++s) {
         if (triangles[s] == 0 || per[s] > 0) continue;
-        char buf[256];
+        // the count printed as an integer (bounded): "%.0f" of a huge ratio could overflow the buffer
+        const long long needed =
+            static_cast<long long>(std::min(std::ceil(4.0 * total / std::max(area[s], 1e-300)), 1e18));
+        char buf[512];
         std::snprintf(buf, sizeof buf,
                       "config: surface %zu has %zu triangle(s) (%.3g%% of the scene's area) but received no "
                       "surfel at %lld surfels, so its rules could never run on it; raise the surfel count to "
-                      "about %.0f or more, or assign those triangles to another surface",
-                      s, triangles[s], 100.0 * area[s] / total, static_cast<long long>(surfels),
-                      std::ceil(4.0 * total / std::max(area[s], 1e-300)));
+                      "about %lld or more, or assign those triangles to another surface",
+                      s, triangles[s], 100.0 * area[s] / total, static_cast<long long>(surfels), needed);
         throw Error(buf);
     }
 }

@@ -2,6 +2,8 @@
 // render scene) and the refusal of a surface that received no surfel.
 #include <gtest/gtest.h>
 
+#include <string>
+
 #include "gamma/baker.h"
 #include "gamma/simulation.h"
 #include "helpers.h"
@@ -39,6 +41,10 @@ TEST(Facade, SurfaceWithoutSurfelsIsRefusedNotRunWithAnothersRules) {
     EXPECT_NE(msg.find("surface 1 has 1 triangle(s)"), std::string::npos) << msg;
     EXPECT_NE(msg.find("received no surfel at 200 surfels"), std::string::npos) << msg;
     EXPECT_NE(msg.find("raise the surfel count"), std::string::npos) << msg;
+    // the count it suggests is a whole number above the one that failed
+    const size_t about = msg.find("to about ");
+    ASSERT_NE(about, std::string::npos) << msg;
+    EXPECT_GT(std::stoll(msg.substr(about + 9)), 200) << msg;
     // The same speck on surface 0 is fine (surface 1 has no triangles: never hit).
     c.triangle_surface = {0, 0, 0};
     Simulation sim(m, c);
