@@ -96,3 +96,40 @@ def test_no_worker_is_forked_beside_other_threads():
             "print(png_worker.worker() is None)\n")
     r = run_python(code)
     assert r.stdout.strip() == "True", r.stderr
+
+
+IMPORTS_WHEN_TOLD = textwrap.dedent("""
+    import time
+    from gamma.driver import png_worker
+    png_worker.start()
+    pid = png_worker.worker().pid
+    def pillow_loaded():
+        with open(f"/proc/{pid}/maps") as maps:
+            return "PIL/_imaging" in maps.read()
+    time.sleep(0.5)
+    assert not pillow_loaded(), "the worker imported Pillow for a run that may make no picture"
+    png_worker.prepare()                     # the run will make pictures
+    for _ in range(400):
+        if pillow_loaded():
+            break
+        time.sleep(0.05)
+    assert pillow_loaded(), "prepare() did not have the worker import Pillow"
+    png_worker.stop()
+    print("ok")
+""")
+
+
+def test_the_worker_imports_pillow_only_once_told_pictures_will_be_made():
+    r = run_python(IMPORTS_WHEN_TOLD)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def test_a_run_with_pictures_tells_the_worker_and_one_without_does_not(monkeypatch):
+    from gamma.driver import png_worker, warmup
+
+    told = []
+    monkeypatch.setattr(png_worker, "prepare", lambda: told.append(True))
+    warmup.prepare_outputs(progress=False, pictures=False, picture_height=512).join()
+    assert told == []
+    warmup.prepare_outputs(progress=False, pictures=True, picture_height=512).join()
+    assert told == [True]

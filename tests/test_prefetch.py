@@ -1,9 +1,14 @@
-"""gammac run reads its mesh file ahead, while it reads and checks the effect
-(gamma/driver/prefetch.py): the mesh read ahead is the one reading the file
-later gives, a file changed in between is read again, and errors stay where
-they were."""
+"""gammac run reads its mesh file ahead, and samples its surfels, while it
+reads and checks the effect (gamma/driver/prefetch.py): the mesh read ahead
+is the one reading the file later gives, a file changed in between is read
+again, the surfels sampled ahead give the setup's own state and the same
+output files, and errors stay where they were."""
 
+import hashlib
 import os
+import subprocess
+import sys
+import textwrap
 import threading
 
 import numpy as np
@@ -34,7 +39,7 @@ def test_a_file_changed_after_it_was_read_ahead_is_read_again(tmp_path):
     path = tmp_path / "tri.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     prefetch.start(str(path))
-    prefetch._pending[str(path)].thread.join()
+    prefetch._pending[str(path)].mesh.result()
     path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\n")
     assert prefetch.take(path) is None
 
@@ -56,3 +61,144 @@ def test_an_effect_error_comes_before_a_mesh_error(tmp_path):
     assert r.returncode == 1
     assert "bad.gamma:2:" in r.stderr and "garbage.obj" not in r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def config(mesh, surfels=2000, seed=3):
+    cfg = rt.Config()
+    cfg.surfels, cfg.seed, cfg.threads, cfg.row_width = surfels, seed, 2, 4
+    cfg.surface_rows = [[0.0, 0.0, 0.0, 1.0]]
+    return cfg
+
+
+def state(sim):
+    return [np.asarray(a) for a in (sim.surfel_positions(), sim.surfel_normals(), sim.surfel_surfaces(),
+                                    sim.rows())]
+
+
+def test_the_surfels_sampled_ahead_are_the_setups_own():
+    prefetch.start(str(BUNNY), 2000, 3, 1)
+    mesh = prefetch.take(BUNNY)
+    sample = prefetch.sample_for(mesh, 2000, 3)
+    assert sample is not None and sample.ok and sample.matches(mesh, 2000, 3)
+    assert prefetch.sample_for(mesh, 2000, 3) is None        # handed out once
+    with_sample = rt.Simulation(mesh, config(mesh), sample)
+    assert "sample_ahead" in with_sample.setup_seconds        # it was taken ...
+    assert not sample.ok
+    plain = rt.Simulation(mesh, config(mesh))
+    assert "sample_ahead" not in plain.setup_seconds
+    for a, b in zip(state(with_sample), state(plain)):        # ... and it is what the setup samples
+        assert np.array_equal(a, b)
+
+
+def test_surfels_sampled_for_another_count_or_seed_are_not_used():
+    prefetch.start(str(BUNNY), 2000, 3, 2)
+    mesh = prefetch.take(BUNNY)
+    assert prefetch.sample_for(mesh, 2000, 4) is None
+    sample = rt.SurfelSample(mesh, 1999, 3, 2)
+    sim = rt.Simulation(mesh, config(mesh), sample)
+    assert "sample_ahead" not in sim.setup_seconds and sample.ok
+    # a mesh nobody read ahead
+    assert prefetch.sample_for(rt.Mesh.load(str(BUNNY)), 2000, 3) is None
+
+
+def test_a_sample_that_failed_leaves_the_error_to_the_setup(tmp_path):
+    path = tmp_path / "tri.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    mesh = rt.Mesh.load(str(path))
+    failed = rt.SurfelSample(mesh, 0, 1, 1)                   # no exception here
+    assert not failed.ok and not failed.matches(mesh, 0, 1)
+    cfg = config(mesh, surfels=0)
+    errors = []
+    for ahead in (None, failed):
+        try:
+            rt.Simulation(mesh, cfg, ahead)
+        except ValueError as err:
+            errors.append(str(err))
+    assert len(errors) == 2 and errors[0] == errors[1] and "surfels" in errors[0]
+
+
+def test_surfels_are_sampled_ahead_only_for_options_the_run_accepts():
+    assert prefetch.worth_sampling(100_000, 1, 0)
+    assert not prefetch.worth_sampling(0, 1, 0)
+    assert not prefetch.worth_sampling(20_000_001, 1, 0)
+    assert not prefetch.worth_sampling(1000, 2**63, 0)
+    assert not prefetch.worth_sampling(1000, 1, 257)
+    prefetch.start(str(BUNNY), 20_000_001, 1, 2)
+    mesh = prefetch.take(BUNNY)
+    assert mesh is not None and prefetch.sample_for(mesh, 20_000_001, 1) is None
+
+
+NO_SAMPLE = textwrap.dedent("""
+    import sys
+    from gamma.driver import prefetch
+    prefetch.worth_sampling = lambda *args: False
+    sys.argv = ["gammac", *sys.argv[1:]]
+    from gamma.cli import entry
+    entry()
+""")
+
+
+def folder_hash(folder):
+    digest = hashlib.sha256()
+    for path in sorted(folder.rglob("*")):
+        if path.is_file() and path.name != "summary.json":
+            digest.update(str(path.relative_to(folder)).encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
+
+
+def test_gammac_run_takes_the_surfels_sampled_ahead_and_writes_the_same_files(tmp_path):
+    import json
+
+    args = ["run", ROOT / "examples" / "patina.gamma", "--scene", BUNNY, "--surfels", "3000", "--tons", "20000",
+            "--iterations", "2", "--threads", "2", "--quiet"]
+    ahead = run_gammac(*args, "--out", tmp_path / "ahead")
+    assert ahead.returncode == 0, ahead.stderr
+    plain = subprocess.run([sys.executable, "-c", NO_SAMPLE, *map(str, args), "--out", str(tmp_path / "plain")],
+                           capture_output=True, text=True, timeout=600)
+    assert plain.returncode == 0, plain.stderr
+    assert "sample_ahead" in json.loads((tmp_path / "ahead" / "summary.json").read_text())["setup_phases"]
+    assert "sample_ahead" not in json.loads((tmp_path / "plain" / "summary.json").read_text())["setup_phases"]
+    assert len(list((tmp_path / "ahead" / "renders").glob("iter_*.png"))) == 2
+    assert folder_hash(tmp_path / "ahead") == folder_hash(tmp_path / "plain")
+
+
+def test_an_effect_error_comes_first_while_the_surfels_are_sampled(tmp_path):
+    (tmp_path / "bad.gamma").write_text("surface S { reflectance straight = 0.5 }\nbogus\n")
+    r = run_gammac("run", tmp_path / "bad.gamma", "--scene", BUNNY, "--surfels", "400000", "--quiet",
+                   "--out", tmp_path / "out")
+    assert r.returncode == 1
+    assert "bad.gamma:2:" in r.stderr and len(r.stderr.strip().splitlines()) <= 6
+    assert not (tmp_path / "out").exists()
+
+
+EXITS = textwrap.dedent("""
+    import sys
+    from gamma.driver import prefetch
+    prefetch.start(sys.argv[1], 400000, 1, 2)
+    assert prefetch.take(sys.argv[1]) is not None
+    sys.exit(0)                      # the interpreter's own exit, the sampling still running
+""")
+
+
+def test_a_process_that_exits_while_the_surfels_are_sampled_exits_cleanly():
+    r = subprocess.run([sys.executable, "-c", EXITS, str(BUNNY)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "leaked" not in r.stderr, r.stderr
+
+
+BEFORE_FRONT_END = textwrap.dedent("""
+    import sys
+    from gamma.driver import prefetch
+    seen = []
+    prefetch.start = lambda *args: seen.append(sorted(m for m in sys.modules
+                                                      if m.startswith(("gamma.frontend", "numpy", "lark"))))
+    from gamma.cli import main
+    main(["run", "missing.gamma", "--scene", "missing.obj", "--out", "out"])
+    print(seen)
+""")
+
+
+def test_the_mesh_read_starts_before_the_front_end_is_imported(tmp_path):
+    r = subprocess.run([sys.executable, "-c", BEFORE_FRONT_END], capture_output=True, text=True, timeout=600,
+                       cwd=tmp_path)
+    assert r.stdout.strip() == "[[]]", (r.stdout, r.stderr)

@@ -116,7 +116,9 @@ STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions
 
 #: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.
 BINDING = {
-    "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation"),
+    "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
+               "SurfelSample"),
+    "SurfelSample": ("ok", "matches", "seconds"),
     "Mesh": ("load", "from_arrays", "num_vertices", "num_triangles", "degenerate_dropped", "bounds",
              "vertices", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
     "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",

@@ -20,8 +20,8 @@ import time
 # own start, before the first import of gamma, is not included).
 _STARTED = time.perf_counter()
 
-from .frontend.checker import UsageError
-from .frontend.diagnostics import GammaError
+# The front end (and what it imports) is imported once the command line is
+# parsed: ``gammac run`` starts reading its mesh before that (prefetch.py).
 
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
@@ -436,6 +436,7 @@ def _fmt(args) -> int:
 def _watch(args) -> int:
     """The effect's errors are shown in the page (and on stderr), not fatal."""
     from .driver.runner import RunError
+    from .frontend.checker import UsageError
     from .viewer.watch import watch
 
     if not 0.0 < args.preview <= 1.0:
@@ -455,6 +456,7 @@ def _saved(args) -> int:
     """``render`` and ``export`` of a saved run's maps."""
     from .driver.runner import LIMITS, RunError
     from .driver.saved import export_saved, render_saved
+    from .frontend.checker import UsageError
 
     try:
         if args.command == "render":
@@ -515,6 +517,7 @@ def _sweep(args) -> int:
     """``gammac sweep``: check the effect and every option here, then run the cells."""
     from .driver.cluster import RayUnavailable
     from .driver.sweep import RUN_OPTIONS, SweepError, parse_grid, sweep
+    from .frontend.checker import UsageError
 
     try:
         axes = [parse_grid(g) for g in args.grid]
@@ -554,6 +557,15 @@ def main(argv=None) -> int:
 
 def _main(argv=None) -> int:
     args = _parser().parse_args(_join_negative_vectors(list(sys.argv[1:] if argv is None else argv)))
+    if args.command == "run":
+        from .driver import prefetch, png_worker
+
+        png_worker.start()              # before any thread: it forks (png_worker.py)
+        # read, and its surfels sampled, while the effect is read and checked
+        prefetch.start(args.scene, args.surfels, args.seed, args.threads)
+    from .frontend.checker import UsageError
+    from .frontend.diagnostics import GammaError
+
     try:
         if args.command == "fmt":
             return _fmt(args)
@@ -568,11 +580,6 @@ def _main(argv=None) -> int:
             return EXIT_OK
         if args.command == "sweep":
             return _sweep(args)
-        if args.command == "run":
-            from .driver import prefetch, png_worker
-
-            png_worker.start()              # before any thread: it forks (png_worker.py)
-            prefetch.start(args.scene)      # read while the effect is read and checked
         effect = _load(args.file, getattr(args, "param", ()))
         if args.command == "check":
             return EXIT_OK

@@ -365,14 +365,39 @@ NB_MODULE(_runtime, m) {
              "uint8[height, width, 3]: the false-colour picture of `values` on the scale vmin..vmax, as "
              "gamma.driver.outputs.FalseColourCanvas.picture makes it from Simulation.render's images.");
 
+    nb::class_<gammart::SurfelSample>(m, "SurfelSample",
+                                      "Surfels sampled ahead of a Simulation's setup (gamma/surfel_state.h).")
+        .def(
+            "__init__",
+            [](gammart::SurfelSample* self, const gammart::Mesh& mesh, int64_t surfels, uint64_t seed, int threads) {
+                // pure C++: gammac samples on a thread while it starts up
+                nb::gil_scoped_release nogil;
+                new (self) gammart::SurfelSample(mesh, surfels > 0 ? size_t(surfels) : 0, seed, threads);
+            },
+            "mesh"_a, "surfels"_a, "seed"_a, "threads"_a, nb::keep_alive<1, 2>(),
+            "Samples `surfels` surfels on `mesh` with `seed` in an arena of `threads` threads; never raises for a "
+            "bad count or mesh (then `ok` is false and a Simulation samples again, reporting the error).  A "
+            "Simulation that takes the surfels leaves `ok` false.")
+        .def_prop_ro("ok", &gammart::SurfelSample::ok)
+        .def_prop_ro("seconds", &gammart::SurfelSample::seconds, "Wall time of the sampling.")
+        .def(
+            "matches",
+            [](const gammart::SurfelSample& s, const gammart::Mesh& mesh, int64_t surfels, uint64_t seed) {
+                return surfels > 0 && s.matches(mesh, size_t(surfels), seed);
+            },
+            "mesh"_a, "surfels"_a, "seed"_a, "Whether a Simulation of this mesh, count and seed would use these surfels.");
+
     nb::class_<gammart::Simulation>(m, "Simulation")
         .def(
             "__init__",
-            [](gammart::Simulation* self, const gammart::Mesh& mesh, const gammart::Config& cfg) {
+            [](gammart::Simulation* self, const gammart::Mesh& mesh, const gammart::Config& cfg,
+               gammart::SurfelSample* ahead) {
                 nb::gil_scoped_release nogil;
-                new (self) gammart::Simulation(mesh, cfg);
+                new (self) gammart::Simulation(mesh, cfg, ahead);
             },
-            "mesh"_a, "config"_a)
+            "mesh"_a, "config"_a, "ahead"_a.none() = nb::none(),
+            "`ahead`: a SurfelSample, whose surfels are taken when they are those this setup would sample "
+            "(same mesh, count and seed); the simulation is the same either way.")
         .def_prop_ro("num_surfels", &gammart::Simulation::num_surfels)
         .def_prop_ro("row_width", &gammart::Simulation::row_width)
         .def("surfel_positions",
@@ -569,10 +594,12 @@ NB_MODULE(_runtime, m) {
                          d["splat"] = s.setup_seconds().splat;
                          d["measures"] = s.setup_seconds().measures;
                          d["normals"] = s.setup_seconds().normals;
+                         if (s.setup_seconds().sample_ahead > 0) d["sample_ahead"] = s.setup_seconds().sample_ahead;
                          return d;
                      },
                      "Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle lookup, "
-                     "splat kernel, per-surfel measures, the renders' corner normals.")
+                     "splat kernel, per-surfel measures, the renders' corner normals; sample_ahead: the "
+                     "SurfelSample's sampling, when the setup used it.")
         .def_prop_ro("lookup_stats",
                      [](const gammart::Simulation& s) {
                          const gammart::SceneIndex& ix = s.scene_index();

@@ -54,7 +54,8 @@ void require_surfels_on_every_surface(const Mesh& mesh, const SceneIndex& index,
 
 }  // namespace
 
-Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cfg_(config) {
+Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead)
+    : mesh_(mesh), cfg_(config) {
     const Config& c = cfg_;
     std::vector<int32_t> tri_surface = validate_config(c, mesh_);
     frame_ = SceneFrame::of(mesh_, c.down);
@@ -84,7 +85,12 @@ Simulation::Simulation(const Mesh& mesh, const Config& config) : mesh_(mesh), cf
                 setup_seconds_.normals = seconds_since(t);
             });
             t0 = std::chrono::steady_clock::now();
-            state_ = SurfelState::sample(mesh_, index_->tri_surface(), size_t(c.surfels), c.seed, c.surface_rows);
+            if (ahead != nullptr && ahead->matches(mesh, size_t(c.surfels), c.seed)) {
+                setup_seconds_.sample_ahead = ahead->seconds();
+                state_ = SurfelState::of(ahead->take(), index_->tri_surface(), c.surface_rows);
+            } else {
+                state_ = SurfelState::sample(mesh_, index_->tri_surface(), size_t(c.surfels), c.seed, c.surface_rows);
+            }
             setup_seconds_.sample = seconds_since(t0);
             const float sigma = float(std::sqrt(mesh_.area() / double(state_.size())));
             t0 = std::chrono::steady_clock::now();

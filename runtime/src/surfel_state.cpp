@@ -1,14 +1,23 @@
 // Sampling the surfel state (see gamma/surfel_state.h).
 #include "gamma/surfel_state.h"
 
+#include <chrono>
 #include <cstring>
+#include <exception>
+
+#include "gamma/threads.h"
 
 namespace gammart {
 
 SurfelState SurfelState::sample(const Mesh& mesh, const std::vector<int32_t>& tri_surface, size_t n, uint64_t seed,
                                 const std::vector<std::vector<float>>& surface_rows) {
+    return of(sample_surfels(mesh, n, seed), tri_surface, surface_rows);
+}
+
+SurfelState SurfelState::of(SurfelSet surf, const std::vector<int32_t>& tri_surface,
+                            const std::vector<std::vector<float>>& surface_rows) {
     SurfelState st;
-    st.surf = sample_surfels(mesh, n, seed);
+    st.surf = std::move(surf);
     const size_t count = st.surf.triangle.size();
     const int W = surface_rows.empty() ? 0 : int(surface_rows[0].size());
     st.width = W;
@@ -20,6 +29,30 @@ SurfelState SurfelState::sample(const Mesh& mesh, const std::vector<int32_t>& tr
         std::memcpy(&st.rows[i * size_t(W)], surface_rows[size_t(s)].data(), sizeof(float) * size_t(W));
     }
     return st;
+}
+
+SurfelSample::SurfelSample(const Mesh& mesh, size_t n, uint64_t seed, int threads)
+    : mesh_(&mesh), n_(n), seed_(seed) {
+    const auto t0 = std::chrono::steady_clock::now();
+    try {
+        run_with_threads(threads, [&] { surf_ = sample_surfels(mesh, n, seed); });
+        ok_ = true;
+    } catch (const std::exception&) {  // reported by the Simulation's own sampling
+        surf_ = SurfelSet{};
+    }
+    seconds_ = seconds_since(t0);
+}
+
+bool SurfelSample::matches(const Mesh& mesh, size_t n, uint64_t seed) const {
+    // everything of the mesh sample_surfels reads
+    return ok_ && n == n_ && seed == seed_ &&
+           (&mesh == mesh_ || (mesh.lo == mesh_->lo && mesh.hi == mesh_->hi && mesh.vertices == mesh_->vertices &&
+                               mesh.triangles == mesh_->triangles));
+}
+
+SurfelSet SurfelSample::take() {
+    ok_ = false;
+    return std::move(surf_);
 }
 
 }  // namespace gammart

@@ -98,3 +98,87 @@ TEST(Facade, BakerGivesTheSmoothedRowAndNeutralAlbedo) {
                   .find("triangle 2 out of range"),
               std::string::npos);
 }
+
+namespace {
+
+void expect_same_state(const Simulation& a, const Simulation& b) {
+    EXPECT_EQ(a.surfels().position, b.surfels().position);
+    EXPECT_EQ(a.surfels().normal, b.surfels().normal);
+    EXPECT_EQ(a.surfels().triangle, b.surfels().triangle);
+    EXPECT_EQ(a.surfel_surfaces(), b.surfel_surfaces());
+    EXPECT_EQ(a.rows(), b.rows());
+    EXPECT_EQ(a.state().splat.offset, b.state().splat.offset);
+    EXPECT_EQ(a.state().splat.source, b.state().splat.source);
+    EXPECT_EQ(a.state().splat.weight, b.state().splat.weight);
+}
+
+}  // namespace
+
+TEST(Facade, SurfelsSampledAheadAreUsedOnlyWhenTheyAreTheOnesTheSetupWouldSample) {
+    gamma_test::Builder b;
+    b.quad({0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0});
+    b.quad({1, 0, 0}, {2, 0, 0}, {2, 1, 0}, {1, 1, 0});
+    const Mesh m = b.mesh();
+    Config c = two_surfaces(500);
+    c.seed = 7;
+    c.threads = 2;
+    c.triangle_surface = {0, 0, 1, 1};
+    const Simulation plain(m, c);
+    EXPECT_EQ(plain.setup_seconds().sample_ahead, 0.0);
+
+    // the same mesh, count and seed, sampled at another thread count: taken, same state
+    SurfelSample ahead(m, 500, 7, 1);
+    ASSERT_TRUE(ahead.ok());
+    EXPECT_TRUE(ahead.matches(m, 500, 7));
+    const Simulation with(m, c, &ahead);
+    EXPECT_GT(with.setup_seconds().sample_ahead, 0.0);
+    expect_same_state(with, plain);
+    // taken once: a second setup samples its own
+    EXPECT_FALSE(ahead.ok());
+    const Simulation again(m, c, &ahead);
+    EXPECT_EQ(again.setup_seconds().sample_ahead, 0.0);
+    expect_same_state(again, plain);
+    // another Mesh object with the same contents is the same mesh
+    const Mesh copy = m;
+    SurfelSample of_copy(copy, 500, 7, 2);
+    const Simulation from_copy(m, c, &of_copy);
+    EXPECT_GT(from_copy.setup_seconds().sample_ahead, 0.0);
+    expect_same_state(from_copy, plain);
+
+    // another seed, another count, another mesh: not taken, and the state is the setup's own
+    SurfelSample other_seed(m, 500, 8, 2), other_count(m, 499, 7, 2);
+    gamma_test::Builder moved;
+    moved.quad({0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0});
+    moved.quad({1, 0, 0}, {2, 0, 0}, {2, 1.5f, 0}, {1, 1, 0});
+    const Mesh m2 = moved.mesh();
+    SurfelSample other_mesh(m2, 500, 7, 2);
+    for (SurfelSample* s : {&other_seed, &other_count, &other_mesh}) {
+        ASSERT_TRUE(s->ok());
+        EXPECT_FALSE(s->matches(m, 500, 7));
+        const Simulation sim(m, c, s);
+        EXPECT_EQ(sim.setup_seconds().sample_ahead, 0.0);
+        expect_same_state(sim, plain);
+        EXPECT_TRUE(s->ok());   // not taken
+    }
+}
+
+TEST(Facade, ASampleThatFailedLeavesTheErrorToTheSetup) {
+    gamma_test::Builder b;
+    b.quad({0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0});
+    const Mesh m = b.mesh();
+    SurfelSample none(m, 0, 1, 2);  // sample_surfels refuses 0 surfels: no exception here
+    EXPECT_FALSE(none.ok());
+    EXPECT_FALSE(none.matches(m, 0, 1));
+    Config c = two_surfaces(0);
+    c.surface_rows = {{0, 0, 0, 1}};
+    const std::string plain = expect_error([&] { Simulation sim(m, c); });
+    EXPECT_FALSE(plain.empty());
+    EXPECT_EQ(expect_error([&] { Simulation sim(m, c, &none); }), plain);
+    // an error of the config comes first, as without a sample
+    c.surfels = 200;
+    c.triangle_surface = {0, 5};
+    SurfelSample fine(m, 200, 1, 2);
+    const std::string bad = expect_error([&] { Simulation sim(m, c); });
+    EXPECT_NE(bad.find("has surface id 5"), std::string::npos) << bad;
+    EXPECT_EQ(expect_error([&] { Simulation sim(m, c, &fine); }), bad);
+}

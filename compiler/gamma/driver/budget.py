@@ -20,6 +20,12 @@ MAX_SCENE_DIAGONAL = 1e10
 #: ~1.8e18, and nothing that far can be meant).
 MAX_DISTANCE_IN_DIAGONALS = 1000.0
 
+#: Upper bounds on options, so a typo cannot ask for terabytes.
+LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
+          "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
+          "--size": (16, 8192), "--seed": (0, 2**63 - 1), "--samples": (1, 64), "--ao": (0, 256),
+          "--bake-size": (8, 8192)}
+
 #: Memory of a run, calibrated on `gammac run` (peak resident size): a fixed
 #: part (Python, LLVM, Embree), per surfel (surfel arrays, k-d trees, the
 #: per-iteration map and its PLY bytes), per float of a surfel's row, per

@@ -133,6 +133,11 @@ class Timings:
         finally:
             self.add(kind, time.perf_counter() - t0)
 
+    def call(self, kind: str, fn: Callable, *args, **kwargs):
+        """``fn(*args, **kwargs)``, its time counted under ``kind``."""
+        with self.timed(kind):
+            return fn(*args, **kwargs)
+
     def add(self, kind: str, seconds: float) -> None:
         with self._lock:
             self._seconds[kind] = self._seconds.get(kind, 0.0) + seconds
@@ -157,7 +162,7 @@ class WriteQueue:
 
     def timed(self, kind: str, job: Callable, *args, **kwargs) -> None:
         """``self(job, ...)``, its time counted under ``kind`` in ``timings``."""
-        self(_timed_job, self.timings, kind, job, args, kwargs)
+        self(self.timings.call, kind, job, *args, **kwargs)
 
     def __call__(self, job: Callable, *args, **kwargs) -> None:
         """Run ``job(*args, **kwargs)`` behind the loop, after every earlier job."""
@@ -202,9 +207,3 @@ class WriteQueue:
         self.drain()
         if kind is None:
             self._raise()
-
-
-def _timed_job(timings: Timings, kind: str, job: Callable, args, kwargs):
-    """``job(*args, **kwargs)``, its time counted under ``kind``."""
-    with timings.timed(kind):
-        return job(*args, **kwargs)

@@ -1,54 +1,98 @@
-"""The mesh file of ``gammac run --scene FILE`` read while the command starts up.
+"""The mesh file of ``gammac run --scene FILE`` read, and its surfels sampled,
+while the command starts up.
 
-Reading the bunny's OBJ takes the runtime ~0.1 s; the command spends longer
-than that importing the compiler, reading and checking the effect, all on one
+Reading the bunny's OBJ takes the runtime ~0.1 s and sampling 100,000 surfels
+on it ~0.75 s (two threads); the command spends ~0.35 s before it needs
+either, importing the compiler, reading and checking the effect, all on one
 core.  ``start`` reads the file on a background thread from the moment the
-command line is parsed (``Mesh.load`` releases the GIL), and
-``scene._load_mesh`` ``take``s the mesh instead of reading the file again.
+command line is parsed (``Mesh.load`` releases the GIL) and then samples the
+surfels on it (``SurfelSample``: the sampling needs only the mesh, the surfel
+count and the seed, not the effect).  ``scene._load_mesh`` ``take``s the mesh
+instead of reading the file again, and the runner hands ``sample_for(mesh,
+...)`` to the ``Simulation``, which uses the surfels only if they are the
+ones it would sample itself (same mesh, count and seed: checked in the
+runtime), so the outputs are the same bit for bit.
 
 Only a plain OBJ or PLY file named on the command line is read ahead (a scene
-file or glTF is assembled from parts by ``scene.py``).  The result is the one
-reading the file later would give: the mesh is used only if the file is still
-the one that was read (same size, modification time and inode); otherwise, or
-if reading it ahead failed for any reason, ``take`` returns None and the file
-is read again where it always was, so every error is reported there, in the
-same words and in the same order relative to the effect's errors.
+file or glTF is assembled from parts by ``scene.py``).  The mesh is used only
+if the file is still the one that was read (same size, modification time and
+inode); otherwise, or if reading it ahead failed for any reason, ``take``
+returns None and the file is read again where it always was, so every error
+is reported there, in the same words and in the same order relative to the
+effect's errors.  A sampling that fails only means the setup samples again
+(and reports the error there); surfels are sampled ahead only when the count
+is within ``--surfels``' limits and their memory is a small part of what the
+machine has free (a run too large for it is refused by the runner, as before,
+not by an allocation here).
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import threading
+from concurrent.futures import Future
 from pathlib import Path
+
+from . import background
 
 #: Extensions the runtime's own readers parse (no OpenMesh, no global state).
 SUFFIXES = (".obj", ".ply")
 
 _lock = threading.Lock()
 _pending: dict[str, "_Read"] = {}
+_handed: list["_Read"] = []      # reads whose mesh ``take`` handed out, their samples not yet
 
 
 class _Read:
-    def __init__(self, path: str):
+    """One file read ahead: ``mesh``, a Future of the Mesh (or None), and
+    once it is set, ``sampled``, a Future of its SurfelSample (None: none)."""
+
+    def __init__(self, path: str, surfels: int | None, seed: int, threads: int):
         self.path = path
         self.signature = None
-        self.mesh = None
-        self.thread = threading.Thread(target=self._work, name="gamma-mesh-read", daemon=True)
+        self.sampled: Future | None = None
+        self.mesh = background.start(self._work, surfels, seed, threads, name="gamma-mesh-read")
 
-    def _work(self) -> None:
+    def _work(self, surfels, seed, threads):
         try:
             from ..files import file_problem
 
             if file_problem(self.path):      # a directory, a FIFO, missing: reported later
-                return
+                return None
             signature = _signature(self.path)
             from .. import _runtime
 
             mesh = _runtime.Mesh.load(self.path)
-            if _signature(self.path) == signature:
-                self.signature, self.mesh = signature, mesh
+            if _signature(self.path) != signature:
+                return None
         except Exception:  # noqa: BLE001 - read again (and reported) by scene.py
-            pass
+            return None
+        self.signature = signature
+        if surfels is not None and worth_sampling(surfels, seed, threads):
+            # on a thread of its own: the mesh is handed out before the sampling ends
+            self.sampled = background.start(_sample, mesh, surfels, seed, threads, name="gamma-surfel-sample")
+        return mesh
+
+
+@atexit.register
+def _forget() -> None:
+    """At the interpreter's exit: the reads and samples nobody took are
+    waited for and dropped (the runtime's objects are freed before it)."""
+    with _lock:
+        reads = list(_pending.values()) + _handed
+        _pending.clear()
+        _handed.clear()
+    for read in reads:
+        read.mesh.exception()
+        if read.sampled is not None:
+            read.sampled.exception()
+
+
+def _sample(mesh, surfels: int, seed: int, threads: int):
+    from .. import _runtime
+
+    return _runtime.SurfelSample(mesh, surfels, seed, threads)
 
 
 def _signature(path: str):
@@ -60,16 +104,31 @@ def _key(path) -> str:
     return str(Path(path))
 
 
-def start(path: str) -> None:
-    """Begin reading the mesh file ``path`` (if it is one read ahead)."""
+def worth_sampling(surfels: int, seed: int, threads: int) -> bool:
+    """Whether ``surfels`` surfels are sampled ahead: the options within their
+    limits (else the runner refuses the run), and the run's memory for them
+    under a quarter of what is free."""
+    from . import budget
+
+    if not all(low <= value <= high for value, (low, high) in
+               ((surfels, budget.LIMITS["--surfels"]), (seed, budget.LIMITS["--seed"]),
+                (threads, budget.LIMITS["--threads"]))):
+        return False
+    available = budget.available_memory()
+    need = budget.run_memory(surfels, 0, 1, history=False)
+    return need <= (available // 4 if available is not None else budget.BASE_BYTES + 100_000_000)
+
+
+def start(path: str, surfels: int | None = None, seed: int = 1, threads: int = 0) -> None:
+    """Begin reading the mesh file ``path`` (if it is one read ahead), then
+    sample ``surfels`` surfels on it with ``seed`` (None: do not sample) on
+    ``threads`` threads (0: all cores)."""
     if Path(path).suffix.lower() not in SUFFIXES:
         return
-    read = _Read(path)
     with _lock:
         if _key(path) in _pending:
             return
-        _pending[_key(path)] = read
-    read.thread.start()
+        _pending[_key(path)] = _Read(path, surfels, seed, threads)
 
 
 def take(path: Path | str):
@@ -79,10 +138,28 @@ def take(path: Path | str):
         read = _pending.pop(_key(path), None)
     if read is None:
         return None
-    read.thread.join()
+    mesh = read.mesh.result()
     try:
-        if read.mesh is not None and _signature(read.path) == read.signature:
-            return read.mesh
+        if mesh is not None and _signature(read.path) == read.signature:
+            with _lock:
+                _handed.append(read)
+            return mesh
     except OSError:
         pass
     return None
+
+
+def sample_for(mesh, surfels: int, seed: int):
+    """The surfels sampled ahead on ``mesh`` (a mesh ``take`` handed out),
+    waiting for them, or None.  The Simulation checks that they fit."""
+    with _lock:
+        read = next((r for r in _handed if r.mesh.result() is mesh), None)
+        if read is not None:
+            _handed.remove(read)
+    if read is None or read.sampled is None:
+        return None
+    try:
+        sample = read.sampled.result()
+    except Exception:  # noqa: BLE001 - sampled again (and reported) by the Simulation
+        return None
+    return sample if sample is not None and sample.matches(mesh, surfels, seed) else None

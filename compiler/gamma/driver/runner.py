@@ -78,11 +78,8 @@ def runtime_module():
 DEFAULT_BOUNCE = Length(0.02, relative=True)
 DEFAULT_STEP = Length(0.005, relative=True)
 DEFAULT_DRIP_DEGREES = 10.0  # SPEC §4: water clings to walls and slight overhangs
-#: Upper bounds on options, so a typo cannot ask for terabytes.
-LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
-          "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
-          "--size": (16, 8192), "--seed": (0, 2**63 - 1), "--samples": (1, 64), "--ao": (0, 256),
-          "--bake-size": (8, 8192)}
+#: Upper bounds on options (budget.py).
+LIMITS = budget.LIMITS
 
 
 def check_limits(opts: "RunOptions") -> None:
@@ -563,7 +560,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                 from .warmup import prepare_outputs
 
                 prepare_outputs(opts.progress, shown is not None or looks, opts.height)
-            sim = call(rt.Simulation, mesh, cfg)
+            sim = call(_simulation, rt, mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
         message = str(err).removeprefix("config: ")
         names = list(effect.surfaces)
@@ -656,6 +653,15 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     session.first_iteration = first
     session.call = call
     return session
+
+
+def _simulation(rt, mesh, cfg):
+    """``Simulation(mesh, cfg)``, with the surfels ``gammac run`` sampled on
+    ``mesh`` while it started up, if it did (prefetch.py: used only if they
+    are those the setup would sample)."""
+    from . import prefetch
+
+    return rt.Simulation(mesh, cfg, prefetch.sample_for(mesh, cfg.surfels, cfg.seed))
 
 
 def _resume_or_set_aside(effect, opts, scene, kernels, sim, out) -> tuple:

@@ -31,7 +31,7 @@ import numpy as np
 from .. import abi, __version__
 from ..files import atomic_write
 from .camera import sun_direction
-from .events import IterationUpdated, RunFinished, Writer, _timed_job
+from .events import IterationUpdated, RunFinished, Writer
 from .outputs import mesh_ply_bytes, ply_bytes, write_json
 
 
@@ -137,8 +137,10 @@ class FalseColourWriter(Writer):
             # the geometry no longer changes: the rays of every picture are cast once, and
             # the pictures are coloured behind the loop, in the runtime (threads, no GIL);
             # the rays are cast (no GIL) while the scale and the frame are worked out here
-            casting = _Background(_timed_job, run.behind.timings, "renders", run.sim.false_colour_view,
-                                  (eye, target, up, fov, width, height, run.threads), {})
+            from . import background
+
+            casting = background.start(run.behind.timings.call, "renders", run.sim.false_colour_view,
+                                       eye, target, up, fov, width, height, run.threads, name="gamma-view-rays")
         try:
             finite = [h[np.isfinite(h)] for h in self.history]
             vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
@@ -148,8 +150,10 @@ class FalseColourWriter(Writer):
             # one frame (colour bar, ticks) for every picture of the run
             canvas = FalseColourCanvas(width, height, vmin, vmax, shown)
         except BaseException:
+            from concurrent.futures import wait
+
             if casting is not None:
-                casting.wait()          # the simulation must outlive the rays it casts
+                wait([casting])         # the simulation must outlive the rays it casts
             raise
         view = None
         if casting is not None:
@@ -173,34 +177,6 @@ class FalseColourWriter(Writer):
         for k in range(0, len(pictures), step):
             run.behind.timed("renders", _write_false_colour_views, pictures[k:k + step], canvas, view, vmin, vmax,
                              run.threads, worker)
-
-
-class _Background:
-    """``fn(*args)`` on a thread of its own, started at once; ``result()``
-    waits for it and returns its value or raises its error."""
-
-    def __init__(self, fn, *args):
-        import threading
-
-        self._outcome: dict = {}
-        self._thread = threading.Thread(target=self._work, args=(fn, args), name="gamma-background",
-                                        daemon=True)
-        self._thread.start()
-
-    def _work(self, fn, args) -> None:
-        try:
-            self._outcome["value"] = fn(*args)
-        except BaseException as err:  # noqa: BLE001 - raised again by result()
-            self._outcome["error"] = err
-
-    def wait(self) -> None:
-        self._thread.join()
-
-    def result(self):
-        self._thread.join()
-        if "error" in self._outcome:
-            raise self._outcome["error"]
-        return self._outcome["value"]
 
 
 def _write_false_colour(path: Path, canvas, value, shade, title) -> None:

@@ -43,8 +43,10 @@ public:
     // Validates config (throws gammart::Error), resamples surfels, builds the
     // Embree scene and the surfel kd-trees.  A surface that has triangles but
     // receives no surfel is an error (its hits would otherwise run another
-    // surface's rules).
-    Simulation(const Mesh& mesh, const Config& config);
+    // surface's rules).  `ahead`: surfels sampled before (surfel_state.h),
+    // taken when they are the ones this setup would sample (the result is
+    // the same either way).
+    Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead = nullptr);
     ~Simulation();
     Simulation(const Simulation&) = delete;
     Simulation& operator=(const Simulation&) = delete;
@@ -168,12 +170,12 @@ public:
 
     // Filled by the Python binding after render_appearance (GIL held).
     RenderStats last_render;
-    // Wall time of the constructor's phases: surfel sampling, the BVH, the
-    // surfel kd-trees + triangle lookup.
     // Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle
-    // lookup, splat kernel, per-surfel measures, the renders' corner normals.
+    // lookup, splat kernel, per-surfel measures, the renders' corner normals;
+    // sample_ahead: the wall time of the surfels sampled ahead, when they
+    // were used (then `sample` is only the time taken to adopt them).
     struct SetupSeconds {
-        double sample = 0, geometry = 0, surfels = 0, splat = 0, measures = 0, normals = 0;
+        double sample = 0, geometry = 0, surfels = 0, splat = 0, measures = 0, normals = 0, sample_ahead = 0;
     };
     const SetupSeconds& setup_seconds() const { return setup_seconds_; }
 

@@ -28,6 +28,38 @@ struct SurfelState {
     // its triangle's surface (surface_rows[s], W floats each).
     static SurfelState sample(const Mesh& mesh, const std::vector<int32_t>& tri_surface, size_t n, uint64_t seed,
                               const std::vector<std::vector<float>>& surface_rows);
+    // The same state from surfels sampled already (sample_surfels' result).
+    static SurfelState of(SurfelSet surf, const std::vector<int32_t>& tri_surface,
+                          const std::vector<std::vector<float>>& surface_rows);
+};
+
+// Surfels sampled before the simulation is set up: `gammac run` samples them
+// while it is still importing, reading and checking the effect (the sampling
+// needs only the mesh, the count and the seed; the binding of triangles to
+// surfaces comes later).  A Simulation given one takes its surfels only when
+// they are what it would sample itself: same count, same seed, a mesh with
+// the same vertices, triangles and bounds (sample_surfels reads nothing
+// else, and its result does not depend on the thread count); otherwise it
+// samples as always.  Construction never throws for a bad count or mesh: a
+// failed sample holds no surfels (`ok()` false), and the Simulation's own
+// sampling reports the error where it always did.  `mesh` must outlive the
+// sample (it is compared, not copied).
+class SurfelSample {
+public:
+    SurfelSample(const Mesh& mesh, size_t n, uint64_t seed, int threads);
+    bool ok() const { return ok_; }
+    bool matches(const Mesh& mesh, size_t n, uint64_t seed) const;
+    // The surfels, moved out: afterwards ok() is false.
+    SurfelSet take();
+    double seconds() const { return seconds_; }  // wall time of the sampling
+
+private:
+    const Mesh* mesh_;
+    size_t n_ = 0;
+    uint64_t seed_ = 0;
+    SurfelSet surf_;
+    bool ok_ = false;
+    double seconds_ = 0;
 };
 
 }  // namespace gammart
