@@ -161,6 +161,13 @@ void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
         throw Error("set_shading: flat has " + std::to_string(flat.size()) + " flags for " +
                     std::to_string(mesh_.num_triangles()) + " triangles");
     if (!std::isfinite(crease_deg)) throw Error("set_shading: crease_deg must be finite");
+    // the driver sets the shading right after the setup, mostly to what the
+    // setup computed the normals for (no flat parts, the default crease)
+    bool unchanged;
+    {
+        std::lock_guard<std::mutex> lock(corner_normals_mutex_);
+        unchanged = !corner_normals_stale_ && flat == shading_flat_ && crease_deg == crease_deg_;
+    }
     shading_flat_ = std::move(flat);
     crease_deg_ = crease_deg;
     // A surface is flat after a re-tiling when all of its triangles are now.
@@ -169,7 +176,7 @@ void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
     if (!shading_flat_.empty())
         for (size_t t = 0; t < tri_surface.size(); ++t)
             if (!shading_flat_[t]) flat_surface_[size_t(tri_surface[t])] = 0;
-    update_corner_normals();
+    if (!unchanged) update_corner_normals();
 }
 
 void Simulation::set_base_colours(BaseColours base) {

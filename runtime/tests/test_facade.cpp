@@ -182,3 +182,21 @@ TEST(Facade, ASampleThatFailedLeavesTheErrorToTheSetup) {
     EXPECT_NE(bad.find("has surface id 5"), std::string::npos) << bad;
     EXPECT_EQ(expect_error([&] { Simulation sim(m, c, &fine); }), bad);
 }
+
+TEST(Facade, SettingTheShadingTheSetupUsedKeepsItsNormalsAndAnotherRecomputesThem) {
+    const Mesh m = gamma_test::icosphere(2);
+    Config c = two_surfaces(300);
+    c.surface_rows = {{0, 0, 0, 1}};
+    Simulation sim(m, c);
+    const std::vector<float> setup = sim.corner_normals();
+    const float* kept = sim.corner_normals().data();
+    EXPECT_EQ(setup, corner_normals(m, {}, kDefaultCreaseDeg));
+    sim.set_shading({}, kDefaultCreaseDeg);          // what the setup computed them for: not again
+    EXPECT_EQ(sim.corner_normals().data(), kept);
+    EXPECT_EQ(sim.corner_normals(), setup);
+    sim.set_shading({}, 0.0f);                        // all flat: recomputed
+    EXPECT_EQ(sim.corner_normals(), corner_normals(m, {}, 0.0f));
+    EXPECT_NE(sim.corner_normals(), setup);
+    sim.set_shading({}, kDefaultCreaseDeg);           // and back
+    EXPECT_EQ(sim.corner_normals(), setup);
+}
