@@ -12,7 +12,10 @@ wall / (trace + update) is the figure: 1.0 would mean everything but the
 simulation itself is free.  Best of ``--repeats`` (by ratio); that run's wall
 time is split by the clocks summary.json reports (start-up, scene, compile,
 setup, the loop, after the loop; the remainder is the interpreter's start and
-the process's exit), with the outputs' busy time by kind.
+the process's exit), with the outputs' busy time by kind.  ``gammac run``
+samples the surfels while it starts up (driver/prefetch.py): "setup" is then
+what is left of the setup once those are taken (including any wait for them),
+and the sampling's own time is reported beside, overlapping the start-up.
 """
 
 from __future__ import annotations
@@ -49,7 +52,9 @@ def one_run(args, out: Path) -> dict:
            "startup": summary.get("startup_seconds", nan), "compile": summary.get("compile_seconds", nan),
            "scene": summary.get("scene_seconds", nan), "start": summary.get("start_seconds", nan),
            "loop": summary.get("loop_seconds", nan), "finish": summary.get("finish_seconds", nan),
-           "outputs": summary.get("output_seconds", {}), "wait": summary.get("writer_wait_seconds", nan)}
+           "outputs": summary.get("output_seconds", {}), "wait": summary.get("writer_wait_seconds", nan),
+           # the surfels sampled while gammac started up (prefetch.py), when the setup took them
+           "sample_ahead": summary.get("setup_phases", {}).get("sample_ahead")}
     # where the wall time went, in the order it is spent (summary.json's own clocks):
     # start-up (imports, parse, check) | scene | compile | setup | the rest of start
     # (output folder, camera, ...) | the loop's trace + update | the loop's other work
@@ -86,13 +91,15 @@ def main() -> None:
            f"{best['wall'] / best['trace_update']:.2f}× | {best['startup']:.2f} | {best['scene']:.2f} | "
            f"{best['compile']:.2f} | {best['setup']:.2f} | {best['start_other']:.2f} | "
            f"{best['loop_other']:.2f} | {best['finish']:.2f} | {best['outside']:.2f} |")
+    ahead = ("surfels sampled during the start-up in " + f"{best['sample_ahead']:.2f} s (the setup took them)"
+             if best["sample_ahead"] is not None else "surfels sampled in the setup")
     busy = ", ".join(f"{kind} {seconds:.2f} s" for kind, seconds in sorted(best["outputs"].items()))
     info = (f"`gammac run examples/patina.gamma`, bunny, {args.surfels:,} surfels, {args.tons:,} γ-tons/iteration, "
             f"{n} iterations, {args.threads} threads, default outputs; wall time of the whole process "
             f"(start-up, compile, setup, outputs) / the run's own trace + update time; best of {args.repeats} "
             f"by ratio; whole seconds of the best run split by summary.json's clocks; outputs' busy time "
             f"(any thread, overlapping the loop behind it): {busy or 'not reported'}, the loop waited "
-            f"{best['wait']:.2f} s for the writer; {cpu_name()}, {os.cpu_count()} cores, load average "
+            f"{best['wait']:.2f} s for the writer; {ahead}; {cpu_name()}, {os.cpu_count()} cores, load average "
             f"{load_before:.1f} → {load_average():.1f}")
     report("end-to-end gammac run (patina, bunny)", info, header, [row], args.record)
 
