@@ -5,6 +5,10 @@
 #include <cstring>
 #include <exception>
 
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
+
 #include "gamma/threads.h"
 
 namespace gammart {
@@ -40,6 +44,14 @@ SurfelSample::SurfelSample(const Mesh& mesh, size_t n, uint64_t seed, int thread
     } catch (const std::exception&) {  // reported by the Simulation's own sampling
         surf_ = SurfelSet{};
     }
+#ifdef __GLIBC__
+    // The sampling's temporaries were freed into this thread's malloc arena,
+    // which the setup (on another thread, later) does not allocate from:
+    // kept, they raised the peak of a 1.6M-surfel `gammac run` on the bunny
+    // from 1,907 MiB (sampled in the setup) to 2,022-2,069 MiB; returned to
+    // the system, it is 1,854-1,865 MiB.
+    malloc_trim(0);
+#endif
     seconds_ = seconds_since(t0);
 }
 
