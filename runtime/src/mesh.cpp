@@ -43,6 +43,21 @@ struct Labels {
     std::vector<int32_t> object, group, material;
 };
 
+// Bounds over the vertices the m triangles use and their squared diagonal,
+// in double (a float sum of squares overflows for coordinates beyond ~1e19).
+double used_bounds(const float* verts, const int32_t* tris, size_t m, double lo[3], double hi[3]) {
+    for (int k = 0; k < 3; ++k) lo[k] = INFINITY, hi[k] = -INFINITY;
+    for (size_t t = 0; t < 3 * m; ++t)
+        for (int k = 0; k < 3; ++k) {
+            double c = verts[3 * size_t(tris[t]) + k];
+            lo[k] = std::min(lo[k], c);
+            hi[k] = std::max(hi[k], c);
+        }
+    double diag2 = 0;
+    for (int k = 0; k < 3; ++k) diag2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    return diag2;
+}
+
 // `uvs`: m*6 floats (per input triangle corner) or nullptr.
 Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::string& name,
            const Labels* labels = nullptr, const float* uvs = nullptr) {
@@ -65,17 +80,8 @@ Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::s
             if (!std::isfinite(uvs[i]))
                 throw Error("mesh " + q(name) + ": triangle " + std::to_string(i / 6) +
                             " has a non-finite texture coordinate");
-    // Bounds over vertices used by triangles; the diagonal in double (a float
-    // sum of squares overflows for coordinates beyond ~1e19).
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t t = 0; t < 3 * m; ++t)
-        for (int k = 0; k < 3; ++k) {
-            double c = verts[3 * size_t(tris[t]) + k];
-            lo[k] = std::min(lo[k], c);
-            hi[k] = std::max(hi[k], c);
-        }
-    double diag2 = 0;
-    for (int k = 0; k < 3; ++k) diag2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    double lo[3], hi[3];
+    const double diag2 = used_bounds(verts.data(), tris, m, lo, hi);
     const double diag = std::sqrt(diag2);
     // The tracer works in float with points up to 4 diagonals from the centre.
     if (!std::isfinite(diag) || !(diag > 0) || 4.0 * diag > double(FLT_MAX))
@@ -151,6 +157,11 @@ std::string trim(const std::string& s, size_t a = 0) {
 }
 
 }  // namespace
+
+double Mesh::used_diagonal() const {
+    double lo[3], hi[3];
+    return std::sqrt(used_bounds(vertices.data(), triangles.data(), num_triangles(), lo, hi));
+}
 
 double Mesh::area() const {
     double total = 0;

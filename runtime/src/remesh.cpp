@@ -142,6 +142,15 @@ bool flatten_cycle(SurfaceMesh& sm, VertexIndex a, VertexIndex b, VertexIndex x,
     return true;
 }
 
+// The faces of sm that is_sliver flags, in face order.
+template <class IsSliver>
+std::vector<FaceIndex> sliver_faces(const SurfaceMesh& sm, IsSliver is_sliver) {
+    std::vector<FaceIndex> slivers;
+    for (FaceIndex f : sm.faces())
+        if (is_sliver(f)) slivers.push_back(f);
+    return slivers;
+}
+
 // Flattens the small pockets (flatten_cycle) at the slivers: the star of a
 // spike (a corner of valence 3: the cycle of its three neighbours), and a
 // pocket that keeps the sliver's shortest edge (a, b) from being collapsed
@@ -155,11 +164,8 @@ template <class EdgeConstrained, class VertexFrozen, class IsSliver>
 int flatten_pockets(SurfaceMesh& sm, const EdgeConstrained& constrained, const VertexFrozen& frozen,
                     IsSliver is_sliver) {
     using Halfedge = SurfaceMesh::Halfedge_index;
-    std::vector<FaceIndex> slivers;
-    for (FaceIndex f : sm.faces())
-        if (is_sliver(f)) slivers.push_back(f);
     int flattened = 0;
-    for (FaceIndex f : slivers) {
+    for (FaceIndex f : sliver_faces(sm, is_sliver)) {
         if (sm.is_removed(f)) continue;
         std::vector<VertexIndex> corners;
         for (VertexIndex w : sm.vertices_around_face(sm.halfedge(f))) corners.push_back(w);
@@ -319,8 +325,7 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
             return is_sliver_triangle(p, kept, cos_max);
         };
         std::vector<uint8_t> in(sm.num_faces(), 0);
-        for (FaceIndex f : sm.faces())
-            if (is_sliver(f)) in[f.idx()] = 1;
+        for (FaceIndex f : sliver_faces(sm, is_sliver)) in[f.idx()] = 1;
         for (int ring = 0; ring < kSliverPassRings; ++ring) {
             std::vector<uint8_t> near(sm.num_vertices(), 0);
             for (FaceIndex f : sm.faces())
@@ -348,15 +353,11 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         // cut held, and once more for caps alone.  Nothing is remeshed
         // after it.
         constexpr double kAllSliversNeedleRatio = 3.3;   // < sin(kCapDeg) / sin(kMinRetiledAngleDeg) = 3.35
-        std::vector<FaceIndex> left;
-        for (FaceIndex f : sm.faces())
-            if (is_sliver(f)) left.push_back(f);
+        std::vector<FaceIndex> left = sliver_faces(sm, is_sliver);
         if (!left.empty()) {
             if (flatten_pockets(sm, constrained, vertex_frozen, is_sliver) > 0) {
                 sm.collect_garbage();
-                left.clear();
-                for (FaceIndex f : sm.faces())
-                    if (is_sliver(f)) left.push_back(f);
+                left = sliver_faces(sm, is_sliver);
             }
             PMP::experimental::remove_almost_degenerate_faces(
                 left, sm, std::cos(kCapDeg * M_PI / 180.0), kAllSliversNeedleRatio, target_edge_length,
@@ -365,9 +366,7 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
             // A sliver that is both a needle and a cap is only ever treated
             // as a needle; where its collapse would invert a triangle, its
             // cap is flipped instead (no needle threshold).
-            left.clear();
-            for (FaceIndex f : sm.faces())
-                if (is_sliver(f)) left.push_back(f);
+            left = sliver_faces(sm, is_sliver);
             if (!left.empty()) {
                 PMP::experimental::remove_almost_degenerate_faces(
                     left, sm, std::cos(kCapDeg * M_PI / 180.0), 1e6,

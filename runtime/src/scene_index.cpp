@@ -62,6 +62,7 @@ V3 unit(const std::array<float, 3>& a) {
 struct SceneIndex::Trees {
     PointTree all;                  // every surfel
     std::vector<PointTree> surface; // per surface id
+    std::vector<int32_t> surface_of;  // per surfel: its surface id
 };
 
 SceneFrame SceneFrame::of(const Mesh& mesh, std::array<float, 3> down) {
@@ -119,7 +120,7 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     std::memcpy(vb, mesh.vertices.data(), sizeof(float) * mesh.vertices.size());
     for (size_t i = 0; i < 3 * m; ++i) ib[i] = uint32_t(mesh.triangles[i]);
     lookup_tri_.assign(m, TriangleLookup{0, 0, 0, 0, 0, 0, kNoGrid});
-    triangle_spheres(mesh);
+    triangle_spheres(mesh, mesh.diagonal());
     lookup_grids_.clear();
     lookup_cells_.clear();
     lookup_cand_.clear();
@@ -144,11 +145,11 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
 // corners for the triangle lookup; the reach is padded so a hit point a
 // rounding error off the triangle still counts as on it.  Keeps each
 // triangle's candidates.
-void SceneIndex::triangle_spheres(const Mesh& mesh) {
+void SceneIndex::triangle_spheres(const Mesh& mesh, float diagonal) {
     const size_t m = mesh.num_triangles();
     lookup_tri_.resize(m, TriangleLookup{0, 0, 0, 0, 0, 0, kNoGrid});
     lookup_vertices_.resize(9 * m);
-    const float pad = 1e-6f * mesh.diagonal();
+    const float pad = 1e-6f * diagonal;
     for (size_t t = 0; t < m; ++t) {
         const float* v[3];
         for (int k = 0; k < 3; ++k) v[k] = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + k])];
@@ -189,12 +190,11 @@ void SceneIndex::move_vertices(const Mesh& mesh) {
     rtcCommitScene(scene_);
     if (rtcGetDeviceError(device_) != RTC_ERROR_NONE)
         throw std::runtime_error("internal error: embree scene update failed");
-    triangle_spheres(mesh);
+    triangle_spheres(mesh, mesh.diagonal());
     ++geometry_builds_;
 }
 
-void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
-                               int threads) {
+void SceneIndex::index_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma) {
     Trees& T = *trees_;
     n_surfels_ = n;
     sigma_ = sigma;
@@ -202,6 +202,7 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
     T.all.index.clear();
     T.surface.clear();  // trees point into their own pos: never copied or moved once built
     T.surface.resize(size_t(n_surfaces_));
+    T.surface_of.assign(surfel_surface, surfel_surface + n);
     for (size_t i = 0; i < n; ++i) {
         const int s = surfel_surface[i];
         if (s < 0 || s >= n_surfaces_) throw Error("scene index: surfel surface id out of range");
@@ -211,12 +212,87 @@ void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_sur
     }
     // The trees are independent (each build is serial and deterministic):
     // built side by side.
-    run_with_threads(threads, [&] {
-        tbb::parallel_for(size_t(0), T.surface.size() + 1,
-                          [&](size_t k) { (k == 0 ? T.all : T.surface[k - 1]).build(); });
-    });
+    tbb::parallel_for(size_t(0), T.surface.size() + 1,
+                      [&](size_t k) { (k == 0 ? T.all : T.surface[k - 1]).build(); });
     ++surfel_builds_;
-    build_lookup(threads);
+}
+
+// What build_surfels takes from a lookup built ahead (see scene_index.h):
+// the surfels that differ between the two indices, at both positions.
+struct SceneIndex::Reuse {
+    const SceneIndex& ahead;
+    const std::vector<int32_t>& ahead_triangle;
+    PointColumns changed;
+
+    // Triangle t (sphere L) takes ahead's entries, appended to cand / ids
+    // (L.begin, L.count set; ball2 = the ball's squared radius), when they
+    // are what collect() would make here.
+    bool take(const SceneIndex& here, size_t t, TriangleLookup& L, std::vector<Candidate>& cand,
+              std::vector<uint32_t>& ids, float& ball2) const {
+        const SceneIndex& A = ahead;
+        if (t >= ahead_triangle.size() || ahead_triangle[t] < 0) return false;
+        const size_t d = size_t(ahead_triangle[t]);
+        if (d >= A.lookup_head_.size() || A.tri_surface_[d] != here.tri_surface_[t]) return false;
+        if (std::memcmp(&A.lookup_vertices_[9 * d], &here.lookup_vertices_[9 * t], 9 * sizeof(float)) != 0)
+            return false;
+        const TriangleHead& h = A.lookup_head_[d];
+        const float b2 = A.lookup_ball2_[d];
+        const float sphere[4] = {L.cx, L.cy, L.cz, L.reach2}, ahead_sphere[4] = {h.cx, h.cy, h.cz, h.reach2};
+        if (h.count == 0 || !(b2 > 0) || std::memcmp(sphere, ahead_sphere, sizeof sphere) != 0) return false;
+        // A surfel that moved, came, left or changed surface inside the
+        // ball could change the nearest distance, the ball or the set.
+        bool touched = false;
+        changed.within(sphere, b2, [&](uint32_t, float) { touched = true; });
+        if (touched) return false;
+        L.begin = uint32_t(cand.size());
+        L.count = h.count;
+        for (uint32_t k = 0; k < h.count; ++k) {
+            const PackedEntry& e = k < kInlineCandidates ? h.first[k] : A.lookup_packed_[h.more + k - kInlineCandidates];
+            cand.push_back(Candidate{e.x, e.y, e.z, e.w});
+            ids.push_back(e.id);
+        }
+        ball2 = b2;
+        return true;
+    }
+};
+
+void SceneIndex::build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
+                               int threads, const SceneIndex* ahead, const std::vector<int32_t>* ahead_triangle) {
+    run_with_threads(threads, [&] {
+        index_surfels(positions, surfel_surface, n, sigma);
+        const Trees& T = *trees_;
+        if (!ahead || !ahead_triangle || ahead->n_surfels_ != n || ahead->n_surfaces_ != n_surfaces_ ||
+            ahead->lookup_ball2_.size() != ahead->lookup_head_.size()) {
+            compute_lookup(nullptr, nullptr);
+            return;
+        }
+        Reuse reuse{*ahead, *ahead_triangle, {}};
+        const Trees& A = *ahead->trees_;
+        std::vector<float> changed;
+        for (size_t i = 0; i < n; ++i) {
+            if (A.surface_of[i] == T.surface_of[i] &&
+                std::memcmp(&A.all.pos[3 * i], &T.all.pos[3 * i], 3 * sizeof(float)) == 0)
+                continue;
+            changed.insert(changed.end(), &A.all.pos[3 * i], &A.all.pos[3 * i] + 3);
+            changed.insert(changed.end(), &T.all.pos[3 * i], &T.all.pos[3 * i] + 3);
+        }
+        reuse.changed.build(changed.data(), changed.size() / 3, kColumnSpacings * double(sigma_));
+        compute_lookup(&reuse, nullptr);
+    });
+}
+
+void SceneIndex::build_lookup_ahead(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces,
+                                    const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
+                                    const std::vector<uint8_t>& skip) {
+    if (tri_surface.size() != mesh.num_triangles() || skip.size() != mesh.num_triangles())
+        throw Error("scene index: one surface id and one flag per triangle expected");
+    tri_surface_ = std::move(tri_surface);
+    n_surfaces_ = n_surfaces;
+    // The spheres' pad as the re-tiled mesh's own diagonal gives it (the
+    // same unless the re-tiling moved the bounds).
+    triangle_spheres(mesh, float(mesh.used_diagonal()));
+    index_surfels(positions, surfel_surface, n, sigma);
+    compute_lookup(nullptr, &skip);
 }
 
 void SceneIndex::move_surfels(const float* positions, float sigma, int threads) {
@@ -251,27 +327,31 @@ struct LookupBlock {
     std::vector<uint32_t> ids;
     std::vector<SceneIndex::TriangleGrid> grids;
     std::vector<SceneIndex::TriangleLookup> cells;
+    size_t reused = 0;
 };
 }  // namespace
 
 void SceneIndex::build_lookup(int threads) {
+    run_with_threads(threads, [&] { compute_lookup(nullptr, nullptr); });
+}
+
+void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* skip) {
     const Trees& T = *trees_;
     const size_t m = lookup_tri_.size();
     constexpr size_t kBlock = 2048;  // triangles per work item (fixed: the result is thread-count free)
     const size_t nblocks = (m + kBlock - 1) / kBlock;
     std::vector<LookupBlock> blocks(nblocks);
+    lookup_ball2_.assign(m, 0.0f);
     // The candidates' searches go to a column index per surface (the same
     // sets as the surface's kd-tree gives, found with less pointer chasing),
     // built here and dropped after.
     std::vector<PointColumns> columns(T.surface.size());
     const double spacing = double(sigma_);
-    run_with_threads(threads, [&] {
-        tbb::parallel_for(size_t(0), T.surface.size(), [&](size_t s) {
-            const PointTree& tree = T.surface[s];
-            columns[s].build(tree.pos.data(), tree.pos.size() / 3, kColumnSpacings * spacing);
-        });
+    tbb::parallel_for(size_t(0), T.surface.size(), [&](size_t s) {
+        const PointTree& tree = T.surface[s];
+        columns[s].build(tree.pos.data(), tree.pos.size() / 3, kColumnSpacings * spacing);
     });
-    run_with_threads(threads, [&] {
+    {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
             std::vector<std::pair<uint32_t, float>> found, kept;
             std::vector<uint32_t> order;
@@ -281,7 +361,9 @@ void SceneIndex::build_lookup(int threads) {
                 LookupBlock& out = blocks[b];
                 // The candidates of sphere L (surface tree): appended to the
                 // block, L.begin block-relative; false if more than `limit`.
-                auto collect = [&](const PointTree& tree, const PointColumns& cols, TriangleLookup& L, size_t limit) {
+                // ball2: the squared radius searched (where L got entries).
+                auto collect = [&](const PointTree& tree, const PointColumns& cols, TriangleLookup& L, size_t limit,
+                                   float* ball2) {
                     L.begin = 0;
                     L.count = 0;
                     const float c[3] = {L.cx, L.cy, L.cz};
@@ -300,8 +382,9 @@ void SceneIndex::build_lookup(int threads) {
                         tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
                     }
                     const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
+                    const float R2 = float(R * R);
                     found.clear();
-                    cols.within(c, float(R * R), [&](uint32_t i, float d2) { found.emplace_back(i, d2); });
+                    cols.within(c, R2, [&](uint32_t i, float d2) { found.emplace_back(i, d2); });
                     // Drop the surfels that are never the nearest in the
                     // sphere B(c, r): y loses to x everywhere in B when
                     // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
@@ -347,6 +430,7 @@ void SceneIndex::build_lookup(int threads) {
                     }
                     found.swap(kept);
                     if (found.size() > limit || found.empty()) return found.size();
+                    if (ball2) *ball2 = R2;
                     L.count = uint32_t(found.size());
                     L.begin = uint32_t(out.cand.size());
                     // entries sorted by (distance from the centre, index)
@@ -374,13 +458,17 @@ void SceneIndex::build_lookup(int threads) {
                     TriangleLookup& L = lookup_tri_[t];
                     L.grid = kNoGrid;
                     const int s = tri_surface_[t];
-                    if (!has_surfels(s)) {
+                    if (!has_surfels(s) || (skip && (*skip)[t])) {
                         L.begin = L.count = 0;
+                        continue;
+                    }
+                    if (reuse && reuse->take(*this, t, L, out.cand, out.ids, lookup_ball2_[t])) {
+                        ++out.reused;
                         continue;
                     }
                     const PointTree& tree = T.surface[size_t(s)];
                     const PointColumns& cols = columns[size_t(s)];
-                    const size_t n_found = collect(tree, cols, L, kMaxCandidates);
+                    const size_t n_found = collect(tree, cols, L, kMaxCandidates, &lookup_ball2_[t]);
                     if (L.count || n_found == 0) continue;
                     // Too many: cut the triangle into cells.
                     const float* v = &lookup_vertices_[9 * t];
@@ -433,7 +521,7 @@ void SceneIndex::build_lookup(int threads) {
                                         const double reach = std::sqrt(r2) * (1.0 + 1e-5) + pad;
                                         C = TriangleLookup{float(c[0]), float(c[1]), float(c[2]),
                                                            float(reach * reach), 0, 0, kNoGrid};
-                                        overflow += collect(tree, cols, C, kMaxCandidates) > kMaxCandidates;
+                                        overflow += collect(tree, cols, C, kMaxCandidates, nullptr) > kMaxCandidates;
                                     }
                                     out.cells.push_back(C);
                                 }
@@ -449,8 +537,10 @@ void SceneIndex::build_lookup(int threads) {
                 }
             }
         });
-    });
+    }
     size_t n_cand = 0, n_grids = 0, n_cells = 0;
+    lookup_reused_ = 0;
+    for (const LookupBlock& B : blocks) lookup_reused_ += B.reused;
     std::vector<size_t> cand_at(nblocks), grid_at(nblocks), cell_at(nblocks);
     for (size_t b = 0; b < nblocks; ++b) {
         cand_at[b] = n_cand, grid_at[b] = n_grids, cell_at[b] = n_cells;
@@ -608,12 +698,43 @@ size_t SceneIndex::lookup_fallback_triangles() const {
     return n;
 }
 
+bool SceneIndex::same_lookup(const SceneIndex& o) const {
+    auto same_entry = [](const PackedEntry& a, const PackedEntry& b) {
+        return std::memcmp(&a, &b, sizeof(PackedEntry)) == 0;   // 5 words, no padding
+    };
+    auto same_sphere = [](const TriangleLookup& a, const TriangleLookup& b) {
+        return a.cx == b.cx && a.cy == b.cy && a.cz == b.cz && a.reach2 == b.reach2 && a.begin == b.begin &&
+               a.count == b.count && a.grid == b.grid;
+    };
+    if (lookup_head_.size() != o.lookup_head_.size() || lookup_packed_.size() != o.lookup_packed_.size() ||
+        lookup_grids_.size() != o.lookup_grids_.size() || lookup_cells_.size() != o.lookup_cells_.size() ||
+        lookup_cell_at_ != o.lookup_cell_at_ || lookup_n_candidates_ != o.lookup_n_candidates_ ||
+        lookup_ball2_ != o.lookup_ball2_)
+        return false;
+    for (size_t t = 0; t < lookup_head_.size(); ++t) {
+        const TriangleHead &a = lookup_head_[t], &b = o.lookup_head_[t];
+        if (a.cx != b.cx || a.cy != b.cy || a.cz != b.cz || a.reach2 != b.reach2 || a.count != b.count ||
+            a.more != b.more)
+            return false;
+        for (uint32_t k = 0; k < std::min(a.count, kInlineCandidates); ++k)
+            if (!same_entry(a.first[k], b.first[k])) return false;
+        if (!same_sphere(lookup_tri_[t], o.lookup_tri_[t])) return false;
+    }
+    for (size_t k = 0; k < lookup_packed_.size(); ++k)
+        if (!same_entry(lookup_packed_[k], o.lookup_packed_[k])) return false;
+    for (size_t g = 0; g < lookup_grids_.size(); ++g)
+        if (std::memcmp(&lookup_grids_[g], &o.lookup_grids_[g], sizeof(TriangleGrid)) != 0) return false;
+    for (size_t c = 0; c < lookup_cells_.size(); ++c)
+        if (!same_sphere(lookup_cells_[c], o.lookup_cells_[c])) return false;
+    return true;
+}
+
 size_t SceneIndex::lookup_bytes() const {
     return lookup_tri_.capacity() * sizeof(TriangleLookup) + lookup_vertices_.capacity() * sizeof(float) +
            lookup_grids_.capacity() * sizeof(TriangleGrid) + lookup_cells_.capacity() * sizeof(TriangleLookup) +
            lookup_cand_.capacity() * sizeof(Candidate) + lookup_ids_.capacity() * sizeof(uint32_t) +
            lookup_packed_.capacity() * sizeof(PackedEntry) + lookup_head_.capacity() * sizeof(TriangleHead) +
-           lookup_cell_at_.capacity() * sizeof(uint32_t);
+           lookup_cell_at_.capacity() * sizeof(uint32_t) + lookup_ball2_.capacity() * sizeof(float);
 }
 
 void SceneIndex::cast(RTCRayHit& rh, V3 org, V3 dir, float tnear, float tfar) const {
@@ -649,6 +770,8 @@ bool SceneIndex::occluded(V3 org, V3 dir, float tnear, float tfar) const {
 }
 
 uint32_t SceneIndex::nearest(const float p[3]) const { return trees_->all.query(p); }
+
+const FloatPointsKdTree* SceneIndex::surfel_tree() const { return trees_->all.kd.get(); }
 
 bool SceneIndex::has_surfels(int surface) const {
     return surface >= 0 && surface < n_surfaces_ && trees_->surface[size_t(surface)].kd != nullptr;

@@ -3,6 +3,9 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/global_control.h>
+#include <tbb/task_arena.h>
+#include <tbb/task_group.h>
 
 #include <algorithm>
 #include <chrono>
@@ -332,14 +335,60 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     } else {
         kept_iterations_ = 0;
         st.retiled = true;
-        Retiled rt = retile(displaced, index->tri_surface(), target, c.retile_iterations,
-                            region.empty() ? nullptr : &region);
-        st.retile_seconds = seconds_since(t0);
+        Retiled rt;
+        std::unique_ptr<SceneIndex> ahead;
+        if (region.empty()) {
+            rt = retile(displaced, index->tri_surface(), target, c.retile_iterations, nullptr);
+            st.retile_seconds = seconds_since(t0);
+        } else {
+            // A local re-tiling keeps most triangles and the surfels on
+            // them: the surfels ride onto the displaced mesh first, and the
+            // triangle lookup of the triangles outside the region is built
+            // beside the re-tiling (serial CGAL work, one core), for the
+            // rebuild to take where it still holds (SceneIndex::build_surfels).
+            auto t1 = std::chrono::steady_clock::now();
+            carry_surfels(mesh, displaced, state.surf, c.threads);
+            const double carry_seconds = seconds_since(t1);
+            st.resample_seconds += carry_seconds;
+            ahead = std::make_unique<SceneIndex>();
+            const int threads = resolve_threads(c.threads);
+            tbb::global_control cap(tbb::global_control::max_allowed_parallelism, size_t(threads));
+            tbb::task_arena arena(threads);
+            tbb::task_group beside;
+            // Waits for the lookup ahead on every way out (it reads this
+            // function's locals).
+            struct Join {
+                tbb::task_arena& arena;
+                tbb::task_group& group;
+                ~Join() {
+                    try {
+                        arena.execute([&] { group.wait(); });
+                    } catch (...) {   // only on the way out with the re-tiling's error, which goes on
+                    }
+                }
+            } join{arena, beside};
+            const float ahead_sigma = float(std::sqrt(displaced_area / double(state.size())));
+            // enqueued: a worker takes it while this thread re-tiles outside the arena
+            arena.enqueue(beside.defer([&] {
+                // Near the region the re-tiling and its new surfels change
+                // the entries: not built ahead.
+                std::vector<uint8_t> skip = region;
+                grow_by_rings(displaced, skip, kAheadSkipRings);
+                ahead->build_lookup_ahead(displaced, index->tri_surface(), index->n_surfaces(),
+                                          state.surf.position.data(), state.surface.data(), state.size(),
+                                          ahead_sigma, skip);
+            }));
+            rt = retile(displaced, index->tri_surface(), target, c.retile_iterations, &region);
+            st.retile_seconds = seconds_since(t0) - carry_seconds;
+            t1 = std::chrono::steady_clock::now();
+            arena.execute([&] { beside.wait(); });
+            st.rebuild_seconds += seconds_since(t1);   // what the lookup ahead took past the re-tiling
+        }
         for (int32_t k : rt.kept) st.retiled_triangles += k < 0;
         if (region.empty())
             resample(iteration, rt, mesh, state, index, st);
         else
-            replaced = resample_region(iteration, rt, mesh, displaced, state, index, st);
+            replaced = resample_region(iteration, rt, mesh, displaced, state, index, ahead.get(), st);
         st.slivers_left = int64_t(rt.slivers_left);
         retiled_area_ = mesh.area();
     }
@@ -351,21 +400,25 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     // from the ones it replaced.
     t0 = std::chrono::steady_clock::now();
     run_with_threads(c.threads, [&] {
+        // The mesh's measures (serial) beside the kernel: neither reads what the other writes.
+        tbb::task_group beside;
+        beside.run([&] { st.geometry = measure(mesh, index->tri_surface()); });
         if (keep_tiling)
             reweight_splat_kernel(state.splat, state.surf.position.data(), state.size(), index->sigma());
         else if (!region.empty())
             state.splat = update_splat_kernel(state.splat, state.surf.position.data(), state.surf.normal.data(),
-                                              state.surface.data(), state.size(), index->sigma(), replaced);
+                                              state.surface.data(), state.size(), index->sigma(), replaced,
+                                              index->surfel_tree());
         else
             state.splat = build_splat_kernel(state.surf.position.data(), state.surf.normal.data(),
                                              state.surface.data(), state.size(), index->sigma());
+        beside.wait();
     });
     frame = SceneFrame::of(mesh, c.down);
     // the moved or new surfels' accessibility, curvature and uv, as at setup (SPEC §12)
     state.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh, *index,
                                      state.surf, kAoLengthFraction * frame.diag, c.seed, c.threads);
     before_ = state.rows;
-    st.geometry = measure(mesh, index->tri_surface());
     st.rebuild_seconds += seconds_since(t0);
     return st;
 }
@@ -398,14 +451,12 @@ void ShapeStep::resample(int iteration, Retiled& rt, Mesh& mesh, SurfelState& st
 
 std::vector<uint32_t> ShapeStep::resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced,
                                                  SurfelState& state, std::unique_ptr<SceneIndex>& index,
-                                                 ShapeStats& st) const {
+                                                 const SceneIndex* ahead, ShapeStats& st) const {
     const Config& c = cfg_;
     auto t0 = std::chrono::steady_clock::now();
     const size_t n = state.size();
     const size_t W = size_t(state.width);
     const double old_area = mesh.area(), new_area = rt.mesh.area();
-    // Every surfel onto the displaced mesh first (same triangles).
-    carry_surfels(mesh, displaced, state.surf, c.threads);
     // Surfels on triangles re-tiling kept stay (on the same triangle, renumbered);
     // the others are replaced by as many new surfels on the new triangles.
     std::vector<int32_t> new_of_old(displaced.num_triangles(), -1);
@@ -466,14 +517,14 @@ std::vector<uint32_t> ShapeStep::resample_region(int iteration, Retiled& rt, Mes
             std::fill(fresh.row(i) + GAMMA_ROW_HEADER, fresh.row(i) + W, 0.0f);
         }
     }
-    st.resample_seconds = seconds_since(t0);
+    st.resample_seconds += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
     auto rebuilt = std::make_unique<SceneIndex>();
     rebuilt->build_geometry(rt.mesh, rt.tri_surface, index->n_surfaces(), /*refresh_lookup=*/false);
     rebuilt->build_surfels(fresh.surf.position.data(), fresh.surface.data(), fresh.size(),
-                           float(std::sqrt(new_area / double(fresh.size()))), c.threads);
+                           float(std::sqrt(new_area / double(fresh.size()))), c.threads, ahead, &rt.kept);
     require_surfels(*rebuilt, iteration);
-    st.rebuild_seconds = seconds_since(t0);
+    st.rebuild_seconds += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
     // Amounts (value x A/N): kept surfels keep theirs; each replaced surfel
     // spreads its amount over the (up to) 8 nearest surfels of its surface

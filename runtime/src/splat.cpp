@@ -105,11 +105,18 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
 }
 
 SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, const float* normal,
-                                const int32_t* surface, size_t n, float sigma, const std::vector<uint32_t>& replaced) {
+                                const int32_t* surface, size_t n, float sigma, const std::vector<uint32_t>& replaced,
+                                const FloatPointsKdTree* given) {
     if (old.offset.size() != n + 1) return build_splat_kernel(position, normal, surface, n, sigma);
+    // The searches need exact sets only: the caller's tree over the same
+    // points answers them as one built here would.
     FloatPoints pts{position, n};
-    FloatPointsKdTree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
-    tree.buildIndex();
+    std::unique_ptr<FloatPointsKdTree> own;
+    if (!given) {
+        own = std::make_unique<FloatPointsKdTree>(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+        own->buildIndex();
+    }
+    const FloatPointsKdTree& tree = given ? *given : *own;
     // Which sources get a fresh neighbourhood: the replaced surfels, the
     // sources whose neighbourhood held one (they lost a target), and every
     // surfel within the kernel radius of a replaced surfel's new position

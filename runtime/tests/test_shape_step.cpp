@@ -505,6 +505,21 @@ TEST(ShapeStep, EveryLocalRetilingKeepsTheAngleBoundOnASphere) {
     EXPECT_GE(local, 2) << "the groove should need local re-tilings";
 }
 
+namespace {
+// The bunny (12,000 surfels, 2 threads) worn by k_erode_waves.
+Config bunny_waves_config() {
+    Config c;
+    c.surfels = 12000;
+    c.seed = 11;
+    c.row_width = 5;
+    c.surface_rows = {{0, 0, 0, 0, 0}};
+    c.set_update(0, addr(reinterpret_cast<const void*>(&k_erode_waves)));
+    c.add_shape_rate(0, 3, -0.001f);
+    c.threads = 2;
+    return c;
+}
+}  // namespace
+
 // The same on the Stanford bunny, a scanned surface with open boundaries
 // (holes in its base) and many creases over 60° that erosion makes and
 // moves: every angle except at a corner between two boundary edges stays
@@ -514,19 +529,37 @@ TEST(ShapeStep, EveryLocalRetilingKeepsTheAngleBoundOnTheBunny) {
     const Mesh m = Mesh::load(std::string(GAMMA_SCENES_DIR) + "/stanford-bunny.obj");
     ASSERT_GT(check_angles(m).boundary_edges, 0u);
     ASSERT_LT(check_angles(m).min_free_deg, 1.0);   // the scan's own tiling has slivers
-    Config c;
-    c.surfels = 12000;
-    c.seed = 11;
-    c.row_width = 5;
-    c.surface_rows = {{0, 0, 0, 0, 0}};
-    c.set_update(0, addr(reinterpret_cast<const void*>(&k_erode_waves)));
-    c.add_shape_rate(0, 3, -0.001f);
-    c.threads = 2;
-    Simulation sim(m, c);
+    Simulation sim(m, bunny_waves_config());
     int local = 0;
     for (int it = 1; it <= 6; ++it) {
         local += well_shaped_step(sim, it, /*closed=*/false);
         if (::testing::Test::HasFatalFailure()) return;
+    }
+    EXPECT_GE(local, 2) << "later steps should re-tile locally";
+}
+
+// After a local re-tiling the scene index takes the triangle lookup's
+// entries built beside the re-tiling where they hold
+// (SceneIndex::build_lookup_ahead): its lookup is the one a build from
+// scratch over the new mesh and surfels makes, entry for entry, and most
+// triangles' entries were taken.
+TEST(ShapeStep, ALocalRetilingsLookupIsTheOneBuiltFromScratch) {
+    const Mesh m = Mesh::load(std::string(GAMMA_SCENES_DIR) + "/stanford-bunny.obj");
+    Simulation sim(m, bunny_waves_config());
+    int local = 0;
+    for (int it = 1; it <= 5; ++it) {
+        sim.trace(it);
+        sim.update(it);
+        const ShapeStats s = sim.shape(it);
+        const SceneIndex& index = sim.scene_index();
+        if (it == 1 || !s.retiled || size_t(s.retiled_triangles) * 2 >= s.geometry.triangles) continue;
+        ++local;
+        SceneIndex scratch;
+        scratch.build_geometry(sim.mesh(), index.tri_surface(), index.n_surfaces(), false);
+        const SurfelState& st = sim.state();
+        scratch.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), index.sigma(), 2);
+        EXPECT_TRUE(index.same_lookup(scratch)) << "iteration " << it;
+        EXPECT_GT(index.lookup_reused_triangles(), s.geometry.triangles / 2) << "iteration " << it;
     }
     EXPECT_GE(local, 2) << "later steps should re-tile locally";
 }

@@ -205,6 +205,7 @@ TEST(TriangleLookup, StaysExactWhenVerticesAndSurfelsMoveInPlace) {
         SceneIndex fresh;
         fresh.build_geometry(m, ts, 2);
         fresh.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), sigma, 2);
+        EXPECT_TRUE(index.same_lookup(fresh)) << "step " << step;
         std::mt19937 rng(3);
         for (size_t t = 0; t < m.num_triangles(); t += 7)
             for (const auto& q : points_on(m, t, rng, 2)) {
@@ -220,4 +221,84 @@ TEST(TriangleLookup, StaysExactWhenVerticesAndSurfelsMoveInPlace) {
         EXPECT_EQ(a.ray.tfar, b.ray.tfar);
         EXPECT_EQ(a.hit.primID, b.hit.primID);
     }
+}
+
+// The shape step's lookup built ahead (SceneIndex::build_lookup_ahead, made
+// beside a local re-tiling): a build that takes its entries is the build
+// from scratch, entry for entry, whatever moved, came, left or changed
+// surface, with triangles renumbered, new, moved or left out ahead; and it
+// does take the entries nothing changed.
+TEST(TriangleLookup, EntriesBuiltAheadAreTakenOnlyWhereTheyHold) {
+    const Mesh m0 = gamma_test::icosphere(4);
+    const size_t m = m0.num_triangles();
+    std::vector<int32_t> ts0(m);
+    for (size_t t = 0; t < m; ++t) ts0[t] = m0.vertices[3 * size_t(m0.triangles[3 * t]) + 2] > 0 ? 1 : 0;
+    const SurfelState st0 = SurfelState::sample(m0, ts0, 8000, 5, {{0, 0, 0}, {0, 0, 0}});
+    const float sigma = float(std::sqrt(m0.area() / double(st0.size())));
+    // Ahead: the triangles with a corner above z = 0.8 left out.
+    std::vector<uint8_t> skip(m, 0);
+    size_t skipped = 0;
+    for (size_t t = 0; t < m; ++t)
+        for (int k = 0; k < 3; ++k)
+            if (m0.vertices[3 * size_t(m0.triangles[3 * t + size_t(k)]) + 2] > 0.8f) skip[t] = 1;
+    for (uint8_t f : skip) skipped += f;
+    SceneIndex ahead;
+    ahead.build_lookup_ahead(m0, ts0, 2, st0.surf.position.data(), st0.surface.data(), st0.size(), sigma, skip);
+
+    // After: the triangles in reverse order (every 50th new), the vertices
+    // of the band 0.3 < x < 0.5 and the surfels there pushed in by 1e-3;
+    // the surfels of -0.5 < x < -0.4 replaced (moved along y by a quarter
+    // spacing), those of -0.1 < x < -0.05 moved to the other surface.
+    std::vector<float> v1 = m0.vertices;
+    auto in_band = [](const float* p) { return p[0] > 0.3f && p[0] < 0.5f; };
+    for (size_t v = 0; v < m0.num_vertices(); ++v)
+        if (in_band(&v1[3 * v]))
+            for (int c = 0; c < 3; ++c) v1[3 * v + size_t(c)] *= 0.999f;
+    std::vector<int32_t> tris1(3 * m), ts1(m), ahead_triangle(m);
+    for (size_t t = 0; t < m; ++t) {
+        const size_t d = m - 1 - t;
+        for (int k = 0; k < 3; ++k) tris1[3 * t + size_t(k)] = m0.triangles[3 * d + size_t(k)];
+        ts1[t] = ts0[d];
+        ahead_triangle[t] = t % 50 == 0 ? -1 : int32_t(d);
+    }
+    const Mesh m1 = Mesh::from_arrays(v1.data(), m0.num_vertices(), tris1.data(), m, "after");
+    ASSERT_EQ(m1.num_triangles(), m);
+    ASSERT_EQ(m1.diagonal(), m0.diagonal());   // the spheres' pad as ahead (the band holds no extreme)
+    SurfelState st1 = st0;
+    for (size_t i = 0; i < st1.size(); ++i) {
+        float* p = &st1.surf.position[3 * i];
+        if (in_band(p)) {
+            for (int c = 0; c < 3; ++c) p[c] *= 0.999f;
+        } else if (p[0] > -0.5f && p[0] < -0.4f) {
+            p[1] += 0.25f * sigma;
+        } else if (p[0] > -0.1f && p[0] < -0.05f) {
+            st1.surface[i] = 1 - st1.surface[i];
+        }
+    }
+    auto build = [&](SceneIndex& x, const float* pos, int threads, const SceneIndex* from) {
+        x.build_geometry(m1, ts1, 2, false);
+        x.build_surfels(pos, st1.surface.data(), st1.size(), sigma, threads, from, from ? &ahead_triangle : nullptr);
+    };
+    SceneIndex scratch, taking, taking_serial, other;
+    build(scratch, st1.surf.position.data(), 2, nullptr);
+    build(taking, st1.surf.position.data(), 2, &ahead);
+    build(taking_serial, st1.surf.position.data(), 1, &ahead);
+    EXPECT_EQ(scratch.lookup_reused_triangles(), 0u);
+    EXPECT_TRUE(taking.same_lookup(scratch));
+    EXPECT_TRUE(taking_serial.same_lookup(scratch));
+    // Most entries taken; not those left out ahead, new or near a change.
+    EXPECT_GT(taking.lookup_reused_triangles(), m / 2);
+    EXPECT_LT(taking.lookup_reused_triangles(), m - skipped - m / 50 - 500);
+    expect_lookup_matches_kdtree(m1, ts1, st1, taking, 5);
+    // same_lookup tells a different lookup apart: the surfels before the changes.
+    build(other, st0.surf.position.data(), 2, nullptr);
+    EXPECT_FALSE(other.same_lookup(scratch));
+    // Ahead for other surfels (a count of its own): nothing taken, the same lookup.
+    const SurfelState fewer = SurfelState::sample(m0, ts0, 7000, 6, {{0, 0, 0}, {0, 0, 0}});
+    SceneIndex ahead_fewer, from_fewer;
+    ahead_fewer.build_lookup_ahead(m0, ts0, 2, fewer.surf.position.data(), fewer.surface.data(), fewer.size(), sigma,
+                                   skip);
+    build(from_fewer, st1.surf.position.data(), 2, &ahead_fewer);
+    EXPECT_EQ(from_fewer.lookup_reused_triangles(), 0u);
+    EXPECT_TRUE(from_fewer.same_lookup(scratch));
 }

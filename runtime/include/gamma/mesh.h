@@ -32,6 +32,10 @@ struct Mesh {
     size_t num_vertices() const { return vertices.size() / 3; }
     size_t num_triangles() const { return triangles.size() / 3; }
     float diagonal() const { return float(diag); }
+    // The diagonal from_arrays would give these vertices and triangles
+    // (bounds over the vertices triangles use), for a copy whose vertices
+    // moved (its `diag` is the original's).
+    double used_diagonal() const;
     double area() const;  // total area of kept triangles
 
     // OBJ and PLY: own readers (OBJ objects, groups, materials kept; every

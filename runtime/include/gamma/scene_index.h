@@ -24,6 +24,7 @@
 
 #include <embree3/rtcore.h>
 
+#include "gamma/float_points.h"
 #include "gamma/huge_pages.h"
 #include "gamma/mesh.h"
 #include "gamma/render.h"
@@ -61,8 +62,26 @@ public:
     // copied).  sigma = the smoothing width (mean surfel spacing).
     // Also rebuilds the triangle lookup (with `threads` threads, <= 0: all;
     // the result does not depend on the count).
+    // With `ahead` (a lookup built ahead: build_lookup_ahead) and
+    // ahead_triangle (per triangle of this index, one of ahead's or -1):
+    // a triangle takes the entries ahead built for that triangle where
+    // they are what a build here would make -- the same corners and
+    // surface, and no surfel whose position or surface differs between the
+    // two indices within the ball its candidates were searched in (nor the
+    // nearest surfel then, since it lies in that ball) -- and is searched
+    // otherwise.  The lookup is the one built without `ahead`, bit for bit.
     void build_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
-                       int threads = 0);
+                       int threads = 0, const SceneIndex* ahead = nullptr,
+                       const std::vector<int32_t>* ahead_triangle = nullptr);
+    // Builds only what the triangle lookup needs (kd-trees, lookup; no BVH)
+    // for `mesh` and n surfels, leaving out the triangles flagged in `skip`:
+    // entries for build_surfels to reuse, made beside other work (the shape
+    // step builds them while the re-tiling runs).  Runs in the calling
+    // thread's TBB arena (no arena of its own), so a thread that waits for
+    // it in that arena helps.
+    void build_lookup_ahead(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces,
+                            const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
+                            const std::vector<uint8_t>& skip);
     // The mesh's vertices moved (same triangles, same vertex count): the BVH
     // is updated and the triangles' bounding spheres recomputed.  The triangle
     // lookup is stale until move_surfels is called next.
@@ -81,6 +100,10 @@ public:
 
     // Index of the surfel nearest to p (any surface).
     uint32_t nearest(const float p[3]) const;
+    // The kd-tree over every surfel, at the positions last given to
+    // build_surfels / move_surfels (null when there are none): other
+    // builds over the same points search it instead of building their own.
+    const FloatPointsKdTree* surfel_tree() const;
     // Index of the surfel of `surface` nearest to p.  Only for a surface that
     // has surfels (has_surfels); otherwise the nearest surfel of any surface
     // (callers that run rules must not rely on this: see Simulation).
@@ -108,6 +131,10 @@ public:
     size_t lookup_candidates() const { return lookup_n_candidates_; }
     size_t lookup_grid_triangles() const { return lookup_grids_.size(); }
     size_t lookup_fallback_triangles() const;
+    // Triangles whose entries the last build took from a lookup built ahead.
+    size_t lookup_reused_triangles() const { return lookup_reused_; }
+    // True when both lookups are the same, entry for entry (tests).
+    bool same_lookup(const SceneIndex& other) const;
     // Bytes held by the triangle lookup.
     size_t lookup_bytes() const;
     // Number of surfels of each surface.
@@ -187,8 +214,14 @@ public:
     static constexpr uint32_t kCellCandidates = 12, kMaxGridSide = 128;
 
 private:
+    struct Reuse;
     void build_lookup(int threads);
-    void triangle_spheres(const Mesh& mesh);
+    // build_lookup's work in the calling thread's arena.
+    void compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* skip);
+    // build_surfels' trees in the calling thread's arena.
+    void index_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma);
+    // The pad of the spheres is 1e-6 x diagonal.
+    void triangle_spheres(const Mesh& mesh, float diagonal);
     void pack_lookup();
 
     RTCDevice device_ = nullptr;
@@ -209,7 +242,10 @@ private:
     std::vector<PackedEntry, HugePageAllocator<PackedEntry>> lookup_packed_;
     std::vector<TriangleHead, HugePageAllocator<TriangleHead>> lookup_head_;  // per triangle
     std::vector<uint32_t> lookup_cell_at_;   // per cell: its block or kNoBlock
-    size_t lookup_n_candidates_ = 0;
+    // Per triangle: the squared radius (as searched) of the ball its
+    // candidates came from; 0 where it has none of its own (cells, kd-tree).
+    std::vector<float> lookup_ball2_;
+    size_t lookup_n_candidates_ = 0, lookup_reused_ = 0;
     unsigned geom_id_ = 0;
     int geometry_builds_ = 0, surfel_builds_ = 0;
 };

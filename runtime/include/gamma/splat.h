@@ -10,6 +10,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "gamma/float_points.h"
+
 namespace gammart {
 
 struct SplatKernel {
@@ -42,9 +44,12 @@ void reweight_splat_kernel(SplatKernel& k, const float* position, size_t n, floa
 // the weights of reweight_splat_kernel (SPEC §13.12).  When `old` was built
 // afresh at the kept surfels' present positions and normals with this
 // sigma, the result is build_splat_kernel's bit for bit.  `old` of another
-// size: built afresh.
+// size: built afresh.  `tree`: a kd-tree over exactly these n positions
+// (the scene index's, SceneIndex::surfel_tree) for the radius searches;
+// null: one is built here.
 SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, const float* normal,
-                                const int32_t* surface, size_t n, float sigma, const std::vector<uint32_t>& replaced);
+                                const int32_t* surface, size_t n, float sigma, const std::vector<uint32_t>& replaced,
+                                const FloatPointsKdTree* tree = nullptr);
 
 // out[j*P + c] = sum over sources s of weight * in[s*P + c] (n rows of P).
 void apply_splat(const SplatKernel& k, const float* in, float* out, size_t n, int P);
