@@ -194,7 +194,8 @@ void SceneIndex::move_vertices(const Mesh& mesh) {
     ++geometry_builds_;
 }
 
-void SceneIndex::index_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma) {
+void SceneIndex::index_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
+                               bool all_tree) {
     Trees& T = *trees_;
     n_surfels_ = n;
     sigma_ = sigma;
@@ -212,7 +213,7 @@ void SceneIndex::index_surfels(const float* positions, const int32_t* surfel_sur
     }
     // The trees are independent (each build is serial and deterministic):
     // built side by side.
-    tbb::parallel_for(size_t(0), T.surface.size() + 1,
+    tbb::parallel_for(size_t(all_tree ? 0 : 1), T.surface.size() + 1,
                       [&](size_t k) { (k == 0 ? T.all : T.surface[k - 1]).build(); });
     ++surfel_builds_;
 }
@@ -291,7 +292,7 @@ void SceneIndex::build_lookup_ahead(const Mesh& mesh, std::vector<int32_t> tri_s
     // The spheres' pad as the re-tiled mesh's own diagonal gives it (the
     // same unless the re-tiling moved the bounds).
     triangle_spheres(mesh, float(mesh.used_diagonal()));
-    index_surfels(positions, surfel_surface, n, sigma);
+    index_surfels(positions, surfel_surface, n, sigma, /*all_tree=*/false);   // the lookup needs the surfaces' trees
     compute_lookup(nullptr, &skip);
 }
 

@@ -388,7 +388,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
         if (region.empty())
             resample(iteration, rt, mesh, state, index, st);
         else
-            replaced = resample_region(iteration, rt, mesh, displaced, state, index, ahead.get(), st);
+            replaced = resample_region(iteration, rt, mesh, displaced, state, index, ahead, st);
         st.slivers_left = int64_t(rt.slivers_left);
         retiled_area_ = mesh.area();
     }
@@ -451,7 +451,7 @@ void ShapeStep::resample(int iteration, Retiled& rt, Mesh& mesh, SurfelState& st
 
 std::vector<uint32_t> ShapeStep::resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced,
                                                  SurfelState& state, std::unique_ptr<SceneIndex>& index,
-                                                 const SceneIndex* ahead, ShapeStats& st) const {
+                                                 std::unique_ptr<SceneIndex>& ahead, ShapeStats& st) const {
     const Config& c = cfg_;
     auto t0 = std::chrono::steady_clock::now();
     const size_t n = state.size();
@@ -522,7 +522,8 @@ std::vector<uint32_t> ShapeStep::resample_region(int iteration, Retiled& rt, Mes
     auto rebuilt = std::make_unique<SceneIndex>();
     rebuilt->build_geometry(rt.mesh, rt.tri_surface, index->n_surfaces(), /*refresh_lookup=*/false);
     rebuilt->build_surfels(fresh.surf.position.data(), fresh.surface.data(), fresh.size(),
-                           float(std::sqrt(new_area / double(fresh.size()))), c.threads, ahead, &rt.kept);
+                           float(std::sqrt(new_area / double(fresh.size()))), c.threads, ahead.get(), &rt.kept);
+    ahead.reset();   // taken: its memory back before the transfer
     require_surfels(*rebuilt, iteration);
     st.rebuild_seconds += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();

@@ -78,7 +78,8 @@ public:
     // entries for build_surfels to reuse, made beside other work (the shape
     // step builds them while the re-tiling runs).  Runs in the calling
     // thread's TBB arena (no arena of its own), so a thread that waits for
-    // it in that arena helps.
+    // it in that arena helps.  Such an index is only for build_surfels to
+    // take from: it has no BVH and no tree over all surfels to query.
     void build_lookup_ahead(const Mesh& mesh, std::vector<int32_t> tri_surface, int n_surfaces,
                             const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
                             const std::vector<uint8_t>& skip);
@@ -218,8 +219,10 @@ private:
     void build_lookup(int threads);
     // build_lookup's work in the calling thread's arena.
     void compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* skip);
-    // build_surfels' trees in the calling thread's arena.
-    void index_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma);
+    // build_surfels' trees in the calling thread's arena (all_tree false:
+    // not the tree over every surfel, which nearest() and smooth() need).
+    void index_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
+                       bool all_tree = true);
     // The pad of the spheres is 1e-6 x diagonal.
     void triangle_spheres(const Mesh& mesh, float diagonal);
     void pack_lookup();

@@ -108,11 +108,11 @@ private:
     // whose amounts spread over the new surfels around them.  `ahead`: the
     // triangle lookup built over `displaced` and the carried surfels
     // (SceneIndex::build_lookup_ahead), whose entries the new index takes
-    // where they still hold.  Returns the indices of the replaced surfels
-    // (ascending).
+    // where they still hold (released once taken).  Returns the indices of
+    // the replaced surfels (ascending).
     std::vector<uint32_t> resample_region(int iteration, Retiled& rt, Mesh& mesh, const Mesh& displaced,
                                           SurfelState& state, std::unique_ptr<SceneIndex>& index,
-                                          const SceneIndex* ahead, ShapeStats& st) const;
+                                          std::unique_ptr<SceneIndex>& ahead, ShapeStats& st) const;
 
     const Config& cfg_;
     std::vector<float> before_;
