@@ -351,6 +351,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
             const double carry_seconds = seconds_since(t1);
             st.resample_seconds += carry_seconds;
             ahead = std::make_unique<SceneIndex>();
+            const float ahead_sigma = float(std::sqrt(displaced_area / double(state.size())));
             const int threads = resolve_threads(c.threads);
             tbb::global_control cap(tbb::global_control::max_allowed_parallelism, size_t(threads));
             tbb::task_arena arena(threads);
@@ -367,7 +368,6 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
                     }
                 }
             } join{arena, beside};
-            const float ahead_sigma = float(std::sqrt(displaced_area / double(state.size())));
             // enqueued: a worker takes it while this thread re-tiles outside the arena
             arena.enqueue(beside.defer([&] {
                 // Near the region the re-tiling and its new surfels change
