@@ -1,4 +1,4 @@
-// The tiled sample elimination (surfels.cpp): exactly the requested count,
+// The mesh sampler and the tiled sample elimination (surfels.cpp): exactly the requested count,
 // the same candidates at every thread count (also with exact ties and
 // duplicates), and blue-noise quality measured against the serial algorithm
 // it replaced (Yuksel's elimination, one candidate at a time in weight order),
@@ -7,6 +7,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+#include <set>
+#include <string>
 #include <unordered_map>
 
 #include "gamma/philox.h"
@@ -306,4 +309,116 @@ TEST(SampleElimination, MeshSamplingIsThreadCountFree) {
     EXPECT_EQ(one.position, two.position);
     EXPECT_EQ(one.normal, two.normal);
     EXPECT_EQ(one.triangle, two.triangle);
+}
+
+namespace {
+
+// sample_surfels (two greedy Poisson-disk passes over its candidates) against
+// the serial weighted elimination of the same candidates, which it replaced
+// as the mesh sampler, with the bounds the tiled elimination is held to
+// above: the closest pair no more than 3 % closer, the mean nearest-neighbour
+// distance within 1 %, the largest hole no more than 5 % larger (holes
+// measured from every candidate).  Also: exactly n surfels, each one of the
+// candidates and on that candidate's triangle, the same at 1, 2 and 4
+// threads.
+void expect_surfels_like_serial(const Mesh& mesh, size_t n, uint64_t seed) {
+    const SurfelCandidates cand = surfel_candidates(mesh, n, seed);
+    ASSERT_EQ(cand.position.size(), 3 * 5 * n);
+    SurfelSet s;
+    run_with_threads(1, [&] { s = sample_surfels(mesh, n, seed); });
+    ASSERT_EQ(s.triangle.size(), n);
+    ASSERT_EQ(s.position.size(), 3 * n);
+    for (int threads : {2, 4}) {
+        SurfelSet other;
+        run_with_threads(threads, [&] { other = sample_surfels(mesh, n, seed); });
+        EXPECT_EQ(other.position, s.position) << threads << " threads";
+        EXPECT_EQ(other.triangle, s.triangle) << threads << " threads";
+    }
+    const double r_max = r_max_for(cand.area, n);
+    EXPECT_DOUBLE_EQ(s.r_max, r_max);
+    std::map<std::array<float, 3>, std::vector<int32_t>> triangles_at;
+    for (size_t i = 0; i < cand.triangle.size(); ++i)
+        triangles_at[{cand.position[3 * i], cand.position[3 * i + 1], cand.position[3 * i + 2]}].push_back(cand.triangle[i]);
+    std::set<std::array<float, 3>> seen;
+    size_t not_candidates = 0;
+    for (size_t a = 0; a < n; ++a) {
+        const std::array<float, 3> p{s.position[3 * a], s.position[3 * a + 1], s.position[3 * a + 2]};
+        auto it = triangles_at.find(p);
+        if (it == triangles_at.end() ||
+            std::find(it->second.begin(), it->second.end(), s.triangle[a]) == it->second.end())
+            ++not_candidates;
+        seen.insert(p);
+    }
+    EXPECT_EQ(not_candidates, 0u);
+    EXPECT_EQ(seen.size(), n) << "a position kept twice";
+    // The surfels' blue noise on the candidates followed by the surfels
+    // (each surfel's own copy is not among the kept, so it takes no part but
+    // as a place whose hole is 0).
+    std::vector<float> pts = cand.position;
+    pts.insert(pts.end(), s.position.begin(), s.position.end());
+    std::vector<uint32_t> surfels(n);
+    for (size_t a = 0; a < n; ++a) surfels[a] = uint32_t(5 * n + a);
+    const BlueNoise r = blue_noise(cand.position, sorted(reference_eliminate(cand.position, n, r_max)), r_max);
+    const BlueNoise g = blue_noise(pts, surfels, r_max);
+    std::printf("[ info ] in r_max, serial elimination / surfels: closest pair %.4f / %.4f, mean nearest %.4f / %.4f, "
+                "largest hole %.4f / %.4f\n", r.min_nn, g.min_nn, r.mean_nn, g.mean_nn, r.max_hole, g.max_hole);
+    EXPECT_GE(g.min_nn, 0.97 * r.min_nn);
+    EXPECT_GE(g.mean_nn, 0.99 * r.mean_nn);
+    EXPECT_LE(g.max_hole, 1.05 * r.max_hole);
+}
+
+}  // namespace
+
+TEST(SampleElimination, BunnySurfelsKeepTheSerialBlueNoise) {
+    expect_surfels_like_serial(Mesh::load(std::string(GAMMA_SCENES_DIR) + "/stanford-bunny.obj"), 20000, 5);
+}
+
+TEST(SampleElimination, SphereAndSquareSurfelsKeepTheSerialBlueNoise) {
+    expect_surfels_like_serial(gamma_test::icosphere(3), 8000, 21);
+    expect_surfels_like_serial(gamma_test::unit_square(), 4000, 3);
+}
+
+TEST(SampleElimination, FewSurfelsAreExactAndThreadCountFree) {
+    // Down to a single surfel on a coarse sphere (where the disk passes can
+    // fall short and the weighted elimination picks them).
+    const Mesh m = gamma_test::icosphere(1);
+    for (size_t n = 1; n <= 40; ++n) {
+        SurfelSet one, two;
+        run_with_threads(1, [&] { one = sample_surfels(m, n, 9); });
+        run_with_threads(2, [&] { two = sample_surfels(m, n, 9); });
+        ASSERT_EQ(one.triangle.size(), n);
+        EXPECT_EQ(one.position, two.position) << n;
+        std::set<std::array<float, 3>> distinct;
+        for (size_t a = 0; a < n; ++a) distinct.insert({one.position[3 * a], one.position[3 * a + 1], one.position[3 * a + 2]});
+        EXPECT_EQ(distinct.size(), n);
+    }
+}
+
+TEST(SampleElimination, StackedSheetsFallBackOnTheWeightedElimination) {
+    // Eight unit squares 0.001 apart: in 3D the disk passes see one square's
+    // worth of room for eight squares' worth of surfels and fall short, so
+    // the weighted elimination of the same candidates picks them.
+    std::vector<float> v;
+    std::vector<int32_t> t;
+    for (int k = 0; k < 8; ++k) {
+        const float z = 0.001f * float(k);
+        const float corners[12] = {0, 0, z, 1, 0, z, 1, 1, z, 0, 1, z};
+        const int32_t base = int32_t(v.size() / 3);
+        v.insert(v.end(), corners, corners + 12);
+        const int32_t tris[6] = {base, base + 1, base + 2, base, base + 2, base + 3};
+        t.insert(t.end(), tris, tris + 6);
+    }
+    const Mesh m = Mesh::from_arrays(v.data(), v.size() / 3, t.data(), t.size() / 3);
+    const size_t n = 2000;
+    SurfelSet one, two;
+    run_with_threads(1, [&] { one = sample_surfels(m, n, 4); });
+    run_with_threads(2, [&] { two = sample_surfels(m, n, 4); });
+    ASSERT_EQ(one.triangle.size(), n);
+    EXPECT_EQ(one.position, two.position);
+    const SurfelCandidates cand = surfel_candidates(m, n, 4);
+    std::set<std::array<float, 3>> expected, got;
+    for (const uint32_t i : eliminate_samples(cand.position, n, r_max_for(cand.area, n)))
+        expected.insert({cand.position[3 * i], cand.position[3 * i + 1], cand.position[3 * i + 2]});
+    for (size_t a = 0; a < n; ++a) got.insert({one.position[3 * a], one.position[3 * a + 1], one.position[3 * a + 2]});
+    EXPECT_EQ(got, expected);
 }

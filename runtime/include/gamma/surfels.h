@@ -13,12 +13,26 @@ struct SurfelSet {
     double r_max = 0;              // Yuksel's r_max for N samples on the mesh area
 };
 
-// Yuksel 2015 weighted sample elimination: 5N candidates uniform by area,
-// eliminated down to exactly N.  Deterministic in `seed`.  Output is sorted
+// Exactly N surfels, evenly spaced over the mesh's area: 5N candidates
+// uniform by area (surfel_candidates), then two greedy Poisson-disk passes
+// over them in one random order, the first at 1.40 r_max, the second
+// filling the gaps at 1.28 r_max until N are kept (surfels.cpp).
+// Deterministic in `seed`, the same at any thread count.  Output is sorted
 // along a Morton curve for memory locality.
 SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed);
 
-// Core of the elimination on an arbitrary 3D point set (exposed for tests).
+// The candidates sample_surfels chooses from (exposed for tests): 5n points
+// uniform by area, the triangle of each, and the mesh's area.
+struct SurfelCandidates {
+    std::vector<float> position;    // 5n*3
+    std::vector<int32_t> triangle;  // 5n
+    double area = 0;
+};
+SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed);
+
+// Yuksel 2015 weighted sample elimination (tiled, see surfels.cpp) on an
+// arbitrary 3D point set: what sample_surfels falls back on when the disk
+// passes cannot keep N (exposed for tests).
 // Returns the indices of the kept points (ascending order not guaranteed).
 std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t keep, double r_max);
 
