@@ -149,7 +149,12 @@ void SceneIndex::triangle_spheres(const Mesh& mesh, float diagonal) {
     const size_t m = mesh.num_triangles();
     lookup_tri_.resize(m, TriangleLookup{0, 0, 0, 0, 0, 0, kNoGrid});
     lookup_vertices_.resize(9 * m);
-    const float pad = 1e-6f * diagonal;
+    // 1e-6 x the diagonal rounded up to a power of two: meshes whose bounds
+    // differ a little (a displacement, a local re-tiling) get the same
+    // spheres, so the entries of a lookup built ahead still fit.
+    int e = 0;
+    std::frexp(diagonal, &e);
+    const float pad = 1e-6f * std::ldexp(1.0f, e);
     for (size_t t = 0; t < m; ++t) {
         const float* v[3];
         for (int k = 0; k < 3; ++k) v[k] = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + k])];

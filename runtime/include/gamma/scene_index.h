@@ -223,7 +223,7 @@ private:
     // not the tree over every surfel, which nearest() and smooth() need).
     void index_surfels(const float* positions, const int32_t* surfel_surface, size_t n, float sigma,
                        bool all_tree = true);
-    // The pad of the spheres is 1e-6 x diagonal.
+    // The spheres are padded by 1e-6 x diagonal (rounded up to a power of two).
     void triangle_spheres(const Mesh& mesh, float diagonal);
     void pack_lookup();
 
