@@ -345,44 +345,50 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
             // them: the surfels ride onto the displaced mesh first, and the
             // triangle lookup of the triangles outside the region is built
             // beside the re-tiling (serial CGAL work, one core), for the
-            // rebuild to take where it still holds (SceneIndex::build_surfels).
+            // rebuild to take where it still holds (SceneIndex::build_surfels);
+            // the same lookup either way.
             auto t1 = std::chrono::steady_clock::now();
             carry_surfels(mesh, displaced, state.surf, c.threads);
             const double carry_seconds = seconds_since(t1);
             st.resample_seconds += carry_seconds;
-            ahead = std::make_unique<SceneIndex>();
-            const float ahead_sigma = float(std::sqrt(displaced_area / double(state.size())));
             const int threads = resolve_threads(c.threads);
-            tbb::global_control cap(tbb::global_control::max_allowed_parallelism, size_t(threads));
-            tbb::task_arena arena(threads);
-            tbb::task_group beside;
-            // Waits for the lookup ahead on every way out (it reads this
-            // function's locals).
-            struct Join {
-                tbb::task_arena& arena;
-                tbb::task_group& group;
-                ~Join() {
-                    try {
-                        arena.execute([&] { group.wait(); });
-                    } catch (...) {   // only on the way out with the re-tiling's error, which goes on
+            if (threads < 2) {   // no core to spare: nothing is built ahead
+                rt = retile(displaced, index->tri_surface(), target, c.retile_iterations, &region);
+                st.retile_seconds = seconds_since(t0) - carry_seconds;
+            } else {
+                ahead = std::make_unique<SceneIndex>();
+                const float ahead_sigma = float(std::sqrt(displaced_area / double(state.size())));
+                tbb::global_control cap(tbb::global_control::max_allowed_parallelism, size_t(threads));
+                tbb::task_arena arena(threads);
+                tbb::task_group beside;
+                // Waits for the lookup ahead on every way out (it reads this
+                // function's locals).
+                struct Join {
+                    tbb::task_arena& arena;
+                    tbb::task_group& group;
+                    ~Join() {
+                        try {
+                            arena.execute([&] { group.wait(); });
+                        } catch (...) {   // only on the way out with the re-tiling's error, which goes on
+                        }
                     }
-                }
-            } join{arena, beside};
-            // enqueued: a worker takes it while this thread re-tiles outside the arena
-            arena.enqueue(beside.defer([&] {
-                // Near the region the re-tiling and its new surfels change
-                // the entries: not built ahead.
-                std::vector<uint8_t> skip = region;
-                grow_by_rings(displaced, skip, kAheadSkipRings);
-                ahead->build_lookup_ahead(displaced, index->tri_surface(), index->n_surfaces(),
-                                          state.surf.position.data(), state.surface.data(), state.size(),
-                                          ahead_sigma, skip);
-            }));
-            rt = retile(displaced, index->tri_surface(), target, c.retile_iterations, &region);
-            st.retile_seconds = seconds_since(t0) - carry_seconds;
-            t1 = std::chrono::steady_clock::now();
-            arena.execute([&] { beside.wait(); });
-            st.rebuild_seconds += seconds_since(t1);   // what the lookup ahead took past the re-tiling
+                } join{arena, beside};
+                // enqueued: a worker takes it while this thread re-tiles outside the arena
+                arena.enqueue(beside.defer([&] {
+                    // Near the region the re-tiling and its new surfels change
+                    // the entries: not built ahead.
+                    std::vector<uint8_t> skip = region;
+                    grow_by_rings(displaced, skip, kAheadSkipRings);
+                    ahead->build_lookup_ahead(displaced, index->tri_surface(), index->n_surfaces(),
+                                              state.surf.position.data(), state.surface.data(), state.size(),
+                                              ahead_sigma, skip);
+                }));
+                rt = retile(displaced, index->tri_surface(), target, c.retile_iterations, &region);
+                st.retile_seconds = seconds_since(t0) - carry_seconds;
+                t1 = std::chrono::steady_clock::now();
+                arena.execute([&] { beside.wait(); });
+                st.rebuild_seconds += seconds_since(t1);   // what the lookup ahead took past the re-tiling
+            }
         }
         for (int32_t k : rt.kept) st.retiled_triangles += k < 0;
         if (region.empty())
