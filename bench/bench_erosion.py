@@ -57,7 +57,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--surfels", type=int, default=100_000)
     ap.add_argument("--tons", type=int, default=300_000)
-    ap.add_argument("--iterations", type=int, default=9)
+    # 30, as examples/erosion.gamma runs: later steps have eroded deeper and re-tile more
+    ap.add_argument("--iterations", type=int, default=30)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--record", action="store_true")
     args = ap.parse_args()
@@ -106,9 +107,11 @@ def main() -> None:
     min_free = min(r["min_free_angle"] for r in later)
     min_all = min(r["min_angle"] for r in later)
     with_slivers = sum(1 for r in later if r["slivers_left"] > 0)
+    over_goal = [i + 2 for i, r in enumerate(later) if r["total"] > 1.0]
     info = (f"bunny {mesh.num_triangles:,} triangles re-tiled to {best['triangles']:,} "
             f"(smallest angle where the 15° bound applies {min_free:.1f}°, over all corners {min_all:.1f}°; "
-            f"{with_slivers} of {len(later)} steps left slivers), {args.surfels:,} surfels, {best['emitted']:,} γ-tons "
+            f"{with_slivers} of {len(later)} steps left slivers; steps over 1 s: "
+            f"{len(over_goal)} of {len(later)}{' (' + ', '.join(map(str, over_goal)) + ')' if over_goal else ''}), {args.surfels:,} surfels, {best['emitted']:,} γ-tons "
             f"per iteration, {args.threads} threads, iterations 2..{args.iterations}, load {load_average():.1f}, "
             f"{cpu_name()}, {os.cpu_count()} cores")
     report("erosion iteration on the bunny", info, header, rows, args.record)
