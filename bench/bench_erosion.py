@@ -48,7 +48,7 @@ def iteration(sim, it: int) -> dict:
             "resample": shaped["resample_seconds"], "rebuild": shaped["rebuild_seconds"],
             "changed": shaped["changed"], "retiled": shaped["retiled"], "triangles": shaped["geometry"]["triangles"],
             "made": shaped["retiled_triangles"],
-            "min_angle": shaped["geometry"]["min_angle_deg"],
+            "min_angle": shaped["geometry"]["min_angle_deg"], "area": shaped["geometry"]["area"],
             "min_free_angle": shaped["geometry"]["min_free_angle_deg"],
             "slivers_left": shaped["slivers_left"], "emitted": traced["emitted"]}
 
@@ -111,7 +111,9 @@ def main() -> None:
     info = (f"bunny {mesh.num_triangles:,} triangles re-tiled to {best['triangles']:,} "
             f"(smallest angle where the 15° bound applies {min_free:.1f}°, over all corners {min_all:.1f}°; "
             f"{with_slivers} of {len(later)} steps left slivers; steps over 1 s: "
-            f"{len(over_goal)} of {len(later)}{' (' + ', '.join(map(str, over_goal)) + ')' if over_goal else ''}), {args.surfels:,} surfels, {best['emitted']:,} γ-tons "
+            f"{len(over_goal)} of {len(later)}{' (' + ', '.join(map(str, over_goal)) + ')' if over_goal else ''}; "
+            f"area {runs[0]['area']:.4g} m² after iteration 1, {runs[-1]['area']:.4g} m² "
+            f"({runs[-1]['area'] / runs[0]['area']:.2f}×) after iteration {args.iterations}), {args.surfels:,} surfels, {best['emitted']:,} γ-tons "
             f"per iteration, {args.threads} threads, iterations 2..{args.iterations}, load {load_average():.1f}, "
             f"{cpu_name()}, {os.cpu_count()} cores")
     report("erosion iteration on the bunny", info, header, rows, args.record)
