@@ -116,7 +116,9 @@ public:
     uint32_t nearest_on_triangle(uint32_t prim, const float p[3]) const;
     // Starts fetching what nearest_on_triangle(prim, .) reads first (the
     // triangle's head), so a caller with other work can overlap the miss.
-    void prefetch_lookup(uint32_t prim) const {
+    // Always inlined: GCC finds a function whose only effect is a prefetch
+    // "pure" and deletes calls to it, so out of line it did nothing.
+    [[gnu::always_inline]] void prefetch_lookup(uint32_t prim) const {
         if (prim < lookup_head_.size()) {
             const char* h = reinterpret_cast<const char*>(lookup_head_.data() + prim);
             __builtin_prefetch(h);
