@@ -251,8 +251,8 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         if (rays_out) w.record = &rays_out[size_t(ci - first)];
 
         // The gamma-tons go in groups of kEmitGroup, in three passes: emit
-        // and cast every emission ray (starting the fetch of each hit
-        // triangle's lookup head), then find each hit's surfel (starting the
+        // every gamma-ton and cast every emission ray (starting the fetch of
+        // each hit triangle's lookup head), then find each hit's surfel (starting the
         // fetch of its row), then run each gamma-ton's life in order.  The
         // two dependent cache misses of a first interaction (head, then row)
         // overlap with the other gamma-tons' casts and scans instead of
@@ -263,27 +263,35 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         const bool need_normal = !measures.accessibility.empty() || !measures.curvature.empty();
         const bool need_uv = !measures.uv.empty();
         struct Emitted {
-            PhiloxStream rng;
+            PhiloxStream rng{0, 0, 0};
             V3 org, d0, p, n;
             uint32_t prim, s;
             size_t a;  // active source
             bool hit;
         };
-        std::vector<Emitted> group;
-        group.reserve(kEmitGroup);
+        std::array<Emitted, kEmitGroup> group_slots;
         for (int64_t g0 = begin; g0 < end; g0 += kEmitGroup) {
             const int64_t g1 = std::min(end, g0 + kEmitGroup);
-            group.clear();
+            Emitted* const group = group_slots.data();
+            const size_t n_group = size_t(g1 - g0);
+            // Every emission first, then every cast: independent emissions
+            // overlap in the core (no opaque call between them), and the
+            // casts run back to back with Embree's working set warm.
             for (int64_t g = g0; g < g1; ++g) {
                 while (g >= start[a + 1]) ++a;
-                Emitted& e = group.emplace_back(Emitted{PhiloxStream(seed, iter_u, uint64_t(g)), {}, {}, {}, {},
-                                                        0, 0, a, false});
+                Emitted& e = group[g - g0];
+                e.rng = PhiloxStream(seed, iter_u, uint64_t(g));
+                e.a = a;
                 emit(sources_[sched.active[a]], e.rng, e.org, e.d0);
+            }
+            for (size_t k = 0; k < n_group; ++k) {
+                Emitted& e = group[k];
                 index.cast(w.rh, e.org, e.d0, 0.0f);
                 e.hit = land(w.rh, e.org, e.d0, e.p, e.n, e.prim);
                 if (e.hit) index.prefetch_lookup(e.prim);
             }
-            for (Emitted& e : group) {
+            for (size_t k = 0; k < n_group; ++k) {
+                Emitted& e = group[k];
                 if (!e.hit) continue;
                 const float pa[3] = {e.p.x, e.p.y, e.p.z};
                 e.s = index.nearest_on_triangle(e.prim, pa);
@@ -294,7 +302,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 if (need_uv) __builtin_prefetch(measures.uv.data() + 2 * size_t(e.s));
                 if (need_normal) __builtin_prefetch(state.surf.normal.data() + 3 * size_t(e.s));
             }
-            for (size_t k = 0; k < group.size(); ++k) {
+            for (size_t k = 0; k < n_group; ++k) {
                 Emitted& e = group[k];
                 const int64_t g = g0 + int64_t(k);
                 const size_t src = sched.active[e.a];
