@@ -22,6 +22,8 @@ namespace {
 // Gamma-tons emitted and cast ahead together (see run_chunks): enough casts
 // to hide a miss each, few enough that their heads and rows stay in L1/L2.
 constexpr int64_t kEmitGroup = 32;
+// Casts between the fetch of a hit's lookup head and the fetch it enables.
+constexpr size_t kRestLag = 4;
 }  // namespace
 
 int64_t trace_batch_chunks(const Config& c) {
@@ -284,12 +286,17 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 e.a = a;
                 emit(sources_[sched.active[a]], e.rng, e.org, e.d0);
             }
+            // A hit's candidates past its head are fetched kRestLag casts
+            // after its head, when the head has arrived to say where they are.
             for (size_t k = 0; k < n_group; ++k) {
                 Emitted& e = group[k];
                 index.cast(w.rh, e.org, e.d0, 0.0f);
                 e.hit = land(w.rh, e.org, e.d0, e.p, e.n, e.prim);
                 if (e.hit) index.prefetch_lookup(e.prim);
+                if (k >= kRestLag && group[k - kRestLag].hit) index.prefetch_lookup_rest(group[k - kRestLag].prim);
             }
+            for (size_t k = n_group > kRestLag ? n_group - kRestLag : 0; k < n_group; ++k)
+                if (group[k].hit) index.prefetch_lookup_rest(group[k].prim);
             for (size_t k = 0; k < n_group; ++k) {
                 Emitted& e = group[k];
                 if (!e.hit) continue;
