@@ -265,13 +265,15 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         const bool need_normal = !measures.accessibility.empty() || !measures.curvature.empty();
         const bool need_uv = !measures.uv.empty();
         struct Emitted {
-            PhiloxStream rng{0, 0, 0};
+            PhiloxStream rng;
             V3 org, d0, p, n;
             uint32_t prim, s;
             size_t a;  // active source
             bool hit;
         };
         std::array<Emitted, kEmitGroup> group_slots;
+        std::array<PhiloxStream, kEmitGroup> run_rng;
+        std::array<V3, kEmitGroup> run_org, run_dir;
         for (int64_t g0 = begin; g0 < end; g0 += kEmitGroup) {
             const int64_t g1 = std::min(end, g0 + kEmitGroup);
             Emitted* const group = group_slots.data();
@@ -279,12 +281,20 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             // Every emission first, then every cast: independent emissions
             // overlap in the core (no opaque call between them), and the
             // casts run back to back with Embree's working set warm.
-            for (int64_t g = g0; g < g1; ++g) {
+            for (int64_t g = g0; g < g1;) {  // runs of one source each
                 while (g >= start[a + 1]) ++a;
-                Emitted& e = group[g - g0];
-                e.rng = PhiloxStream(seed, iter_u, uint64_t(g));
-                e.a = a;
-                emit(sources_[sched.active[a]], e.rng, e.org, e.d0);
+                const int64_t run_end = std::min(g1, start[a + 1]);
+                const size_t n_run = size_t(run_end - g);
+                emit_run(sources_[sched.active[a]], seed, iter_u, g, n_run, run_rng.data(), run_org.data(),
+                         run_dir.data());
+                for (size_t i = 0; i < n_run; ++i) {
+                    Emitted& e = group[g - g0 + int64_t(i)];
+                    e.rng = run_rng[i];
+                    e.org = run_org[i];
+                    e.d0 = run_dir[i];
+                    e.a = a;
+                }
+                g = run_end;
             }
             // A hit's candidates past its head are fetched kRestLag casts
             // after its head, when the head has arrived to say where they are.

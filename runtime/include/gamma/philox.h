@@ -29,6 +29,7 @@ inline float u01(uint32_t x) { return float(x >> 8) * (1.0f / 16777216.0f); }
 // `draw` value, outputs are used in order 0..3.
 class PhiloxStream {
 public:
+    PhiloxStream() : PhiloxStream(0, 0, 0) {}  // a placeholder, to be assigned over
     PhiloxStream(uint64_t seed, uint32_t iteration, uint64_t index)
         : key_{uint32_t(seed), uint32_t(seed >> 32)},
           iter_(iteration), lo_(uint32_t(index)), hi_(uint32_t(index >> 32)) {}
@@ -40,6 +41,13 @@ public:
         return block_[pos_++];
     }
     float next() { return u01(next_u32()); }
+    // A fresh stream whose first block (draw 0) its owner computed itself
+    // (philox4x32_10 of the same counter, e.g. many streams' at once) and
+    // used all four outputs of: the stream continues with draw 1.
+    void skip_first_block() {
+        draw_ = 1;
+        pos_ = 4;
+    }
     uint32_t draws() const { return draw_; }
 
 private:

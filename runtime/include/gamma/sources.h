@@ -38,6 +38,14 @@ void emit_environment(V3 centre, float radius, V3 up, PhiloxStream& rng, bool up
 // Origin and direction of one gamma-ton of source s.
 void emit(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir);
 
+// emit() for the n consecutive gamma-tons first .. first + n - 1 of source
+// s, bit for bit: rng[i] = PhiloxStream(seed, iteration, first + i) as emit
+// leaves it, org[i], dir[i].  Environment sources are emitted eight at a
+// time in AVX2 where the processor has it (IEEE operations in emit's order,
+// no fused multiply-add; the sines and cosines by the same libm calls).
+void emit_run(const SourceRt& s, uint64_t seed, uint32_t iteration, int64_t first, size_t n, PhiloxStream* rng,
+              V3* org, V3* dir);
+
 // The sources active in an iteration, in declaration order, and the first
 // global gamma-ton index of each: source active[k] emits indices
 // start[k] .. start[k+1]-1; start.back() is the iteration's total.
