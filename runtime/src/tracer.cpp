@@ -252,16 +252,17 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         Walker w(index, frame, st);
         if (rays_out) w.record = &rays_out[size_t(ci - first)];
 
-        // The gamma-tons go in groups of kEmitGroup, in three passes: emit
-        // every gamma-ton and cast every emission ray (starting the fetch of
-        // each hit triangle's lookup head), then find each hit's surfel (starting the
-        // fetch of its row), then run each gamma-ton's life in order.  The
-        // two dependent cache misses of a first interaction (head, then row)
-        // overlap with the other gamma-tons' casts and scans instead of
-        // following one another.  Emission and the first cast depend only on
-        // the gamma-ton's own stream and the scene, and the lives run in
-        // gamma-ton order as before: the same draws, rays, records and sums,
-        // the same bytes.
+        // The gamma-tons go in groups of kEmitGroup: emit every gamma-ton,
+        // then cast every emission ray (starting the fetch of each hit
+        // triangle's lookup head), then find each hit's surfel (starting the
+        // fetch of its row), then trace the group's paths together, then run
+        // the kernels of each gamma-ton's interactions in gamma-ton order.
+        // The dependent cache misses of an interaction (head, then row)
+        // overlap with the other gamma-tons' work instead of following one
+        // another.  Emission, casts and paths depend only on the gamma-ton's
+        // own stream, the scene and the rows, and the kernels run in the
+        // order the lives ran one by one: the same draws, rays, records and
+        // sums, the same bytes.
         const bool need_normal = !measures.accessibility.empty() || !measures.curvature.empty();
         const bool need_uv = !measures.uv.empty();
         struct Emitted {
@@ -272,6 +273,28 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             bool hit;
         };
         std::array<Emitted, kEmitGroup> group_slots;
+        // A gamma-ton's path while the group's paths advance, and one
+        // interaction of it (steps of one gamma-ton linked in order).
+        enum class LifeEnd : uint8_t { Missed, Escaped, Settled, Capped };
+        constexpr uint32_t kNoStep = UINT32_MAX;
+        struct Path {
+            float ks, kp, kf;
+            int inter;
+            V3 p, n, dir;
+            uint32_t prim, s;
+            uint32_t first_step, last_step;
+            LifeEnd end;
+        };
+        struct Step {
+            V3 p, n, dir;
+            uint32_t s;
+            int inter, event;
+            uint32_t next;
+        };
+        std::array<Path, kEmitGroup> paths;
+        std::vector<Step> steps;
+        std::vector<uint32_t> alive;
+        alive.reserve(kEmitGroup);
         std::array<PhiloxStream, kEmitGroup> run_rng;
         std::array<V3, kEmitGroup> run_org, run_dir;
         for (int64_t g0 = begin; g0 < end; g0 += kEmitGroup) {
@@ -300,6 +323,10 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             // after its head, when the head has arrived to say where they are.
             for (size_t k = 0; k < n_group; ++k) {
                 Emitted& e = group[k];
+                // the emission ray, counted and recorded as Walker::straight does
+                if (w.record) w.record->push_back(RecordedRay{{e.org.x, e.org.y, e.org.z}, {e.d0.x, e.d0.y, e.d0.z},
+                                                              0.0f, std::numeric_limits<float>::infinity()});
+                ++st.rays;
                 index.cast(w.rh, e.org, e.d0, 0.0f);
                 e.hit = land(w.rh, e.org, e.d0, e.p, e.n, e.prim);
                 if (e.hit) index.prefetch_lookup(e.prim);
@@ -319,46 +346,109 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 if (need_uv) __builtin_prefetch(measures.uv.data() + 2 * size_t(e.s));
                 if (need_normal) __builtin_prefetch(state.surf.normal.data() + 3 * size_t(e.s));
             }
+            // The paths: which surfels each gamma-ton meets, with which event,
+            // and how its life ends.  A path depends only on the gamma-ton's
+            // own stream, the scene and the rows (never on what the kernels
+            // do), so the group's paths advance together, one interaction
+            // each per round: a gamma-ton's next lookup and row are fetched
+            // while the others move.
+            steps.clear();
+            alive.clear();
             for (size_t k = 0; k < n_group; ++k) {
-                Emitted& e = group[k];
+                const Emitted& e = group[k];
+                Path& path = paths[k];
+                const TonType& tt = c.ton_types[size_t(c.sources[sched.active[e.a]].ton_type)];
+                path.ks = tt.ks;
+                path.kp = tt.kp;
+                path.kf = tt.kf;
+                path.inter = 0;
+                path.first_step = path.last_step = kNoStep;
+                path.end = e.hit ? LifeEnd::Escaped : LifeEnd::Missed;
+                if (!e.hit) continue;
+                path.p = e.p;
+                path.n = e.n;
+                path.dir = e.d0;
+                path.prim = e.prim;
+                path.s = e.s;  // found in the group's second pass
+                alive.push_back(uint32_t(k));
+            }
+            while (!alive.empty()) {
+                for (uint32_t k : alive) {
+                    Path& path = paths[k];
+                    if (path.inter == 0) continue;
+                    const float pa[3] = {path.p.x, path.p.y, path.p.z};
+                    path.s = index.nearest_on_triangle(path.prim, pa);
+                    __builtin_prefetch(rows + size_t(path.s) * W);
+                    __builtin_prefetch(rows + size_t(path.s) * W + (W - 1));
+                    __builtin_prefetch(surf_of + path.s);
+                }
+                size_t still = 0;
+                for (uint32_t k : alive) {
+                    Path& path = paths[k];
+                    const TonType& tt = c.ton_types[size_t(c.sources[sched.active[group[k].a]].ton_type)];
+                    PhiloxStream& rng = group[k].rng;
+                    const int inter = ++path.inter;
+                    const float xi = rng.next();
+                    const float c1 = std::min(path.ks, 1.0f);
+                    const float c2 = std::min(c1 + path.kp, 1.0f);
+                    const float c3 = std::min(c2 + path.kf, 1.0f);
+                    const int event = xi < c1 ? GAMMA_EVENT_REFLECT
+                                    : xi < c2 ? GAMMA_EVENT_BOUNCE
+                                    : xi < c3 ? GAMMA_EVENT_FLOW
+                                              : GAMMA_EVENT_SETTLE;
+                    const uint32_t at = uint32_t(steps.size());
+                    steps.push_back(Step{path.p, path.n, path.dir, path.s, inter, event, kNoStep});
+                    if (path.last_step == kNoStep) path.first_step = at;
+                    else steps[path.last_step].next = at;
+                    path.last_step = at;
+                    if (event == GAMMA_EVENT_SETTLE) { path.end = LifeEnd::Settled; continue; }
+                    if (inter >= max_inter) { path.end = LifeEnd::Capped; continue; }
+                    const float* row = rows + size_t(path.s) * W;
+                    const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
+                                df = row[GAMMA_ROW_REFLECTANCE_FLOW];
+                    const float kp_left = std::max(path.kp - dp, 0.0f);
+                    path.ks = std::max(path.ks - ds, 0.0f);
+                    path.kf = std::max(path.kf + kp_left - df, 0.0f);
+                    path.kp = kp_left;
+                    w.p = path.p;
+                    w.n = path.n;
+                    w.dir = path.dir;
+                    w.prim = path.prim;
+                    const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
+                    if (fe == FlightEnd::Escaped) { path.end = LifeEnd::Escaped; continue; }
+                    if (fe == FlightEnd::Capped) { path.end = LifeEnd::Capped; continue; }
+                    path.p = w.p;
+                    path.n = w.n;
+                    path.dir = w.dir;
+                    path.prim = w.prim;
+                    index.prefetch_lookup(path.prim);
+                    alive[still++] = k;
+                }
+                alive.resize(still);
+            }
+            // The kernels, in gamma-ton order and each gamma-ton's interactions
+            // in order, as the lives ran before their paths were split off:
+            // the same calls, records and sums.
+            for (size_t k = 0; k < n_group; ++k) {
+                const Emitted& e = group[k];
+                const Path& path = paths[k];
                 const int64_t g = g0 + int64_t(k);
-                const size_t src = sched.active[e.a];
-                const int type = c.sources[src].ton_type;
+                const int type = c.sources[sched.active[e.a]].ton_type;
                 const TonType& tt = c.ton_types[size_t(type)];
                 ton_weight = weight[e.a];
-                PhiloxStream& rng = e.rng;
-                float ks = tt.ks, kp = tt.kp, kf = tt.kf;
                 std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
-                int inter = 0;
                 ++st.emitted;
                 for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type) * ton_weight;
-                // the emission ray, counted and recorded as Walker::straight does
-                if (w.record) w.record->push_back(RecordedRay{{e.org.x, e.org.y, e.org.z}, {e.d0.x, e.d0.y, e.d0.z},
-                                                              0.0f, std::numeric_limits<float>::infinity()});
-                ++st.rays;
-                if (!e.hit) {
+                if (path.end == LifeEnd::Missed) {
                     ++st.escaped;
                     ++st.missed;
                     end_life(type, false);
                     continue;
                 }
-                w.p = e.p;
-                w.n = e.n;
-                w.dir = e.d0;
-                w.prim = e.prim;
-                for (;;) {
-                    ++inter;
-                    const V3 p = w.p, n = w.n, dir = w.dir;
-                    uint32_t s = e.s;  // found in the group's second pass
-                    if (inter > 1) {
-                        const float pa[3] = {p.x, p.y, p.z};
-                        s = index.nearest_on_triangle(w.prim, pa);
-                        // The surfel's row (read by the kernels and the roulette)
-                        // is a random access: its miss overlaps with the
-                        // context's filling.
-                        __builtin_prefetch(rows + size_t(s) * W);
-                        __builtin_prefetch(rows + size_t(s) * W + (W - 1));
-                    }
+                for (uint32_t at = path.first_step; at != kNoStep; at = steps[at].next) {
+                    const Step& step = steps[at];
+                    const V3 p = step.p, n = step.n, dir = step.dir;
+                    const uint32_t s = step.s;
                     const int surface = surf_of[s];
                     GammaContext ctx;
                     ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
@@ -366,7 +456,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                     ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
                     ctx.height = dot(p, up) - frame.min_up;
                     ctx.iteration = iteration;
-                    ctx.interactions = inter;
+                    ctx.interactions = step.inter;
                     // the measures of the surfel the rules run on (SPEC §12)
                     ctx.uv[0] = need_uv ? measures.uv[2 * size_t(s)] : 0.0f;
                     ctx.uv[1] = need_uv ? measures.uv[2 * size_t(s) + 1] : 0.0f;
@@ -382,35 +472,21 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                             ctx.accessibility = back ? measures.accessibility_back[s] : measures.accessibility[s];
                         if (!measures.curvature.empty()) ctx.curvature = back ? -measures.curvature[s] : measures.curvature[s];
                     }
-                    const float xi = rng.next();
-                    const float c1 = std::min(ks, 1.0f);
-                    const float c2 = std::min(c1 + kp, 1.0f);
-                    const float c3 = std::min(c2 + kf, 1.0f);
-                    const int event = xi < c1 ? GAMMA_EVENT_REFLECT
-                                    : xi < c2 ? GAMMA_EVENT_BOUNCE
-                                    : xi < c3 ? GAMMA_EVENT_FLOW
-                                              : GAMMA_EVENT_SETTLE;
                     const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
-                    const TransportSlot& ev = K.slot(event, type, surface);
+                    const TransportSlot& ev = K.slot(step.event, type, surface);
                     if (hit.fn || ev.fn) {
-                        const uint64_t key = mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(inter));
+                        const uint64_t key =
+                            mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(step.inter));
                         if (hit.fn) call(hit, s, ctx, key);
                         if (ev.fn) call(ev, s, ctx, key);
                     }
-                    if (event == GAMMA_EVENT_SETTLE) { ++st.settled; end_life(type, true); break; }
-                    if (inter >= max_inter) { ++st.capped; end_life(type, false); break; }
-                    const float* row = rows + size_t(s) * W;
-                    const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
-                                df = row[GAMMA_ROW_REFLECTANCE_FLOW];
-                    const float kp_left = std::max(kp - dp, 0.0f);
-                    ks = std::max(ks - ds, 0.0f);
-                    kf = std::max(kf + kp_left - df, 0.0f);
-                    kp = kp_left;
-                    const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
-                    if (fe == FlightEnd::Escaped) { ++st.escaped; end_life(type, false); break; }
-                    if (fe == FlightEnd::Capped) { ++st.capped; end_life(type, false); break; }
                 }
-                st.interactions += inter;
+                switch (path.end) {
+                    case LifeEnd::Settled: ++st.settled; end_life(type, true); break;
+                    case LifeEnd::Capped: ++st.capped; end_life(type, false); break;
+                    default: ++st.escaped; end_life(type, false); break;
+                }
+                st.interactions += path.inter;
             }
         }
         log.st = st;
