@@ -151,7 +151,71 @@ struct CellGrid {
             }
     }
     static uint64_t row_key(uint64_t y, uint64_t z) { return (z << 21) | y; }
+
+    // for_each_row_around for cells visited in sorted order (rows by x):
+    // the 9 rows around are looked up once per row of cells, and the cells
+    // of each found by a cursor that only moves forward.
+    class RowWindow {
+    public:
+        explicit RowWindow(const CellGrid& g) : g_(g) {}
+        template <class F>
+        void around(const Cell& cl, F&& f) {
+            const uint64_t row = cl.key >> 21;
+            if (row != row_ || cl.c[0] < x_) {
+                row_ = row;
+                n_ = 0;
+                for (int dz = -1; dz <= 1; ++dz)
+                    for (int dy = -1; dy <= 1; ++dy) {
+                        if ((dy < 0 && cl.c[1] == 0) || (dz < 0 && cl.c[2] == 0)) continue;
+                        auto it = g_.rows.find(row_key(cl.c[1] + uint64_t(dy), cl.c[2] + uint64_t(dz)));
+                        if (it == g_.rows.end()) continue;
+                        cursor_[n_] = it->second.first;
+                        end_[n_] = it->second.second;
+                        ++n_;
+                    }
+            }
+            x_ = cl.c[0];
+            const uint64_t lo_x = x_ > 0 ? x_ - 1 : 0, hi_x = uint64_t(x_) + 1;
+            for (int r = 0; r < n_; ++r) {
+                uint32_t c = cursor_[r];
+                while (c < end_[r] && (g_.cells[c].key & kXMask) < lo_x) ++c;
+                cursor_[r] = c;
+                uint32_t e = c;
+                while (e < end_[r] && (g_.cells[e].key & kXMask) <= hi_x) ++e;
+                if (e != c) f(g_.cells[c].begin, g_.cells[e - 1].end);
+            }
+        }
+
+    private:
+        static constexpr uint64_t kXMask = (uint64_t(1) << 21) - 1;
+        const CellGrid& g_;
+        uint64_t row_ = UINT64_MAX;
+        uint32_t x_ = 0;
+        int n_ = 0;
+        uint32_t cursor_[9] = {}, end_[9] = {};
+    };
 };
+
+// Sorts words (key << 32 | index) by their key (below 2^key_bits), stably:
+// least significant digit first.
+void radix_sort_upper(std::vector<uint64_t>& words, int key_bits) {
+    constexpr int kDigitBits = 11;
+    constexpr uint64_t kDigitMask = (uint64_t(1) << kDigitBits) - 1;
+    std::vector<uint64_t> moved(words.size());
+    std::vector<size_t> count(size_t(1) << kDigitBits);
+    for (int shift = 32; shift < 32 + key_bits; shift += kDigitBits) {
+        std::fill(count.begin(), count.end(), 0);
+        for (const uint64_t w : words) ++count[(w >> shift) & kDigitMask];
+        size_t at = 0;
+        for (size_t& c : count) {
+            const size_t n = c;
+            c = at;
+            at += n;
+        }
+        for (const uint64_t w : words) moved[count[(w >> shift) & kDigitMask]++] = w;
+        words.swap(moved);
+    }
+}
 
 // Cells a little larger than `radius`, so that a point closer than `radius`
 // to another is always in one of the 27 cells around the other's; ordered
@@ -170,11 +234,33 @@ CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_r
     for (int k = 0; k < 3; ++k) cell = std::max(cell, (hi[k] - lo[k]) / 1.0e6);
     if (!(cell > 0)) cell = 1.0;
     auto cell_of = [&](size_t i, int k) { return uint64_t((double(pts[3 * i + k]) - lo[k]) / cell); };
-    // (key, index) pairs are unique: the parallel sort's order is the serial one.
     g.original.resize(m);
     g.sp.resize(3 * m);
     std::vector<uint64_t> sorted_key(m);
-    {
+    // In rows: the cells numbered (z, y, x) in the box, if that fits 32 bits,
+    // and (number << 32 | index) sorted by number with a stable radix sort
+    // (the order of the (key, index) pairs' sort: the same cells and points).
+    uint64_t dims[3];
+    for (int k = 0; k < 3; ++k) dims[k] = uint64_t((hi[k] - lo[k]) / cell) + 1;
+    const bool numbered = in_rows && m > 0 && dims[0] * dims[1] * dims[2] <= (uint64_t(1) << 32);
+    if (numbered) {
+        int bits = 1;
+        while (bits < 32 && (uint64_t(1) << bits) < dims[0] * dims[1] * dims[2]) ++bits;
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i < r.end(); ++i)
+                sorted_key[i] = (((cell_of(i, 2) * dims[1] + cell_of(i, 1)) * dims[0] + cell_of(i, 0)) << 32) | i;
+        });
+        radix_sort_upper(sorted_key, bits);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t a = r.begin(); a < r.end(); ++a) {
+                const uint32_t i = uint32_t(sorted_key[a]);
+                g.original[a] = i;
+                sorted_key[a] >>= 32;
+                for (int k = 0; k < 3; ++k) g.sp[3 * a + k] = pts[3 * size_t(i) + k];
+            }
+        });
+    } else {
+        // (key, index) pairs are unique: the parallel sort's order is the serial one.
         std::vector<std::pair<uint64_t, uint32_t>> order(m);
         tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
             for (size_t i = r.begin(); i < r.end(); ++i)
@@ -195,14 +281,17 @@ CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_r
         size_t b = a;
         while (b < m && sorted_key[b] == sorted_key[a]) ++b;
         const uint32_t i = g.original[a];
-        g.cells.push_back({sorted_key[a], uint32_t(a), uint32_t(b),
-                           {uint32_t(cell_of(i, 0)), uint32_t(cell_of(i, 1)), uint32_t(cell_of(i, 2))}});
+        const uint32_t c[3] = {uint32_t(cell_of(i, 0)), uint32_t(cell_of(i, 1)), uint32_t(cell_of(i, 2))};
+        const uint64_t key = numbered ? (CellGrid::row_key(c[1], c[2]) << 21) | c[0] : sorted_key[a];
+        g.cells.push_back({key, uint32_t(a), uint32_t(b), {c[0], c[1], c[2]}});
         a = b;
     }
     if (in_rows) {
+        std::pair<uint32_t, uint32_t>* row = nullptr;
         for (size_t c = 0; c < g.cells.size(); ++c) {
-            auto& row = g.rows.try_emplace(g.cells[c].key >> 21, uint32_t(c), uint32_t(c)).first->second;
-            row.second = uint32_t(c + 1);
+            if (c == 0 || (g.cells[c].key >> 21) != (g.cells[c - 1].key >> 21))
+                row = &g.rows.try_emplace(g.cells[c].key >> 21, uint32_t(c), uint32_t(c)).first->second;
+            row->second = uint32_t(c + 1);
         }
     } else {
         g.index.reserve(g.cells.size());
@@ -627,20 +716,22 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
         }
         return d2;
     };
-    // Each point's neighbours closer than the wide radius (in sorted
-    // position order), per fixed block of cells, then packed.
+    const double wide2 = wide * wide;
+    // Each point's earlier neighbours closer than the wide radius (the same
+    // test in double the passes make), per fixed block of cells, then
+    // packed.  Only earlier ones: a point's decision waits on those alone;
+    // the list's order does not matter to any decision.
     const std::vector<CellGrid::Cell>& cells = grid.cells;
     const size_t nblocks = (cells.size() + kCellsPerTask - 1) / kCellsPerTask;
     std::vector<std::vector<uint32_t>> block_lists(nblocks);
     std::vector<uint64_t> offs(m + 1, 0);
-    // The lists are found in float, a little wider than the radius, so that
-    // every pair the passes test in double is in them.
-    const float wide2 = float(wide * wide * 1.001);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
         // The points of the 27 cells around a cell, side by side (a cell's
         // few points all scan the same ones).
-        std::vector<float> nx, ny, nz;
+        std::vector<double> nx, ny, nz;
+        std::vector<uint64_t> nkey;
         std::vector<uint32_t> nid, hit;
+        CellGrid::RowWindow rows(grid);
         for (size_t b = br.begin(); b < br.end(); ++b) {
             std::vector<uint32_t>& list = block_lists[b];
             const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
@@ -648,30 +739,30 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                 nx.clear();
                 ny.clear();
                 nz.clear();
+                nkey.clear();
                 nid.clear();
-                grid.for_each_row_around(cells[ci], [&](uint32_t begin, uint32_t end) {
+                rows.around(cells[ci], [&](uint32_t begin, uint32_t end) {
                     for (uint32_t j = begin; j < end; ++j) {
                         nx.push_back(sp[3 * size_t(j)]);
                         ny.push_back(sp[3 * size_t(j) + 1]);
                         nz.push_back(sp[3 * size_t(j) + 2]);
+                        nkey.push_back(order_key[j]);
                         nid.push_back(j);
                     }
                 });
                 const size_t count = nid.size();
                 if (hit.size() < count) hit.resize(count);
                 for (uint32_t i = cells[ci].begin; i < cells[ci].end; ++i) {
-                    const float px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+                    const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+                    const uint64_t ki = order_key[i];
                     // Every candidate is written, the cursor advanced only
                     // for the neighbours: no branch to mispredict.
                     size_t found = 0;
                     for (size_t k = 0; k < count; ++k) {
-                        const float dx = px - nx[k], dy = py - ny[k], dz = pz - nz[k];
+                        const double dx = px - nx[k], dy = py - ny[k], dz = pz - nz[k];
                         hit[found] = nid[k];
-                        found += (dx * dx + dy * dy + dz * dz < wide2) & (nid[k] != i);
+                        found += (dx * dx + dy * dy + dz * dz < wide2) & (nkey[k] < ki);
                     }
-                    // In sorted position order: the same list whatever the
-                    // order of the cells around.
-                    std::sort(hit.begin(), hit.begin() + std::ptrdiff_t(found));
                     list.insert(list.end(), hit.begin(), hit.begin() + std::ptrdiff_t(found));
                     offs[i + 1] = found;
                 }
@@ -691,11 +782,14 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     SURFEL_TIMEPOINT("lists");
 
     // One greedy pass at `radius` over the points whose state is kUndecided
-    // (the others count as out): afterwards every point is in or out.
+    // (the others count as out): afterwards every point is in or out.  The
+    // lists hold exactly the earlier points closer than the wide radius, so
+    // a pass at it needs no distance.
     std::vector<std::atomic<uint8_t>> state(m);
     std::vector<uint32_t> undecided;
     auto greedy_pass = [&](double radius) {
         const double radius2 = radius * radius;
+        const bool every_listed = radius == wide;
         undecided.clear();
         for (size_t i = 0; i < m; ++i)
             if (state[i].load(std::memory_order_relaxed) == kUndecided) undecided.push_back(uint32_t(i));
@@ -708,7 +802,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                     for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) {
                         const uint32_t j = nbrs[a];
                         const uint8_t s = state[j].load(std::memory_order_relaxed);
-                        if (s == kOut || !earlier(j, i) || !(dist2(i, j) < radius2)) continue;
+                        if (s == kOut || (!every_listed && !(dist2(i, j) < radius2))) continue;
                         if (s == kIn) {
                             decision = kOut;
                             break;
@@ -750,13 +844,24 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
             if (narrow < kDiskRadiusMin * r_max) return {};
             const double narrow2 = narrow * narrow;
             // The first pass's points are in from the start: a point closer
-            // than the narrow radius to one of them (earlier or later) is out.
+            // than the narrow radius to one of them (earlier or later) is
+            // out.  Earlier ones from the point's own list; a kept point
+            // marks its own listed (earlier) points (stores of one value:
+            // the same states at any thread count).
             tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
                 for (size_t i = r.begin(); i < r.end(); ++i) {
                     bool out = first_in[i] != 0;
                     for (uint64_t a = offs[i]; a < offs[i + 1] && !out; ++a)
                         out = first_in[nbrs[a]] && dist2(uint32_t(i), nbrs[a]) < narrow2;
-                    state[i].store(out ? kOut : kUndecided, std::memory_order_relaxed);
+                    if (out) state[i].store(kOut, std::memory_order_relaxed);
+                    else state[i].store(kUndecided, std::memory_order_relaxed);
+                }
+            });
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+                for (size_t j = r.begin(); j < r.end(); ++j) {
+                    if (!first_in[j]) continue;
+                    for (uint64_t a = offs[j]; a < offs[j + 1]; ++a)
+                        if (dist2(uint32_t(j), nbrs[a]) < narrow2) state[nbrs[a]].store(kOut, std::memory_order_relaxed);
                 }
             });
             greedy_pass(narrow);
