@@ -52,6 +52,11 @@ void require_surfels_on_every_surface(const Mesh& mesh, const SceneIndex& index,
     }
 }
 
+// Surfel counts up to which the splat kernel is built beside the triangle
+// lookup (their temporaries together stay far below the memory a 1.6M-surfel
+// run peaks at).
+constexpr size_t kSplatBesideMaxSurfels = 500000;
+
 }  // namespace
 
 Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead)
@@ -67,9 +72,12 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
     // the sampling, the indices, the splat kernel and the measures, in one
     // arena of the configured threads (their result never depends on the
     // scheduling; their time is their own wall time, overlapping the others').
-    // The splat kernel is not built beside the triangle lookup: both hold
-    // large temporaries, and together they lifted the peak of 1.6M surfels on
-    // the bunny from 1,873 to 2,057 MiB.  The Embree BVH is built first,
+    // The splat kernel needs the surfels only: up to kSplatBesideMaxSurfels
+    // it is built beside the kd-trees and the triangle lookup (the serial
+    // stretches of each, e.g. the kernel's transposition and the lookup's
+    // packing, leave a core to the other); above, after them: both hold large
+    // temporaries, and together they lifted the peak of 1.6M surfels on the
+    // bunny from 1,873 to 2,057 MiB.  The Embree BVH is built first,
     // outside the arena, with the threads it always had (its layout never
     // depends on the configured count).
     auto t0 = std::chrono::steady_clock::now();
@@ -93,15 +101,20 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
             }
             setup_seconds_.sample = seconds_since(t0);
             const float sigma = float(std::sqrt(mesh_.area() / double(state_.size())));
+            auto splat = [&] {
+                const auto t = std::chrono::steady_clock::now();
+                state_.splat = build_splat_kernel(state_.surf.position.data(), state_.surf.normal.data(),
+                                                  state_.surface.data(), state_.size(), sigma);
+                setup_seconds_.splat = seconds_since(t);
+            };
+            const bool splat_beside = state_.size() <= kSplatBesideMaxSurfels;
+            if (splat_beside) beside.run(splat);
             t0 = std::chrono::steady_clock::now();
             index_->build_surfels(state_.surf.position.data(), state_.surface.data(), state_.size(), sigma,
                                   c.threads);
             setup_seconds_.surfels = seconds_since(t0);
             require_surfels_on_every_surface(mesh_, *index_, c.surfels);
-            t0 = std::chrono::steady_clock::now();
-            state_.splat = build_splat_kernel(state_.surf.position.data(), state_.surf.normal.data(),
-                                              state_.surface.data(), state_.size(), sigma);
-            setup_seconds_.splat = seconds_since(t0);
+            if (!splat_beside) splat();
             t0 = std::chrono::steady_clock::now();
             state_.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh_,
                                               *index_, state_.surf, kAoLengthFraction * frame_.diag, c.seed,

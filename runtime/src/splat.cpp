@@ -40,7 +40,7 @@ void radius_search(const PointColumns& cols, const float* q, float r2,
 template <class Search>
 void fresh_neighbourhood(const Search& search, size_t s, const float* position, const float* normal,
                          const int32_t* surface, float sigma, std::vector<std::pair<uint32_t, float>>& found,
-                         std::vector<std::pair<uint32_t, float>>& out) {
+                         std::vector<double>& w, std::vector<std::pair<uint32_t, float>>& out) {
     const float r = kRadiusInSigmas * sigma;
     const float r2 = r * r;
     const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
@@ -50,7 +50,6 @@ void fresh_neighbourhood(const Search& search, size_t s, const float* position, 
     const float* ns = normal + 3 * s;
     if (r2 > 0) radius_search(search, ps, r2, found);
     double sum = 0;
-    std::vector<double> w;
     for (const auto& [j, d2] : found) {
         if (j == s || surface[j] != surface[s]) continue;
         const float* nj = normal + 3 * size_t(j);
@@ -98,8 +97,9 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
     Scatter scatter(n);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& range) {
         std::vector<std::pair<uint32_t, float>> found;
+        std::vector<double> w;
         for (size_t s = range.begin(); s < range.end(); ++s)
-            fresh_neighbourhood(cols, s, position, normal, surface, sigma, found, scatter[s]);
+            fresh_neighbourhood(cols, s, position, normal, surface, sigma, found, w, scatter[s]);
     });
     return gather_form(scatter, n);
 }
@@ -163,8 +163,9 @@ SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, c
     tbb::parallel_for(tbb::blocked_range<size_t>(0, fresh_sources.size(), 64),
                       [&](const tbb::blocked_range<size_t>& range) {
                           std::vector<std::pair<uint32_t, float>> found;
+                          std::vector<double> w;
                           for (size_t k = range.begin(); k < range.end(); ++k)
-                              fresh_neighbourhood(tree, fresh_sources[k], position, normal, surface, sigma, found,
+                              fresh_neighbourhood(tree, fresh_sources[k], position, normal, surface, sigma, found, w,
                                                   fresh_lists[k]);
                       });
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {

@@ -197,22 +197,40 @@ struct CellGrid {
 };
 
 // Sorts words (key << 32 | index) by their key (below 2^key_bits), stably:
-// least significant digit first.
+// least significant digit first, each pass over fixed blocks of the words
+// (counted, then moved, in parallel), so the result is the serial sort's.
 void radix_sort_upper(std::vector<uint64_t>& words, int key_bits) {
     constexpr int kDigitBits = 11;
-    constexpr uint64_t kDigitMask = (uint64_t(1) << kDigitBits) - 1;
-    std::vector<uint64_t> moved(words.size());
-    std::vector<size_t> count(size_t(1) << kDigitBits);
+    constexpr size_t kDigits = size_t(1) << kDigitBits;
+    constexpr size_t kWordsPerBlock = 32768;
+    const size_t n = words.size();
+    const size_t nblocks = (n + kWordsPerBlock - 1) / kWordsPerBlock;
+    std::vector<uint64_t> moved(n);
+    std::vector<size_t> count(nblocks * kDigits);  // block-major
     for (int shift = 32; shift < 32 + key_bits; shift += kDigitBits) {
-        std::fill(count.begin(), count.end(), 0);
-        for (const uint64_t w : words) ++count[(w >> shift) & kDigitMask];
+        auto digit = [shift](uint64_t w) { return size_t(w >> shift) & (kDigits - 1); };
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t b = r.begin(); b < r.end(); ++b) {
+                size_t* c = &count[b * kDigits];
+                std::fill(c, c + kDigits, 0);
+                for (size_t i = b * kWordsPerBlock; i < std::min(n, (b + 1) * kWordsPerBlock); ++i) ++c[digit(words[i])];
+            }
+        });
+        // where each block's words of each digit go: digits in order, blocks in order within a digit
         size_t at = 0;
-        for (size_t& c : count) {
-            const size_t n = c;
-            c = at;
-            at += n;
-        }
-        for (const uint64_t w : words) moved[count[(w >> shift) & kDigitMask]++] = w;
+        for (size_t d = 0; d < kDigits; ++d)
+            for (size_t b = 0; b < nblocks; ++b) {
+                const size_t k = count[b * kDigits + d];
+                count[b * kDigits + d] = at;
+                at += k;
+            }
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t b = r.begin(); b < r.end(); ++b) {
+                size_t* c = &count[b * kDigits];
+                for (size_t i = b * kWordsPerBlock; i < std::min(n, (b + 1) * kWordsPerBlock); ++i)
+                    moved[c[digit(words[i])]++] = words[i];
+            }
+        });
         words.swap(moved);
     }
 }
