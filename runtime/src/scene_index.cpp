@@ -47,10 +47,10 @@ constexpr size_t kPruningSurfels = 8;
 // nearest surfel to a sphere's centre searched first within this many
 // spacings, doubled up to kNearestAttempts times (then the kd-tree).
 constexpr double kColumnSpacings = 2.0, kNearestStartSpacings = 1.0;
-// The lookup's one search covers the ball whenever the nearest surfel to the
-// sphere's centre is closer than this many spacings.
-constexpr double kOneSearchSpacings = 0.8;
 constexpr int kNearestAttempts = 4;
+// Above this many surfels found for a sphere, only the nearest few are put in
+// order before the pruning (fewer: a whole sort is as cheap).
+constexpr size_t kPartialSortFrom = 96;
 
 V3 unit(const std::array<float, 3>& a) {
     const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
@@ -373,102 +373,64 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     L.begin = 0;
                     L.count = 0;
                     const float c[3] = {L.cx, L.cy, L.cz};
-                    const double r = std::sqrt(double(L.reach2));
-                    // The ball's radius from q2, the squared distance to the
-                    // nearest surfel: monotone in q2, bit for bit.
-                    auto ball_radius2 = [&](float nearest2) {
-                        const double R = (2.0 * r + std::sqrt(double(nearest2))) * (1.0 + 1e-5);
-                        return float(R * R);
-                    };
-                    // One search for both the nearest surfel and the ball:
-                    // wide enough for the ball whenever the nearest surfel
-                    // is closer than rho1 (R2 <= wide2 then, by
-                    // monotonicity), which it is on the sampler's surfels
-                    // (no point of a surface farther than ~0.75 spacings from
-                    // one).  Otherwise the nearest is searched within rho,
-                    // doubled until some surfel is closer (then the kd-tree
-                    // answers), and the ball searched again.
-                    const float rho1_2 = float(kOneSearchSpacings * spacing * kOneSearchSpacings * spacing);
-                    const float wide2 = ball_radius2(rho1_2);
-                    found.clear();
+                    // The distance to the nearest surfel: the least of the
+                    // surfels closer than rho, if there are any (every
+                    // other one is farther); rho grows until some are, then
+                    // the kd-tree answers.
                     float q2 = INFINITY;
-                    cols.within(c, wide2, [&](uint32_t i, float d2) {
-                        found.emplace_back(i, d2);
-                        q2 = std::min(q2, d2);
-                    });
-                    float R2 = 0;
-                    if (q2 < rho1_2) {
-                        R2 = ball_radius2(q2);
-                        size_t w = 0;
-                        for (const auto& f : found)
-                            if (f.second < R2) found[w++] = f;
-                        found.resize(w);
-                    } else {
-                        q2 = INFINITY;
-                        double rho = kNearestStartSpacings * spacing;
-                        for (int attempt = 0; attempt < kNearestAttempts && q2 == INFINITY; ++attempt, rho *= 2.0)
-                            cols.within(c, float(rho * rho), [&](uint32_t, float d2) { q2 = std::min(q2, d2); });
-                        if (q2 == INFINITY) {
-                            uint32_t q = 0;
-                            nanoflann::KNNResultSet<float, uint32_t> rs(1);
-                            rs.init(&q, &q2);
-                            tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
-                        }
-                        R2 = ball_radius2(q2);
-                        found.clear();
-                        cols.within(c, R2, [&](uint32_t i, float d2) { found.emplace_back(i, d2); });
+                    double rho = kNearestStartSpacings * spacing;
+                    for (int attempt = 0; attempt < kNearestAttempts && q2 == INFINITY; ++attempt, rho *= 2.0)
+                        cols.within(c, float(rho * rho), [&](uint32_t, float d2) { q2 = std::min(q2, d2); });
+                    if (q2 == INFINITY) {
+                        uint32_t q = 0;
+                        nanoflann::KNNResultSet<float, uint32_t> rs(1);
+                        rs.init(&q, &q2);
+                        tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
                     }
+                    const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
+                    const float R2 = float(R * R);
+                    found.clear();
+                    cols.within(c, R2, [&](uint32_t i, float d2) { found.emplace_back(i, d2); });
                     // Drop the surfels that are never the nearest in the
                     // sphere B(c, r): y loses to x everywhere in B when
                     // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
                     // |p-x|^2 - |p-y|^2 over B), here with a margin far above
                     // float rounding, so the scan's answer (ties included)
-                    // is unchanged.  x: the kPruningSurfels surfels nearest
-                    // to c (by distance, then index), picked by insertion
-                    // (the kept ones are put in order below).
-                    size_t nx = 0;
-                    uint32_t near_at[kPruningSurfels];
-                    const auto nearer = [](const std::pair<uint32_t, float>& a, const std::pair<uint32_t, float>& b2) {
+                    // is unchanged.  x: the few surfels nearest to c.
+                    // Only the kPruningSurfels nearest need their order here
+                    // (the kept ones are sorted again below): many found
+                    // (a triangle much larger than the spacing, about to be
+                    // cut into cells) are not sorted all.
+                    const auto nearer = [](const auto& a, const auto& b2) {
                         return a.second < b2.second || (a.second == b2.second && a.first < b2.first);
                     };
-                    for (uint32_t k = 0; k < found.size(); ++k) {
-                        if (nx == kPruningSurfels && !nearer(found[k], found[near_at[nx - 1]])) continue;
-                        size_t at = nx < kPruningSurfels ? nx++ : nx - 1;
-                        while (at > 0 && nearer(found[k], found[near_at[at - 1]])) {
-                            near_at[at] = near_at[at - 1];
-                            --at;
-                        }
-                        near_at[at] = k;
+                    const size_t nx = std::min(found.size(), kPruningSurfels);
+                    if (found.size() > kPartialSortFrom) {
+                        std::nth_element(found.begin(), found.begin() + std::ptrdiff_t(nx), found.end(), nearer);
+                        std::sort(found.begin(), found.begin() + std::ptrdiff_t(nx), nearer);
+                    } else {
+                        std::sort(found.begin(), found.end(), nearer);
                     }
+                    const double r = std::sqrt(double(L.reach2));
                     // y can lose to x only if |c-y| + |c-x| > 2r (with
                     // |y-x| >= |c-y| - |c-x| the test's left side is at most
                     // 2r|y-x| otherwise, below its right side by the whole
                     // margin): the pairs that cannot pass skip the distance.
-                    double from_c[kPruningSurfels], x2[kPruningSurfels], xp[kPruningSurfels][3];
-                    uint32_t xid[kPruningSurfels];
-                    for (size_t k = 0; k < nx; ++k) {
-                        const auto& x = found[near_at[k]];
-                        xid[k] = x.first;
-                        x2[k] = double(x.second);
-                        from_c[k] = std::sqrt(x2[k]);
-                        for (int d = 0; d < 3; ++d) xp[k][d] = double(tree.pos[3 * size_t(x.first) + size_t(d)]);
-                    }
+                    double from_c[kPruningSurfels];
+                    for (size_t k = 0; k < nx; ++k) from_c[k] = std::sqrt(double(found[k].second));
                     kept.clear();
                     for (const auto& f : found) {
                         const float* y = &tree.pos[3 * size_t(f.first)];
-                        const double y0 = y[0], y1 = y[1], y2 = y[2];
                         const double cy2 = double(f.second);
                         const double cy = std::sqrt(cy2);
                         bool never = false;
-                        // from_c ascends: the pairs skipped are a prefix
-                        size_t k = 0;
-                        while (k < nx && cy + from_c[k] <= 2.0 * r) ++k;
-                        for (; k < nx && !never; ++k) {
-                            if (xid[k] == f.first) continue;
-                            const double ex = y0 - xp[k][0], ey = y1 - xp[k][1], ez = y2 - xp[k][2];
+                        for (size_t k = 0; k < nx && !never; ++k) {
+                            if (found[k].first == f.first || cy + from_c[k] <= 2.0 * r) continue;
+                            const float* x = &tree.pos[3 * size_t(found[k].first)];
+                            const double ex = double(y[0]) - x[0], ey = double(y[1]) - x[1], ez = double(y[2]) - x[2];
                             const double yx = std::sqrt(ex * ex + ey * ey + ez * ez);
                             const double scale = r + cy + yx;
-                            never = cy2 - x2[k] > 2.0 * r * yx + 1e-3 * scale * scale;
+                            never = cy2 - double(found[k].second) > 2.0 * r * yx + 1e-3 * scale * scale;
                         }
                         if (!never) kept.push_back(f);
                     }
@@ -484,7 +446,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                         const float* pp = &tree.pos[3 * size_t(f.first)];
                         const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
                         sc.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
-                        si.push_back(tree.index.empty() ? f.first : tree.index[f.first]);
+                        si.push_back(tree.index[f.first]);
                     }
                     order.resize(found.size());
                     for (uint32_t k = 0; k < order.size(); ++k) order[k] = k;
