@@ -542,6 +542,7 @@ NB_MODULE(_runtime, m) {
                  d["moved_vertices"] = st.moved_vertices;
                  d["clamped_vertices"] = st.clamped_vertices;
                  d["inversion_limited"] = st.inversion_limited;
+                 d["clearance_limited"] = st.clearance_limited;
                  d["nonfinite_surfels"] = st.nonfinite_surfels;
                  d["max_displacement"] = st.max_displacement;
                  d["displace_seconds"] = st.displace_seconds;

@@ -61,6 +61,69 @@ std::vector<V3> vertex_normals(const Mesh& mesh) {
     return n;
 }
 
+std::vector<V3> move_directions(const Mesh& mesh, int rings) {
+    std::vector<V3> dir = vertex_normals(mesh);
+    if (rings <= 0) return dir;
+    // Edge neighbours as compressed rows: each triangle's three edges, both ways.
+    const size_t nv = mesh.num_vertices();
+    std::vector<uint32_t> offset(nv + 1, 0);
+    for (int32_t x : mesh.triangles) offset[size_t(x) + 1] += 2;
+    for (size_t v = 0; v < nv; ++v) offset[v + 1] += offset[v];
+    std::vector<uint32_t> fill(offset.begin(), offset.end() - 1);
+    std::vector<uint32_t> nb(offset[nv]);
+    for (size_t t = 0; t < mesh.num_triangles(); ++t)
+        for (int k = 0; k < 3; ++k) {
+            const uint32_t a = uint32_t(mesh.triangles[3 * t + size_t(k)]);
+            const uint32_t b = uint32_t(mesh.triangles[3 * t + size_t(k + 1) % 3]);
+            nb[fill[a]++] = b;
+            nb[fill[b]++] = a;
+        }
+    std::vector<uint32_t> end(nv, 0);   // each row sorted, duplicates dropped: row v is [offset[v], end[v])
+    for (size_t v = 0; v < nv; ++v) {
+        auto first = nb.begin() + offset[v], last = nb.begin() + offset[v + 1];
+        std::sort(first, last);
+        end[v] = uint32_t(std::unique(first, last) - nb.begin());
+    }
+    std::vector<V3> next(nv);
+    for (int pass = 0; pass < rings; ++pass) {
+        for (size_t v = 0; v < nv; ++v) {
+            V3 acc = dir[v];
+            for (uint32_t j = offset[v]; j < end[v]; ++j) acc = acc + dir[nb[j]];
+            next[v] = normalize(acc);
+        }
+        dir.swap(next);
+    }
+    return dir;
+}
+
+int64_t limit_to_clearance(const SceneIndex& index, const Mesh& mesh, const std::vector<V3>& dir,
+                           double min_gap, std::vector<float>& dv, int threads) {
+    const size_t nv = mesh.num_vertices();
+    std::vector<uint8_t> cut(nv, 0);
+    // The ray starts at the vertex itself: the triangles around it are met
+    // at t = 0 only, which tnear leaves out.
+    const float tnear = float(1e-3 * min_gap);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 1024), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t v = r.begin(); v < r.end(); ++v) {
+                if (dv[v] == 0.0f) continue;
+                const V3 p = {mesh.vertices[3 * v], mesh.vertices[3 * v + 1], mesh.vertices[3 * v + 2]};
+                RTCRayHit rh;
+                index.cast(rh, p, dv[v] < 0 ? dir[v] * -1.0f : dir[v], tnear);
+                if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
+                const double room = std::max(0.0, 0.5 * (double(rh.ray.tfar) - min_gap));
+                if (std::fabs(double(dv[v])) > room) {
+                    dv[v] = float(std::copysign(room, double(dv[v])));
+                    cut[v] = 1;
+                }
+            }
+        });
+    });
+    int64_t n = 0;
+    for (uint8_t c : cut) n += c;
+    return n;
+}
+
 void transfer_rows(const SurfelState& old_state, double old_area, const SceneIndex& old_index,
                    SurfelState& state, double new_area, const SceneIndex& index, int threads) {
     constexpr size_t K = kSmoothingNeighbours;
@@ -208,9 +271,9 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     const double max_step = double(c.max_step_factor) * target;
 
     // Surfel -> vertex: the smoothing of the renders over all surfels
-    // (Gaussian, k = 8), along the area-weighted vertex normal.
+    // (Gaussian, k = 8), along the vertex normal smoothed over a few rings.
     const size_t nv = mesh.num_vertices();
-    const std::vector<V3> normal = vertex_normals(mesh);
+    const std::vector<V3> direction = move_directions(mesh, kMoveDirectionRings);
     std::vector<float> dv(nv, 0.0f);
     run_with_threads(c.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 1024), [&](const tbb::blocked_range<size_t>& r) {
@@ -228,12 +291,15 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     std::vector<uint8_t> used(nv, 0);
     for (int32_t x : mesh.triangles) used[size_t(x)] = 1;
     for (size_t v = 0; v < nv; ++v) {
-        if (!used[v] || !(dot(normal[v], normal[v]) > 0)) dv[v] = 0.0f;
+        if (!used[v] || !(dot(direction[v], direction[v]) > 0)) dv[v] = 0.0f;
         if (std::fabs(double(dv[v])) > max_step) {
             dv[v] = float(std::copysign(max_step, double(dv[v])));
             ++st.clamped_vertices;
         }
     }
+    // No part may thin through, no gap close (their two sides would cross,
+    // and a surface turned inside out there inflates under erosion).
+    st.clearance_limited = limit_to_clearance(*index, mesh, direction, target, dv, c.threads);
     // No triangle may flip: shorten the moves of the vertices of a triangle
     // whose normal would turn by more than 90 degrees (halving, up to 8 times, then 0).
     const size_t m = mesh.num_triangles();
@@ -244,7 +310,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
                                vertex(mesh, size_t(tri[2])) - vertex(mesh, size_t(tri[0])));
     }
     std::vector<uint8_t> limited(nv, 0);
-    auto moved = [&](size_t v) { return vertex(mesh, v) + normal[v] * dv[v]; };
+    auto moved = [&](size_t v) { return vertex(mesh, v) + direction[v] * dv[v]; };
     for (int round = 0; round <= 8; ++round) {
         bool flipped = false;
         for (size_t t = 0; t < m; ++t) {

@@ -25,6 +25,7 @@ struct ShapeStats {
     int64_t moved_vertices = 0;
     int64_t clamped_vertices = 0;      // |displacement| cut to the per-iteration bound
     int64_t inversion_limited = 0;     // vertices whose move was shortened so that no triangle flips
+    int64_t clearance_limited = 0;     // vertices whose move was shortened to keep a part from thinning through
     int64_t nonfinite_surfels = 0;     // surfels whose displacement was NaN/inf (taken as 0)
     double max_displacement = 0;       // largest |vertex move| applied (scene units)
     double displace_seconds = 0, retile_seconds = 0, resample_seconds = 0, rebuild_seconds = 0;
@@ -40,6 +41,29 @@ std::vector<float> surfel_displacement(const Config& c, const SurfelState& state
 // Area-weighted unit vertex normals (outward for a consistently oriented
 // closed mesh).
 std::vector<V3> vertex_normals(const Mesh& mesh);
+
+// The direction each vertex moves along (SPEC §13.12 step 2): the
+// area-weighted vertex normal, then `rings` times replaced by the
+// normalised sum of its own and its edge neighbours' directions (Jacobi
+// passes: the same at any thread count).  Moves as long as half an edge
+// along the raw normals converge where the surface is rough at the edge
+// length's scale (neighbours' normals differ by tens of degrees), fold the
+// surface there, and the folds inflate under further erosion; directions
+// smooth over a few edge lengths carry that roughness along instead.
+// Vertices of no triangle get the zero vector.
+constexpr int kMoveDirectionRings = 4;
+std::vector<V3> move_directions(const Mesh& mesh, int rings);
+
+// Limits moves so that no part of the solid thins through and no gap
+// closes (SPEC §13.12 step 3): a vertex moving by dv[v] along dir[v] casts
+// a ray from where it is, along -dir[v] when it moves inward (dv < 0) and
+// along +dir[v] when outward; if the ray meets the surface at distance t,
+// |dv[v]| is cut to max(0, (t - min_gap) / 2) -- the two sides of a part
+// (or of a gap) moving towards each other keep min_gap between them.
+// Returns how many moves were cut.  Parallel; each vertex's result depends
+// on its own ray only, so it is the same at any thread count.
+int64_t limit_to_clearance(const SceneIndex& index, const Mesh& mesh, const std::vector<V3>& dir,
+                           double min_gap, std::vector<float>& dv, int threads);
 
 // Transfers rows from `old_state` (on a surface of area old_area) to the
 // surfels of `state` (area new_area): every old surfel scatters its amount
