@@ -61,7 +61,7 @@ std::vector<V3> vertex_normals(const Mesh& mesh) {
     return n;
 }
 
-std::vector<V3> move_directions(const Mesh& mesh, int rings) {
+std::vector<V3> move_directions(const Mesh& mesh, int rings, int threads) {
     std::vector<V3> dir = vertex_normals(mesh);
     if (rings <= 0) return dir;
     // Edge neighbours as compressed rows: each triangle's three edges, both ways.
@@ -86,11 +86,15 @@ std::vector<V3> move_directions(const Mesh& mesh, int rings) {
     }
     std::vector<V3> next(nv);
     for (int pass = 0; pass < rings; ++pass) {
-        for (size_t v = 0; v < nv; ++v) {
-            V3 acc = dir[v];
-            for (uint32_t j = offset[v]; j < end[v]; ++j) acc = acc + dir[nb[j]];
-            next[v] = normalize(acc);
-        }
+        run_with_threads(threads, [&] {
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 4096), [&](const tbb::blocked_range<size_t>& r) {
+                for (size_t v = r.begin(); v < r.end(); ++v) {
+                    V3 acc = dir[v];
+                    for (uint32_t j = offset[v]; j < end[v]; ++j) acc = acc + dir[nb[j]];
+                    next[v] = normalize(acc);
+                }
+            });
+        });
         dir.swap(next);
     }
     return dir;
@@ -108,8 +112,10 @@ int64_t limit_to_clearance(const SceneIndex& index, const Mesh& mesh, const std:
             for (size_t v = r.begin(); v < r.end(); ++v) {
                 if (dv[v] == 0.0f) continue;
                 const V3 p = {mesh.vertices[3 * v], mesh.vertices[3 * v + 1], mesh.vertices[3 * v + 2]};
+                // only a surface nearer than min_gap + 2|dv| can cut the move: the ray stops there
                 RTCRayHit rh;
-                index.cast(rh, p, dv[v] < 0 ? dir[v] * -1.0f : dir[v], tnear);
+                index.cast(rh, p, dv[v] < 0 ? dir[v] * -1.0f : dir[v], tnear,
+                           float(min_gap + 2.0 * std::fabs(double(dv[v]))));
                 if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
                 const double room = std::max(0.0, 0.5 * (double(rh.ray.tfar) - min_gap));
                 if (std::fabs(double(dv[v])) > room) {
@@ -273,7 +279,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     // Surfel -> vertex: the smoothing of the renders over all surfels
     // (Gaussian, k = 8), along the vertex normal smoothed over a few rings.
     const size_t nv = mesh.num_vertices();
-    const std::vector<V3> direction = move_directions(mesh, kMoveDirectionRings);
+    const std::vector<V3> direction = move_directions(mesh, kMoveDirectionRings, c.threads);
     std::vector<float> dv(nv, 0.0f);
     run_with_threads(c.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 1024), [&](const tbb::blocked_range<size_t>& r) {

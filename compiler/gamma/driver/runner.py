@@ -409,6 +409,8 @@ class Run:
             record["geometry"] = shaped["geometry"]
             record["shape"] = {k: v for k, v in shaped.items() if k != "geometry"}
             for key, count in (("clamped_vertices", "was cut to the per-iteration bound"),
+                               ("clearance_limited", "was shortened so that no part wears through and no gap "
+                                                     "closes (SPEC §13.12)"),
                                ("inversion_limited", "was shortened so that no triangle turns over")):
                 if shaped[key]:
                     print(f"\ngammac: warning: {self.shape_where}: the displacement of {shaped[key]} "

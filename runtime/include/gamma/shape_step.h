@@ -50,9 +50,9 @@ std::vector<V3> vertex_normals(const Mesh& mesh);
 // length's scale (neighbours' normals differ by tens of degrees), fold the
 // surface there, and the folds inflate under further erosion; directions
 // smooth over a few edge lengths carry that roughness along instead.
-// Vertices of no triangle get the zero vector.
+// Vertices of no triangle get the zero vector.  `threads` <= 0: all.
 constexpr int kMoveDirectionRings = 4;
-std::vector<V3> move_directions(const Mesh& mesh, int rings);
+std::vector<V3> move_directions(const Mesh& mesh, int rings, int threads = 0);
 
 // Limits moves so that no part of the solid thins through and no gap
 // closes (SPEC §13.12 step 3): a vertex moving by dv[v] along dir[v] casts
