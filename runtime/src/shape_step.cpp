@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <string>
 
 #include "gamma/error.h"
@@ -103,7 +104,7 @@ std::vector<V3> move_directions(const Mesh& mesh, int rings, int threads) {
 int64_t limit_to_clearance(const SceneIndex& index, const Mesh& mesh, const std::vector<V3>& dir,
                            double min_gap, std::vector<float>& dv, int threads) {
     const size_t nv = mesh.num_vertices();
-    std::vector<uint8_t> cut(nv, 0);
+    std::vector<double> room(nv, std::numeric_limits<double>::infinity());
     // The ray starts at the vertex itself: the triangles around it are met
     // at t = 0 only, which tnear leaves out.
     const float tnear = float(1e-3 * min_gap);
@@ -117,16 +118,29 @@ int64_t limit_to_clearance(const SceneIndex& index, const Mesh& mesh, const std:
                 index.cast(rh, p, dv[v] < 0 ? dir[v] * -1.0f : dir[v], tnear,
                            float(min_gap + 2.0 * std::fabs(double(dv[v]))));
                 if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
-                const double room = std::max(0.0, 0.5 * (double(rh.ray.tfar) - min_gap));
-                if (std::fabs(double(dv[v])) > room) {
-                    dv[v] = float(std::copysign(room, double(dv[v])));
-                    cut[v] = 1;
-                }
+                room[v] = std::max(0.0, 0.5 * (double(rh.ray.tfar) - min_gap));
             }
         });
     });
+    // A vertex has no more room than its edge neighbours moving the same way:
+    // at the rim of a part worn to one edge's thickness the rim's own ray runs
+    // along the part, and the rim moving on between its stopped sides would
+    // fold the surface there.
+    std::vector<double> least = room;
+    for (size_t t = 0; t < mesh.num_triangles(); ++t)
+        for (int k = 0; k < 3; ++k) {
+            const size_t a = size_t(mesh.triangles[3 * t + size_t(k)]);
+            const size_t b = size_t(mesh.triangles[3 * t + size_t(k + 1) % 3]);
+            if ((dv[a] < 0) != (dv[b] < 0)) continue;
+            least[a] = std::min(least[a], room[b]);
+            least[b] = std::min(least[b], room[a]);
+        }
     int64_t n = 0;
-    for (uint8_t c : cut) n += c;
+    for (size_t v = 0; v < nv; ++v)
+        if (std::fabs(double(dv[v])) > least[v]) {
+            dv[v] = float(std::copysign(least[v], double(dv[v])));
+            ++n;
+        }
     return n;
 }
 

@@ -58,8 +58,10 @@ std::vector<V3> move_directions(const Mesh& mesh, int rings, int threads = 0);
 // closes (SPEC §13.12 step 3): a vertex moving by dv[v] along dir[v] casts
 // a ray from where it is, along -dir[v] when it moves inward (dv < 0) and
 // along +dir[v] when outward; if the ray meets the surface at distance t,
-// |dv[v]| is cut to max(0, (t - min_gap) / 2) -- the two sides of a part
-// (or of a gap) moving towards each other keep min_gap between them.
+// the vertex's room is max(0, (t - min_gap) / 2) (no hit: unlimited) -- the
+// two sides of a part (or of a gap) moving towards each other keep min_gap
+// between them -- and |dv[v]| is cut to the least room of the vertex and
+// its edge neighbours that move the same way (inward or outward).
 // Returns how many moves were cut.  Parallel; each vertex's result depends
 // on its own ray only, so it is the same at any thread count.
 int64_t limit_to_clearance(const SceneIndex& index, const Mesh& mesh, const std::vector<V3>& dir,
