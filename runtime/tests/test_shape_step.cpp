@@ -39,6 +39,12 @@ Config sphere_config(int64_t surfels, float metres_per_unit, const void* update)
     return c;
 }
 
+ShapeStats run_iteration(Simulation& sim, int it) {
+    sim.trace(it);
+    sim.update(it);
+    return sim.shape(it);
+}
+
 void run_iterations(Simulation& sim, int n) {
     for (int it = 1; it <= n; ++it) {
         sim.trace(it);
@@ -707,9 +713,9 @@ Mesh closed_box(float sx, float sy, float sz) {
 // base are thick.  A solid worn uniformly only loses area; moved along the
 // raw vertex normals and without the clearance limit, the two sides of an
 // ear crossed and the part turned inside out there inflated under further
-// wear (the area grew past the first step's within 8 steps, 3x by the 24th
-// at 100k surfels).  Every step's area stays at or below the one before,
-// and the boundary holds.
+// wear (measured before: the area grew from step 4 on, to 1.9x the input's
+// by step 8).  Every step's area stays at or below the one before, and the
+// boundary holds.
 TEST(ShapeStep, UniformWearOfTheBunnyNeverGrowsItsArea) {
     const Mesh m = Mesh::load(std::string(GAMMA_SCENES_DIR) + "/stanford-bunny.obj");
     Config c = bunny_waves_config();
@@ -720,9 +726,7 @@ TEST(ShapeStep, UniformWearOfTheBunnyNeverGrowsItsArea) {
     double area = m.area();
     int64_t clearance_limited = 0;
     for (int it = 1; it <= 8; ++it) {
-        sim.trace(it);
-        sim.update(it);
-        const ShapeStats s = sim.shape(it);
+        const ShapeStats s = run_iteration(sim, it);
         clearance_limited += s.clearance_limited;
         EXPECT_LE(s.geometry.area, area) << "iteration " << it;
         // (the 15° bound is not guaranteed, SPEC §13.12: a step that misses it says so)
@@ -755,9 +759,9 @@ TEST(ShapeStep, MoveDirectionsOfASphereAreRadial) {
 }
 
 // The clearance limit alone (SPEC §13.12 step 3): a slab 0.06 thick worn by
-// 0.01 per step from both sides thins to the target edge length and no
-// further; its faces never cross (the volume stays positive and at least
-// half a target edge thick over the slab's area) and it stays closed.
+// 0.01 per step from both sides thins to about the target edge length and
+// no further; its faces never cross (it stays at least half a target edge
+// thick over its 1 m² faces) and it stays closed.
 TEST(ShapeStep, ASlabWornFromBothSidesKeepsOneEdgeOfThickness) {
     const Mesh m = closed_box(1.0f, 1.0f, 0.06f);
     ASSERT_GT(measure(m).volume, 0.0);   // outward-wound
@@ -765,13 +769,11 @@ TEST(ShapeStep, ASlabWornFromBothSidesKeepsOneEdgeOfThickness) {
     int64_t limited = 0;
     double target = 0;
     for (int it = 1; it <= 6; ++it) {
-        sim.trace(it);
-        sim.update(it);
-        const ShapeStats s = sim.shape(it);
+        const ShapeStats s = run_iteration(sim, it);
         limited += s.clearance_limited;
         target = 2.0 * std::sqrt(s.geometry.area / 6000.0);
         ASSERT_TRUE(s.geometry.closed) << "iteration " << it;
-        EXPECT_GT(s.geometry.volume, 0.5 * target * 0.8) << "iteration " << it;
+        EXPECT_GT(s.geometry.volume, 0.5 * target) << "iteration " << it;   // over the 1 m² faces
     }
     EXPECT_GT(limited, 0);
     // thinner than it was, by about the 0.06 - target the limit allows
