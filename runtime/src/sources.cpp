@@ -204,8 +204,10 @@ __attribute__((target("avx2"))) inline __m256 max0(__m256 x) { return _mm256_max
 
 // emit_environment for gamma-tons first .. first + n - 1 (n <= 8): the same
 // IEEE operations in the same order, per lane (the operators on __m256 are
-// GCC's element-wise float operations; no FMA is enabled here, so none is
-// formed); sines and cosines by the scalar calls emit_environment makes.
+// GCC's element-wise float operations; the build compiles this file with
+// -ffp-contract=off, so neither this code nor emit fuses a multiply-add even
+// where the target has FMA); sines and cosines by the scalar calls
+// emit_environment makes.
 __attribute__((target("avx2"))) void emit_environment8(const SourceRt& s, bool upper, uint64_t seed,
                                                        uint32_t iteration, int64_t first, size_t n,
                                                        PhiloxStream* rng, V3* org, V3* dir) {
