@@ -316,6 +316,7 @@ NB_MODULE(_runtime, m) {
         .def_rw("retile_edge_factor", &gammart::Config::retile_edge_factor)
         .def_rw("retile_iterations", &gammart::Config::retile_iterations)
         .def_rw("max_step_factor", &gammart::Config::max_step_factor)
+        .def_rw("displacement_rings", &gammart::Config::displacement_rings)
         .def_prop_ro("num_ton_types", [](const gammart::Config& c) { return c.ton_types.size(); })
         .def_prop_ro("num_sources", [](const gammart::Config& c) { return c.sources.size(); });
 

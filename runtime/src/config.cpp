@@ -89,6 +89,7 @@ std::vector<int32_t> validate_config(const Config& c, const Mesh& mesh) {
         if (c.retile_iterations < 1 || c.retile_iterations > 100) fail("config: retile_iterations must be in 1..100");
         if (!(c.max_step_factor > 0) || !std::isfinite(c.max_step_factor))
             fail("config: max_step_factor must be positive");
+        if (c.displacement_rings < 0 || c.displacement_rings > 16) fail("config: displacement_rings must be in 0..16");
     }
     for (size_t i = 0; i < c.mass_properties.size(); ++i) {
         const MassProperty& mp = c.mass_properties[i];

@@ -62,43 +62,80 @@ std::vector<V3> vertex_normals(const Mesh& mesh) {
     return n;
 }
 
-std::vector<V3> move_directions(const Mesh& mesh, int rings, int threads) {
-    std::vector<V3> dir = vertex_normals(mesh);
-    if (rings <= 0) return dir;
-    // Edge neighbours as compressed rows: each triangle's three edges, both ways.
+namespace {
+
+// Each vertex's edge neighbours, sorted, as compressed rows: row v is
+// nb[offset[v] .. end[v]).
+struct EdgeNeighbours {
+    std::vector<uint32_t> offset, end, nb;
+};
+
+EdgeNeighbours edge_neighbours(const Mesh& mesh) {
     const size_t nv = mesh.num_vertices();
-    std::vector<uint32_t> offset(nv + 1, 0);
-    for (int32_t x : mesh.triangles) offset[size_t(x) + 1] += 2;
-    for (size_t v = 0; v < nv; ++v) offset[v + 1] += offset[v];
-    std::vector<uint32_t> fill(offset.begin(), offset.end() - 1);
-    std::vector<uint32_t> nb(offset[nv]);
+    EdgeNeighbours e;
+    e.offset.assign(nv + 1, 0);
+    for (int32_t x : mesh.triangles) e.offset[size_t(x) + 1] += 2;   // each corner: two of its triangle's edges
+    for (size_t v = 0; v < nv; ++v) e.offset[v + 1] += e.offset[v];
+    std::vector<uint32_t> fill(e.offset.begin(), e.offset.end() - 1);
+    e.nb.resize(e.offset[nv]);
     for (size_t t = 0; t < mesh.num_triangles(); ++t)
         for (int k = 0; k < 3; ++k) {
             const uint32_t a = uint32_t(mesh.triangles[3 * t + size_t(k)]);
             const uint32_t b = uint32_t(mesh.triangles[3 * t + size_t(k + 1) % 3]);
-            nb[fill[a]++] = b;
-            nb[fill[b]++] = a;
+            e.nb[fill[a]++] = b;
+            e.nb[fill[b]++] = a;
         }
-    std::vector<uint32_t> end(nv, 0);   // each row sorted, duplicates dropped: row v is [offset[v], end[v])
+    e.end.assign(nv, 0);
     for (size_t v = 0; v < nv; ++v) {
-        auto first = nb.begin() + offset[v], last = nb.begin() + offset[v + 1];
+        auto first = e.nb.begin() + e.offset[v], last = e.nb.begin() + e.offset[v + 1];
         std::sort(first, last);
-        end[v] = uint32_t(std::unique(first, last) - nb.begin());
+        e.end[v] = uint32_t(std::unique(first, last) - e.nb.begin());
     }
-    std::vector<V3> next(nv);
-    for (int pass = 0; pass < rings; ++pass) {
+    return e;
+}
+
+// `passes` Jacobi passes over the vertices: every value replaced by
+// combine(own value, its neighbours' values) computed from the previous pass.
+template <class T, class Combine>
+void ring_passes(const EdgeNeighbours& e, std::vector<T>& values, int passes, int threads, Combine combine) {
+    const size_t nv = values.size();
+    std::vector<T> next(nv);
+    for (int pass = 0; pass < passes; ++pass) {
         run_with_threads(threads, [&] {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 4096), [&](const tbb::blocked_range<size_t>& r) {
-                for (size_t v = r.begin(); v < r.end(); ++v) {
-                    V3 acc = dir[v];
-                    for (uint32_t j = offset[v]; j < end[v]; ++j) acc = acc + dir[nb[j]];
-                    next[v] = normalize(acc);
-                }
+                for (size_t v = r.begin(); v < r.end(); ++v)
+                    next[v] = combine(values, v, e.nb.data() + e.offset[v], e.nb.data() + e.end[v]);
             });
         });
-        dir.swap(next);
+        values.swap(next);
     }
+}
+
+V3 summed_direction(const std::vector<V3>& dir, size_t v, const uint32_t* first, const uint32_t* last) {
+    V3 acc = dir[v];
+    for (const uint32_t* u = first; u != last; ++u) acc = acc + dir[*u];
+    return normalize(acc);
+}
+
+// The plain mean in double: n equal floats give that float back exactly.
+float mean_value(const std::vector<float>& d, size_t v, const uint32_t* first, const uint32_t* last) {
+    double acc = d[v];
+    for (const uint32_t* u = first; u != last; ++u) acc += d[*u];
+    return float(acc / double(1 + (last - first)));
+}
+
+}  // namespace
+
+std::vector<V3> move_directions(const Mesh& mesh, int rings, int threads) {
+    std::vector<V3> dir = vertex_normals(mesh);
+    if (rings <= 0) return dir;
+    ring_passes(edge_neighbours(mesh), dir, rings, threads, summed_direction);
     return dir;
+}
+
+void average_over_rings(const Mesh& mesh, std::vector<float>& dv, int rings, int threads) {
+    if (rings <= 0) return;
+    ring_passes(edge_neighbours(mesh), dv, rings, threads, mean_value);
 }
 
 int64_t limit_to_clearance(const SceneIndex& index, const Mesh& mesh, const std::vector<V3>& dir,
@@ -307,6 +344,8 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
             }
         });
     });
+    // The mesh cannot follow a displacement finer than its edges (SPEC §13.12 step 2).
+    average_over_rings(mesh, dv, c.displacement_rings, c.threads);
     // Vertices used by no triangle do not move.
     std::vector<uint8_t> used(nv, 0);
     for (int32_t x : mesh.triangles) used[size_t(x)] = 1;

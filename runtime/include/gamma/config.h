@@ -92,6 +92,7 @@ struct Config {
     float retile_edge_factor = 2.0f;           // target edge length = factor x surfel spacing sqrt(A/N)
     int retile_iterations = 3;                 // CGAL remeshing rounds per shape step
     float max_step_factor = 0.5f;              // |displacement| per iteration <= factor x target edge length
+    int displacement_rings = 2;                // vertex displacements averaged over this many rings (SPEC §13.12)
     std::vector<MassProperty> mass_properties;
     // Per-surfel measures computed when the surfels are placed (SPEC §12):
     // only those some kernel reads, as they cost setup time.

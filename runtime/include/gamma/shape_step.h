@@ -54,6 +54,16 @@ std::vector<V3> vertex_normals(const Mesh& mesh);
 constexpr int kMoveDirectionRings = 4;
 std::vector<V3> move_directions(const Mesh& mesh, int rings, int threads = 0);
 
+// The vertex displacements averaged `rings` times (Config::displacement_rings,
+// 2 unless a test asks for a field sharper than the mesh): every vertex's value
+// replaced by the plain mean of its own and its edge neighbours' (Jacobi
+// passes, in double: a uniform field stays exactly uniform; the same at
+// any thread count).  The surfels are half an edge apart and the 8 nearest
+// cover less than a vertex's ring, so the vertices would otherwise sample
+// the field finer than the mesh can follow: hit noise and the pits the
+// sand digs at that scale tilt the triangles every step (SPEC §13.12 step 2).
+void average_over_rings(const Mesh& mesh, std::vector<float>& dv, int rings, int threads = 0);
+
 // Limits moves so that no part of the solid thins through and no gap
 // closes (SPEC §13.12 step 3): a vertex moving by dv[v] along dir[v] casts
 // a ray from where it is, along -dir[v] when it moves inward (dv < 0) and
