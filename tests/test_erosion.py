@@ -35,7 +35,23 @@ def erosion_run(arch_obj, tmp_path_factory):
                    "--surfels", 12000, "--tons", 60000, "--iterations", 3, "--threads", 2, "--quiet",
                    "--out", out)
     assert r.returncode == 0, r.stderr
+    (out / "stderr.txt").write_text(r.stderr)
     return out
+
+
+def test_each_shape_limit_is_warned_once_and_counted_in_every_iteration(erosion_run):
+    # The arch stands on the ground plate, so deposition under and beside its
+    # foot is held back by the clearance limit in every iteration (SPEC §13.12).
+    summary = json.loads((erosion_run / "summary.json").read_text())
+    stderr = (erosion_run / "stderr.txt").read_text()
+    limited = [record["shape"]["clearance_limited"] for record in summary["iterations"]]
+    assert sum(1 for n in limited if n) >= 2
+    warnings = [line for line in stderr.splitlines() if "no part wears through" in line]
+    first = next(it for it, n in enumerate(limited, 1) if n)
+    assert len(warnings) == 1
+    assert warnings[0].startswith("gammac: warning: ") and "erosion.gamma:" in warnings[0]
+    assert f"of {limited[first - 1]} vertices" in warnings[0] and f"in iteration {first} " in warnings[0]
+    assert "shape.clearance_limited" in warnings[0]
 
 
 def test_erosion_writes_meshes_geometry_and_balanced_books(erosion_run):

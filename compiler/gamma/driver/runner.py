@@ -376,6 +376,7 @@ class Run:
     behind: object                 # events.WriteQueue: jobs run in order behind the loop
     shapes: bool = False           # some surface's shape follows a property
     shape_where: str = ""          # FILE:LINE:COL of the first `shape` entry (for warnings)
+    shape_warned: set = field(default_factory=set)  # the shape limits already warned of
     first_iteration: int = 1       # 1, or where --resume continues
     lock: object = None            # folder.OutputLock, held for the run
     call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
@@ -412,9 +413,13 @@ class Run:
                                ("clearance_limited", "was shortened so that no part wears through and no gap "
                                                      "closes (SPEC §13.12)"),
                                ("inversion_limited", "was shortened so that no triangle turns over")):
-                if shaped[key]:
+                # once per kind: a limit that holds in one step usually holds in every
+                # later one, and thirty lines would hide every other message
+                if shaped[key] and key not in self.shape_warned:
+                    self.shape_warned.add(key)
                     print(f"\ngammac: warning: {self.shape_where}: the displacement of {shaped[key]} "
-                          f"vertices {count} in iteration {it}", file=sys.stderr)
+                          f"vertices {count} in iteration {it} (not warned again; summary.json's "
+                          f"shape.{key} counts them in every iteration)", file=sys.stderr)
             if shaped["changed"]:
                 rows = self.sim.rows()
                 self.refresh_surfels()
