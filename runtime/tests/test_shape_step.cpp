@@ -764,6 +764,31 @@ TEST(ShapeStep, MoveDirectionsOfASphereAreRadial) {
     // over the ring leans a little towards the side with more neighbours)
     EXPECT_GT(worst_raw, std::cos(0.5 * M_PI / 180.0));
     EXPECT_GT(worst_smooth, std::cos(1.5 * M_PI / 180.0));
+
+    // A sphere rough at the edge's own scale (each vertex's radius off by up
+    // to ±0.3 edge): raw normals scatter by tens of degrees, the smoothed
+    // directions stay near radial -- what keeps moves from folding it.
+    Mesh rough = m;
+    const double edge = 1.1 / 16.0;  // icosphere(4) of radius 1
+    for (size_t v = 0; v < rough.num_vertices(); ++v) {
+        const uint32_t h = uint32_t(v) * 2654435761u;
+        const double r = 1.0 + 0.3 * edge * (double(h >> 8) / double(1u << 24) * 2.0 - 1.0);
+        for (int k = 0; k < 3; ++k) rough.vertices[3 * v + size_t(k)] *= float(r);
+    }
+    const std::vector<V3> rough_raw = move_directions(rough, 0),
+                          rough_smooth = move_directions(rough, kMoveDirectionRings);
+    double raw_sq = 0, smooth_sq = 0;
+    for (size_t v = 0; v < rough.num_vertices(); ++v) {
+        const V3 p = normalize(V3{rough.vertices[3 * v], rough.vertices[3 * v + 1], rough.vertices[3 * v + 2]});
+        const double a_raw = std::acos(std::min(1.0, double(dot(rough_raw[v], p))));
+        const double a_smooth = std::acos(std::min(1.0, double(dot(rough_smooth[v], p))));
+        raw_sq += a_raw * a_raw;
+        smooth_sq += a_smooth * a_smooth;
+    }
+    const double raw_rms = std::sqrt(raw_sq / double(rough.num_vertices()));
+    const double smooth_rms = std::sqrt(smooth_sq / double(rough.num_vertices()));
+    EXPECT_GT(raw_rms, 5.0 * M_PI / 180.0);
+    EXPECT_LT(smooth_rms, 0.3 * raw_rms);
 }
 
 // The displacement averaging (SPEC §13.12 step 2) keeps a uniform field
@@ -814,4 +839,27 @@ TEST(ShapeStep, ASlabWornFromBothSidesKeepsOneEdgeOfThickness) {
     EXPECT_GT(limited, 0);
     // thinner than it was, by about the 0.06 - target the limit allows
     EXPECT_LT(measure(sim.mesh()).volume, 0.9 * measure(m).volume);
+}
+
+// The clearance limit (its rays and the neighbour rule) gives the same mesh
+// and rows at 1 and 2 threads, on a slab whose two faces stop each other
+// (the sphere tests' rays are far too short to hit anything).
+TEST(ShapeStep, ClearanceLimitedWearIsTheSameAtOneAndTwoThreads) {
+    const Mesh m = closed_box(1.0f, 1.0f, 0.06f);
+    std::vector<float> verts[2], rows[2];
+    int64_t limited[2] = {0, 0};
+    for (int k = 0; k < 2; ++k) {
+        Config c = sphere_config(6000, -0.01f, reinterpret_cast<const void*>(&k_erode_x));
+        c.threads = k + 1;
+        Simulation sim(m, c);
+        for (int it = 1; it <= 4; ++it) limited[k] += run_iteration(sim, it).clearance_limited;
+        verts[k] = sim.mesh().vertices;
+        rows[k] = sim.rows();
+    }
+    EXPECT_GT(limited[0], 0);
+    EXPECT_EQ(limited[0], limited[1]);
+    ASSERT_EQ(verts[0].size(), verts[1].size());
+    EXPECT_EQ(0, std::memcmp(verts[0].data(), verts[1].data(), sizeof(float) * verts[0].size()));
+    ASSERT_EQ(rows[0].size(), rows[1].size());
+    EXPECT_EQ(0, std::memcmp(rows[0].data(), rows[1].data(), sizeof(float) * rows[0].size()));
 }

@@ -72,8 +72,11 @@ void average_over_rings(const Mesh& mesh, std::vector<float>& dv, int rings, int
 // two sides of a part (or of a gap) moving towards each other keep min_gap
 // between them -- and |dv[v]| is cut to the least room of the vertex and
 // its edge neighbours that move the same way (inward or outward).
-// Returns how many moves were cut.  Parallel; each vertex's result depends
-// on its own ray only, so it is the same at any thread count.
+// The rays look only min_gap + 2|dv| ahead (nothing farther can cut the
+// move), so a neighbour sets a limit only when its own move was cut.
+// Returns how many moves were cut.  The rays are cast in parallel, each
+// vertex's room from its own ray; the neighbour minimum is serial, so the
+// result is the same at any thread count.
 int64_t limit_to_clearance(const SceneIndex& index, const Mesh& mesh, const std::vector<V3>& dir,
                            double min_gap, std::vector<float>& dv, int threads);
 
