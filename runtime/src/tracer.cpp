@@ -24,6 +24,11 @@ namespace {
 constexpr int64_t kEmitGroup = 32;
 // Casts between the fetch of a hit's lookup head and the fetch it enables.
 constexpr size_t kRestLag = 4;
+// Interactions of a group's paths stored before the rounds stop (a round
+// may pass it by up to kEmitGroup - 1): the paths still alive then go on one
+// interaction at a time in the kernel pass, so a thread holds ~3.4 MB of
+// steps at most, however long the lives (--max-interactions up to 1e6).
+constexpr int64_t kStepBudget = 65536;
 }  // namespace
 
 int64_t trace_batch_chunks(const Config& c) {
@@ -182,6 +187,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
     const int32_t* surf_of = state.surface.data();
     const SurfelMeasures& measures = state.measures;
     const int max_inter = c.max_interactions;
+    const size_t step_budget = size_t(c.trace_step_budget > 0 ? c.trace_step_budget : kStepBudget);
     const uint64_t seed = c.seed;
     const uint32_t iter_u = uint32_t(iteration);
     const V3 up = frame.up;
@@ -275,7 +281,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         std::array<Emitted, kEmitGroup> group_slots;
         // A gamma-ton's path while the group's paths advance, and one
         // interaction of it (steps of one gamma-ton linked in order).
-        enum class LifeEnd : uint8_t { Missed, Escaped, Settled, Capped };
+        enum class LifeEnd : uint8_t { Missed, Escaped, Settled, Capped, Alive };
         constexpr uint32_t kNoStep = UINT32_MAX;
         struct Path {
             float ks, kp, kf;
@@ -295,6 +301,89 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         std::vector<Step> steps;
         std::vector<uint32_t> alive;
         alive.reserve(kEmitGroup);
+        // The surfel of a path's hit (after its first), its row fetched ahead.
+        auto find_surfel = [&](Path& path) {
+            const float pa[3] = {path.p.x, path.p.y, path.p.z};
+            path.s = index.nearest_on_triangle(path.prim, pa);
+            __builtin_prefetch(rows + size_t(path.s) * W);
+            __builtin_prefetch(rows + size_t(path.s) * W + (W - 1));
+            __builtin_prefetch(surf_of + path.s);
+        };
+        // One interaction of gamma-ton k's path at its surfel: the event, put
+        // in `step`, then (unless the life ends there) the motion to the next
+        // hit.  Returns whether the path goes on.  The group's rounds and the
+        // continuation of the paths a round left alive both advance by it.
+        auto advance = [&](uint32_t k, Step& step) -> bool {
+            Path& path = paths[k];
+            const TonType& tt = c.ton_types[size_t(c.sources[sched.active[group_slots[k].a]].ton_type)];
+            PhiloxStream& rng = group_slots[k].rng;
+            const int inter = ++path.inter;
+            const float xi = rng.next();
+            const float c1 = std::min(path.ks, 1.0f);
+            const float c2 = std::min(c1 + path.kp, 1.0f);
+            const float c3 = std::min(c2 + path.kf, 1.0f);
+            const int event = xi < c1 ? GAMMA_EVENT_REFLECT
+                            : xi < c2 ? GAMMA_EVENT_BOUNCE
+                            : xi < c3 ? GAMMA_EVENT_FLOW
+                                      : GAMMA_EVENT_SETTLE;
+            step = Step{path.p, path.n, path.dir, path.s, inter, event, kNoStep};
+            if (event == GAMMA_EVENT_SETTLE) { path.end = LifeEnd::Settled; return false; }
+            if (inter >= max_inter) { path.end = LifeEnd::Capped; return false; }
+            const float* row = rows + size_t(path.s) * W;
+            const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
+                        df = row[GAMMA_ROW_REFLECTANCE_FLOW];
+            const float kp_left = std::max(path.kp - dp, 0.0f);
+            path.ks = std::max(path.ks - ds, 0.0f);
+            path.kf = std::max(path.kf + kp_left - df, 0.0f);
+            path.kp = kp_left;
+            w.p = path.p;
+            w.n = path.n;
+            w.dir = path.dir;
+            w.prim = path.prim;
+            const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
+            if (fe == FlightEnd::Escaped) { path.end = LifeEnd::Escaped; return false; }
+            if (fe == FlightEnd::Capped) { path.end = LifeEnd::Capped; return false; }
+            path.p = w.p;
+            path.n = w.n;
+            path.dir = w.dir;
+            path.prim = w.prim;
+            return true;
+        };
+        // The kernels of one interaction of gamma-ton g (of ton type `type`).
+        auto run_kernels = [&](const Step& step, int type, int64_t g) {
+            const V3 p = step.p, n = step.n, dir = step.dir;
+            const uint32_t s = step.s;
+            const int surface = surf_of[s];
+            GammaContext ctx;
+            ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
+            ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
+            ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
+            ctx.height = dot(p, up) - frame.min_up;
+            ctx.iteration = iteration;
+            ctx.interactions = step.inter;
+            // the measures of the surfel the rules run on (SPEC §12)
+            ctx.uv[0] = need_uv ? measures.uv[2 * size_t(s)] : 0.0f;
+            ctx.uv[1] = need_uv ? measures.uv[2 * size_t(s) + 1] : 0.0f;
+            ctx.up[0] = up.x; ctx.up[1] = up.y; ctx.up[2] = up.z;
+            // on the side the gamma-ton came from (n is turned toward it);
+            // the surfel's normal (a cache miss) only when a measure needs it
+            ctx.accessibility = 0.0f;
+            ctx.curvature = 0.0f;
+            if (need_normal) {
+                const float* sn = state.surf.normal.data() + 3 * size_t(s);
+                const bool back = n.x * sn[0] + n.y * sn[1] + n.z * sn[2] < 0.0f;
+                if (!measures.accessibility.empty())
+                    ctx.accessibility = back ? measures.accessibility_back[s] : measures.accessibility[s];
+                if (!measures.curvature.empty()) ctx.curvature = back ? -measures.curvature[s] : measures.curvature[s];
+            }
+            const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
+            const TransportSlot& ev = K.slot(step.event, type, surface);
+            if (hit.fn || ev.fn) {
+                const uint64_t key = mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(step.inter));
+                if (hit.fn) call(hit, s, ctx, key);
+                if (ev.fn) call(ev, s, ctx, key);
+            }
+        };
         std::array<PhiloxStream, kEmitGroup> run_rng;
         std::array<V3, kEmitGroup> run_org, run_dir;
         for (int64_t g0 = begin; g0 < end; g0 += kEmitGroup) {
@@ -363,7 +452,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 path.kf = tt.kf;
                 path.inter = 0;
                 path.first_step = path.last_step = kNoStep;
-                path.end = e.hit ? LifeEnd::Escaped : LifeEnd::Missed;
+                path.end = e.hit ? LifeEnd::Alive : LifeEnd::Missed;
                 if (!e.hit) continue;
                 path.p = e.p;
                 path.n = e.n;
@@ -372,55 +461,20 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 path.s = e.s;  // found in the group's second pass
                 alive.push_back(uint32_t(k));
             }
-            while (!alive.empty()) {
-                for (uint32_t k : alive) {
-                    Path& path = paths[k];
-                    if (path.inter == 0) continue;
-                    const float pa[3] = {path.p.x, path.p.y, path.p.z};
-                    path.s = index.nearest_on_triangle(path.prim, pa);
-                    __builtin_prefetch(rows + size_t(path.s) * W);
-                    __builtin_prefetch(rows + size_t(path.s) * W + (W - 1));
-                    __builtin_prefetch(surf_of + path.s);
-                }
+            while (!alive.empty() && steps.size() < step_budget) {
+                for (uint32_t k : alive)
+                    if (paths[k].inter > 0) find_surfel(paths[k]);
                 size_t still = 0;
                 for (uint32_t k : alive) {
                     Path& path = paths[k];
-                    const TonType& tt = c.ton_types[size_t(c.sources[sched.active[group[k].a]].ton_type)];
-                    PhiloxStream& rng = group[k].rng;
-                    const int inter = ++path.inter;
-                    const float xi = rng.next();
-                    const float c1 = std::min(path.ks, 1.0f);
-                    const float c2 = std::min(c1 + path.kp, 1.0f);
-                    const float c3 = std::min(c2 + path.kf, 1.0f);
-                    const int event = xi < c1 ? GAMMA_EVENT_REFLECT
-                                    : xi < c2 ? GAMMA_EVENT_BOUNCE
-                                    : xi < c3 ? GAMMA_EVENT_FLOW
-                                              : GAMMA_EVENT_SETTLE;
+                    Step step;
+                    const bool goes_on = advance(k, step);
                     const uint32_t at = uint32_t(steps.size());
-                    steps.push_back(Step{path.p, path.n, path.dir, path.s, inter, event, kNoStep});
+                    steps.push_back(step);
                     if (path.last_step == kNoStep) path.first_step = at;
                     else steps[path.last_step].next = at;
                     path.last_step = at;
-                    if (event == GAMMA_EVENT_SETTLE) { path.end = LifeEnd::Settled; continue; }
-                    if (inter >= max_inter) { path.end = LifeEnd::Capped; continue; }
-                    const float* row = rows + size_t(path.s) * W;
-                    const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
-                                df = row[GAMMA_ROW_REFLECTANCE_FLOW];
-                    const float kp_left = std::max(path.kp - dp, 0.0f);
-                    path.ks = std::max(path.ks - ds, 0.0f);
-                    path.kf = std::max(path.kf + kp_left - df, 0.0f);
-                    path.kp = kp_left;
-                    w.p = path.p;
-                    w.n = path.n;
-                    w.dir = path.dir;
-                    w.prim = path.prim;
-                    const FlightEnd fe = kMotionTable.step[event](w, rng, tt);
-                    if (fe == FlightEnd::Escaped) { path.end = LifeEnd::Escaped; continue; }
-                    if (fe == FlightEnd::Capped) { path.end = LifeEnd::Capped; continue; }
-                    path.p = w.p;
-                    path.n = w.n;
-                    path.dir = w.dir;
-                    path.prim = w.prim;
+                    if (!goes_on) continue;
                     index.prefetch_lookup(path.prim);
                     alive[still++] = k;
                 }
@@ -431,7 +485,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             // the same calls, records and sums.
             for (size_t k = 0; k < n_group; ++k) {
                 const Emitted& e = group[k];
-                const Path& path = paths[k];
+                Path& path = paths[k];
                 const int64_t g = g0 + int64_t(k);
                 const int type = c.sources[sched.active[e.a]].ton_type;
                 const TonType& tt = c.ton_types[size_t(type)];
@@ -445,41 +499,17 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                     end_life(type, false);
                     continue;
                 }
-                for (uint32_t at = path.first_step; at != kNoStep; at = steps[at].next) {
-                    const Step& step = steps[at];
-                    const V3 p = step.p, n = step.n, dir = step.dir;
-                    const uint32_t s = step.s;
-                    const int surface = surf_of[s];
-                    GammaContext ctx;
-                    ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
-                    ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
-                    ctx.direction[0] = dir.x; ctx.direction[1] = dir.y; ctx.direction[2] = dir.z;
-                    ctx.height = dot(p, up) - frame.min_up;
-                    ctx.iteration = iteration;
-                    ctx.interactions = step.inter;
-                    // the measures of the surfel the rules run on (SPEC §12)
-                    ctx.uv[0] = need_uv ? measures.uv[2 * size_t(s)] : 0.0f;
-                    ctx.uv[1] = need_uv ? measures.uv[2 * size_t(s) + 1] : 0.0f;
-                    ctx.up[0] = up.x; ctx.up[1] = up.y; ctx.up[2] = up.z;
-                    // on the side the gamma-ton came from (n is turned toward it);
-                    // the surfel's normal (a cache miss) only when a measure needs it
-                    ctx.accessibility = 0.0f;
-                    ctx.curvature = 0.0f;
-                    if (need_normal) {
-                        const float* sn = state.surf.normal.data() + 3 * size_t(s);
-                        const bool back = n.x * sn[0] + n.y * sn[1] + n.z * sn[2] < 0.0f;
-                        if (!measures.accessibility.empty())
-                            ctx.accessibility = back ? measures.accessibility_back[s] : measures.accessibility[s];
-                        if (!measures.curvature.empty()) ctx.curvature = back ? -measures.curvature[s] : measures.curvature[s];
-                    }
-                    const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
-                    const TransportSlot& ev = K.slot(step.event, type, surface);
-                    if (hit.fn || ev.fn) {
-                        const uint64_t key =
-                            mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(step.inter));
-                        if (hit.fn) call(hit, s, ctx, key);
-                        if (ev.fn) call(ev, s, ctx, key);
-                    }
+                for (uint32_t at = path.first_step; at != kNoStep; at = steps[at].next)
+                    run_kernels(steps[at], type, g);
+                // A path the rounds left alive (they stopped at the step
+                // budget) goes on here one interaction at a time, each run
+                // at once: its path and draws are those the rounds would have
+                // made, its kernels run in the same order.
+                while (path.end == LifeEnd::Alive) {
+                    if (path.inter > 0) find_surfel(path);
+                    Step step;
+                    advance(uint32_t(k), step);
+                    run_kernels(step, type, g);
                 }
                 switch (path.end) {
                     case LifeEnd::Settled: ++st.settled; end_life(type, true); break;

@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <atomic>
@@ -405,4 +406,74 @@ TEST(Trace, BatchesBoundTheLogsAndNeverChangeResults) {
     EXPECT_LE(three, 3 * (3 * whole / 41));
     EXPECT_EQ(three, three2);
     EXPECT_GT(one, 0);
+}
+
+// A group's paths are stored up to Config::trace_step_budget interactions;
+// the lives still going on then are finished one interaction at a time with
+// their kernels run at once.  Long lives (a point source inside a closed
+// sphere, reflectance barely wearing off, many capped) give the same rows,
+// counters, mass books and rays (as a set) whatever the budget, at 1 and 2
+// threads.
+TEST(Trace, StepBudgetNeverChangesResults) {
+    struct Outcome {
+        std::vector<float> rows;
+        TraceStats st;
+        std::vector<RecordedRay> rays;
+    };
+    auto run = [](int threads, int64_t budget) {
+        Mesh m = gamma_test::icosphere(3);
+        Config c = base_config(5, 0.00005f);
+        c.surfels = 1500;
+        c.threads = threads;
+        c.max_interactions = 300;
+        c.trace_step_budget = budget;
+        c.surface_rows[0][3] = 1.0f;
+        const int t = c.add_ton_type(1, 0, 0, {1.0f});
+        c.add_source("point", t, int64_t(kChunkSize) + 77, {0.1f, 0.05f, 0});   // 2 chunks
+        c.set_transport(GAMMA_EVENT_HIT, t, 0, addr(reinterpret_cast<void*>(&k_hit)), true);
+        c.set_transport(GAMMA_EVENT_SETTLE, t, 0, addr(reinterpret_cast<void*>(&k_settle)), true);
+        c.mass_properties = {MassProperty{{3}, {0}}};
+        Simulation sim(m, c);
+        Outcome o;
+        o.rays = sim.record_rays(1);
+        o.st = sim.trace(1);
+        o.rows = sim.rows();
+        std::sort(o.rays.begin(), o.rays.end(), [](const RecordedRay& a, const RecordedRay& b) {
+            return std::memcmp(&a, &b, sizeof(RecordedRay)) < 0;
+        });
+        return o;
+    };
+    const Outcome ref = run(1, 0);
+    // lives long enough (~32 x 200 steps a group) that budgets 300 and 5000
+    // stop a group's rounds midway, and both ends of a life (settled, capped)
+    EXPECT_GT(ref.st.interactions, 100 * ref.st.emitted);
+    EXPECT_GT(ref.st.capped, 0);
+    EXPECT_GT(ref.st.settled, ref.st.capped);
+    EXPECT_EQ(ref.st.escaped, 0);
+    ASSERT_EQ(ref.st.mass.size(), 1u);
+    EXPECT_GT(ref.st.mass[0].deposited, 0.0);
+    EXPECT_EQ(int64_t(ref.rays.size()), ref.st.rays);
+    for (int threads : {1, 2}) {
+        for (int64_t budget : {int64_t(0), int64_t(1), int64_t(7), int64_t(300), int64_t(5000)}) {
+            SCOPED_TRACE("threads " + std::to_string(threads) + ", budget " + std::to_string(budget));
+            const Outcome o = run(threads, budget);
+            ASSERT_EQ(o.rows.size(), ref.rows.size());
+            EXPECT_EQ(0, std::memcmp(o.rows.data(), ref.rows.data(), ref.rows.size() * sizeof(float)));
+            EXPECT_EQ(o.st.emitted, ref.st.emitted);
+            EXPECT_EQ(o.st.settled, ref.st.settled);
+            EXPECT_EQ(o.st.escaped, ref.st.escaped);
+            EXPECT_EQ(o.st.capped, ref.st.capped);
+            EXPECT_EQ(o.st.missed, ref.st.missed);
+            EXPECT_EQ(o.st.interactions, ref.st.interactions);
+            EXPECT_EQ(o.st.rays, ref.st.rays);
+            EXPECT_EQ(o.st.segments, ref.st.segments);
+            ASSERT_EQ(o.st.mass.size(), 1u);
+            const MassBooks &a = o.st.mass[0], &b = ref.st.mass[0];
+            for (auto f : {&MassBooks::removed, &MassBooks::deposited, &MassBooks::emitted, &MassBooks::created,
+                           &MassBooks::escaped, &MassBooks::dropped, &MassBooks::in_flight})
+                EXPECT_EQ(0, std::memcmp(&(a.*f), &(b.*f), sizeof(double)));
+            ASSERT_EQ(o.rays.size(), ref.rays.size());
+            EXPECT_EQ(0, std::memcmp(o.rays.data(), ref.rays.data(), ref.rays.size() * sizeof(RecordedRay)));
+        }
+    }
 }

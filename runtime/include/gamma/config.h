@@ -79,6 +79,11 @@ struct Config {
     // summed (tracer.h): bounds the memory of a pass; never changes results.
     // 0: the default, max(64, 8 x threads).
     int64_t trace_batch_chunks = 0;
+    // Interactions of a group of gamma-tons' paths the tracer stores before
+    // it finishes the group's lives one by one (tracer.cpp): bounds a
+    // thread's memory; never changes results.  0: the default, 65536.  For
+    // the tests; not among the options a user sets.
+    int64_t trace_step_budget = 0;
     int row_width = GAMMA_ROW_HEADER;
     std::array<float, 3> down{0, -1, 0};           // gravity; normalised by the runtime
     std::vector<std::vector<float>> surface_rows;  // initial row per surface id

@@ -62,8 +62,9 @@ public:
     void merge_add(const std::vector<ChunkLog>& logs, const SurfelState& state);
     TraceStats merge_end(SurfelState& state);
 
-    // While on, trace() keeps every ray it casts (in gamma-ton order, the
-    // same at any thread count); take_recorded_rays() hands them over.
+    // While on, trace() keeps every ray it casts (chunk by chunk, in an
+    // order fixed by the config, the same at any thread count);
+    // take_recorded_rays() hands them over.
     void set_record_rays(bool on) { record_rays_ = on; }
     // While *flag is set, trace() (and trace_chunks) stops before its next chunk and throws
     // gammart::Error ("cancelled: ...") without touching the rows.
