@@ -99,8 +99,11 @@ public:
     // The current mesh (deformed and re-tiled once the shape changed).
     const Mesh& mesh() const { return mesh_; }
     RaycastStats raw_raycast(int64_t n_rays, int threads, uint64_t seed);
-    // The rays trace(iteration) casts from the current state, in gamma-ton
-    // order; the rows are left as they were (the trace runs on a copy).
+    // The rays trace(iteration) casts from the current state, in the order
+    // the tracer casts them within a group of gamma-tons (a group's paths
+    // advance together), groups and chunks in gamma-ton order: the same at
+    // any thread count. The rows are left as they were (the trace runs on a
+    // copy).
     std::vector<RecordedRay> record_rays(int iteration);
     // Embree alone on those rays (the tracer-efficiency baseline).
     RaycastStats cast_rays(const std::vector<RecordedRay>& rays, int threads) const;
