@@ -388,17 +388,47 @@ NB_MODULE(_runtime, m) {
             },
             "mesh"_a, "surfels"_a, "seed"_a, "Whether a Simulation of this mesh, count and seed would use these surfels.");
 
+    nb::class_<gammart::SetupSnapshot>(m, "SetupSnapshot",
+                                       "An earlier setup's surfels, lookup and splat kernel "
+                                       "(gamma/setup_snapshot.h): Simulation.setup_snapshot's bytes, parsed.")
+        .def(
+            "__init__",
+            [](gammart::SetupSnapshot* self, nb::bytes data) {
+                const auto* p = static_cast<const uint8_t*>(static_cast<const void*>(data.c_str()));
+                const size_t n = data.size();
+                // pure C++ on bytes that stay alive for the call: gammac parses on a thread while it starts up
+                nb::gil_scoped_release nogil;
+                new (self) gammart::SetupSnapshot(p, n);
+            },
+            "data"_a, "Raises ValueError if `data` is not one whole, consistent snapshot of this build.")
+        .def_prop_ro("surfels", &gammart::SetupSnapshot::surfels)
+        .def_prop_ro("taken", &gammart::SetupSnapshot::taken, "Whether a Simulation took it (it is then empty).");
+
     nb::class_<gammart::Simulation>(m, "Simulation")
         .def(
             "__init__",
             [](gammart::Simulation* self, const gammart::Mesh& mesh, const gammart::Config& cfg,
-               gammart::SurfelSample* ahead) {
+               gammart::SurfelSample* ahead, gammart::SetupSnapshot* snapshot) {
                 nb::gil_scoped_release nogil;
-                new (self) gammart::Simulation(mesh, cfg, ahead);
+                new (self) gammart::Simulation(mesh, cfg, ahead, snapshot);
             },
-            "mesh"_a, "config"_a, "ahead"_a.none() = nb::none(),
+            "mesh"_a, "config"_a, "ahead"_a.none() = nb::none(), "snapshot"_a.none() = nb::none(),
             "`ahead`: a SurfelSample, whose surfels are taken when they are those this setup would sample "
-            "(same mesh, count and seed); the simulation is the same either way.")
+            "(same mesh, count and seed); `snapshot`: a SetupSnapshot, taken when it is this setup's (same "
+            "mesh, count, seed and binding of triangles to surfaces).  The simulation is the same either way.")
+        .def_prop_ro("set_up_from_snapshot", &gammart::Simulation::set_up_from_snapshot)
+        .def(
+            "setup_snapshot",
+            [](const gammart::Simulation& s) {
+                std::vector<uint8_t> bytes;
+                {
+                    nb::gil_scoped_release nogil;
+                    bytes = s.setup_snapshot();
+                }
+                const size_t n = bytes.size();
+                return to_numpy<uint8_t>(std::move(bytes), {n});
+            },
+            "The setup (surfels, lookup, splat kernel) as SetupSnapshot bytes (a uint8 array).")
         .def_prop_ro("num_surfels", &gammart::Simulation::num_surfels)
         .def_prop_ro("row_width", &gammart::Simulation::row_width)
         .def("surfel_positions",

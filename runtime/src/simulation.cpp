@@ -59,7 +59,7 @@ constexpr size_t kSplatBesideMaxSurfels = 500000;
 
 }  // namespace
 
-Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead)
+Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead, SetupSnapshot* snapshot)
     : mesh_(mesh), cfg_(config) {
     const Config& c = cfg_;
     std::vector<int32_t> tri_surface = validate_config(c, mesh_);
@@ -93,7 +93,11 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
                 setup_seconds_.normals = seconds_since(t);
             });
             t0 = std::chrono::steady_clock::now();
-            if (ahead != nullptr && ahead->matches(mesh, size_t(c.surfels), c.seed)) {
+            from_snapshot_ = snapshot != nullptr &&
+                             snapshot->matches(mesh_, size_t(c.surfels), c.seed, index_->tri_surface(), nsurf);
+            if (from_snapshot_) {
+                state_ = SurfelState::of(snapshot->take_surfels(), index_->tri_surface(), c.surface_rows);
+            } else if (ahead != nullptr && ahead->matches(mesh, size_t(c.surfels), c.seed)) {
                 setup_seconds_.sample_ahead = ahead->seconds();
                 state_ = SurfelState::of(ahead->take(), index_->tri_surface(), c.surface_rows);
             } else {
@@ -107,14 +111,19 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
                                                   state_.surface.data(), state_.size(), sigma);
                 setup_seconds_.splat = seconds_since(t);
             };
-            const bool splat_beside = state_.size() <= kSplatBesideMaxSurfels;
+            const bool splat_beside = !from_snapshot_ && state_.size() <= kSplatBesideMaxSurfels;
             if (splat_beside) beside.run(splat);
             t0 = std::chrono::steady_clock::now();
-            index_->build_surfels(state_.surf.position.data(), state_.surface.data(), state_.size(), sigma,
-                                  c.threads);
+            if (from_snapshot_) {
+                snapshot->adopt_index(*index_, state_.surf.position.data(), state_.surface.data(), sigma);
+                state_.splat = snapshot->take_splat();
+            } else {
+                index_->build_surfels(state_.surf.position.data(), state_.surface.data(), state_.size(), sigma,
+                                      c.threads);
+            }
             setup_seconds_.surfels = seconds_since(t0);
             require_surfels_on_every_surface(mesh_, *index_, c.surfels);
-            if (!splat_beside) splat();
+            if (!splat_beside && !from_snapshot_) splat();
             t0 = std::chrono::steady_clock::now();
             state_.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh_,
                                               *index_, state_.surf, kAoLengthFraction * frame_.diag, c.seed,
@@ -132,6 +141,11 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
 }
 
 Simulation::~Simulation() = default;
+
+std::vector<uint8_t> Simulation::setup_snapshot() const {
+    if (shape_.rebuilds() > 0) throw Error("setup snapshot: the shape of the scene changed since the setup");
+    return SetupSnapshot::write(mesh_, cfg_.seed, state_.surf, *index_, state_.splat);
+}
 
 void Simulation::reconfigure(const Config& config) {
     auto refuse = [](const std::string& why) { throw Error("reconfigure: " + why); };

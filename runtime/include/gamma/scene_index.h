@@ -226,6 +226,7 @@ public:
     static constexpr uint32_t kCellCandidates = 12, kMaxGridSide = 128;
 
 private:
+    friend class SetupSnapshot;   // saves and restores the surfel half (setup_snapshot.h)
     struct Reuse;
     void build_lookup(int threads);
     // build_lookup's work in the calling thread's arena.

@@ -27,6 +27,7 @@
 #include "gamma/render.h"
 #include "gamma/renderer.h"
 #include "gamma/scene_index.h"
+#include "gamma/setup_snapshot.h"
 #include "gamma/shape_step.h"
 #include "gamma/shading.h"
 #include "gamma/sources.h"
@@ -45,8 +46,12 @@ public:
     // receives no surfel is an error (its hits would otherwise run another
     // surface's rules).  `ahead`: surfels sampled before (surfel_state.h),
     // taken when they are the ones this setup would sample (the result is
-    // the same either way).
-    Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead = nullptr);
+    // the same either way).  `snapshot`: an earlier setup (setup_snapshot.h),
+    // whose surfels, lookup and splat kernel are taken when it matches this
+    // mesh, count, seed and binding (the result is again the same); it is
+    // preferred to `ahead`.
+    Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead = nullptr,
+               SetupSnapshot* snapshot = nullptr);
     ~Simulation();
     Simulation(const Simulation&) = delete;
     Simulation& operator=(const Simulation&) = delete;
@@ -181,6 +186,11 @@ public:
         double sample = 0, geometry = 0, surfels = 0, splat = 0, measures = 0, normals = 0, sample_ahead = 0;
     };
     const SetupSeconds& setup_seconds() const { return setup_seconds_; }
+    // Whether the setup took a SetupSnapshot.
+    bool set_up_from_snapshot() const { return from_snapshot_; }
+    // The setup as SetupSnapshot bytes (throws Error once the shape changed:
+    // the snapshot is of the setup, before any shape step).
+    std::vector<uint8_t> setup_snapshot() const;
 
     // Index of the surfel nearest to p (any surface).
     uint32_t nearest_surfel(const float p[3]) const;
@@ -222,6 +232,7 @@ private:
     mutable std::mutex corner_normals_mutex_;
     void update_corner_normals();
     SetupSeconds setup_seconds_;
+    bool from_snapshot_ = false;
 };
 
 }  // namespace gammart

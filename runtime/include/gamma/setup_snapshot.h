@@ -1,0 +1,75 @@
+// A Simulation's setup as bytes and back: what `gammac run` keeps in its
+// setup cache (compiler/gamma/driver/setup_cache.py, SPEC §17).  The surfels,
+// the triangle lookup and the splat kernel are most of the setup's time and
+// depend only on the mesh (its vertices, triangles and bounds), the surfel
+// count, the seed and the binding of triangles to surfaces; a snapshot holds
+// them together with those inputs, and a Simulation takes it only when its
+// own inputs are the same, so a run set up from a snapshot is the same bit
+// for bit as one set up from scratch.  The kd-trees, the BVH, the measures
+// and the corner normals are built as always (they are cheap, or depend on
+// the effect).
+//
+// The bytes are this build's own layout (element sizes are checked, not
+// converted): the cache's file names carry the runtime build, so another
+// build never reads them.  Parsing checks that every count and index is
+// consistent (a damaged file is refused with an Error, never read out of
+// bounds); the cache's checksum guards the values themselves.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "gamma/mesh.h"
+#include "gamma/scene_index.h"
+#include "gamma/splat.h"
+#include "gamma/surfels.h"
+
+namespace gammart {
+
+class SetupSnapshot {
+public:
+    // The setup of a Simulation of `mesh` with n surfels and `seed`, whose
+    // surfels, index (built for `mesh` and its binding) and splat kernel are
+    // given, as bytes.
+    static std::vector<uint8_t> write(const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
+                                      const SceneIndex& index, const SplatKernel& splat);
+    // Parses `write`'s bytes (copied); throws Error if they are not one
+    // whole, consistent snapshot.
+    SetupSnapshot(const uint8_t* data, size_t size);
+
+    // Whether a Simulation of this mesh, count, seed and binding would set
+    // up exactly what this holds (and it has not been taken yet).
+    bool matches(const Mesh& mesh, size_t n, uint64_t seed, const std::vector<int32_t>& tri_surface,
+                 int n_surfaces) const;
+    size_t surfels() const { return n_; }
+    bool taken() const { return taken_; }
+
+    // The surfels and the splat kernel, moved out (once).
+    SurfelSet take_surfels();
+    SplatKernel take_splat();
+    // Indexes the surfels (take_surfels' positions, their surfaces) in
+    // `index`, whose geometry is built for the matching mesh and binding,
+    // and moves the lookup in: afterwards `index` is what
+    // SceneIndex::build_surfels would have made of these surfels.  Runs in
+    // the calling thread's TBB arena.
+    void adopt_index(SceneIndex& index, const float* positions, const int32_t* surfel_surface, float sigma);
+
+private:
+    size_t n_ = 0;
+    uint64_t seed_ = 0;
+    int32_t n_surfaces_ = 0;
+    bool taken_ = false;
+    std::vector<float> vertices_, lo_hi_;
+    std::vector<int32_t> triangles_, tri_surface_;
+    SurfelSet surf_;
+    SplatKernel splat_;
+    std::vector<SceneIndex::TriangleLookup> lookup_tri_, lookup_cells_;
+    std::vector<SceneIndex::TriangleGrid> lookup_grids_;
+    std::vector<SceneIndex::PackedEntry, HugePageAllocator<SceneIndex::PackedEntry>> lookup_packed_;
+    std::vector<SceneIndex::TriangleHead, HugePageAllocator<SceneIndex::TriangleHead>> lookup_head_;
+    std::vector<uint32_t> lookup_cell_at_;
+    std::vector<float> lookup_ball2_;
+    uint64_t lookup_n_candidates_ = 0;
+};
+
+}  // namespace gammart

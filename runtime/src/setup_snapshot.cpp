@@ -1,0 +1,278 @@
+// SetupSnapshot: a Simulation's surfels, triangle lookup and splat kernel as
+// bytes and back (see setup_snapshot.h).
+//
+// Layout: a header (magic, format version, byte-order mark, surfel count,
+// seed, surface count, section count), then the sections in a fixed order,
+// each a tag, its element size, its element count and its elements, padded
+// to 8 bytes.  The element size of every section is checked against this
+// build's structs, so a layout change refuses old bytes instead of misreading
+// them.
+#include "gamma/setup_snapshot.h"
+
+#include <cstring>
+#include <string>
+
+#include "gamma/error.h"
+
+namespace gammart {
+namespace {
+
+constexpr char kMagic[8] = {'G', 'A', 'M', 'S', 'E', 'T', 'U', 'P'};
+constexpr uint32_t kFormat = 1, kByteOrder = 0x01020304u;
+
+// The sections, in the order they are written.
+enum Section : uint32_t {
+    kLoHi = 1, kVertices, kTriangles, kTriSurface, kPosition, kNormal, kSurfelTriangle, kRMax,
+    kSplatOffset, kSplatSource, kSplatWeight, kSplatMean, kLookupTri, kLookupGrids, kLookupCells,
+    kLookupPacked, kLookupHead, kLookupCellAt, kLookupBall2, kLookupCandidates, kSectionEnd
+};
+
+struct Header {
+    char magic[8];
+    uint32_t format, byte_order;
+    uint64_t surfels, seed;
+    int32_t surfaces;
+    uint32_t sections;
+};
+struct SectionHeader {
+    uint32_t tag, element_size;
+    uint64_t count;
+};
+
+class Writer {
+public:
+    explicit Writer(std::vector<uint8_t>& out) : out_(out) {}
+    void raw(const void* p, size_t bytes) {
+        const auto* b = static_cast<const uint8_t*>(p);
+        out_.insert(out_.end(), b, b + bytes);
+    }
+    template <typename T>
+    void section(Section tag, const T* data, size_t count) {
+        const SectionHeader h{tag, uint32_t(sizeof(T)), uint64_t(count)};
+        raw(&h, sizeof h);
+        if (count) raw(data, count * sizeof(T));
+        out_.resize((out_.size() + 7) / 8 * 8, 0);
+    }
+    template <typename V>
+    void section(Section tag, const V& v) {
+        section(tag, v.data(), v.size());
+    }
+
+private:
+    std::vector<uint8_t>& out_;
+};
+
+class Reader {
+public:
+    Reader(const uint8_t* data, size_t size) : p_(data), end_(data + size) {}
+    void raw(void* dst, size_t bytes) {
+        if (size_t(end_ - p_) < bytes) fail("it ends early");
+        std::memcpy(dst, p_, bytes);
+        p_ += bytes;
+    }
+    // The next section, which must be `tag` with elements of T; into v.
+    template <typename V>
+    void section(Section tag, V& v) {
+        using T = typename V::value_type;
+        SectionHeader h{};
+        raw(&h, sizeof h);
+        if (h.tag != tag) fail("section " + std::to_string(tag) + " is missing");
+        if (h.element_size != sizeof(T)) fail("section " + std::to_string(tag) + " has another layout");
+        if (h.count > size_t(end_ - p_) / sizeof(T)) fail("it ends early");
+        v.resize(size_t(h.count));
+        if (h.count) raw(v.data(), size_t(h.count) * sizeof(T));
+        const size_t pad = (8 - size_t(reinterpret_cast<uintptr_t>(p_) - reinterpret_cast<uintptr_t>(start_)) % 8) % 8;
+        if (size_t(end_ - p_) < pad) fail("it ends early");
+        p_ += pad;
+    }
+    template <typename T>
+    T scalar(Section tag) {
+        std::vector<T> v;
+        section(tag, v);
+        if (v.size() != 1) fail("section " + std::to_string(tag) + " is not one value");
+        return v[0];
+    }
+    void set_start(const uint8_t* start) { start_ = start; }
+    bool at_end() const { return p_ == end_; }
+    [[noreturn]] static void fail(const std::string& why) { throw Error("setup snapshot: " + why); }
+
+private:
+    const uint8_t* p_;
+    const uint8_t* end_;
+    const uint8_t* start_ = nullptr;
+};
+
+template <typename T>
+void one(Writer& w, Section tag, T value) {
+    w.section(tag, &value, 1);
+}
+
+}  // namespace
+
+std::vector<uint8_t> SetupSnapshot::write(const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
+                                          const SceneIndex& index, const SplatKernel& splat) {
+    std::vector<uint8_t> out;
+    size_t bytes = sizeof(Header) + 32 * sizeof(SectionHeader) + 4 * mesh.vertices.size() +
+                   4 * mesh.triangles.size() + 4 * index.tri_surface_.size() + 28 * surf.triangle.size() +
+                   4 * splat.offset.size() + 8 * splat.source.size() + sizeof(SceneIndex::TriangleLookup) *
+                   (index.lookup_tri_.size() + index.lookup_cells_.size()) +
+                   sizeof(SceneIndex::TriangleGrid) * index.lookup_grids_.size() +
+                   sizeof(SceneIndex::PackedEntry) * index.lookup_packed_.size() +
+                   sizeof(SceneIndex::TriangleHead) * index.lookup_head_.size() +
+                   4 * (index.lookup_cell_at_.size() + index.lookup_ball2_.size());
+    out.reserve(bytes + 8 * kSectionEnd);
+    Writer w(out);
+    Header h{};
+    std::memcpy(h.magic, kMagic, sizeof kMagic);
+    h.format = kFormat;
+    h.byte_order = kByteOrder;
+    h.surfels = surf.triangle.size();
+    h.seed = seed;
+    h.surfaces = index.n_surfaces_;
+    h.sections = kSectionEnd - 1;
+    w.raw(&h, sizeof h);
+    const float lo_hi[6] = {mesh.lo[0], mesh.lo[1], mesh.lo[2], mesh.hi[0], mesh.hi[1], mesh.hi[2]};
+    w.section(kLoHi, lo_hi, 6);
+    w.section(kVertices, mesh.vertices);
+    w.section(kTriangles, mesh.triangles);
+    w.section(kTriSurface, index.tri_surface_);
+    w.section(kPosition, surf.position);
+    w.section(kNormal, surf.normal);
+    w.section(kSurfelTriangle, surf.triangle);
+    one(w, kRMax, surf.r_max);
+    w.section(kSplatOffset, splat.offset);
+    w.section(kSplatSource, splat.source);
+    w.section(kSplatWeight, splat.weight);
+    one(w, kSplatMean, splat.mean_neighbours);
+    w.section(kLookupTri, index.lookup_tri_);
+    w.section(kLookupGrids, index.lookup_grids_);
+    w.section(kLookupCells, index.lookup_cells_);
+    w.section(kLookupPacked, index.lookup_packed_);
+    w.section(kLookupHead, index.lookup_head_);
+    w.section(kLookupCellAt, index.lookup_cell_at_);
+    w.section(kLookupBall2, index.lookup_ball2_);
+    one(w, kLookupCandidates, uint64_t(index.lookup_n_candidates_));
+    return out;
+}
+
+SetupSnapshot::SetupSnapshot(const uint8_t* data, size_t size) {
+    using Fail = Reader;
+    Reader r(data, size);
+    r.set_start(data);
+    Header h{};
+    r.raw(&h, sizeof h);
+    if (std::memcmp(h.magic, kMagic, sizeof kMagic) != 0) Fail::fail("not a setup snapshot");
+    if (h.format != kFormat || h.byte_order != kByteOrder) Fail::fail("another format or byte order");
+    if (h.sections != kSectionEnd - 1) Fail::fail("another set of sections");
+    n_ = size_t(h.surfels);
+    seed_ = h.seed;
+    n_surfaces_ = h.surfaces;
+    r.section(kLoHi, lo_hi_);
+    r.section(kVertices, vertices_);
+    r.section(kTriangles, triangles_);
+    r.section(kTriSurface, tri_surface_);
+    r.section(kPosition, surf_.position);
+    r.section(kNormal, surf_.normal);
+    r.section(kSurfelTriangle, surf_.triangle);
+    surf_.r_max = r.scalar<double>(kRMax);
+    r.section(kSplatOffset, splat_.offset);
+    r.section(kSplatSource, splat_.source);
+    r.section(kSplatWeight, splat_.weight);
+    splat_.mean_neighbours = r.scalar<double>(kSplatMean);
+    r.section(kLookupTri, lookup_tri_);
+    r.section(kLookupGrids, lookup_grids_);
+    r.section(kLookupCells, lookup_cells_);
+    r.section(kLookupPacked, lookup_packed_);
+    r.section(kLookupHead, lookup_head_);
+    r.section(kLookupCellAt, lookup_cell_at_);
+    r.section(kLookupBall2, lookup_ball2_);
+    lookup_n_candidates_ = r.scalar<uint64_t>(kLookupCandidates);
+    if (!r.at_end()) Fail::fail("bytes follow the last section");
+
+    // Every count and index the simulation follows, checked: the snapshot
+    // is then safe to use whatever its values.
+    const size_t n = n_, m = triangles_.size() / 3, nv = vertices_.size() / 3;
+    auto require = [](bool ok, const char* what) {
+        if (!ok) Fail::fail(std::string("inconsistent ") + what);
+    };
+    require(lo_hi_.size() == 6 && vertices_.size() % 3 == 0 && triangles_.size() % 3 == 0, "mesh");
+    for (int32_t v : triangles_) require(v >= 0 && size_t(v) < nv, "mesh triangles");
+    require(n_surfaces_ > 0 && tri_surface_.size() == m, "binding");
+    for (int32_t s : tri_surface_) require(s >= 0 && s < n_surfaces_, "binding");
+    require(n > 0 && surf_.position.size() == 3 * n && surf_.normal.size() == 3 * n && surf_.triangle.size() == n,
+            "surfels");
+    for (int32_t t : surf_.triangle) require(t >= 0 && size_t(t) < m, "surfel triangles");
+    require(splat_.offset.size() == n + 1 && splat_.offset[0] == 0 && splat_.source.size() == splat_.offset[n] &&
+                splat_.weight.size() == splat_.source.size(),
+            "splat kernel");
+    for (size_t j = 0; j < n; ++j) require(splat_.offset[j] <= splat_.offset[j + 1], "splat kernel");
+    for (uint32_t s : splat_.source) require(s < n, "splat kernel sources");
+    require(lookup_tri_.size() == m && lookup_head_.size() == m && lookup_ball2_.size() == m &&
+                lookup_cell_at_.size() == lookup_cells_.size(),
+            "lookup");
+    const size_t packed = lookup_packed_.size();
+    auto entries = [&](size_t at, size_t count) {
+        require(at <= packed && count <= packed - at, "lookup entries");
+        for (size_t k = at; k < at + count; ++k) require(lookup_packed_[k].id < n, "lookup ids");
+    };
+    constexpr uint32_t K = SceneIndex::kInlineCandidates;
+    for (const SceneIndex::TriangleHead& head : lookup_head_) {
+        if (head.count) {
+            for (uint32_t k = 0; k < std::min(head.count, K); ++k) require(head.first[k].id < n, "lookup ids");
+            if (head.count > K) entries(head.more, head.count - K);
+        } else if (head.more != SceneIndex::kNoBlock) {
+            require((head.more & SceneIndex::kGridBit) &&
+                        (head.more & ~SceneIndex::kGridBit) < lookup_grids_.size(),
+                    "lookup grids");
+        }
+    }
+    for (const SceneIndex::TriangleLookup& L : lookup_tri_)
+        require(L.grid == SceneIndex::kNoGrid || L.grid < lookup_grids_.size(), "lookup grids");
+    for (const SceneIndex::TriangleGrid& g : lookup_grids_)
+        require(g.s > 0 && g.s <= SceneIndex::kMaxGridSide && g.first <= lookup_cells_.size() &&
+                    2 * size_t(g.s) * g.s <= lookup_cells_.size() - g.first,
+                "lookup grids");
+    for (uint32_t at : lookup_cell_at_) {
+        if (at == SceneIndex::kNoBlock) continue;
+        require(at < packed, "lookup cells");
+        entries(size_t(at) + 1, lookup_packed_[at].id);
+    }
+}
+
+bool SetupSnapshot::matches(const Mesh& mesh, size_t n, uint64_t seed, const std::vector<int32_t>& tri_surface,
+                            int n_surfaces) const {
+    // everything of the mesh the sampling and the lookup read
+    return !taken_ && n == n_ && seed == seed_ && n_surfaces == n_surfaces_ && tri_surface == tri_surface_ &&
+           std::memcmp(lo_hi_.data(), mesh.lo.data(), 3 * sizeof(float)) == 0 &&
+           std::memcmp(lo_hi_.data() + 3, mesh.hi.data(), 3 * sizeof(float)) == 0 && mesh.vertices == vertices_ &&
+           mesh.triangles == triangles_;
+}
+
+SurfelSet SetupSnapshot::take_surfels() {
+    taken_ = true;
+    return std::move(surf_);
+}
+
+SplatKernel SetupSnapshot::take_splat() {
+    taken_ = true;
+    return std::move(splat_);
+}
+
+void SetupSnapshot::adopt_index(SceneIndex& index, const float* positions, const int32_t* surfel_surface,
+                                float sigma) {
+    taken_ = true;
+    index.index_surfels(positions, surfel_surface, n_, sigma);
+    index.lookup_tri_ = std::move(lookup_tri_);
+    index.lookup_grids_ = std::move(lookup_grids_);
+    index.lookup_cells_ = std::move(lookup_cells_);
+    index.lookup_packed_ = std::move(lookup_packed_);
+    index.lookup_head_ = std::move(lookup_head_);
+    index.lookup_cell_at_ = std::move(lookup_cell_at_);
+    index.lookup_ball2_ = std::move(lookup_ball2_);
+    index.lookup_n_candidates_ = size_t(lookup_n_candidates_);
+    index.lookup_reused_ = 0;
+    std::vector<SceneIndex::Candidate>().swap(index.lookup_cand_);
+    std::vector<uint32_t>().swap(index.lookup_ids_);
+}
+
+}  // namespace gammart

@@ -1,0 +1,196 @@
+// SetupSnapshot: a setup taken from an earlier one's bytes is the same setup,
+// taken only when it is this setup's, and damaged bytes are refused.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <functional>
+#include <string>
+
+#include "gamma/error.h"
+#include "gamma/setup_snapshot.h"
+#include "gamma/simulation.h"
+#include "helpers.h"
+
+using namespace gammart;
+using gamma_test::expect_error;
+
+namespace {
+
+// Deposits 1 in row column 3 at every hit (spread by the splat kernel).
+extern "C" int32_t snapshot_deposit(float*, const float*, float* delta, const GammaContext*) {
+    delta[3] = 1.0f;
+    return 0;
+}
+
+Config bunny_config(int threads) {
+    Config c;
+    c.surfels = 6000;
+    c.seed = 11;
+    c.threads = threads;
+    c.row_width = 4;
+    c.surface_rows = {{0, 0, 0, 0}, {0, 0, 0, 0}};
+    const int t = c.add_ton_type(0, 0, 0, {}, 1.0f, 0.1f);
+    Source s;
+    s.kind = "sphere";
+    s.ton_type = t;
+    s.count = 20000;
+    c.add_source(s);
+    for (int surface : {0, 1})
+        for (int event : {GAMMA_EVENT_HIT, GAMMA_EVENT_SETTLE})
+            c.set_transport(event, t, surface, uint64_t(reinterpret_cast<uintptr_t>(&snapshot_deposit)), true);
+    return c;
+}
+
+// The bunny, its triangles bound to two surfaces (by the side of x = mean).
+struct Bunny {
+    Mesh mesh = Mesh::load(std::string(GAMMA_SCENES_DIR) + "/stanford-bunny.obj");
+    std::vector<int32_t> binding;
+    Bunny() {
+        double mean = 0;
+        for (size_t v = 0; v < mesh.num_vertices(); ++v) mean += mesh.vertices[3 * v];
+        mean /= double(mesh.num_vertices());
+        for (size_t t = 0; t < mesh.num_triangles(); ++t)
+            binding.push_back(mesh.vertices[3 * size_t(mesh.triangles[3 * t])] > mean ? 1 : 0);
+    }
+};
+
+void expect_same_setup(const Simulation& a, const Simulation& b) {
+    EXPECT_EQ(a.surfels().position, b.surfels().position);
+    EXPECT_EQ(a.surfels().normal, b.surfels().normal);
+    EXPECT_EQ(a.surfels().triangle, b.surfels().triangle);
+    EXPECT_EQ(a.surfels().r_max, b.surfels().r_max);
+    EXPECT_EQ(a.surfel_surfaces(), b.surfel_surfaces());
+    EXPECT_EQ(a.state().splat.offset, b.state().splat.offset);
+    EXPECT_EQ(a.state().splat.source, b.state().splat.source);
+    EXPECT_EQ(a.state().splat.weight, b.state().splat.weight);
+    EXPECT_EQ(a.state().splat.mean_neighbours, b.state().splat.mean_neighbours);
+    EXPECT_TRUE(a.scene_index().same_lookup(b.scene_index()));
+    EXPECT_EQ(a.scene_index().lookup_candidates(), b.scene_index().lookup_candidates());
+}
+
+}  // namespace
+
+TEST(SetupSnapshot, ASetupFromItsSnapshotIsTheSameSetupAndTracesTheSameRows) {
+    const Bunny bunny;
+    for (int threads : {1, 2}) {
+        Config c = bunny_config(threads);
+        c.triangle_surface = bunny.binding;
+        Simulation fresh(bunny.mesh, c);
+        EXPECT_FALSE(fresh.set_up_from_snapshot());
+        const std::vector<uint8_t> bytes = fresh.setup_snapshot();
+        // the snapshot of a setup made at one thread count serves the other
+        Config other = c;
+        other.threads = 3 - threads;
+        SetupSnapshot snap(bytes.data(), bytes.size());
+        EXPECT_EQ(snap.surfels(), size_t(c.surfels));
+        Simulation restored(bunny.mesh, other, nullptr, &snap);
+        EXPECT_TRUE(restored.set_up_from_snapshot());
+        EXPECT_TRUE(snap.taken());
+        expect_same_setup(fresh, restored);
+        // the restored setup's own snapshot is the same bytes
+        EXPECT_EQ(restored.setup_snapshot(), bytes);
+        for (int it = 1; it <= 2; ++it) {
+            const TraceStats a = fresh.trace(it), b = restored.trace(it);
+            EXPECT_EQ(a.interactions, b.interactions);
+            EXPECT_EQ(a.emitted, b.emitted);
+            fresh.update(it);
+            restored.update(it);
+        }
+        EXPECT_EQ(fresh.rows(), restored.rows());
+        double deposited = 0;
+        for (size_t i = 0; i < fresh.num_surfels(); ++i) deposited += fresh.rows()[4 * i + 3];
+        EXPECT_GT(deposited, 1000.0);   // the rows compared hold the deposits
+        // a snapshot is taken once: a second setup from it builds its own
+        Simulation again(bunny.mesh, c, nullptr, &snap);
+        EXPECT_FALSE(again.set_up_from_snapshot());
+        expect_same_setup(fresh, again);
+    }
+}
+
+TEST(SetupSnapshot, IsTakenOnlyForTheSameMeshCountSeedAndBinding) {
+    const Bunny bunny;
+    Config c = bunny_config(2);
+    c.triangle_surface = bunny.binding;
+    Simulation fresh(bunny.mesh, c);
+    const std::vector<uint8_t> bytes = fresh.setup_snapshot();
+
+    Config other_seed = c, other_count = c, other_binding = c;
+    other_seed.seed = 12;
+    other_count.surfels = 5999;
+    other_binding.triangle_surface[0] = 1 - other_binding.triangle_surface[0];
+    Mesh moved = bunny.mesh;
+    moved.vertices[3 * size_t(moved.triangles[0]) + 1] += 1e-4f;   // inside the bounds
+    struct Case {
+        const char* what;
+        const Mesh& mesh;
+        const Config& config;
+    };
+    for (const Case& k : {Case{"seed", bunny.mesh, other_seed}, Case{"count", bunny.mesh, other_count},
+                          Case{"binding", bunny.mesh, other_binding}, Case{"vertex", moved, c}}) {
+        SetupSnapshot snap(bytes.data(), bytes.size());
+        Simulation sim(k.mesh, k.config, nullptr, &snap);
+        EXPECT_FALSE(sim.set_up_from_snapshot()) << k.what;
+        EXPECT_FALSE(snap.taken()) << k.what;
+        Simulation plain(k.mesh, k.config);
+        expect_same_setup(sim, plain);
+    }
+}
+
+TEST(SetupSnapshot, DamagedBytesAreRefusedNeverRead) {
+    const Bunny bunny;
+    Config c = bunny_config(2);
+    c.surfels = 2000;
+    c.triangle_surface = bunny.binding;
+    const Simulation fresh(bunny.mesh, c);
+    const std::vector<uint8_t> bytes = fresh.setup_snapshot();
+    ASSERT_NO_THROW(SetupSnapshot(bytes.data(), bytes.size()));
+    // cut anywhere: refused
+    for (size_t cut : {size_t(0), size_t(7), size_t(40), size_t(41), bytes.size() / 3, bytes.size() / 2,
+                       bytes.size() - 8, bytes.size() - 1}) {
+        const std::string e = expect_error([&] { SetupSnapshot s(bytes.data(), cut); });
+        EXPECT_NE(e.find("setup snapshot"), std::string::npos) << cut << ": " << e;
+    }
+    // a byte more: refused
+    std::vector<uint8_t> longer = bytes;
+    longer.push_back(0);
+    EXPECT_NE(expect_error([&] { SetupSnapshot s(longer.data(), longer.size()); }).find("bytes follow"),
+              std::string::npos);
+    // another magic, another format: refused
+    std::vector<uint8_t> other = bytes;
+    other[0] ^= 1;
+    EXPECT_NE(expect_error([&] { SetupSnapshot s(other.data(), other.size()); }).find("not a setup snapshot"),
+              std::string::npos);
+    other = bytes;
+    other[8] ^= 1;
+    EXPECT_NE(expect_error([&] { SetupSnapshot s(other.data(), other.size()); }).find("another format"),
+              std::string::npos);
+    // A surfel's triangle and a splat source out of range: each refused
+    // (the checks that keep the simulation's reads in bounds).
+    auto refused_after = [&](const std::function<void(std::vector<uint8_t>&)>& damage, const char* what) {
+        std::vector<uint8_t> d = bytes;
+        damage(d);
+        const std::string e = expect_error([&] { SetupSnapshot s(d.data(), d.size()); });
+        EXPECT_NE(e.find(what), std::string::npos) << e;
+    };
+    // the sections' places from the layout (setup_snapshot.cpp)
+    const size_t n = size_t(c.surfels);
+    auto padded = [](size_t b) { return (b + 7) / 8 * 8; };
+    size_t at = 40;                                           // header
+    at += 16 + padded(24);                                    // lo, hi
+    at += 16 + padded(4 * bunny.mesh.vertices.size());
+    at += 16 + padded(4 * bunny.mesh.triangles.size());
+    at += 16 + padded(4 * bunny.binding.size());
+    at += 2 * (16 + padded(12 * n));                          // positions, normals
+    const size_t triangle_section = at + 16;
+    refused_after([&](std::vector<uint8_t>& d) {
+        const int32_t bad = int32_t(bunny.mesh.num_triangles());
+        std::memcpy(&d[triangle_section], &bad, 4);
+    }, "surfel triangles");
+    at += 16 + padded(4 * n) + 16 + 8;                        // triangles, r_max
+    at += 16 + padded(4 * (n + 1));                           // splat offsets
+    const size_t source_section = at + 16;
+    refused_after([&](std::vector<uint8_t>& d) {
+        const uint32_t bad = uint32_t(n);
+        std::memcpy(&d[source_section], &bad, 4);
+    }, "splat kernel sources");
+}
