@@ -146,8 +146,10 @@ def folder_hash(folder):
     return digest.hexdigest()
 
 
-def test_gammac_run_takes_the_surfels_sampled_ahead_and_writes_the_same_files(tmp_path):
+def test_gammac_run_takes_the_surfels_sampled_ahead_and_writes_the_same_files(tmp_path, monkeypatch):
     import json
+
+    monkeypatch.setenv("GAMMA_CACHE_DIR", "off")    # sampled, not taken from the setup cache
 
     args = ["run", ROOT / "examples" / "patina.gamma", "--scene", BUNNY, "--surfels", "3000", "--tons", "20000",
             "--iterations", "2", "--threads", "2", "--quiet"]

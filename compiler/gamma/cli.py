@@ -687,6 +687,9 @@ def _leave(status: int) -> None:
     ordinary = (sys.gettrace() is None and sys.getprofile() is None
                 and not any(name in sys.modules for name in ("coverage", "ray"))
                 and all(t.daemon or t is threading.main_thread() for t in threading.enumerate()))
+    setup_cache = sys.modules.get("gamma.driver.setup_cache")
+    if setup_cache is not None:
+        setup_cache.wait()              # a setup being kept for the next run: whole or not at all
     if ordinary:
         for stream in (sys.stdout, sys.stderr):
             try:

@@ -6,7 +6,8 @@ reason instead of an OS error or a read that never returns.
 ``atomic_write`` writes to a temporary name in the same folder, then renames
 it into place: an interrupted run, a full disk or two processes sharing a
 kernel cache never leave a half-written file.  Every file the package writes
-(run outputs, the kernel cache, ``gammac fmt --write``) goes through it.
+(run outputs, the kernel and setup caches, ``gammac fmt --write``) goes
+through it.  ``cache_dir`` is where those caches live.
 """
 
 from __future__ import annotations
@@ -44,14 +45,29 @@ def _umask() -> int:
     return mask
 
 
-def atomic_write(path: Path, data: bytes, mode: int | None = None) -> None:
-    """Write ``data`` to ``path``; the file gets ``mode`` (default: 0666 less
-    the umask)."""
+def cache_dir() -> Path | None:
+    """Where compiled kernels and setups are kept: $GAMMA_CACHE_DIR, else
+    ~/.cache/gamma ($XDG_CACHE_HOME respected); GAMMA_CACHE_DIR=off disables
+    the caches."""
+    configured = os.environ.get("GAMMA_CACHE_DIR")
+    if configured == "off":
+        return None
+    if configured:
+        return Path(configured)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "gamma"
+
+
+def atomic_write(path: Path, data, mode: int | None = None) -> None:
+    """Write ``data`` (bytes, or a tuple of buffers written one after the
+    other) to ``path``; the file gets ``mode`` (default: 0666 less the
+    umask)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            for part in data if isinstance(data, tuple) else (data,):
+                f.write(part)
         os.chmod(tmp, (0o666 & ~_umask()) if mode is None else mode)  # mkstemp creates 0600
         os.replace(tmp, path)
     except BaseException:

@@ -393,15 +393,23 @@ NB_MODULE(_runtime, m) {
                                        "(gamma/setup_snapshot.h): Simulation.setup_snapshot's bytes, parsed.")
         .def(
             "__init__",
-            [](gammart::SetupSnapshot* self, nb::bytes data) {
-                const auto* p = static_cast<const uint8_t*>(static_cast<const void*>(data.c_str()));
-                const size_t n = data.size();
-                // pure C++ on bytes that stay alive for the call: gammac parses on a thread while it starts up
+            [](gammart::SetupSnapshot* self, nb::ndarray<const uint8_t, nb::ndim<1>, nb::c_contig, nb::device::cpu> data) {
+                const uint8_t* p = data.data();
+                const size_t n = data.shape(0);
+                // pure C++ on an array that stays alive for the call: gammac parses on a thread while it starts up
                 nb::gil_scoped_release nogil;
                 new (self) gammart::SetupSnapshot(p, n);
             },
-            "data"_a, "Raises ValueError if `data` is not one whole, consistent snapshot of this build.")
+            "data"_a, "`data`: a uint8 array.  Raises ValueError if it is not one whole, consistent snapshot of "
+            "this build.")
         .def_prop_ro("surfels", &gammart::SetupSnapshot::surfels)
+        .def(
+            "matches",
+            [](const gammart::SetupSnapshot& s, const gammart::Mesh& mesh, int64_t surfels, uint64_t seed) {
+                return surfels > 0 && s.matches_surfels(mesh, size_t(surfels), seed);
+            },
+            "mesh"_a, "surfels"_a, "seed"_a,
+            "Whether a Simulation of this mesh, count and seed would take at least its surfels.")
         .def_prop_ro("taken", &gammart::SetupSnapshot::taken, "Whether a Simulation took it (it is then empty).");
 
     nb::class_<gammart::Simulation>(m, "Simulation")
@@ -416,7 +424,13 @@ NB_MODULE(_runtime, m) {
             "`ahead`: a SurfelSample, whose surfels are taken when they are those this setup would sample "
             "(same mesh, count and seed); `snapshot`: a SetupSnapshot, taken when it is this setup's (same "
             "mesh, count, seed and binding of triangles to surfaces).  The simulation is the same either way.")
-        .def_prop_ro("set_up_from_snapshot", &gammart::Simulation::set_up_from_snapshot)
+        .def_prop_ro(
+            "from_snapshot",
+            [](const gammart::Simulation& s) {
+                using F = gammart::Simulation::FromSnapshot;
+                return s.from_snapshot() == F::Setup ? "setup" : s.from_snapshot() == F::Surfels ? "surfels" : "nothing";
+            },
+            "What the setup took from its SetupSnapshot: \"setup\", \"surfels\" (another binding) or \"nothing\".")
         .def(
             "setup_snapshot",
             [](const gammart::Simulation& s) {
@@ -429,6 +443,8 @@ NB_MODULE(_runtime, m) {
                 return to_numpy<uint8_t>(std::move(bytes), {n});
             },
             "The setup (surfels, lookup, splat kernel) as SetupSnapshot bytes (a uint8 array).")
+        .def_prop_ro("setup_snapshot_bytes", &gammart::Simulation::setup_snapshot_bytes,
+                     "setup_snapshot's size, without making it (an upper bound).")
         .def_prop_ro("num_surfels", &gammart::Simulation::num_surfels)
         .def_prop_ro("row_width", &gammart::Simulation::row_width)
         .def("surfel_positions",

@@ -109,18 +109,24 @@ void one(Writer& w, Section tag, T value) {
 
 }  // namespace
 
+size_t SetupSnapshot::bytes(const Mesh& mesh, const SurfelSet& surf, const SceneIndex& index,
+                            const SplatKernel& splat) {
+    // each section padded to 8 bytes; 8 more per section bound the padding
+    return sizeof(Header) + (sizeof(SectionHeader) + 8) * (kSectionEnd - 1) + 4 * mesh.vertices.size() +
+           4 * mesh.triangles.size() + 4 * index.tri_surface_.size() + 4 * surf.position.size() +
+           4 * surf.normal.size() + 4 * surf.triangle.size() + 4 * splat.offset.size() + 4 * splat.source.size() +
+           4 * splat.weight.size() +
+           sizeof(SceneIndex::TriangleLookup) * (index.lookup_tri_.size() + index.lookup_cells_.size()) +
+           sizeof(SceneIndex::TriangleGrid) * index.lookup_grids_.size() +
+           sizeof(SceneIndex::PackedEntry) * index.lookup_packed_.size() +
+           sizeof(SceneIndex::TriangleHead) * index.lookup_head_.size() +
+           4 * (index.lookup_cell_at_.size() + index.lookup_ball2_.size());
+}
+
 std::vector<uint8_t> SetupSnapshot::write(const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
                                           const SceneIndex& index, const SplatKernel& splat) {
     std::vector<uint8_t> out;
-    size_t bytes = sizeof(Header) + 32 * sizeof(SectionHeader) + 4 * mesh.vertices.size() +
-                   4 * mesh.triangles.size() + 4 * index.tri_surface_.size() + 28 * surf.triangle.size() +
-                   4 * splat.offset.size() + 8 * splat.source.size() + sizeof(SceneIndex::TriangleLookup) *
-                   (index.lookup_tri_.size() + index.lookup_cells_.size()) +
-                   sizeof(SceneIndex::TriangleGrid) * index.lookup_grids_.size() +
-                   sizeof(SceneIndex::PackedEntry) * index.lookup_packed_.size() +
-                   sizeof(SceneIndex::TriangleHead) * index.lookup_head_.size() +
-                   4 * (index.lookup_cell_at_.size() + index.lookup_ball2_.size());
-    out.reserve(bytes + 8 * kSectionEnd);
+    out.reserve(bytes(mesh, surf, index, splat));
     Writer w(out);
     Header h{};
     std::memcpy(h.magic, kMagic, sizeof kMagic);
@@ -241,9 +247,12 @@ SetupSnapshot::SetupSnapshot(const uint8_t* data, size_t size) {
 
 bool SetupSnapshot::matches(const Mesh& mesh, size_t n, uint64_t seed, const std::vector<int32_t>& tri_surface,
                             int n_surfaces) const {
+    return matches_surfels(mesh, n, seed) && n_surfaces == n_surfaces_ && tri_surface == tri_surface_;
+}
+
+bool SetupSnapshot::matches_surfels(const Mesh& mesh, size_t n, uint64_t seed) const {
     // everything of the mesh the sampling and the lookup read
-    return !taken_ && n == n_ && seed == seed_ && n_surfaces == n_surfaces_ && tri_surface == tri_surface_ &&
-           std::memcmp(lo_hi_.data(), mesh.lo.data(), 3 * sizeof(float)) == 0 &&
+    return !taken_ && n == n_ && seed == seed_ && std::memcmp(lo_hi_.data(), mesh.lo.data(), 3 * sizeof(float)) == 0 &&
            std::memcmp(lo_hi_.data() + 3, mesh.hi.data(), 3 * sizeof(float)) == 0 && mesh.vertices == vertices_ &&
            mesh.triangles == triangles_;
 }

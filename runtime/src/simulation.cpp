@@ -93,9 +93,12 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
                 setup_seconds_.normals = seconds_since(t);
             });
             t0 = std::chrono::steady_clock::now();
-            from_snapshot_ = snapshot != nullptr &&
-                             snapshot->matches(mesh_, size_t(c.surfels), c.seed, index_->tri_surface(), nsurf);
-            if (from_snapshot_) {
+            if (snapshot != nullptr && snapshot->matches(mesh_, size_t(c.surfels), c.seed, index_->tri_surface(), nsurf))
+                from_snapshot_ = FromSnapshot::Setup;
+            else if (snapshot != nullptr && snapshot->matches_surfels(mesh_, size_t(c.surfels), c.seed))
+                from_snapshot_ = FromSnapshot::Surfels;
+            const bool whole = from_snapshot_ == FromSnapshot::Setup;
+            if (from_snapshot_ != FromSnapshot::Nothing) {
                 state_ = SurfelState::of(snapshot->take_surfels(), index_->tri_surface(), c.surface_rows);
             } else if (ahead != nullptr && ahead->matches(mesh, size_t(c.surfels), c.seed)) {
                 setup_seconds_.sample_ahead = ahead->seconds();
@@ -111,10 +114,10 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
                                                   state_.surface.data(), state_.size(), sigma);
                 setup_seconds_.splat = seconds_since(t);
             };
-            const bool splat_beside = !from_snapshot_ && state_.size() <= kSplatBesideMaxSurfels;
+            const bool splat_beside = !whole && state_.size() <= kSplatBesideMaxSurfels;
             if (splat_beside) beside.run(splat);
             t0 = std::chrono::steady_clock::now();
-            if (from_snapshot_) {
+            if (whole) {
                 snapshot->adopt_index(*index_, state_.surf.position.data(), state_.surface.data(), sigma);
                 state_.splat = snapshot->take_splat();
             } else {
@@ -123,7 +126,7 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
             }
             setup_seconds_.surfels = seconds_since(t0);
             require_surfels_on_every_surface(mesh_, *index_, c.surfels);
-            if (!splat_beside && !from_snapshot_) splat();
+            if (!splat_beside && !whole) splat();
             t0 = std::chrono::steady_clock::now();
             state_.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh_,
                                               *index_, state_.surf, kAoLengthFraction * frame_.diag, c.seed,
@@ -145,6 +148,10 @@ Simulation::~Simulation() = default;
 std::vector<uint8_t> Simulation::setup_snapshot() const {
     if (shape_.rebuilds() > 0) throw Error("setup snapshot: the shape of the scene changed since the setup");
     return SetupSnapshot::write(mesh_, cfg_.seed, state_.surf, *index_, state_.splat);
+}
+
+size_t Simulation::setup_snapshot_bytes() const {
+    return SetupSnapshot::bytes(mesh_, state_.surf, *index_, state_.splat);
 }
 
 void Simulation::reconfigure(const Config& config) {

@@ -9,13 +9,13 @@ disk, keyed by a hash of everything it depends on.
 from __future__ import annotations
 
 import hashlib
-import os
 from functools import lru_cache
 from pathlib import Path
 
 import llvmlite.binding as llvm
 from llvmlite import ir
 
+from ..files import cache_dir
 from ..ir.effect import Effect
 from .codegen import generate
 
@@ -59,18 +59,6 @@ def compile_ir(module: ir.Module | str, optimise: bool = True) -> llvm.ModuleRef
 
 def assembly(module: ir.Module) -> str:
     return _target_machine().emit_assembly(compile_ir(module))
-
-
-def cache_dir() -> Path | None:
-    """Where compiled kernels are kept: $GAMMA_CACHE_DIR, else ~/.cache/gamma
-    ($XDG_CACHE_HOME respected); GAMMA_CACHE_DIR=off disables the cache."""
-    configured = os.environ.get("GAMMA_CACHE_DIR")
-    if configured == "off":
-        return None
-    if configured:
-        return Path(configured)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "gamma"
 
 
 def cache_key(ir_text: str) -> str:

@@ -90,8 +90,14 @@ def _forget() -> None:
 
 
 def _sample(mesh, surfels: int, seed: int, threads: int):
+    """The setup kept in the setup cache for this mesh, count and seed (a
+    SetupSnapshot), else the surfels sampled (a SurfelSample)."""
     from .. import _runtime
+    from . import setup_cache
 
+    snapshot = setup_cache.load(mesh, surfels, seed)
+    if snapshot is not None:
+        return snapshot
     return _runtime.SurfelSample(mesh, surfels, seed, threads)
 
 
@@ -150,8 +156,9 @@ def take(path: Path | str):
 
 
 def sample_for(mesh, surfels: int, seed: int):
-    """The surfels sampled ahead on ``mesh`` (a mesh ``take`` handed out),
-    waiting for them, or None.  The Simulation checks that they fit."""
+    """The surfels sampled ahead on ``mesh`` (a mesh ``take`` handed out), or
+    the setup cache's snapshot for it, waiting for them, or None.  The
+    Simulation checks that they fit."""
     with _lock:
         read = next((r for r in _handed if r.mesh.result() is mesh), None)
         if read is not None:

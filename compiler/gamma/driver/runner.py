@@ -623,6 +623,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         "scene_seconds": None,         # filled in by start()
         "start_seconds": None,
         "setup_phases": dict(getattr(sim, "setup_seconds", {})),
+        # what the setup took from the setup cache (setup_cache.py): "setup", "surfels" or "nothing"
+        "setup_from_cache": getattr(sim, "from_snapshot", "nothing"),
         "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
                      "llvm": ".".join(map(str, llvm_version())),
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),
@@ -663,12 +665,22 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
 
 
 def _simulation(rt, mesh, cfg):
-    """``Simulation(mesh, cfg)``, with the surfels ``gammac run`` sampled on
-    ``mesh`` while it started up, if it did (prefetch.py: used only if they
-    are those the setup would sample)."""
-    from . import prefetch
+    """``Simulation(mesh, cfg)``, with the setup cache's snapshot for it or
+    the surfels ``gammac run`` sampled on ``mesh`` while it started up
+    (prefetch.py, setup_cache.py: used only if they are this setup's); a
+    setup not taken whole from the cache is kept there for the next run."""
+    from . import prefetch, setup_cache
 
-    return rt.Simulation(mesh, cfg, prefetch.sample_for(mesh, cfg.surfels, cfg.seed))
+    ahead = prefetch.sample_for(mesh, cfg.surfels, cfg.seed)
+    snapshot = None
+    if isinstance(ahead, rt.SetupSnapshot):
+        snapshot, ahead = ahead, None
+    elif ahead is None:                 # nothing read ahead (a scene file, a glTF, ...)
+        snapshot = setup_cache.load(mesh, cfg.surfels, cfg.seed)
+    sim = rt.Simulation(mesh, cfg, ahead, snapshot)
+    if sim.from_snapshot != "setup":
+        setup_cache.store(sim, mesh, cfg.surfels, cfg.seed)
+    return sim
 
 
 def _resume_or_set_aside(effect, opts, scene, kernels, sim, out) -> tuple:

@@ -1,5 +1,5 @@
 // A Simulation's setup as bytes and back: what `gammac run` keeps in its
-// setup cache (compiler/gamma/driver/setup_cache.py, SPEC §17).  The surfels,
+// setup cache (compiler/gamma/driver/setup_cache.py, SPEC §16.1).  The surfels,
 // the triangle lookup and the splat kernel are most of the setup's time and
 // depend only on the mesh (its vertices, triangles and bounds), the surfel
 // count, the seed and the binding of triangles to surfaces; a snapshot holds
@@ -33,6 +33,8 @@ public:
     // given, as bytes.
     static std::vector<uint8_t> write(const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
                                       const SceneIndex& index, const SplatKernel& splat);
+    // The size of `write`'s bytes (an upper bound, within a few hundred bytes).
+    static size_t bytes(const Mesh& mesh, const SurfelSet& surf, const SceneIndex& index, const SplatKernel& splat);
     // Parses `write`'s bytes (copied); throws Error if they are not one
     // whole, consistent snapshot.
     SetupSnapshot(const uint8_t* data, size_t size);
@@ -41,6 +43,9 @@ public:
     // up exactly what this holds (and it has not been taken yet).
     bool matches(const Mesh& mesh, size_t n, uint64_t seed, const std::vector<int32_t>& tri_surface,
                  int n_surfaces) const;
+    // Whether it would sample these surfels (another binding: the surfels
+    // are the same, the lookup and the splat kernel are not).
+    bool matches_surfels(const Mesh& mesh, size_t n, uint64_t seed) const;
     size_t surfels() const { return n_; }
     bool taken() const { return taken_; }
 

@@ -48,8 +48,9 @@ public:
     // taken when they are the ones this setup would sample (the result is
     // the same either way).  `snapshot`: an earlier setup (setup_snapshot.h),
     // whose surfels, lookup and splat kernel are taken when it matches this
-    // mesh, count, seed and binding (the result is again the same); it is
-    // preferred to `ahead`.
+    // mesh, count, seed and binding, and only its surfels when just the
+    // binding differs (the result is again the same); it is preferred to
+    // `ahead`.
     Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead = nullptr,
                SetupSnapshot* snapshot = nullptr);
     ~Simulation();
@@ -186,11 +187,15 @@ public:
         double sample = 0, geometry = 0, surfels = 0, splat = 0, measures = 0, normals = 0, sample_ahead = 0;
     };
     const SetupSeconds& setup_seconds() const { return setup_seconds_; }
-    // Whether the setup took a SetupSnapshot.
-    bool set_up_from_snapshot() const { return from_snapshot_; }
+    // What the setup took from a SetupSnapshot: nothing, the surfels only
+    // (another binding), or the surfels, the lookup and the splat kernel.
+    enum class FromSnapshot { Nothing, Surfels, Setup };
+    FromSnapshot from_snapshot() const { return from_snapshot_; }
     // The setup as SetupSnapshot bytes (throws Error once the shape changed:
     // the snapshot is of the setup, before any shape step).
     std::vector<uint8_t> setup_snapshot() const;
+    // setup_snapshot's size, without making it (an upper bound).
+    size_t setup_snapshot_bytes() const;
 
     // Index of the surfel nearest to p (any surface).
     uint32_t nearest_surfel(const float p[3]) const;
@@ -232,7 +237,7 @@ private:
     mutable std::mutex corner_normals_mutex_;
     void update_corner_normals();
     SetupSeconds setup_seconds_;
-    bool from_snapshot_ = false;
+    FromSnapshot from_snapshot_ = FromSnapshot::Nothing;
 };
 
 }  // namespace gammart

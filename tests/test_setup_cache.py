@@ -1,0 +1,128 @@
+"""gammac run keeps its setup (surfels, triangle lookup, splat kernel) in the
+setup cache and the next run on the same mesh, count and seed takes it
+(gamma/driver/setup_cache.py): the files written are the same either way,
+a damaged file is never used, another seed is set up again, and the cache
+stays under its limit."""
+
+import json
+import os
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+
+from conftest import ROOT
+from test_prefetch import folder_hash
+
+from gamma import _runtime as rt
+from gamma.driver import setup_cache
+
+BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
+
+
+def run(tmp_path, cache, name, *extra, env=None):
+    """gammac run (patina, bunny, 3000 surfels) with the cache folder ``cache``
+    ("off": none): its output folder and what its setup took from the cache."""
+    out = tmp_path / name
+    args = ["run", ROOT / "examples" / "patina.gamma", "--scene", BUNNY, "--surfels", "3000", "--tons", "20000",
+            "--iterations", "2", "--threads", "2", "--quiet", "--out", out, *extra]
+    r = subprocess.run([sys.executable, "-m", "gamma.cli", *map(str, args)], capture_output=True, text=True,
+                       timeout=600, env=dict(os.environ, GAMMA_CACHE_DIR=str(cache), **(env or {})))
+    assert r.returncode == 0, r.stderr
+    return out, json.loads((out / "summary.json").read_text())["setup_from_cache"]
+
+
+def kept(cache):
+    return sorted(cache.glob("setup-*.bin"))
+
+
+def test_a_second_run_takes_its_setup_from_the_cache_and_writes_the_same_files(tmp_path):
+    cache = tmp_path / "cache"
+    first, took = run(tmp_path, cache, "first")
+    assert took == "nothing" and len(kept(cache)) == 1
+    second, took = run(tmp_path, cache, "second")
+    assert took == "setup"
+    assert folder_hash(first) == folder_hash(second)
+    # the cache off: nothing kept, nothing taken, the same files
+    off, took = run(tmp_path, "off", "off")
+    assert took == "nothing"
+    assert folder_hash(off) == folder_hash(first)
+
+
+def test_a_damaged_or_cut_file_is_not_used_and_is_replaced(tmp_path):
+    cache = tmp_path / "cache"
+    first, _ = run(tmp_path, cache, "first")
+    (path,) = kept(cache)
+    data = bytearray(path.read_bytes())
+    for damage in ("flip", "cut"):
+        if damage == "flip":
+            data[len(data) // 2] ^= 0x40          # a value inside: only the checksum sees it
+            path.write_bytes(bytes(data))
+        else:
+            path.write_bytes(bytes(data[:len(data) // 3]))
+        out, took = run(tmp_path, cache, damage)
+        assert took == "nothing", damage
+        assert folder_hash(out) == folder_hash(first)
+        assert kept(cache) == [path]
+        data = bytearray(path.read_bytes())        # written again, whole
+    again, took = run(tmp_path, cache, "again")
+    assert took == "setup"
+    assert folder_hash(again) == folder_hash(first)
+
+
+def test_another_seed_is_set_up_again_and_kept_beside(tmp_path):
+    cache = tmp_path / "cache"
+    run(tmp_path, cache, "one")
+    _, took = run(tmp_path, cache, "two", "--seed", "2")
+    assert took == "nothing"
+    assert len(kept(cache)) == 2
+
+
+def test_the_cache_keeps_under_its_limit_the_most_recent_first(tmp_path):
+    cache = tmp_path / "cache"
+    run(tmp_path, cache, "one", "--seed", "1")
+    size = kept(cache)[0].stat().st_size
+    limit_mb = 2.5 * size / (1 << 20)               # room for two
+    run(tmp_path, cache, "two", "--seed", "2", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
+    first_two = kept(cache)
+    assert len(first_two) == 2
+    _, took = run(tmp_path, cache, "one-again", "--seed", "1", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
+    assert took == "setup"                          # used now: the most recent
+    run(tmp_path, cache, "three", "--seed", "3", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
+    assert len(kept(cache)) == 2
+    assert sum(p.stat().st_size for p in kept(cache)) <= limit_mb * (1 << 20)
+    _, took = run(tmp_path, cache, "one-last", "--seed", "1", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
+    assert took == "setup"                          # seed 2's, the least recently used, went
+    # a snapshot larger than half the limit is not kept
+    small = tmp_path / "small"
+    run(tmp_path, small, "tiny-limit", env={"GAMMA_SETUP_CACHE_MB": str(1.5 * size / (1 << 20))})
+    assert kept(small) == []
+
+
+def test_load_never_raises_and_removes_what_it_cannot_use(tmp_path, monkeypatch):
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path))
+    mesh = rt.Mesh.load(str(BUNNY))
+    path = setup_cache.path_for(mesh, 3000, 1)
+    for garbage in (b"", b"xy", b"\0" * 64 + setup_cache.MARK, os.urandom(5000)):
+        path.write_bytes(garbage)
+        assert setup_cache.load(mesh, 3000, 1) is None
+        assert not path.exists()
+    # a whole file whose checksum fits but whose snapshot is not one (the runtime refuses it)
+    body = np.frombuffer(os.urandom(4096), np.uint8)
+    path.write_bytes(body.tobytes() + setup_cache.TRAILER.pack(zlib.crc32(body), setup_cache.MARK))
+    assert setup_cache.load(mesh, 3000, 1) is None and not path.exists()
+    monkeypatch.setenv("GAMMA_CACHE_DIR", "off")
+    assert setup_cache.path_for(mesh, 3000, 1) is None and setup_cache.load(mesh, 3000, 1) is None
+
+
+def test_the_key_follows_the_mesh_count_and_seed(tmp_path, monkeypatch):
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path))
+    mesh = rt.Mesh.load(str(BUNNY))
+    v, t = np.asarray(mesh.vertices()).copy(), np.asarray(mesh.triangles())
+    v[5, 1] += 1e-4
+    moved = rt.Mesh.from_arrays(v, t)
+    paths = {setup_cache.path_for(mesh, 3000, 1), setup_cache.path_for(mesh, 3001, 1),
+             setup_cache.path_for(mesh, 3000, 2), setup_cache.path_for(moved, 3000, 1)}
+    assert len(paths) == 4
+    assert setup_cache.path_for(rt.Mesh.load(str(BUNNY)), 3000, 1) == setup_cache.path_for(mesh, 3000, 1)
