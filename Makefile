@@ -8,7 +8,7 @@ SCENES ?= examples/scenes
 DEMO_OUT ?= out/patina-bunny
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
-	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev \
+	libembree-dev libopenmesh-dev libglm-dev libtbb-dev libnanoflann-dev libgtest-dev zlib1g-dev \
 	libcgal-dev libgmp-dev libmpfr-dev libboost-dev chromium $(if $(shell command -v npm),,npm)
 # chromium: the headless browser the viewer test drives (Playwright, never its own browser download);
 # npm (unless a Node.js install already brings it): three.js and the glTF validator, see web/

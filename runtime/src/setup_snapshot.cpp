@@ -9,16 +9,28 @@
 // them.
 #include "gamma/setup_snapshot.h"
 
+#include <sys/stat.h>
+#include <zlib.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <string>
 
 #include "gamma/error.h"
+#include "gamma/shading.h"
+#include "gamma/threads.h"
 
 namespace gammart {
-namespace {
+namespace snapshot_detail {
 
 constexpr char kMagic[8] = {'G', 'A', 'M', 'S', 'E', 'T', 'U', 'P'};
 constexpr uint32_t kFormat = 1, kByteOrder = 0x01020304u;
+// A cache file (setup_cache.py): the snapshot, then the CRC-32 of it
+// (little-endian uint32) and this mark.
+constexpr char kTrailerMark[4] = {'G', 'M', 'S', 'C'};
+constexpr size_t kTrailerBytes = 8;
 
 // The sections, in the order they are written.
 enum Section : uint32_t {
@@ -62,13 +74,25 @@ private:
     std::vector<uint8_t>& out_;
 };
 
+// Reads a snapshot from memory, or from a file (then the CRC-32 of what it
+// read is kept, for the cache file's trailer).
 class Reader {
 public:
-    Reader(const uint8_t* data, size_t size) : p_(data), end_(data + size) {}
+    Reader(const uint8_t* data, size_t size) : p_(data), left_(size) {}
+    Reader(std::FILE* file, size_t size) : file_(file), left_(size) {}
     void raw(void* dst, size_t bytes) {
-        if (size_t(end_ - p_) < bytes) fail("it ends early");
-        std::memcpy(dst, p_, bytes);
-        p_ += bytes;
+        if (left_ < bytes) fail("it ends early");
+        if (file_) {
+            if (std::fread(dst, 1, bytes, file_) != bytes) fail("its file cannot be read");
+            // zlib's length is 32 bits: large sections in pieces
+            for (size_t k = 0; k < bytes; k += size_t(1) << 30)
+                crc_ = crc32(crc_, static_cast<const Bytef*>(dst) + k, uInt(std::min(bytes - k, size_t(1) << 30)));
+        } else if (bytes) {
+            std::memcpy(dst, p_, bytes);
+            p_ += bytes;
+        }
+        left_ -= bytes;
+        read_ += bytes;
     }
     // The next section, which must be `tag` with elements of T; into v.
     template <typename V>
@@ -78,12 +102,11 @@ public:
         raw(&h, sizeof h);
         if (h.tag != tag) fail("section " + std::to_string(tag) + " is missing");
         if (h.element_size != sizeof(T)) fail("section " + std::to_string(tag) + " has another layout");
-        if (h.count > size_t(end_ - p_) / sizeof(T)) fail("it ends early");
+        if (h.count > left_ / sizeof(T)) fail("it ends early");
         v.resize(size_t(h.count));
         if (h.count) raw(v.data(), size_t(h.count) * sizeof(T));
-        const size_t pad = (8 - size_t(reinterpret_cast<uintptr_t>(p_) - reinterpret_cast<uintptr_t>(start_)) % 8) % 8;
-        if (size_t(end_ - p_) < pad) fail("it ends early");
-        p_ += pad;
+        uint8_t pad[8];
+        raw(pad, (8 - read_ % 8) % 8);
     }
     template <typename T>
     T scalar(Section tag) {
@@ -92,14 +115,15 @@ public:
         if (v.size() != 1) fail("section " + std::to_string(tag) + " is not one value");
         return v[0];
     }
-    void set_start(const uint8_t* start) { start_ = start; }
-    bool at_end() const { return p_ == end_; }
+    bool at_end() const { return left_ == 0; }
+    uLong crc() const { return crc_; }
     [[noreturn]] static void fail(const std::string& why) { throw Error("setup snapshot: " + why); }
 
 private:
-    const uint8_t* p_;
-    const uint8_t* end_;
-    const uint8_t* start_ = nullptr;
+    const uint8_t* p_ = nullptr;
+    std::FILE* file_ = nullptr;
+    size_t left_ = 0, read_ = 0;
+    uLong crc_ = crc32(0L, Z_NULL, 0);
 };
 
 template <typename T>
@@ -107,7 +131,9 @@ void one(Writer& w, Section tag, T value) {
     w.section(tag, &value, 1);
 }
 
-}  // namespace
+}  // namespace snapshot_detail
+
+using namespace snapshot_detail;
 
 size_t SetupSnapshot::bytes(const Mesh& mesh, const SurfelSet& surf, const SceneIndex& index,
                             const SplatKernel& splat) {
@@ -162,9 +188,31 @@ std::vector<uint8_t> SetupSnapshot::write(const Mesh& mesh, uint64_t seed, const
 }
 
 SetupSnapshot::SetupSnapshot(const uint8_t* data, size_t size) {
-    using Fail = Reader;
     Reader r(data, size);
-    r.set_start(data);
+    parse(r);
+}
+
+SetupSnapshot SetupSnapshot::read(const std::string& path) {
+    std::FILE* f = std::fopen(path.c_str(), "rb");
+    if (!f) Reader::fail("cannot open " + path);
+    std::unique_ptr<std::FILE, int (*)(std::FILE*)> closing(f, std::fclose);
+    struct stat st {};
+    if (fstat(fileno(f), &st) != 0 || !S_ISREG(st.st_mode) || size_t(st.st_size) < kTrailerBytes)
+        Reader::fail(path + " is not a whole cache file");
+    // big reads straight into the vectors: no buffer of the stdio's own
+    std::setvbuf(f, nullptr, _IONBF, 0);
+    SetupSnapshot snap;
+    Reader r(f, size_t(st.st_size) - kTrailerBytes);
+    snap.parse(r);
+    uint32_t trailer[2];
+    if (std::fread(trailer, 1, sizeof trailer, f) != sizeof trailer) Reader::fail("its file cannot be read");
+    if (std::memcmp(&trailer[1], kTrailerMark, 4) != 0 || trailer[0] != uint32_t(r.crc()))
+        Reader::fail(path + " is damaged (its checksum differs)");
+    return snap;
+}
+
+void SetupSnapshot::parse(Reader& r) {
+    using Fail = Reader;
     Header h{};
     r.raw(&h, sizeof h);
     if (std::memcmp(h.magic, kMagic, sizeof kMagic) != 0) Fail::fail("not a setup snapshot");
@@ -271,6 +319,10 @@ void SetupSnapshot::adopt_index(SceneIndex& index, const float* positions, const
                                 float sigma) {
     taken_ = true;
     index.index_surfels(positions, surfel_surface, n_, sigma);
+    move_lookup_into(index);
+}
+
+void SetupSnapshot::move_lookup_into(SceneIndex& index) {
     index.lookup_tri_ = std::move(lookup_tri_);
     index.lookup_grids_ = std::move(lookup_grids_);
     index.lookup_cells_ = std::move(lookup_cells_);
@@ -282,6 +334,38 @@ void SetupSnapshot::adopt_index(SceneIndex& index, const float* positions, const
     index.lookup_reused_ = 0;
     std::vector<SceneIndex::Candidate>().swap(index.lookup_cand_);
     std::vector<uint32_t>().swap(index.lookup_ids_);
+}
+
+void SetupSnapshot::prepare(const Mesh& mesh, int threads) {
+    if (taken_ || index_ || !matches_surfels(mesh, n_, seed_)) return;
+    try {
+        auto index = std::make_unique<SceneIndex>();
+        index->build_geometry(mesh, tri_surface_, n_surfaces_);
+        std::vector<int32_t> surfel_surface(n_);
+        for (size_t i = 0; i < n_; ++i) surfel_surface[i] = tri_surface_[size_t(surf_.triangle[i])];
+        // the Simulation's smoothing width, computed as it computes it
+        const float sigma = float(std::sqrt(mesh.area() / double(n_)));
+        std::vector<float> normals;
+        run_with_threads(threads, [&] {
+            index->index_surfels(surf_.position.data(), surfel_surface.data(), n_, sigma);
+            normals = corner_normals(mesh, {}, kDefaultCreaseDeg);
+        });
+        // the lookup last: a failure above leaves the snapshot whole
+        move_lookup_into(*index);
+        index_ = std::move(index);
+        corner_normals_ = std::move(normals);
+    } catch (const std::exception&) {
+        index_.reset();
+    }
+}
+
+std::unique_ptr<SceneIndex> SetupSnapshot::take_index() {
+    taken_ = true;
+    return std::move(index_);
+}
+
+std::vector<float> SetupSnapshot::take_corner_normals() {
+    return std::move(corner_normals_);
 }
 
 }  // namespace gammart

@@ -80,24 +80,34 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
     // bunny from 1,873 to 2,057 MiB.  The Embree BVH is built first,
     // outside the arena, with the threads it always had (its layout never
     // depends on the configured count).
+    // A snapshot of this setup (setup_snapshot.h) gives the surfels, the
+    // lookup and the splat kernel; prepared, the BVH, the kd-trees and the
+    // corner normals too.
+    if (snapshot != nullptr && snapshot->matches(mesh_, size_t(c.surfels), c.seed, tri_surface, nsurf))
+        from_snapshot_ = FromSnapshot::Setup;
+    else if (snapshot != nullptr && snapshot->matches_surfels(mesh_, size_t(c.surfels), c.seed))
+        from_snapshot_ = FromSnapshot::Surfels;
+    const bool whole = from_snapshot_ == FromSnapshot::Setup;
+    const bool prepared = whole && snapshot->prepared();
     auto t0 = std::chrono::steady_clock::now();
-    index_ = std::make_unique<SceneIndex>();
-    index_->build_geometry(mesh_, std::move(tri_surface), nsurf);
+    if (prepared) {
+        index_ = snapshot->take_index();
+        corner_normals_ = snapshot->take_corner_normals();
+    } else {
+        index_ = std::make_unique<SceneIndex>();
+        index_->build_geometry(mesh_, std::move(tri_surface), nsurf);
+    }
     setup_seconds_.geometry = seconds_since(t0);
     run_with_threads(c.threads, [&] {
         tbb::task_group beside;
         try {
-            beside.run([&] {
-                const auto t = std::chrono::steady_clock::now();
-                update_corner_normals();
-                setup_seconds_.normals = seconds_since(t);
-            });
+            if (!prepared)
+                beside.run([&] {
+                    const auto t = std::chrono::steady_clock::now();
+                    update_corner_normals();
+                    setup_seconds_.normals = seconds_since(t);
+                });
             t0 = std::chrono::steady_clock::now();
-            if (snapshot != nullptr && snapshot->matches(mesh_, size_t(c.surfels), c.seed, index_->tri_surface(), nsurf))
-                from_snapshot_ = FromSnapshot::Setup;
-            else if (snapshot != nullptr && snapshot->matches_surfels(mesh_, size_t(c.surfels), c.seed))
-                from_snapshot_ = FromSnapshot::Surfels;
-            const bool whole = from_snapshot_ == FromSnapshot::Setup;
             if (from_snapshot_ != FromSnapshot::Nothing) {
                 state_ = SurfelState::of(snapshot->take_surfels(), index_->tri_surface(), c.surface_rows);
             } else if (ahead != nullptr && ahead->matches(mesh, size_t(c.surfels), c.seed)) {
@@ -118,7 +128,8 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
             if (splat_beside) beside.run(splat);
             t0 = std::chrono::steady_clock::now();
             if (whole) {
-                snapshot->adopt_index(*index_, state_.surf.position.data(), state_.surface.data(), sigma);
+                if (!prepared)
+                    snapshot->adopt_index(*index_, state_.surf.position.data(), state_.surface.data(), sigma);
                 state_.splat = snapshot->take_splat();
             } else {
                 index_->build_surfels(state_.surf.position.data(), state_.surface.data(), state_.size(), sigma,

@@ -86,7 +86,13 @@ TEST(SetupSnapshot, ASetupFromItsSnapshotIsTheSameSetupAndTracesTheSameRows) {
         other.threads = 3 - threads;
         SetupSnapshot snap(bytes.data(), bytes.size());
         EXPECT_EQ(snap.surfels(), size_t(c.surfels));
+        // prepared (BVH, kd-trees, corner normals built ahead) at 2 threads, unprepared at 1
+        if (threads == 2) {
+            snap.prepare(bunny.mesh, 1);
+            EXPECT_TRUE(snap.prepared());
+        }
         Simulation restored(bunny.mesh, other, nullptr, &snap);
+        EXPECT_EQ(restored.corner_normals(), fresh.corner_normals());
         EXPECT_EQ(restored.from_snapshot(), Simulation::FromSnapshot::Setup);
         EXPECT_TRUE(snap.taken());
         expect_same_setup(fresh, restored);
@@ -131,6 +137,7 @@ TEST(SetupSnapshot, IsTakenOnlyForTheSameMeshCountSeedAndBinding) {
     for (const Case& k : {Case{"seed", bunny.mesh, other_seed}, Case{"count", bunny.mesh, other_count},
                           Case{"binding", bunny.mesh, other_binding}, Case{"vertex", moved, c}}) {
         SetupSnapshot snap(bytes.data(), bytes.size());
+        snap.prepare(bunny.mesh, 2);   // for the snapshot's own binding: of no use to another
         Simulation sim(k.mesh, k.config, nullptr, &snap);
         // another binding samples the same surfels: those are taken, the rest is built
         const bool binding = std::string(k.what) == "binding";
@@ -139,6 +146,7 @@ TEST(SetupSnapshot, IsTakenOnlyForTheSameMeshCountSeedAndBinding) {
         EXPECT_EQ(snap.taken(), binding) << k.what;
         Simulation plain(k.mesh, k.config);
         expect_same_setup(sim, plain);
+        EXPECT_EQ(sim.corner_normals(), plain.corner_normals());
     }
 }
 
@@ -150,6 +158,11 @@ TEST(SetupSnapshot, DamagedBytesAreRefusedNeverRead) {
     const Simulation fresh(bunny.mesh, c);
     const std::vector<uint8_t> bytes = fresh.setup_snapshot();
     ASSERT_NO_THROW(SetupSnapshot(bytes.data(), bytes.size()));
+    // prepared for another mesh: nothing is built (and the snapshot stays whole)
+    SetupSnapshot whole(bytes.data(), bytes.size());
+    whole.prepare(gamma_test::icosphere(2), 2);
+    EXPECT_FALSE(whole.prepared());
+    EXPECT_FALSE(whole.taken());
     // cut anywhere: refused
     for (size_t cut : {size_t(0), size_t(7), size_t(40), size_t(41), bytes.size() / 3, bytes.size() / 2,
                        bytes.size() - 8, bytes.size() - 1}) {

@@ -91,12 +91,15 @@ def _forget() -> None:
 
 def _sample(mesh, surfels: int, seed: int, threads: int):
     """The setup kept in the setup cache for this mesh, count and seed (a
-    SetupSnapshot), else the surfels sampled (a SurfelSample)."""
+    SetupSnapshot, prepared: what the setup would build beside it is built
+    now, for the binding it holds), else the surfels sampled (a
+    SurfelSample)."""
     from .. import _runtime
     from . import setup_cache
 
     snapshot = setup_cache.load(mesh, surfels, seed)
     if snapshot is not None:
+        snapshot.prepare(mesh, threads)
         return snapshot
     return _runtime.SurfelSample(mesh, surfels, seed, threads)
 

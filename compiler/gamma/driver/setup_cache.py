@@ -36,7 +36,8 @@ from pathlib import Path
 
 from ..files import atomic_write, cache_dir
 
-#: Trailer after the snapshot: CRC-32 of the snapshot, then this mark.
+#: Trailer after the snapshot: CRC-32 of the snapshot, then this mark (the
+#: runtime's SetupSnapshot.read checks both).
 MARK = b"GMSC"
 TRAILER = struct.Struct("<I4s")
 #: Default bound on the setup files kept together, in bytes.
@@ -87,23 +88,15 @@ def load(mesh, surfels: int, seed: int):
     Never raises."""
     try:
         path = path_for(mesh, surfels, seed)
-        if path is None:
+        if path is None or not path.is_file():
             return None
-        data = path.read_bytes()
     except (OSError, ValueError):
         return None
-    import numpy as np
-
     from .. import _runtime
 
     try:
-        if len(data) < TRAILER.size:
-            raise ValueError("cut short")
-        crc, mark = TRAILER.unpack_from(data, len(data) - TRAILER.size)
-        body = memoryview(data)[:len(data) - TRAILER.size]
-        if mark != MARK or zlib.crc32(body) != crc:
-            raise ValueError("damaged")
-        snapshot = _runtime.SetupSnapshot(np.frombuffer(body, np.uint8))
+        # read straight into the runtime's arrays, its checksum checked there
+        snapshot = _runtime.SetupSnapshot.read(str(path))
     except ValueError:
         try:
             path.unlink()

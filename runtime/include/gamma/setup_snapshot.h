@@ -17,6 +17,8 @@
 #pragma once
 #include <cstddef>
 #include <cstdint>
+#include <memory>
+#include <string>
 #include <vector>
 
 #include "gamma/mesh.h"
@@ -25,6 +27,10 @@
 #include "gamma/surfels.h"
 
 namespace gammart {
+
+namespace snapshot_detail {
+class Reader;
+}
 
 class SetupSnapshot {
 public:
@@ -38,6 +44,11 @@ public:
     // Parses `write`'s bytes (copied); throws Error if they are not one
     // whole, consistent snapshot.
     SetupSnapshot(const uint8_t* data, size_t size);
+    // Reads a setup cache file: `write`'s bytes, then their CRC-32
+    // (little-endian uint32) and the mark "GMSC" (setup_cache.py).  Throws
+    // Error if it cannot be read, is damaged or is not one whole,
+    // consistent snapshot.
+    static SetupSnapshot read(const std::string& path);
 
     // Whether a Simulation of this mesh, count, seed and binding would set
     // up exactly what this holds (and it has not been taken yet).
@@ -52,6 +63,19 @@ public:
     // The surfels and the splat kernel, moved out (once).
     SurfelSet take_surfels();
     SplatKernel take_splat();
+    // What a Simulation of `mesh` would build next to the snapshot, built
+    // now for the binding the snapshot holds: the BVH, the kd-trees (the
+    // lookup moved in) and the renders' corner normals for the default
+    // shading.  `gammac run` prepares while it is still starting up, on a
+    // core that is otherwise idle.  Nothing if the mesh is not the
+    // snapshot's; never throws (a failure leaves it unprepared, and the
+    // Simulation builds as always, reporting any error there).
+    void prepare(const Mesh& mesh, int threads);
+    bool prepared() const { return index_ != nullptr; }
+    // prepare's index and corner normals, moved out (once).
+    std::unique_ptr<SceneIndex> take_index();
+    std::vector<float> take_corner_normals();
+
     // Indexes the surfels (take_surfels' positions, their surfaces) in
     // `index`, whose geometry is built for the matching mesh and binding,
     // and moves the lookup in: afterwards `index` is what
@@ -60,6 +84,10 @@ public:
     void adopt_index(SceneIndex& index, const float* positions, const int32_t* surfel_surface, float sigma);
 
 private:
+    SetupSnapshot() = default;
+    void parse(snapshot_detail::Reader& r);
+    void move_lookup_into(SceneIndex& index);
+
     size_t n_ = 0;
     uint64_t seed_ = 0;
     int32_t n_surfaces_ = 0;
@@ -75,6 +103,8 @@ private:
     std::vector<uint32_t> lookup_cell_at_;
     std::vector<float> lookup_ball2_;
     uint64_t lookup_n_candidates_ = 0;
+    std::unique_ptr<SceneIndex> index_;       // prepare's
+    std::vector<float> corner_normals_;       // prepare's
 };
 
 }  // namespace gammart
