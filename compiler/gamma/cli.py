@@ -702,6 +702,13 @@ def _leave(status: int) -> None:
 
 def entry() -> None:
     """The ``gammac`` command (``python -m gamma.cli`` too)."""
+    import os
+
+    # gammac's numpy work is on small arrays: OpenBLAS's thread pool (one
+    # thread per core, made when numpy is imported) only cost start-up
+    # (~30-50 ms of numpy's import) and woke beside the tracer.  Set before
+    # numpy is imported; a user's own setting is kept.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     _leave(main())
 
 
