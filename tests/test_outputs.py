@@ -142,6 +142,7 @@ def _false_colour_reference(value, shade, vmin, vmax, label, title) -> bytes:
     from PIL import ImageDraw, ImageFont
 
     from gamma.driver.outputs import viridis
+    from gamma.driver.png_worker import PNG_COMPRESS_LEVEL
 
     h, w = value.shape
     span = vmax - vmin if vmax > vmin else 1.0
@@ -165,7 +166,7 @@ def _false_colour_reference(value, shade, vmin, vmax, label, title) -> bytes:
     draw.text((x0 - 4, top - 10), label, fill=(0, 0, 0), font=font, anchor="lb")
     draw.text((10, 10), title, fill=(0, 0, 0), font=font)
     out = io.BytesIO()
-    canvas.save(out, format="PNG")
+    canvas.save(out, format="PNG", compress_level=PNG_COMPRESS_LEVEL)   # the encoding gammac uses
     return out.getvalue()
 
 
