@@ -77,3 +77,41 @@ def test_a_view_refuses_values_of_another_size(finished):
         view.picture(np.zeros(sim.num_surfels, np.float32), 0.0, 1.0, background[:5], 1)
     with pytest.raises(ValueError, match="vmax"):
         view.picture(np.zeros(sim.num_surfels, np.float32), 1.0, 1.0, background, 1)
+
+
+def test_the_view_rays_are_cast_at_the_setup_when_the_shape_never_changes():
+    """FalseColourWriter casts the pictures' rays beside the loop when the
+    geometry is final from the setup on, and after the loop otherwise."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from gamma.driver.writers import FalseColourWriter
+
+    calls = []
+
+    class Sim:
+        def false_colour_view(self, *args):
+            calls.append(args)
+            return "view"
+
+    class Timings:
+        def call(self, kind, fn, *args):
+            assert kind == "renders"
+            return fn(*args)
+
+    def run_of(shape, width=8):
+        return SimpleNamespace(first_iteration=1, sim=Sim(), behind=SimpleNamespace(timings=Timings()),
+                               camera=((0, 0, 1), (0, 0, 0), (0, 1, 0), 40.0), threads=2,
+                               opts=SimpleNamespace(width=width, height=8),
+                               effect=SimpleNamespace(surfaces={"S": SimpleNamespace(shape=shape)}))
+
+    writer = FalseColourWriter("p", Path("unused"))
+    writer.on_setup_done(SimpleNamespace(run=run_of(None)))
+    assert writer.casting is not None and writer.casting.result() == "view"
+    assert calls == [((0, 0, 1), (0, 0, 0), (0, 1, 0), 40.0, 8, 8, 2)]
+    # the shape changes: the geometry is final only after the loop
+    for run in (run_of(object()), run_of(None, width=FalseColourWriter.VIEW_PIXELS)):
+        writer = FalseColourWriter("p", Path("unused"))
+        writer.on_setup_done(SimpleNamespace(run=run))
+        assert writer.casting is None
+    assert len(calls) == 1

@@ -110,21 +110,39 @@ class FalseColourWriter(Writer):
     def __init__(self, property: str, folder: Path):
         self.property, self.folder = property, folder
         self.history: list[np.ndarray] = []
+        self.casting = None             # the view's rays being cast (a Future), if they are
 
     def on_setup_done(self, event) -> None:
         # a resumed run: the earlier iterations' values, from their maps
         from .outputs import read_ply
 
-        for it in range(1, event.run.first_iteration):
-            self.history.append(read_ply(event.run.out / "maps" / f"iter_{it:04d}.ply")[self.property])
-
-    def on_iteration_updated(self, event: IterationUpdated) -> None:
-        self.history.append(event.properties[self.property].copy())
+        run = event.run
+        for it in range(1, run.first_iteration):
+            self.history.append(read_ply(run.out / "maps" / f"iter_{it:04d}.ply")[self.property])
+        # An effect that never changes the shape has its final geometry now: the rays of every
+        # picture are cast beside the loop (no GIL; on the cores its serial stretches leave),
+        # not after it, where a user waits for the pictures.
+        if not any(s.shape for s in run.effect.surfaces.values()):
+            self.casting = self._cast(run)
 
     #: Largest picture whose rays are kept for every iteration's picture
     #: (a FalseColourView holds ~100 bytes per pixel); a larger one casts them
     #: again per picture.
     VIEW_PIXELS = 1 << 20
+
+    def _cast(self, run):
+        """The view's rays cast on a thread of their own (a Future), or None for
+        a picture too large to keep them."""
+        if run.opts.width * run.opts.height > self.VIEW_PIXELS:
+            return None
+        from . import background
+
+        eye, target, up, fov = run.camera
+        return background.start(run.behind.timings.call, "renders", run.sim.false_colour_view, eye, target, up,
+                                fov, run.opts.width, run.opts.height, run.threads, name="gamma-view-rays")
+
+    def on_iteration_updated(self, event: IterationUpdated) -> None:
+        self.history.append(event.properties[self.property].copy())
 
     def on_run_finished(self, event: RunFinished) -> None:
         from .outputs import FalseColourCanvas
@@ -132,15 +150,11 @@ class FalseColourWriter(Writer):
         run, shown = event.run, self.property
         eye, target, up, fov = run.camera
         width, height = run.opts.width, run.opts.height
-        casting = None
-        if width * height <= self.VIEW_PIXELS:
-            # the geometry no longer changes: the rays of every picture are cast once, and
-            # the pictures are coloured behind the loop, in the runtime (threads, no GIL);
-            # the rays are cast (no GIL) while the scale and the frame are worked out here
-            from . import background
-
-            casting = background.start(run.behind.timings.call, "renders", run.sim.false_colour_view,
-                                       eye, target, up, fov, width, height, run.threads, name="gamma-view-rays")
+        # the geometry no longer changes: the rays of every picture are cast once (if they were
+        # not since the setup), and the pictures are coloured behind the loop, in the runtime
+        # (threads, no GIL); the rays are cast (no GIL) while the scale and the frame are worked
+        # out here
+        casting, self.casting = self.casting or self._cast(run), None
         try:
             finite = [h[np.isfinite(h)] for h in self.history]
             vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
