@@ -12,12 +12,20 @@ import textwrap
 import threading
 
 import numpy as np
+import pytest
 
 from conftest import ROOT, run_gammac
 from gamma import _runtime as rt
 from gamma.driver import prefetch
 
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
+
+
+@pytest.fixture(autouse=True)
+def no_setup_cache(monkeypatch):
+    """The surfels are sampled here, never taken from the session's setup
+    cache (test_setup_cache.py tests that)."""
+    monkeypatch.setenv("GAMMA_CACHE_DIR", "off")
 
 
 def arrays(mesh):
@@ -146,10 +154,8 @@ def folder_hash(folder):
     return digest.hexdigest()
 
 
-def test_gammac_run_takes_the_surfels_sampled_ahead_and_writes_the_same_files(tmp_path, monkeypatch):
+def test_gammac_run_takes_the_surfels_sampled_ahead_and_writes_the_same_files(tmp_path):
     import json
-
-    monkeypatch.setenv("GAMMA_CACHE_DIR", "off")    # sampled, not taken from the setup cache
 
     args = ["run", ROOT / "examples" / "patina.gamma", "--scene", BUNNY, "--surfels", "3000", "--tons", "20000",
             "--iterations", "2", "--threads", "2", "--quiet"]

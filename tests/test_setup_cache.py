@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+import textwrap
 import zlib
 
 import numpy as np
@@ -21,13 +22,15 @@ from gamma.driver import setup_cache
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
 
-def run(tmp_path, cache, name, *extra, env=None):
+def run(tmp_path, cache, name, *extra, env=None, script=None):
     """gammac run (patina, bunny, 3000 surfels) with the cache folder ``cache``
-    ("off": none): its output folder and what its setup took from the cache."""
+    ("off": none), or ``script`` run with gammac's arguments: its output
+    folder and what its setup took from the cache."""
     out = tmp_path / name
     args = ["run", ROOT / "examples" / "patina.gamma", "--scene", BUNNY, "--surfels", "3000", "--tons", "20000",
             "--iterations", "2", "--threads", "2", "--quiet", "--out", out, *extra]
-    r = subprocess.run([sys.executable, "-m", "gamma.cli", *map(str, args)], capture_output=True, text=True,
+    command = ["-c", script] if script else ["-m", "gamma.cli"]
+    r = subprocess.run([sys.executable, *command, *map(str, args)], capture_output=True, text=True,
                        timeout=600, env=dict(os.environ, GAMMA_CACHE_DIR=str(cache), **(env or {})))
     assert r.returncode == 0, r.stderr
     return out, json.loads((out / "summary.json").read_text())["setup_from_cache"]
@@ -126,3 +129,68 @@ def test_the_key_follows_the_mesh_count_and_seed(tmp_path, monkeypatch):
              setup_cache.path_for(mesh, 3000, 2), setup_cache.path_for(moved, 3000, 1)}
     assert len(paths) == 4
     assert setup_cache.path_for(rt.Mesh.load(str(BUNNY)), 3000, 1) == setup_cache.path_for(mesh, 3000, 1)
+
+
+NO_PREFETCH = textwrap.dedent("""
+    import sys
+    from gamma.driver import prefetch
+    prefetch.worth_sampling = lambda *args: False     # nothing read ahead: the runner loads the cache itself
+    sys.argv = ["gammac", *sys.argv[1:]]
+    from gamma.cli import entry
+    entry()
+""")
+
+SLOW_WRITE = textwrap.dedent("""
+    import sys, time
+    from gamma.driver import setup_cache
+    write = setup_cache._write
+    def slow(*args):
+        time.sleep(1.5)                               # still writing when the run is done
+        write(*args)
+    setup_cache._write = slow
+    sys.argv = ["gammac", *sys.argv[1:]]
+    from gamma.cli import entry
+    entry()
+""")
+
+
+def test_a_setup_loaded_without_the_prefetch_is_the_same(tmp_path):
+    cache = tmp_path / "cache"
+    first, _ = run(tmp_path, cache, "first")
+    out, took = run(tmp_path, cache, "unprepared", script=NO_PREFETCH)
+    assert took == "setup"
+    assert folder_hash(out) == folder_hash(first)
+
+
+def test_the_setup_is_written_whole_before_gammac_exits(tmp_path):
+    cache = tmp_path / "cache"
+    run(tmp_path, cache, "slow", script=SLOW_WRITE)
+    assert len(kept(cache)) == 1 and not list(cache.glob(".setup-*"))
+    _, took = run(tmp_path, cache, "next")
+    assert took == "setup"
+
+
+def test_an_unwritable_cache_or_a_bad_limit_only_costs_time(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    first, took = run(tmp_path, blocker / "cache", "unwritable")
+    assert took == "nothing"
+    for bad in ("inf", "nan", "lots", "-5"):
+        out, took = run(tmp_path, tmp_path / f"cache-{bad}", f"limit-{bad}", env={"GAMMA_SETUP_CACHE_MB": bad})
+        assert took == "nothing"
+        assert folder_hash(out) == folder_hash(first)
+    # not a number: the default limit, so the setup was kept
+    assert len(kept(tmp_path / "cache-lots")) == 1 and len(kept(tmp_path / "cache-inf")) == 1
+    assert kept(tmp_path / "cache--5") == []          # a limit of nothing keeps nothing
+
+
+def test_stale_temporary_files_are_removed_and_fresh_ones_kept(tmp_path):
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    stale, fresh = cache / ".setup-dead.bin.abc", cache / ".setup-writing.bin.def"
+    for path in (stale, fresh):
+        path.write_bytes(b"partial")
+    old = stale.stat().st_mtime - setup_cache.STALE_TEMPORARY_SECONDS - 10
+    os.utime(stale, (old, old))
+    run(tmp_path, cache, "one")
+    assert not stale.exists() and fresh.exists()

@@ -117,8 +117,9 @@ STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions
 #: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.
 BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
-               "SurfelSample"),
+               "SurfelSample", "SetupSnapshot"),
     "SurfelSample": ("ok", "matches", "seconds"),
+    "SetupSnapshot": ("read", "matches", "prepare", "prepared", "taken", "surfels"),
     "Mesh": ("load", "from_arrays", "num_vertices", "num_triangles", "degenerate_dropped", "bounds",
              "vertices", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
     "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",
@@ -130,7 +131,8 @@ BINDING = {
                    "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
                    "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
-                   "num_prepared_points", "bake_prepared", "cancel", "surfel_measures"),
+                   "num_prepared_points", "bake_prepared", "cancel", "surfel_measures", "from_snapshot",
+                   "setup_snapshot", "setup_snapshot_bytes"),
 }
 
 

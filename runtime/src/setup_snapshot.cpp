@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <stdexcept>
 #include <string>
 
 #include "gamma/error.h"
@@ -83,7 +84,10 @@ public:
     void raw(void* dst, size_t bytes) {
         if (left_ < bytes) fail("it ends early");
         if (file_) {
-            if (std::fread(dst, 1, bytes, file_) != bytes) fail("its file cannot be read");
+            if (std::fread(dst, 1, bytes, file_) != bytes) {
+                if (std::ferror(file_)) cannot_read();
+                fail("it ends early");
+            }
             // zlib's length is 32 bits: large sections in pieces
             for (size_t k = 0; k < bytes; k += size_t(1) << 30)
                 crc_ = crc32(crc_, static_cast<const Bytef*>(dst) + k, uInt(std::min(bytes - k, size_t(1) << 30)));
@@ -117,7 +121,12 @@ public:
     }
     bool at_end() const { return left_ == 0; }
     uLong crc() const { return crc_; }
+    // What is in the bytes: gammart::Error (ValueError in Python).
     [[noreturn]] static void fail(const std::string& why) { throw Error("setup snapshot: " + why); }
+    // A file that cannot be read (not what is in it): std::runtime_error.
+    [[noreturn]] static void cannot_read() {
+        throw std::runtime_error("setup snapshot: the file cannot be read");
+    }
 
 private:
     const uint8_t* p_ = nullptr;
@@ -180,7 +189,20 @@ std::vector<uint8_t> SetupSnapshot::write(const Mesh& mesh, uint64_t seed, const
     w.section(kLookupGrids, index.lookup_grids_);
     w.section(kLookupCells, index.lookup_cells_);
     w.section(kLookupPacked, index.lookup_packed_);
-    w.section(kLookupHead, index.lookup_head_);
+    {
+        // copied member by member into zeroed heads: no byte of the file is
+        // uninitialised padding
+        std::vector<SceneIndex::TriangleHead> heads(index.lookup_head_.size());
+        std::memset(static_cast<void*>(heads.data()), 0, heads.size() * sizeof(SceneIndex::TriangleHead));
+        for (size_t t = 0; t < heads.size(); ++t) {
+            const SceneIndex::TriangleHead& from = index.lookup_head_[t];
+            SceneIndex::TriangleHead& to = heads[t];
+            to.cx = from.cx, to.cy = from.cy, to.cz = from.cz, to.reach2 = from.reach2;
+            to.count = from.count, to.more = from.more;
+            for (uint32_t k = 0; k < SceneIndex::kInlineCandidates; ++k) to.first[k] = from.first[k];
+        }
+        w.section(kLookupHead, heads);
+    }
     w.section(kLookupCellAt, index.lookup_cell_at_);
     w.section(kLookupBall2, index.lookup_ball2_);
     one(w, kLookupCandidates, uint64_t(index.lookup_n_candidates_));
@@ -194,7 +216,7 @@ SetupSnapshot::SetupSnapshot(const uint8_t* data, size_t size) {
 
 SetupSnapshot SetupSnapshot::read(const std::string& path) {
     std::FILE* f = std::fopen(path.c_str(), "rb");
-    if (!f) Reader::fail("cannot open " + path);
+    if (!f) Reader::cannot_read();
     std::unique_ptr<std::FILE, int (*)(std::FILE*)> closing(f, std::fclose);
     struct stat st {};
     if (fstat(fileno(f), &st) != 0 || !S_ISREG(st.st_mode) || size_t(st.st_size) < kTrailerBytes)
@@ -205,7 +227,10 @@ SetupSnapshot SetupSnapshot::read(const std::string& path) {
     Reader r(f, size_t(st.st_size) - kTrailerBytes);
     snap.parse(r);
     uint32_t trailer[2];
-    if (std::fread(trailer, 1, sizeof trailer, f) != sizeof trailer) Reader::fail("its file cannot be read");
+    if (std::fread(trailer, 1, sizeof trailer, f) != sizeof trailer) {
+        if (std::ferror(f)) Reader::cannot_read();
+        Reader::fail("it ends early");
+    }
     if (std::memcmp(&trailer[1], kTrailerMark, 4) != 0 || trailer[0] != uint32_t(r.crc()))
         Reader::fail(path + " is damaged (its checksum differs)");
     return snap;
@@ -265,15 +290,26 @@ void SetupSnapshot::parse(Reader& r) {
                 lookup_cell_at_.size() == lookup_cells_.size(),
             "lookup");
     const size_t packed = lookup_packed_.size();
+    // each packed entry belongs to one head or cell at most (as written):
+    // every entry is then checked once
+    std::vector<uint8_t> claimed(packed, 0);
     auto entries = [&](size_t at, size_t count) {
         require(at <= packed && count <= packed - at, "lookup entries");
+        for (size_t k = at; k < at + count; ++k) {
+            require(!claimed[k], "lookup entries");
+            claimed[k] = 1;
+        }
+
+    };
+    auto candidates = [&](size_t at, size_t count) {
+        entries(at, count);
         for (size_t k = at; k < at + count; ++k) require(lookup_packed_[k].id < n, "lookup ids");
     };
     constexpr uint32_t K = SceneIndex::kInlineCandidates;
     for (const SceneIndex::TriangleHead& head : lookup_head_) {
         if (head.count) {
             for (uint32_t k = 0; k < std::min(head.count, K); ++k) require(head.first[k].id < n, "lookup ids");
-            if (head.count > K) entries(head.more, head.count - K);
+            if (head.count > K) candidates(head.more, head.count - K);
         } else if (head.more != SceneIndex::kNoBlock) {
             require((head.more & SceneIndex::kGridBit) &&
                         (head.more & ~SceneIndex::kGridBit) < lookup_grids_.size(),
@@ -289,7 +325,8 @@ void SetupSnapshot::parse(Reader& r) {
     for (uint32_t at : lookup_cell_at_) {
         if (at == SceneIndex::kNoBlock) continue;
         require(at < packed, "lookup cells");
-        entries(size_t(at) + 1, lookup_packed_[at].id);
+        entries(size_t(at), 1);   // the cell's header entry
+        candidates(size_t(at) + 1, lookup_packed_[at].id);
     }
 }
 
@@ -300,13 +337,19 @@ bool SetupSnapshot::matches(const Mesh& mesh, size_t n, uint64_t seed, const std
 
 bool SetupSnapshot::matches_surfels(const Mesh& mesh, size_t n, uint64_t seed) const {
     // everything of the mesh the sampling and the lookup read
+    // compared as bytes: -0.0 and 0.0 are different inputs to the sampling
+    auto same = [](const auto& a, const auto& b) {
+        return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(a[0])) == 0;
+    };
     return !taken_ && n == n_ && seed == seed_ && std::memcmp(lo_hi_.data(), mesh.lo.data(), 3 * sizeof(float)) == 0 &&
-           std::memcmp(lo_hi_.data() + 3, mesh.hi.data(), 3 * sizeof(float)) == 0 && mesh.vertices == vertices_ &&
-           mesh.triangles == triangles_;
+           std::memcmp(lo_hi_.data() + 3, mesh.hi.data(), 3 * sizeof(float)) == 0 && same(mesh.vertices, vertices_) &&
+           same(mesh.triangles, triangles_);
 }
 
 SurfelSet SetupSnapshot::take_surfels() {
     taken_ = true;
+    index_.reset();   // prepared for the snapshot's binding: a Simulation taking only the surfels builds its own
+    std::vector<float>().swap(corner_normals_);
     return std::move(surf_);
 }
 

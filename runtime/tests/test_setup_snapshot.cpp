@@ -213,3 +213,104 @@ TEST(SetupSnapshot, DamagedBytesAreRefusedNeverRead) {
         std::memcpy(&d[source_section], &bad, 4);
     }, "splat kernel sources");
 }
+
+namespace {
+
+// Where section `tag` (setup_snapshot.cpp's order, from 1) holds its
+// elements in `bytes`, and how many it holds.
+std::pair<size_t, size_t> section_of(const std::vector<uint8_t>& bytes, uint32_t tag) {
+    size_t at = 40;   // the header
+    for (;;) {
+        uint32_t t = 0, size = 0;
+        uint64_t count = 0;
+        std::memcpy(&t, &bytes[at], 4);
+        std::memcpy(&size, &bytes[at + 4], 4);
+        std::memcpy(&count, &bytes[at + 8], 8);
+        if (t == tag) return {at + 16, size_t(count)};
+        at += 16 + (size_t(size) * count + 7) / 8 * 8;
+    }
+}
+
+template <typename T>
+void put(std::vector<uint8_t>& bytes, size_t at, T value) {
+    std::memcpy(&bytes[at], &value, sizeof value);
+}
+template <typename T>
+T get(const std::vector<uint8_t>& bytes, size_t at) {
+    T value;
+    std::memcpy(&value, &bytes[at], sizeof value);
+    return value;
+}
+
+}  // namespace
+
+// Every index of the triangle lookup a damaged snapshot could carry out of
+// range, or two heads sharing one block of entries: refused by the parse,
+// never left for the scan to read.
+TEST(SetupSnapshot, ALookupIndexOutOfRangeIsRefused) {
+    // a floor of two large triangles (cut into cells) and a sphere on it
+    gamma_test::Builder b;
+    gamma_test::floor_quad(b, -3, 3, -3, 3);
+    b.add(gamma_test::icosphere(2, 0.5f), {0, 0.5f, 0});
+    const Mesh m = b.mesh();
+    Config c;
+    c.surfels = 3000;
+    c.threads = 2;
+    c.row_width = 4;
+    c.surface_rows = {{0, 0, 0, 0}};
+    const Simulation fresh(m, c);
+    const std::vector<uint8_t> bytes = fresh.setup_snapshot();
+    ASSERT_NO_THROW(SetupSnapshot(bytes.data(), bytes.size()));
+    const auto [grids, n_grids] = section_of(bytes, 14);
+    const auto [cells, n_cells] = section_of(bytes, 15);
+    const auto [packed, n_packed] = section_of(bytes, 16);
+    const auto [heads, n_heads] = section_of(bytes, 17);
+    const auto [cell_at, n_cell_at] = section_of(bytes, 18);
+    ASSERT_GT(n_grids, 0u);   // the floor is cut into cells
+    ASSERT_EQ(n_heads, m.num_triangles());
+    ASSERT_EQ(n_cell_at, n_cells);
+    constexpr size_t kHead = 128, kCount = 16, kMore = 20, kFirstId = 24 + 16, kEntry = 20;
+    // the heads of each kind: with more entries than inline, with inline ones only, cut into cells
+    size_t long_head = SIZE_MAX, short_head = SIZE_MAX, grid_head = SIZE_MAX;
+    for (size_t t = 0; t < n_heads; ++t) {
+        const uint32_t count = get<uint32_t>(bytes, heads + t * kHead + kCount);
+        if (count > SceneIndex::kInlineCandidates && long_head == SIZE_MAX) long_head = t;
+        if (count > 0 && count <= SceneIndex::kInlineCandidates && short_head == SIZE_MAX) short_head = t;
+        if (count == 0 && (get<uint32_t>(bytes, heads + t * kHead + kMore) & SceneIndex::kGridBit)) grid_head = t;
+    }
+    ASSERT_NE(long_head, SIZE_MAX);
+    ASSERT_NE(short_head, SIZE_MAX);
+    ASSERT_NE(grid_head, SIZE_MAX);
+    size_t used_cell = SIZE_MAX;
+    for (size_t k = 0; k < n_cell_at && used_cell == SIZE_MAX; ++k)
+        if (get<uint32_t>(bytes, cell_at + 4 * k) != SceneIndex::kNoBlock) used_cell = k;
+    ASSERT_NE(used_cell, SIZE_MAX);
+    const uint32_t n = uint32_t(c.surfels);
+    struct Damage {
+        const char* what;
+        size_t at;
+        uint32_t value;
+    };
+    const size_t lh = heads + long_head * kHead, sh = heads + short_head * kHead, gh = heads + grid_head * kHead;
+    const uint32_t long_more = get<uint32_t>(bytes, lh + kMore);
+    const std::vector<Damage> damages = {
+        {"a head's entries past the end", lh + kMore, uint32_t(n_packed)},
+        {"a head's count past the end", lh + kCount, 0x7fffffffu},
+        {"a head's inline id", sh + kFirstId, n},
+        {"a head's grid", gh + kMore, SceneIndex::kGridBit | uint32_t(n_grids)},
+        {"a head's block that is no grid", gh + kMore, 5u},
+        {"a grid's side", grids + 36, 0u},
+        {"a grid's side above the largest", grids + 36, SceneIndex::kMaxGridSide + 1},
+        {"a grid's first cell", grids + 40, uint32_t(n_cells)},
+        {"a cell's block", cell_at + 4 * used_cell, uint32_t(n_packed)},
+        {"a candidate's id", packed + (long_more + 0) * kEntry + 16, n},
+        {"a cell's count", packed + get<uint32_t>(bytes, cell_at + 4 * used_cell) * kEntry + 16, 0x7fffffffu},
+        {"a head sharing a cell's block", lh + kMore, get<uint32_t>(bytes, cell_at + 4 * used_cell) + 1},
+    };
+    for (const Damage& d : damages) {
+        std::vector<uint8_t> damaged = bytes;
+        put(damaged, d.at, d.value);
+        const std::string e = expect_error([&] { SetupSnapshot s(damaged.data(), damaged.size()); });
+        EXPECT_NE(e.find("setup snapshot: inconsistent lookup"), std::string::npos) << d.what << ": " << e;
+    }
+}

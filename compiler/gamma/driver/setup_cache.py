@@ -52,17 +52,24 @@ _lock = threading.Lock()
 def limit_bytes() -> int:
     configured = os.environ.get("GAMMA_SETUP_CACHE_MB")
     try:
-        return int(float(configured) * (1 << 20)) if configured else LIMIT_BYTES
-    except ValueError:
+        return max(0, int(float(configured) * (1 << 20))) if configured else LIMIT_BYTES
+    except (ValueError, OverflowError):         # not a number, inf, nan
         return LIMIT_BYTES
 
 
-def _runtime_build() -> bytes:
-    """What identifies the runtime build: its module file's size and time."""
-    from .. import _runtime
+_build: bytes | None = None
 
-    st = os.stat(_runtime.__file__)
-    return f"{getattr(_runtime, 'RUNTIME_VERSION', '')}|{st.st_size}|{st.st_mtime_ns}".encode()
+
+def _runtime_build() -> bytes:
+    """The runtime build: a hash of its module file (its version string stays
+    the same across builds whose sampling or lookup differ)."""
+    global _build
+    if _build is None:
+        from .. import _runtime
+
+        with open(_runtime.__file__, "rb") as f:
+            _build = hashlib.sha256(f.read()).digest()
+    return _build
 
 
 def path_for(mesh, surfels: int, seed: int) -> Path | None:
@@ -97,11 +104,13 @@ def load(mesh, surfels: int, seed: int):
     try:
         # read straight into the runtime's arrays, its checksum checked there
         snapshot = _runtime.SetupSnapshot.read(str(path))
-    except ValueError:
+    except ValueError:                  # damaged, cut short, not a snapshot: replaced by this run's
         try:
             path.unlink()
         except OSError:
             pass
+        return None
+    except RuntimeError:                # a file that cannot be read (another user's): left alone
         return None
     try:
         os.utime(path)                  # recently used: removed last
@@ -112,16 +121,20 @@ def load(mesh, surfels: int, seed: int):
 
 def store(sim, mesh, surfels: int, seed: int) -> None:
     """Keep ``sim``'s setup (just made, not taken from the cache) for the
-    next run: the bytes are taken now, written on a thread of their own."""
-    path = path_for(mesh, surfels, seed)
-    # held in memory until written: a large one (1.6M surfels on a 1M-triangle
-    # mesh: ~0.8 GB) is not kept, so a run's peak stays what it was
-    if path is None or sim.setup_snapshot_bytes > min(limit_bytes() // 2, STORE_MAX_BYTES):
-        return
-    data = sim.setup_snapshot()
-    from . import background
+    next run: the bytes are taken now, written on a thread of their own.
+    Never raises: a setup not kept only costs the next run time."""
+    try:
+        path = path_for(mesh, surfels, seed)
+        # held in memory until written: a large one (1.6M surfels on a 1M-triangle
+        # mesh: ~0.8 GB) is not kept, so a run's peak stays what it was
+        if path is None or sim.setup_snapshot_bytes > min(limit_bytes() // 2, STORE_MAX_BYTES):
+            return
+        data = sim.setup_snapshot()
+        from . import background
 
-    future = background.start(_write, path, data, name="gamma-setup-cache")
+        future = background.start(_write, path, data, name="gamma-setup-cache")
+    except Exception:  # noqa: BLE001 - see above
+        return
     with _lock:
         _writes.append(future)
 
@@ -134,15 +147,28 @@ def _write(path: Path, data) -> None:
         pass                            # an unwritable cache only costs time
 
 
+#: A temporary file of a write older than this was left by a process that
+#: died while writing it (a write takes well under a second).
+STALE_TEMPORARY_SECONDS = 3600
+
+
 def _trim(folder: Path, keep: Path) -> None:
-    """Remove the least recently used setup files until the rest fit the limit."""
+    """Remove the least recently used setup files until the rest fit the
+    limit, and the temporary files of writes that never finished."""
+    import time
+
     files = []
     for entry in os.scandir(folder):
-        if entry.name.startswith("setup-") and entry.name.endswith(".bin"):
+        try:
+            st = entry.stat()
+        except OSError:
+            continue
+        if entry.name.startswith(".setup-") and time.time() - st.st_mtime > STALE_TEMPORARY_SECONDS:
             try:
-                st = entry.stat()
+                os.unlink(entry.path)
             except OSError:
-                continue
+                pass
+        elif entry.name.startswith("setup-") and entry.name.endswith(".bin"):
             files.append((st.st_mtime_ns, st.st_size, Path(entry.path)))
     total = sum(size for _, size, _ in files)
     for _, size, path in sorted(files):
