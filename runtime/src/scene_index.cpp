@@ -63,6 +63,14 @@ struct SceneIndex::Trees {
     PointTree all;                  // every surfel
     std::vector<PointTree> surface; // per surface id
     std::vector<int32_t> surface_of;  // per surfel: its surface id
+    // The surface that holds every surfel, when `all` is built (-1 if none):
+    // its own tree would be `all` again (the same points in the same order,
+    // so the same tree and answers), so `all` serves it and its entry in
+    // `surface` stays empty.
+    int whole = -1;
+    const PointTree& of(int s) const { return s == whole ? all : surface[size_t(s)]; }
+    // The surfel index of point i of tree t.
+    static uint32_t surfel(const PointTree& t, uint32_t i) { return t.index.empty() ? i : t.index[i]; }
 };
 
 SceneFrame SceneFrame::of(const Mesh& mesh, std::array<float, 3> down) {
@@ -155,7 +163,8 @@ void SceneIndex::triangle_spheres(const Mesh& mesh, float diagonal) {
     int e = 0;
     std::frexp(diagonal, &e);
     const float pad = 1e-6f * std::ldexp(1.0f, e);
-    for (size_t t = 0; t < m; ++t) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t t = r.begin(); t < r.end(); ++t) {
         const float* v[3];
         for (int k = 0; k < 3; ++k) v[k] = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + k])];
         for (int k = 0; k < 3; ++k) std::copy(v[k], v[k] + 3, lookup_vertices_.begin() + std::ptrdiff_t(9 * t + 3 * k));
@@ -173,6 +182,7 @@ void SceneIndex::triangle_spheres(const Mesh& mesh, float diagonal) {
         L.cz = float(c[2]);
         L.reach2 = float(reach * reach);
     }
+    });
     // The heads follow (the candidates stay stale until the surfels are
     // searched again, as documented for move_vertices).
     if (lookup_head_.size() == m)
@@ -209,7 +219,12 @@ void SceneIndex::index_surfels(const float* positions, const int32_t* surfel_sur
     T.surface.clear();  // trees point into their own pos: never copied or moved once built
     T.surface.resize(size_t(n_surfaces_));
     T.surface_of.assign(surfel_surface, surfel_surface + n);
-    for (size_t i = 0; i < n; ++i) {
+    const int first = n > 0 ? surfel_surface[0] : -1;
+    T.whole = all_tree && first >= 0 && first < n_surfaces_ &&
+                      std::all_of(surfel_surface, surfel_surface + n, [&](int32_t s) { return s == first; })
+                  ? first
+                  : -1;
+    for (size_t i = 0; i < n && T.whole < 0; ++i) {
         const int s = surfel_surface[i];
         if (s < 0 || s >= n_surfaces_) throw Error("scene index: surfel surface id out of range");
         PointTree& t = T.surface[size_t(s)];
@@ -354,7 +369,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     std::vector<PointColumns> columns(T.surface.size());
     const double spacing = double(sigma_);
     tbb::parallel_for(size_t(0), T.surface.size(), [&](size_t s) {
-        const PointTree& tree = T.surface[s];
+        const PointTree& tree = T.of(int(s));
         columns[s].build(tree.pos.data(), tree.pos.size() / 3, kColumnSpacings * spacing);
     });
     {
@@ -446,7 +461,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                         const float* pp = &tree.pos[3 * size_t(f.first)];
                         const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
                         sc.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
-                        si.push_back(tree.index[f.first]);
+                        si.push_back(Trees::surfel(tree, f.first));
                     }
                     order.resize(found.size());
                     for (uint32_t k = 0; k < order.size(); ++k) order[k] = k;
@@ -472,7 +487,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                         ++out.reused;
                         continue;
                     }
-                    const PointTree& tree = T.surface[size_t(s)];
+                    const PointTree& tree = T.of(s);
                     const PointColumns& cols = columns[size_t(s)];
                     const size_t n_found = collect(tree, cols, L, kMaxCandidates, &lookup_ball2_[t]);
                     if (L.count || n_found == 0) continue;
@@ -544,84 +559,91 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
             }
         });
     }
-    size_t n_cand = 0, n_grids = 0, n_cells = 0;
+    // The blocks laid out as the scan reads them (see TriangleHead): per
+    // triangle its head, the candidates past the head's in triangle order,
+    // then each cell's block in cell order -- the blocks' offsets counted
+    // first, then every block written in parallel (what used to be one
+    // serial copy into lookup_cand_ / lookup_ids_ and one serial pass
+    // packing them: the same entries at the same places).
+    constexpr uint32_t K = kInlineCandidates;
+    struct BlockAt {
+        size_t cand = 0, grids = 0, cells = 0, tail = 0, cell_entries = 0;
+    };
+    std::vector<BlockAt> at(nblocks + 1);
+    tbb::parallel_for(size_t(0), nblocks, [&](size_t b) {
+        const LookupBlock& B = blocks[b];
+        BlockAt& n = at[b + 1];
+        n.cand = B.cand.size(), n.grids = B.grids.size(), n.cells = B.cells.size();
+        for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t)
+            n.tail += lookup_tri_[t].count > K ? lookup_tri_[t].count - K : 0;
+        for (const TriangleLookup& C : B.cells) n.cell_entries += C.count > 0 ? 1 + C.count : 0;
+    });
+    for (size_t b = 0; b < nblocks; ++b) {
+        at[b + 1].cand += at[b].cand, at[b + 1].grids += at[b].grids, at[b + 1].cells += at[b].cells;
+        at[b + 1].tail += at[b].tail, at[b + 1].cell_entries += at[b].cell_entries;
+    }
+    const size_t n_cand = at[nblocks].cand, tails = at[nblocks].tail;
+    const size_t entries = tails + at[nblocks].cell_entries;
+    if (n_cand > size_t(UINT32_MAX) || at[nblocks].cells > size_t(UINT32_MAX) || entries >= size_t(kGridBit) ||
+        at[nblocks].grids >= size_t(kGridBit))
+        throw Error("scene index: too many surfel candidates for the triangle lookup");
     lookup_reused_ = 0;
     for (const LookupBlock& B : blocks) lookup_reused_ += B.reused;
-    std::vector<size_t> cand_at(nblocks), grid_at(nblocks), cell_at(nblocks);
-    for (size_t b = 0; b < nblocks; ++b) {
-        cand_at[b] = n_cand, grid_at[b] = n_grids, cell_at[b] = n_cells;
-        n_cand += blocks[b].cand.size(), n_grids += blocks[b].grids.size(), n_cells += blocks[b].cells.size();
-    }
-    if (n_cand > size_t(UINT32_MAX) || n_cells > size_t(UINT32_MAX))
-        throw Error("scene index: too many surfel candidates for the triangle lookup");
-    lookup_cand_.resize(n_cand);
-    lookup_ids_.resize(n_cand);
-    lookup_grids_.resize(n_grids);
-    lookup_cells_.resize(n_cells);
-    for (size_t b = 0; b < nblocks; ++b) {
-        LookupBlock& B = blocks[b];
-        std::copy(B.cand.begin(), B.cand.end(), lookup_cand_.begin() + std::ptrdiff_t(cand_at[b]));
-        std::copy(B.ids.begin(), B.ids.end(), lookup_ids_.begin() + std::ptrdiff_t(cand_at[b]));
-        for (TriangleLookup& C : B.cells)
-            if (C.count) C.begin += uint32_t(cand_at[b]);
-        std::copy(B.cells.begin(), B.cells.end(), lookup_cells_.begin() + std::ptrdiff_t(cell_at[b]));
-        for (TriangleGrid& G : B.grids) G.first += uint32_t(cell_at[b]);
-        std::copy(B.grids.begin(), B.grids.end(), lookup_grids_.begin() + std::ptrdiff_t(grid_at[b]));
+    lookup_grids_.resize(at[nblocks].grids);
+    lookup_cells_.resize(at[nblocks].cells);
+    lookup_cell_at_.assign(at[nblocks].cells, kNoBlock);
+    decltype(lookup_packed_) packed(entries);
+    if (lookup_head_.size() != m) lookup_head_.resize(m);
+    tbb::parallel_for(size_t(0), nblocks, [&](size_t b) {
+        const LookupBlock& B = blocks[b];
+        const BlockAt& a = at[b];
+        auto entry = [&](uint32_t k) {   // k: block-relative
+            const Candidate& c = B.cand[k];
+            return PackedEntry{c.x, c.y, c.z, c.from_centre, B.ids[k]};
+        };
+        size_t tail = a.tail;
         for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t) {
             TriangleLookup& L = lookup_tri_[t];
-            if (L.count) L.begin += uint32_t(cand_at[b]);
-            if (L.grid != kNoGrid) L.grid += uint32_t(grid_at[b]);
+            TriangleHead& h = lookup_head_[t];
+            h = TriangleHead{};
+            h.cx = L.cx, h.cy = L.cy, h.cz = L.cz, h.reach2 = L.reach2;
+            h.count = L.count;
+            if (L.grid != kNoGrid) L.grid += uint32_t(a.grids);
+            if (L.count) {
+                for (uint32_t k = 0; k < std::min(L.count, K); ++k) h.first[k] = entry(L.begin + k);
+                h.more = L.count > K ? uint32_t(tail) : 0;
+                for (uint32_t k = K; k < L.count; ++k) packed[tail++] = entry(L.begin + k);
+                L.begin += uint32_t(a.cand);
+            } else {
+                h.more = L.grid != kNoGrid ? kGridBit | L.grid : kNoBlock;
+            }
         }
-    }
-    pack_lookup();
+        size_t block = tails + a.cell_entries;
+        for (size_t c = 0; c < B.cells.size(); ++c) {
+            TriangleLookup C = B.cells[c];
+            if (C.count) {
+                lookup_cell_at_[a.cells + c] = uint32_t(block);
+                packed[block++] = PackedEntry{C.cx, C.cy, C.cz, C.reach2, C.count};
+                for (uint32_t k = C.begin; k < C.begin + C.count; ++k) packed[block++] = entry(k);
+                C.begin += uint32_t(a.cand);
+            }
+            lookup_cells_[a.cells + c] = C;
+        }
+        for (size_t g = 0; g < B.grids.size(); ++g) {
+            TriangleGrid G = B.grids[g];
+            G.first += uint32_t(a.cells);
+            lookup_grids_[a.grids + g] = G;
+        }
+    });
+    lookup_packed_.swap(packed);
+    lookup_n_candidates_ = n_cand;
+    // The entries are held once, packed.
+    std::vector<Candidate>().swap(lookup_cand_);
+    std::vector<uint32_t>().swap(lookup_ids_);
 }
 
 static_assert(sizeof(SceneIndex::PackedEntry) == 20, "packed lookup entries are 20 bytes");
 static_assert(sizeof(SceneIndex::TriangleHead) == 128, "a triangle head is two cache lines");
-
-// Lays the lookup out as the scan reads it (see TriangleHead); the same
-// spheres, candidates and order, so the same answers.
-void SceneIndex::pack_lookup() {
-    const size_t m = lookup_tri_.size();
-    constexpr uint32_t K = kInlineCandidates;
-    size_t entries = 0;
-    for (const TriangleLookup& L : lookup_tri_) entries += L.count > K ? L.count - K : 0;
-    for (const TriangleLookup& C : lookup_cells_) entries += C.count > 0 ? 1 + C.count : 0;
-    if (entries >= size_t(kGridBit) || lookup_grids_.size() >= size_t(kGridBit))
-        throw Error("scene index: too many surfel candidates for the triangle lookup");
-    std::vector<PackedEntry, HugePageAllocator<PackedEntry>> packed;
-    packed.reserve(entries);
-    auto entry = [&](uint32_t k) {
-        const Candidate& c = lookup_cand_[k];
-        return PackedEntry{c.x, c.y, c.z, c.from_centre, lookup_ids_[k]};
-    };
-    lookup_head_.assign(m, TriangleHead{});
-    for (size_t t = 0; t < m; ++t) {
-        const TriangleLookup& L = lookup_tri_[t];
-        TriangleHead& h = lookup_head_[t];
-        h.cx = L.cx, h.cy = L.cy, h.cz = L.cz, h.reach2 = L.reach2;
-        h.count = L.count;
-        if (L.count) {
-            for (uint32_t k = 0; k < std::min(L.count, K); ++k) h.first[k] = entry(L.begin + k);
-            h.more = L.count > K ? uint32_t(packed.size()) : 0;
-            for (uint32_t k = K; k < L.count; ++k) packed.push_back(entry(L.begin + k));
-        } else {
-            h.more = L.grid != kNoGrid ? kGridBit | L.grid : kNoBlock;
-        }
-    }
-    lookup_cell_at_.assign(lookup_cells_.size(), kNoBlock);
-    for (size_t c = 0; c < lookup_cells_.size(); ++c) {
-        const TriangleLookup& C = lookup_cells_[c];
-        if (!C.count) continue;
-        lookup_cell_at_[c] = uint32_t(packed.size());
-        packed.push_back(PackedEntry{C.cx, C.cy, C.cz, C.reach2, C.count});
-        for (uint32_t k = C.begin; k < C.begin + C.count; ++k) packed.push_back(entry(k));
-    }
-    lookup_packed_.swap(packed);
-    lookup_n_candidates_ = lookup_cand_.size();
-    std::vector<Candidate>().swap(lookup_cand_);   // held once, packed
-    std::vector<uint32_t>().swap(lookup_ids_);
-}
 
 namespace {
 // The scan of one sphere's candidates for p: `first` (n_first entries), then
@@ -780,24 +802,25 @@ uint32_t SceneIndex::nearest(const float p[3]) const { return trees_->all.query(
 const FloatPointsKdTree* SceneIndex::surfel_tree() const { return trees_->all.kd.get(); }
 
 bool SceneIndex::has_surfels(int surface) const {
-    return surface >= 0 && surface < n_surfaces_ && trees_->surface[size_t(surface)].kd != nullptr;
+    return surface >= 0 && surface < n_surfaces_ && trees_->of(surface).kd != nullptr;
 }
 
 uint32_t SceneIndex::nearest_of(int surface, const float p[3]) const {
     if (!has_surfels(surface)) return nearest(p);
-    return trees_->surface[size_t(surface)].query(p);
+    return trees_->of(surface).query(p);
 }
 
 std::vector<size_t> SceneIndex::surfels_per_surface() const {
     std::vector<size_t> n;
-    for (const PointTree& t : trees_->surface) n.push_back(t.index.size());
+    for (size_t s = 0; s < trees_->surface.size(); ++s)
+        n.push_back(int(s) == trees_->whole ? n_surfels_ : trees_->surface[s].index.size());
     return n;
 }
 
 size_t SceneIndex::smooth(int surface, const float p[3], uint32_t* idx, double* w) const {
     constexpr size_t K = kSmoothingNeighbours;
     const PointTree* tree = &trees_->all;
-    if (has_surfels(surface)) tree = &trees_->surface[size_t(surface)];
+    if (has_surfels(surface)) tree = &trees_->of(surface);
     const size_t count = tree->cloud.n;
     float d2[K];
     nanoflann::KNNResultSet<float, uint32_t> rs(std::min(K, count));

@@ -196,6 +196,58 @@ struct CellGrid {
     };
 };
 
+// Bounding box of the points (exact: min and max do not depend on the
+// order they are taken in).
+void point_bounds(const std::vector<float>& pts, double lo[3], double hi[3]) {
+    struct Box {
+        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    };
+    const Box box = tbb::parallel_reduce(
+        tbb::blocked_range<size_t>(0, pts.size() / 3, 16384), Box{},
+        [&](const tbb::blocked_range<size_t>& r, Box b) {
+            for (size_t i = r.begin(); i < r.end(); ++i)
+                for (int k = 0; k < 3; ++k) {
+                    b.lo[k] = std::min(b.lo[k], double(pts[3 * i + k]));
+                    b.hi[k] = std::max(b.hi[k], double(pts[3 * i + k]));
+                }
+            return b;
+        },
+        [](Box a, const Box& b) {
+            for (int k = 0; k < 3; ++k) {
+                a.lo[k] = std::min(a.lo[k], b.lo[k]);
+                a.hi[k] = std::max(a.hi[k], b.hi[k]);
+            }
+            return a;
+        });
+    for (int k = 0; k < 3; ++k) lo[k] = box.lo[k], hi[k] = box.hi[k];
+}
+
+// The a < n with keep(a), ascending: counted, then written, in parallel
+// over fixed blocks (keep must give the same answer both times).
+template <class Keep>
+std::vector<uint32_t> select_in_order(size_t n, Keep&& keep) {
+    constexpr size_t kBlock = 16384;
+    const size_t nblocks = (n + kBlock - 1) / kBlock;
+    std::vector<size_t> at(nblocks + 1, 0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t b = r.begin(); b < r.end(); ++b) {
+            size_t count = 0;
+            for (size_t a = b * kBlock; a < std::min(n, (b + 1) * kBlock); ++a) count += keep(a) ? 1 : 0;
+            at[b + 1] = count;
+        }
+    });
+    for (size_t b = 0; b < nblocks; ++b) at[b + 1] += at[b];
+    std::vector<uint32_t> out(at[nblocks]);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t b = r.begin(); b < r.end(); ++b) {
+            size_t w = at[b];
+            for (size_t a = b * kBlock; a < std::min(n, (b + 1) * kBlock); ++a)
+                if (keep(a)) out[w++] = uint32_t(a);
+        }
+    });
+    return out;
+}
+
 // Sorts words (key << 32 | index) by their key (below 2^key_bits), stably:
 // least significant digit first, each pass over fixed blocks of the words
 // (counted, then moved, in parallel), so the result is the serial sort's.
@@ -242,12 +294,8 @@ void radix_sort_upper(std::vector<uint64_t>& words, int key_bits) {
 CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_rows = false) {
     const size_t m = pts.size() / 3;
     CellGrid g;
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < m; ++i)
-        for (int k = 0; k < 3; ++k) {
-            lo[k] = std::min(lo[k], double(pts[3 * i + k]));
-            hi[k] = std::max(hi[k], double(pts[3 * i + k]));
-        }
+    double lo[3], hi[3];
+    point_bounds(pts, lo, hi);
     double cell = radius * (1.0 + 1e-6);
     for (int k = 0; k < 3; ++k) cell = std::max(cell, (hi[k] - lo[k]) / 1.0e6);
     if (!(cell > 0)) cell = 1.0;
@@ -295,15 +343,20 @@ CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_r
             }
         });
     }
-    for (size_t a = 0; a < m;) {
-        size_t b = a;
-        while (b < m && sorted_key[b] == sorted_key[a]) ++b;
-        const uint32_t i = g.original[a];
-        const uint32_t c[3] = {uint32_t(cell_of(i, 0)), uint32_t(cell_of(i, 1)), uint32_t(cell_of(i, 2))};
-        const uint64_t key = numbered ? (CellGrid::row_key(c[1], c[2]) << 21) | c[0] : sorted_key[a];
-        g.cells.push_back({key, uint32_t(a), uint32_t(b), {c[0], c[1], c[2]}});
-        a = b;
-    }
+    // A cell per run of equal keys, found in parallel (a run starts where
+    // the key changes).
+    const std::vector<uint32_t> starts =
+        select_in_order(m, [&](size_t a) { return a == 0 || sorted_key[a] != sorted_key[a - 1]; });
+    g.cells.resize(starts.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, starts.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t n = r.begin(); n < r.end(); ++n) {
+            const uint32_t a = starts[n], b = n + 1 < starts.size() ? starts[n + 1] : uint32_t(m);
+            const uint32_t i = g.original[a];
+            const uint32_t c[3] = {uint32_t(cell_of(i, 0)), uint32_t(cell_of(i, 1)), uint32_t(cell_of(i, 2))};
+            const uint64_t key = numbered ? (CellGrid::row_key(c[1], c[2]) << 21) | c[0] : sorted_key[a];
+            g.cells[n] = {key, a, b, {c[0], c[1], c[2]}};
+        }
+    });
     if (in_rows) {
         std::pair<uint32_t, uint32_t>* row = nullptr;
         for (size_t c = 0; c < g.cells.size(); ++c) {
@@ -706,8 +759,8 @@ enum : uint8_t { kUndecided = 0, kIn = 1, kOut = 2 };
 // all its earlier neighbours are out, whatever the order in which the
 // rounds visit the points; the second pass's first `still wanted` points in
 // the order are the serial pass stopped at `keep`.  The same at any thread
-// count.  Returns the kept indices (ascending), or nothing if the second
-// pass falls short even at kDiskRadiusMin.
+// count.  Returns the kept indices (in no particular order), or nothing if
+// the second pass falls short even at kDiskRadiusMin.
 std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed) {
     const size_t m = pts.size() / 3;
     const double wide = kWideRadius * r_max;
@@ -808,9 +861,8 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     auto greedy_pass = [&](double radius) {
         const double radius2 = radius * radius;
         const bool every_listed = radius == wide;
-        undecided.clear();
-        for (size_t i = 0; i < m; ++i)
-            if (state[i].load(std::memory_order_relaxed) == kUndecided) undecided.push_back(uint32_t(i));
+        undecided = select_in_order(
+            m, [&](size_t i) { return state[i].load(std::memory_order_relaxed) == kUndecided; });
         size_t left = undecided.size();
         while (left > 0) {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, left, kPointsPerTask), [&](const tbb::blocked_range<size_t>& r) {
@@ -830,17 +882,15 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                     if (decision != kUndecided) state[i].store(decision, std::memory_order_relaxed);
                 }
             });
-            size_t still = 0;
-            for (size_t u = 0; u < left; ++u)
-                if (state[undecided[u]].load(std::memory_order_relaxed) == kUndecided) undecided[still++] = undecided[u];
-            left = still;
+            const std::vector<uint32_t> still = select_in_order(
+                left, [&](size_t u) { return state[undecided[u]].load(std::memory_order_relaxed) == kUndecided; });
+            for (size_t u = 0; u < still.size(); ++u) undecided[u] = undecided[still[u]];
+            left = still.size();
         }
     };
     // The points a pass kept, in the order.
     auto kept_in_order = [&](auto&& kept) {
-        std::vector<uint32_t> out;
-        for (size_t a = 0; a < m; ++a)
-            if (kept(a)) out.push_back(uint32_t(a));
+        std::vector<uint32_t> out = select_in_order(m, kept);
         tbb::parallel_sort(out.begin(), out.end(), earlier);
         return out;
     };
@@ -851,7 +901,9 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     greedy_pass(wide);
     SURFEL_TIMEPOINT("first pass");
     std::vector<uint8_t> first_in(m);
-    for (size_t i = 0; i < m; ++i) first_in[i] = state[i].load(std::memory_order_relaxed) == kIn;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 8192), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) first_in[i] = state[i].load(std::memory_order_relaxed) == kIn;
+    });
     std::vector<uint32_t> chosen = kept_in_order([&](size_t a) { return first_in[a] != 0; });
     if (chosen.size() >= keep) {
         chosen.resize(keep);
@@ -892,8 +944,10 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
         }
     }
     SURFEL_TIMEPOINT("second pass");
-    for (uint32_t& a : chosen) a = grid.original[a];
-    std::sort(chosen.begin(), chosen.end());
+    // In the passes' order: sample_surfels orders the surfels by itself.
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, chosen.size(), 8192), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t k = r.begin(); k < r.end(); ++k) chosen[k] = grid.original[chosen[k]];
+    });
 #ifdef GAMMA_SURFEL_TIMING
     std::fprintf(stderr, "\n");
 #endif
@@ -911,8 +965,10 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
     // random triangle, and reads one record instead of an index row and
     // three vertex rows at four random places.
     std::vector<std::array<float, 9>> corners(m);
-    double total = 0;
-    for (size_t t = 0; t < m; ++t) {
+    // Each triangle's half cross product length in parallel, then their
+    // running sum in order (the same additions as one loop).
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t t = r.begin(); t < r.end(); ++t) {
         const float* a = V + 3 * size_t(T[3 * t]);
         const float* b = V + 3 * size_t(T[3 * t + 1]);
         const float* c = V + 3 * size_t(T[3 * t + 2]);
@@ -926,7 +982,12 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
         double cr[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
                         e1[0] * e2[1] - e1[1] * e2[0]};
         double len = std::sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
-        total += 0.5 * len;
+        cum[t] = 0.5 * len;
+    }
+    });
+    double total = 0;
+    for (size_t t = 0; t < m; ++t) {
+        total += cum[t];
         cum[t] = total;
     }
     // A guide table over the cumulative areas: the triangle of a target is
@@ -978,7 +1039,8 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     if (n == 0) throw Error("surfel count must be at least 1");
     const size_t m = mesh.num_triangles();
     std::vector<float> tri_normal(3 * m);
-    for (size_t t = 0; t < m; ++t) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t t = r.begin(); t < r.end(); ++t) {
         const float* a = &mesh.vertices[3 * size_t(mesh.triangles[3 * t])];
         const float* b = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + 1])];
         const float* c = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + 2])];
@@ -989,6 +1051,7 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         double len = std::sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
         for (int k = 0; k < 3; ++k) tri_normal[3 * t + k] = float(len > 0 ? cr[k] / len : 0.0);
     }
+    });
     const SurfelCandidates candidates = surfel_candidates(mesh, n, seed);
     const std::vector<float>& cand = candidates.position;
     const std::vector<int32_t>& cand_tri = candidates.triangle;
@@ -1003,7 +1066,8 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     double ext = 0;
     for (int k = 0; k < 3; ++k) ext = std::max(ext, double(mesh.hi[k]) - mesh.lo[k]);
     if (!(ext > 0)) ext = 1;
-    for (size_t a = 0; a < kept.size(); ++a) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, kept.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t a = r.begin(); a < r.end(); ++a) {
         uint32_t i = kept[a];
         uint64_t q[3];
         for (int k = 0; k < 3; ++k) {
@@ -1012,11 +1076,14 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         }
         order[a] = {expand_bits21(q[0]) | (expand_bits21(q[1]) << 1) | (expand_bits21(q[2]) << 2), i};
     }
-    tbb::parallel_sort(order.begin(), order.end());  // (key, index) pairs are unique
+    });
+    // (key, index) pairs are unique: the order does not depend on kept's.
+    tbb::parallel_sort(order.begin(), order.end());
     out.position.resize(3 * order.size());
     out.normal.resize(3 * order.size());
     out.triangle.resize(order.size());
-    for (size_t a = 0; a < order.size(); ++a) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, order.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t a = r.begin(); a < r.end(); ++a) {
         uint32_t i = order[a].second;
         int32_t t = cand_tri[i];
         for (int k = 0; k < 3; ++k) {
@@ -1025,6 +1092,7 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         }
         out.triangle[a] = t;
     }
+    });
     return out;
 }
 

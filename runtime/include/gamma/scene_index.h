@@ -237,7 +237,6 @@ private:
                        bool all_tree = true);
     // The spheres are padded by 1e-6 x diagonal (rounded up to a power of two).
     void triangle_spheres(const Mesh& mesh, float diagonal);
-    void pack_lookup();
 
     RTCDevice device_ = nullptr;
     RTCScene scene_ = nullptr;
@@ -252,8 +251,8 @@ private:
     std::vector<TriangleLookup> lookup_cells_;
     std::vector<Candidate> lookup_cand_;
     std::vector<uint32_t> lookup_ids_;
-    // The packed form the scan reads (pack_lookup; lookup_cand_ and
-    // lookup_ids_ are released once packed).
+    // The packed form the scan reads (compute_lookup writes it straight
+    // from its blocks; lookup_cand_ and lookup_ids_ stay empty).
     std::vector<PackedEntry, HugePageAllocator<PackedEntry>> lookup_packed_;
     std::vector<TriangleHead, HugePageAllocator<TriangleHead>> lookup_head_;  // per triangle
     std::vector<uint32_t> lookup_cell_at_;   // per cell: its block or kNoBlock
