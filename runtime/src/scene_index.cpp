@@ -359,7 +359,7 @@ void SceneIndex::build_lookup(int threads) {
 void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* skip) {
     const Trees& T = *trees_;
     const size_t m = lookup_tri_.size();
-    constexpr size_t kBlock = 2048;  // triangles per work item (fixed: the result is thread-count free)
+    constexpr size_t kBlock = 512;  // triangles per work item (the layout depends on neither it nor the thread count)
     const size_t nblocks = (m + kBlock - 1) / kBlock;
     std::vector<LookupBlock> blocks(nblocks);
     lookup_ball2_.assign(m, 0.0f);

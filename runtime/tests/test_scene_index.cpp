@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 
 #include "gamma/scene_index.h"
 #include "gamma/surfel_state.h"
@@ -74,6 +75,41 @@ TEST(SceneIndex, NearestSurfelStaysOnTheAskedSurface) {
         sum += w[j];
     }
     EXPECT_NEAR(sum, 1.0, 1e-12);
+}
+
+TEST(SceneIndex, ASurfaceHoldingEverySurfelAnswersAsItsOwnTreeWould) {
+    // Surface 0 holds every surfel (surface 1 has no triangle): build_surfels
+    // serves it with the tree over all surfels, build_lookup_ahead (no tree
+    // over all surfels) builds it a tree of its own.  The answers must be
+    // the same, bit for bit.
+    const Mesh m = gamma_test::icosphere(3);
+    const std::vector<int32_t> ts(m.num_triangles(), 0);
+    const SurfelState st = SurfelState::sample(m, ts, 3000, 6, {{0, 0, 0}, {0, 0, 0}});
+    SceneIndex shared, own;
+    shared.build_geometry(m, ts, 2);
+    shared.build_surfels(st.surf.position.data(), st.surface.data(), st.size(), 0.05f);
+    own.build_lookup_ahead(m, ts, 2, st.surf.position.data(), st.surface.data(), st.size(), 0.05f,
+                           std::vector<uint8_t>(m.num_triangles(), 0));
+    EXPECT_EQ(shared.surfels_per_surface(), (std::vector<size_t>{st.size(), 0}));
+    EXPECT_EQ(own.surfels_per_surface(), shared.surfels_per_surface());
+    EXPECT_TRUE(shared.has_surfels(0));
+    EXPECT_FALSE(shared.has_surfels(1));
+    EXPECT_TRUE(own.has_surfels(0));
+    std::mt19937 rng(8);
+    std::uniform_real_distribution<float> u(-1.3f, 1.3f);
+    for (int k = 0; k < 2000; ++k) {
+        const float p[3] = {u(rng), u(rng), u(rng)};
+        ASSERT_EQ(shared.nearest_of(0, p), own.nearest_of(0, p));
+        ASSERT_EQ(shared.nearest_of(0, p), shared.nearest(p));
+        uint32_t ia[kSmoothingNeighbours], ib[kSmoothingNeighbours];
+        double wa[kSmoothingNeighbours], wb[kSmoothingNeighbours];
+        const size_t na = shared.smooth(0, p, ia, wa), nb = own.smooth(0, p, ib, wb);
+        ASSERT_EQ(na, nb);
+        for (size_t j = 0; j < na; ++j) {
+            ASSERT_EQ(ia[j], ib[j]);
+            ASSERT_EQ(wa[j], wb[j]);
+        }
+    }
 }
 
 TEST(SceneIndex, GeometryAndSurfelsRebuildSeparately) {

@@ -102,6 +102,32 @@ TEST(TriangleLookup, TheSameAtAnyThreadCount) {
         }
 }
 
+TEST(TriangleLookup, PackedEntryForEntryTheSameAtAnyThreadCount) {
+    // A sphere of 20,480 triangles (many blocks of triangles, packed in
+    // parallel) and a floor of two triangles far larger than the spacing
+    // (cut into cells) on a second surface: the whole lookup -- heads,
+    // packed entries, cells, grids, balls -- must not depend on how the
+    // blocks were scheduled.
+    gamma_test::Builder b;
+    b.add(gamma_test::icosphere(5));
+    gamma_test::floor_quad(b, 2, 4, -1, 1, -1);
+    const Mesh m = b.mesh("sphere and floor");
+    std::vector<int32_t> ts(m.num_triangles(), 0);
+    ts[ts.size() - 1] = ts[ts.size() - 2] = 1;
+    const SurfelState st = SurfelState::sample(m, ts, 20000, 11, {{0, 0, 0}, {0, 0, 0}});
+    const float sigma = float(std::sqrt(m.area() / double(st.size())));
+    SceneIndex one, two, four;
+    for (auto [index, threads] : {std::pair{&one, 1}, std::pair{&two, 2}, std::pair{&four, 4}}) {
+        index->build_geometry(m, ts, 2);
+        index->build_surfels(st.surf.position.data(), st.surface.data(), st.size(), sigma, threads);
+    }
+    EXPECT_EQ(one.lookup_grid_triangles(), 2u);
+    EXPECT_GT(one.lookup_candidates(), m.num_triangles());
+    EXPECT_TRUE(one.same_lookup(two));
+    EXPECT_TRUE(one.same_lookup(four));
+    expect_lookup_matches_kdtree(m, ts, st, two, 2);
+}
+
 TEST(TriangleLookup, LargeTrianglesAreCutIntoCellsAndPointsOffTheTriangleUseTheKdTree) {
     // Two unit squares (four triangles) under 2,000 surfels: far more
     // candidates per triangle than kMaxCandidates, so each is cut into cells.
