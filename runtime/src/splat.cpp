@@ -81,7 +81,16 @@ float kernel_distance2(const float* position, size_t s, size_t j) {
     return d2;
 }
 
-SplatKernel gather_form(const Scatter& scatter, size_t n);
+// The neighbourhoods of kSourcesPerBlock consecutive sources, side by side
+// (one allocation per block, not per source): source `first + i`'s entries
+// are entries[i ? end[i - 1] : 0, end[i]).
+constexpr size_t kSourcesPerBlock = 256;
+struct ScatterBlock {
+    std::vector<std::pair<uint32_t, float>> entries;
+    std::vector<uint32_t> end;
+};
+
+SplatKernel gather_form(const std::vector<ScatterBlock>& blocks, size_t n);
 }  // namespace
 
 SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
@@ -94,14 +103,20 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
     PointColumns cols;
     cols.build(position, n, kColumnSpacings * double(sigma));
     // Scatter lists per source surfel: (target, weight), computed in parallel.
-    Scatter scatter(n);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 256), [&](const tbb::blocked_range<size_t>& range) {
-        std::vector<std::pair<uint32_t, float>> found;
+    std::vector<ScatterBlock> blocks((n + kSourcesPerBlock - 1) / kSourcesPerBlock);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, blocks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
+        std::vector<std::pair<uint32_t, float>> found, out;
         std::vector<double> w;
-        for (size_t s = range.begin(); s < range.end(); ++s)
-            fresh_neighbourhood(cols, s, position, normal, surface, sigma, found, w, scatter[s]);
+        for (size_t b = range.begin(); b < range.end(); ++b) {
+            ScatterBlock& B = blocks[b];
+            for (size_t s = b * kSourcesPerBlock; s < std::min(n, (b + 1) * kSourcesPerBlock); ++s) {
+                fresh_neighbourhood(cols, s, position, normal, surface, sigma, found, w, out);
+                B.entries.insert(B.entries.end(), out.begin(), out.end());
+                B.end.push_back(uint32_t(B.entries.size()));
+            }
+        }
     });
-    return gather_form(scatter, n);
+    return gather_form(blocks, n);
 }
 
 SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, const float* normal,
@@ -213,27 +228,33 @@ SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, c
 }
 
 namespace {
-SplatKernel gather_form(const Scatter& scatter, size_t n) {
+SplatKernel gather_form(const std::vector<ScatterBlock>& blocks, size_t n) {
     SplatKernel k;
     k.offset.assign(n + 1, 0);
     if (n == 0) return k;
     // Transpose into gather form; iterating sources in ascending order keeps
     // every target's list sorted by source.
     size_t total = 0;
-    for (size_t s = 0; s < n; ++s) {
-        total += scatter[s].size();
-        for (const auto& e : scatter[s]) ++k.offset[size_t(e.first) + 1];
+    for (const ScatterBlock& B : blocks) {
+        total += B.entries.size();
+        for (const auto& e : B.entries) ++k.offset[size_t(e.first) + 1];
     }
     for (size_t j = 0; j < n; ++j) k.offset[j + 1] += k.offset[j];
     k.source.resize(total);
     k.weight.resize(total);
     std::vector<uint32_t> fill(k.offset.begin(), k.offset.end() - 1);
-    for (size_t s = 0; s < n; ++s)
-        for (const auto& [j, w] : scatter[s]) {
-            const uint32_t at = fill[j]++;
-            k.source[at] = uint32_t(s);
-            k.weight[at] = w;
+    for (size_t b = 0; b < blocks.size(); ++b) {
+        const ScatterBlock& B = blocks[b];
+        for (size_t i = 0; i < B.end.size(); ++i) {
+            const uint32_t s = uint32_t(b * kSourcesPerBlock + i);
+            for (uint32_t e = i ? B.end[i - 1] : 0; e < B.end[i]; ++e) {
+                const auto& [j, w] = B.entries[e];
+                const uint32_t at = fill[j]++;
+                k.source[at] = s;
+                k.weight[at] = w;
+            }
         }
+    }
     k.mean_neighbours = double(total) / double(n);
     return k;
 }
