@@ -41,6 +41,7 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <memory>
 #include <queue>
 #include <unordered_map>
 
@@ -101,6 +102,31 @@ inline uint64_t cell_key(uint64_t x, uint64_t y, uint64_t z) {
     return (tile << 3) | ((x & 1) | ((y & 1) << 1) | ((z & 1) << 2));
 }
 
+// A heap array of n trivially copyable values left uninitialised: the
+// parallel loop that fills it is the first to touch its pages (a
+// std::vector would zero them all in one thread first, and the first touch
+// of fresh memory, the kernel's page faults included, costs about a
+// millisecond per MB here).
+template <class T>
+class Uninitialised {
+public:
+    Uninitialised() = default;
+    explicit Uninitialised(size_t n) : p_(new T[n]), n_(n) {}
+    T& operator[](size_t i) { return p_[i]; }
+    const T& operator[](size_t i) const { return p_[i]; }
+    T* data() { return p_.get(); }
+    const T* data() const { return p_.get(); }
+    size_t size() const { return n_; }
+    void swap(Uninitialised& o) noexcept {
+        p_.swap(o.p_);
+        std::swap(n_, o.n_);
+    }
+
+private:
+    std::unique_ptr<T[]> p_;
+    size_t n_ = 0;
+};
+
 // Points sorted into cubic cells, ordered by cell_key (each 2x2x2 tile's
 // cells contiguous), with a copy of the positions in that order.
 struct CellGrid {
@@ -109,8 +135,8 @@ struct CellGrid {
         uint32_t begin, end;  // the cell's points, [begin, end) in sorted order
         uint32_t c[3];        // cell coordinates
     };
-    std::vector<uint32_t> original;  // sorted position -> input index
-    std::vector<float> sp;           // positions in sorted order
+    Uninitialised<uint32_t> original;  // sorted position -> input index
+    Uninitialised<float> sp;           // positions in sorted order
     std::vector<Cell> cells;
     std::unordered_map<uint64_t, uint32_t> index;  // cell key -> position in `cells`
 
@@ -251,13 +277,13 @@ std::vector<uint32_t> select_in_order(size_t n, Keep&& keep) {
 // Sorts words (key << 32 | index) by their key (below 2^key_bits), stably:
 // least significant digit first, each pass over fixed blocks of the words
 // (counted, then moved, in parallel), so the result is the serial sort's.
-void radix_sort_upper(std::vector<uint64_t>& words, int key_bits) {
+void radix_sort_upper(Uninitialised<uint64_t>& words, int key_bits) {
     constexpr int kDigitBits = 11;
     constexpr size_t kDigits = size_t(1) << kDigitBits;
     constexpr size_t kWordsPerBlock = 32768;
     const size_t n = words.size();
     const size_t nblocks = (n + kWordsPerBlock - 1) / kWordsPerBlock;
-    std::vector<uint64_t> moved(n);
+    Uninitialised<uint64_t> moved(n);
     std::vector<size_t> count(nblocks * kDigits);  // block-major
     for (int shift = 32; shift < 32 + key_bits; shift += kDigitBits) {
         auto digit = [shift](uint64_t w) { return size_t(w >> shift) & (kDigits - 1); };
@@ -300,9 +326,9 @@ CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_r
     for (int k = 0; k < 3; ++k) cell = std::max(cell, (hi[k] - lo[k]) / 1.0e6);
     if (!(cell > 0)) cell = 1.0;
     auto cell_of = [&](size_t i, int k) { return uint64_t((double(pts[3 * i + k]) - lo[k]) / cell); };
-    g.original.resize(m);
-    g.sp.resize(3 * m);
-    std::vector<uint64_t> sorted_key(m);
+    g.original = Uninitialised<uint32_t>(m);
+    g.sp = Uninitialised<float>(3 * m);
+    Uninitialised<uint64_t> sorted_key(m);
     // In rows: the cells numbered (z, y, x) in the box, if that fits 32 bits,
     // and (number << 32 | index) sorted by number with a stable radix sort
     // (the order of the (key, index) pairs' sort: the same cells and points).
@@ -403,8 +429,8 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
     // of one colour farther apart than twice the radius even after rounding.
     CellGrid grid = sort_into_cells(pts, r2);
     const std::vector<CellGrid::Cell>& cell_list = grid.cells;
-    const std::vector<uint32_t>& original = grid.original;
-    const std::vector<float>& sp = grid.sp;
+    const Uninitialised<uint32_t>& original = grid.original;
+    const Uninitialised<float>& sp = grid.sp;
     SURFEL_TIMEPOINT("sort");
     // Tiles: runs of cells with the same key >> 3, as [begin, end) of points.
     std::vector<uint32_t> tile_begin;
@@ -767,10 +793,10 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     SURFEL_TIMING_START;
     const CellGrid grid = sort_into_cells(pts, wide, true);
     SURFEL_TIMEPOINT("disk: cells");
-    const std::vector<float>& sp = grid.sp;
+    const Uninitialised<float>& sp = grid.sp;
     // The order: a Philox hash of the point's index, ties by the index (not
     // by the sorted position: the answer does not depend on the layout).
-    std::vector<uint64_t> order_key(m);
+    Uninitialised<uint64_t> order_key(m);
     const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t a = r.begin(); a < r.end(); ++a) {
@@ -795,7 +821,8 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     const std::vector<CellGrid::Cell>& cells = grid.cells;
     const size_t nblocks = (cells.size() + kCellsPerTask - 1) / kCellsPerTask;
     std::vector<std::vector<uint32_t>> block_lists(nblocks);
-    std::vector<uint64_t> offs(m + 1, 0);
+    Uninitialised<uint64_t> offs(m + 1);   // every point's count is written below
+    offs[0] = 0;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
         // The points of the 27 cells around a cell, side by side (a cell's
         // few points all scan the same ones).
@@ -841,11 +868,11 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
         }
     });
     for (size_t i = 0; i < m; ++i) offs[i + 1] += offs[i];
-    std::vector<uint32_t> nbrs(offs[m]);
+    Uninitialised<uint32_t> nbrs(offs[m]);   // the blocks' lists cover it
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
         for (size_t b = br.begin(); b < br.end(); ++b) {
             const uint32_t first = cells[b * kCellsPerTask].begin;
-            std::copy(block_lists[b].begin(), block_lists[b].end(), nbrs.begin() + std::ptrdiff_t(offs[first]));
+            std::copy(block_lists[b].begin(), block_lists[b].end(), nbrs.data() + offs[first]);
             block_lists[b] = {};
         }
     });
