@@ -10,6 +10,7 @@
 #include <string>
 
 #include "gamma/error.h"
+#include "gamma/libm_sincos8.h"
 #include "gamma/sampling.h"
 
 namespace gammart {
@@ -206,8 +207,8 @@ __attribute__((target("avx2"))) inline __m256 max0(__m256 x) { return _mm256_max
 // IEEE operations in the same order, per lane (the operators on __m256 are
 // GCC's element-wise float operations; the build compiles this file with
 // -ffp-contract=off, so neither this code nor emit fuses a multiply-add even
-// where the target has FMA); sines and cosines by the scalar calls
-// emit_environment makes.
+// where the target has FMA); sines and cosines as the scalar calls
+// emit_environment makes give them (sincosf8 where it reproduces them).
 __attribute__((target("avx2"))) void emit_environment8(const SourceRt& s, bool upper, uint64_t seed,
                                                        uint32_t iteration, int64_t first, size_t n,
                                                        PhiloxStream* rng, V3* org, V3* dir) {
@@ -252,13 +253,18 @@ __attribute__((target("avx2"))) void emit_environment8(const SourceRt& s, bool u
     alignas(32) float phi_s[8], phic_s[8], cos1[8], sin1[8], cos2[8], sin2[8];
     _mm256_store_ps(phi_s, phi);
     _mm256_store_ps(phic_s, phic);
-    for (size_t j = 0; j < n; ++j) {
-        cos1[j] = std::cos(phi_s[j]);
-        sin1[j] = std::sin(phi_s[j]);
-        cos2[j] = std::cos(phic_s[j]);
-        sin2[j] = std::sin(phic_s[j]);
+    if (sincosf8_matches_libm()) {  // the libm's bits, eight lanes at once
+        sincosf8(phi_s, sin1, cos1);
+        sincosf8(phic_s, sin2, cos2);
+    } else {
+        for (size_t j = 0; j < n; ++j) {
+            cos1[j] = std::cos(phi_s[j]);
+            sin1[j] = std::sin(phi_s[j]);
+            cos2[j] = std::cos(phic_s[j]);
+            sin2[j] = std::sin(phic_s[j]);
+        }
+        for (size_t j = n; j < 8; ++j) cos1[j] = sin1[j] = cos2[j] = sin2[j] = 0.0f;
     }
-    for (size_t j = n; j < 8; ++j) cos1[j] = sin1[j] = cos2[j] = sin2[j] = 0.0f;
     __m256 ox = r * _mm256_load_ps(cos1), oy = r * _mm256_load_ps(sin1), oz = z;
     if (upper) {
         const __m256 upx = _mm256_set1_ps(s.env_up.x), upy = _mm256_set1_ps(s.env_up.y),
