@@ -10,6 +10,11 @@ from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
 
+# As gammac does (cli.entry): numpy's OpenBLAS without its thread pool, whose
+# threads woke beside the tracer in the benchmarks' own processes (each bench
+# imports this module before numpy).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 
 def cpu_name() -> str:
     try:
