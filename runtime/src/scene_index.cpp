@@ -52,6 +52,24 @@ constexpr int kNearestAttempts = 4;
 // order before the pruning (fewer: a whole sort is as cheap).
 constexpr size_t kPartialSortFrom = 96;
 
+// A (squared distance, index) pair as one word that orders as the pair
+// does, distance first: the bits of a float >= +0 order as the float (the
+// distances here are sums of squares, never -0 or NaN).  The lookup sorts
+// these words instead of pairs under a two-key comparison (the sorts were
+// ~10 % of the setup's CPU).
+uint64_t distance_key(float d2, uint32_t i) {
+    uint32_t bits;
+    std::memcpy(&bits, &d2, sizeof bits);
+    return (uint64_t(bits) << 32) | i;
+}
+float key_distance(uint64_t key) {
+    const uint32_t bits = uint32_t(key >> 32);
+    float d2;
+    std::memcpy(&d2, &bits, sizeof d2);
+    return d2;
+}
+uint32_t key_index(uint64_t key) { return uint32_t(key); }
+
 V3 unit(const std::array<float, 3>& a) {
     const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
     return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
@@ -374,8 +392,8 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     });
     {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
-            std::vector<std::pair<uint32_t, float>> found, kept;
-            std::vector<uint32_t> order;
+            std::vector<uint64_t> found, kept;   // distance_key(d2 from the centre, point of the tree)
+            std::vector<std::pair<uint64_t, uint32_t>> order;
             std::vector<Candidate> sc;
             std::vector<uint32_t> si;
             for (size_t b = r.begin(); b < r.end(); ++b) {
@@ -405,7 +423,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
                     const float R2 = float(R * R);
                     found.clear();
-                    cols.within(c, R2, [&](uint32_t i, float d2) { found.emplace_back(i, d2); });
+                    cols.within(c, R2, [&](uint32_t i, float d2) { found.push_back(distance_key(d2, i)); });
                     // Drop the surfels that are never the nearest in the
                     // sphere B(c, r): y loses to x everywhere in B when
                     // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
@@ -416,15 +434,12 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     // (the kept ones are sorted again below): many found
                     // (a triangle much larger than the spacing, about to be
                     // cut into cells) are not sorted all.
-                    const auto nearer = [](const auto& a, const auto& b2) {
-                        return a.second < b2.second || (a.second == b2.second && a.first < b2.first);
-                    };
                     const size_t nx = std::min(found.size(), kPruningSurfels);
                     if (found.size() > kPartialSortFrom) {
-                        std::nth_element(found.begin(), found.begin() + std::ptrdiff_t(nx), found.end(), nearer);
-                        std::sort(found.begin(), found.begin() + std::ptrdiff_t(nx), nearer);
+                        std::nth_element(found.begin(), found.begin() + std::ptrdiff_t(nx), found.end());
+                        std::sort(found.begin(), found.begin() + std::ptrdiff_t(nx));
                     } else {
-                        std::sort(found.begin(), found.end(), nearer);
+                        std::sort(found.begin(), found.end());
                     }
                     const double r = std::sqrt(double(L.reach2));
                     // y can lose to x only if |c-y| + |c-x| > 2r (with
@@ -432,20 +447,20 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     // 2r|y-x| otherwise, below its right side by the whole
                     // margin): the pairs that cannot pass skip the distance.
                     double from_c[kPruningSurfels];
-                    for (size_t k = 0; k < nx; ++k) from_c[k] = std::sqrt(double(found[k].second));
+                    for (size_t k = 0; k < nx; ++k) from_c[k] = std::sqrt(double(key_distance(found[k])));
                     kept.clear();
-                    for (const auto& f : found) {
-                        const float* y = &tree.pos[3 * size_t(f.first)];
-                        const double cy2 = double(f.second);
+                    for (const uint64_t f : found) {
+                        const float* y = &tree.pos[3 * size_t(key_index(f))];
+                        const double cy2 = double(key_distance(f));
                         const double cy = std::sqrt(cy2);
                         bool never = false;
                         for (size_t k = 0; k < nx && !never; ++k) {
-                            if (found[k].first == f.first || cy + from_c[k] <= 2.0 * r) continue;
-                            const float* x = &tree.pos[3 * size_t(found[k].first)];
+                            if (found[k] == f || cy + from_c[k] <= 2.0 * r) continue;
+                            const float* x = &tree.pos[3 * size_t(key_index(found[k]))];
                             const double ex = double(y[0]) - x[0], ey = double(y[1]) - x[1], ez = double(y[2]) - x[2];
                             const double yx = std::sqrt(ex * ex + ey * ey + ez * ez);
                             const double scale = r + cy + yx;
-                            never = cy2 - double(found[k].second) > 2.0 * r * yx + 1e-3 * scale * scale;
+                            never = cy2 - double(key_distance(found[k])) > 2.0 * r * yx + 1e-3 * scale * scale;
                         }
                         if (!never) kept.push_back(f);
                     }
@@ -457,19 +472,18 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     // entries sorted by (distance from the centre, index)
                     sc.clear();
                     si.clear();
-                    for (const auto& f : found) {
-                        const float* pp = &tree.pos[3 * size_t(f.first)];
+                    order.clear();
+                    for (const uint64_t f : found) {
+                        const float* pp = &tree.pos[3 * size_t(key_index(f))];
                         const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
                         sc.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
-                        si.push_back(Trees::surfel(tree, f.first));
+                        si.push_back(Trees::surfel(tree, key_index(f)));
+                        // (from the centre, surfel index): the indices are distinct, so the
+                        // keys are, and the second member never decides
+                        order.emplace_back(distance_key(sc.back().from_centre, si.back()), uint32_t(order.size()));
                     }
-                    order.resize(found.size());
-                    for (uint32_t k = 0; k < order.size(); ++k) order[k] = k;
-                    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b2) {
-                        return sc[a].from_centre < sc[b2].from_centre ||
-                               (sc[a].from_centre == sc[b2].from_centre && si[a] < si[b2]);
-                    });
-                    for (uint32_t k : order) {
+                    std::sort(order.begin(), order.end());
+                    for (const auto& [key, k] : order) {
                         out.cand.push_back(sc[k]);
                         out.ids.push_back(si[k]);
                     }

@@ -61,7 +61,8 @@ void fresh_neighbourhood(const Search& search, size_t s, const float* position, 
         out.emplace_back(j, float(d2));
     }
     out.emplace_back(uint32_t(s), 0.0f);  // always in its own neighbourhood
-    std::sort(out.begin(), out.end());
+    // by target (each target once: its distance never decides)
+    std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
     w.resize(out.size());
     for (size_t i = 0; i < out.size(); ++i) sum += (w[i] = std::exp(-double(out[i].second) * inv2s2));
     for (size_t i = 0; i < out.size(); ++i) out[i].second = float(w[i] / sum);
