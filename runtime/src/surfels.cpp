@@ -834,22 +834,23 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
             std::vector<uint32_t>& list = block_lists[b];
             const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
             for (size_t ci = c_begin; ci < c_end; ++ci) {
-                nx.clear();
-                ny.clear();
-                nz.clear();
-                nkey.clear();
-                nid.clear();
+                // written by index into arrays that only grow (no capacity
+                // test per point)
+                size_t count = 0;
                 rows.around(cells[ci], [&](uint32_t begin, uint32_t end) {
-                    for (uint32_t j = begin; j < end; ++j) {
-                        nx.push_back(sp[3 * size_t(j)]);
-                        ny.push_back(sp[3 * size_t(j) + 1]);
-                        nz.push_back(sp[3 * size_t(j) + 2]);
-                        nkey.push_back(order_key[j]);
-                        nid.push_back(j);
+                    if (nid.size() < count + (end - begin)) {
+                        const size_t grown = std::max(2 * nid.size(), count + (end - begin));
+                        nx.resize(grown), ny.resize(grown), nz.resize(grown), nkey.resize(grown), nid.resize(grown);
+                        hit.resize(grown);
+                    }
+                    for (uint32_t j = begin; j < end; ++j, ++count) {
+                        nx[count] = sp[3 * size_t(j)];
+                        ny[count] = sp[3 * size_t(j) + 1];
+                        nz[count] = sp[3 * size_t(j) + 2];
+                        nkey[count] = order_key[j];
+                        nid[count] = j;
                     }
                 });
-                const size_t count = nid.size();
-                if (hit.size() < count) hit.resize(count);
                 for (uint32_t i = cells[ci].begin; i < cells[ci].end; ++i) {
                     const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
                     const uint64_t ki = order_key[i];
