@@ -181,8 +181,7 @@ void SceneIndex::triangle_spheres(const Mesh& mesh, float diagonal) {
     int e = 0;
     std::frexp(diagonal, &e);
     const float pad = 1e-6f * std::ldexp(1.0f, e);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t t = r.begin(); t < r.end(); ++t) {
+    for (size_t t = 0; t < m; ++t) {
         const float* v[3];
         for (int k = 0; k < 3; ++k) v[k] = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + k])];
         for (int k = 0; k < 3; ++k) std::copy(v[k], v[k] + 3, lookup_vertices_.begin() + std::ptrdiff_t(9 * t + 3 * k));
@@ -200,7 +199,6 @@ void SceneIndex::triangle_spheres(const Mesh& mesh, float diagonal) {
         L.cz = float(c[2]);
         L.reach2 = float(reach * reach);
     }
-    });
     // The heads follow (the candidates stay stale until the surfels are
     // searched again, as documented for move_vertices).
     if (lookup_head_.size() == m)
