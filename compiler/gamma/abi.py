@@ -121,7 +121,7 @@ BINDING = {
     "SurfelSample": ("ok", "matches", "seconds"),
     "SetupSnapshot": ("read", "matches", "prepare", "prepared", "taken", "surfels"),
     "Mesh": ("load", "from_arrays", "num_vertices", "num_triangles", "degenerate_dropped", "bounds",
-             "vertices", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
+             "vertices", "fingerprint", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
     "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",
                "triangle_surface", "add_ton_type", "add_source", "set_transport", "set_update",
                "set_appearance", "add_shape_rate", "add_mass_property", "measure_accessibility",

@@ -217,6 +217,14 @@ NB_MODULE(_runtime, m) {
                                                nb::make_tuple(me.hi[0], me.hi[1], me.hi[2]));
                      })
         .def("vertices", [](const gammart::Mesh& me) { return to_numpy<float>(me.vertices, {me.num_vertices(), 3}); })
+        .def(
+            "fingerprint",
+            [](const gammart::Mesh& me) {
+                nb::gil_scoped_release nogil;
+                return gammart::mesh_fingerprint(me);
+            },
+            "CRC-32s of the vertices, triangles and bounds with their counts: the setup cache's name for the "
+            "mesh (no numpy needed).")
         .def_prop_ro("has_uvs", &gammart::Mesh::has_uvs)
         .def("triangle_uvs",
              [](const gammart::Mesh& me) {

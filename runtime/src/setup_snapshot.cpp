@@ -158,6 +158,21 @@ size_t SetupSnapshot::bytes(const Mesh& mesh, const SurfelSet& surf, const Scene
            4 * (index.lookup_cell_at_.size() + index.lookup_ball2_.size());
 }
 
+std::string mesh_fingerprint(const Mesh& mesh) {
+    auto crc = [](const void* data, size_t bytes) {
+        uLong c = crc32(0L, Z_NULL, 0);
+        for (size_t k = 0; k < bytes; k += size_t(1) << 30)
+            c = crc32(c, static_cast<const Bytef*>(data) + k, uInt(std::min(bytes - k, size_t(1) << 30)));
+        return uint32_t(c);
+    };
+    char text[96];
+    std::snprintf(text, sizeof text, "%zu-%zu-%08x-%08x-%08x", mesh.num_vertices(), mesh.num_triangles(),
+                  crc(mesh.vertices.data(), mesh.vertices.size() * sizeof(float)),
+                  crc(mesh.triangles.data(), mesh.triangles.size() * sizeof(int32_t)),
+                  crc(mesh.lo.data(), 3 * sizeof(float)) ^ crc(mesh.hi.data(), 3 * sizeof(float)));
+    return text;
+}
+
 std::vector<uint8_t> SetupSnapshot::write(const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
                                           const SceneIndex& index, const SplatKernel& splat) {
     std::vector<uint8_t> out;

@@ -73,9 +73,9 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
     // arena of the configured threads (their result never depends on the
     // scheduling; their time is their own wall time, overlapping the others').
     // The splat kernel needs the surfels only: up to kSplatBesideMaxSurfels
-    // it is built beside the kd-trees and the triangle lookup (the serial
-    // stretches of each, e.g. the kernel's transposition and the lookup's
-    // packing, leave a core to the other); above, after them: both hold large
+    // it is built beside the kd-trees and the triangle lookup (each one's
+    // tail and remaining serial stretches, e.g. the kernel's transposition,
+    // leave a core to the other); above, after them: both hold large
     // temporaries, and together they lifted the peak of 1.6M surfels on the
     // bunny from 1,873 to 2,057 MiB.  The Embree BVH is built first,
     // outside the arena, with the threads it always had (its layout never

@@ -7,7 +7,8 @@ The setup of 100,000 surfels on the bunny takes ~0.35 s on two cores, of
 another on the same mesh.  ``Simulation.setup_snapshot`` gives the setup as
 bytes (runtime/include/gamma/setup_snapshot.h); they are kept in
 ``cache_dir()`` as ``setup-KEY.bin``, KEY a hash of the runtime build, the
-mesh's vertices and triangles, the count and the seed (the binding of
+mesh's fingerprint (CRC-32s of its vertices, triangles and bounds), the
+count and the seed (the binding of
 triangles to surfaces, which comes from the effect, is inside the file: a
 run with another binding takes only the surfels, and stores its own setup).
 A file is the snapshot followed by its CRC-32 and a mark; one that is
@@ -84,8 +85,7 @@ def path_for(mesh, surfels: int, seed: int) -> Path | None:
     h.update(b"gamma setup 1|%d|" % abi.ABI_VERSION)
     h.update(_runtime_build())
     h.update(b"|%d|%d|" % (int(surfels), int(seed)))
-    h.update(memoryview(mesh.vertices()).cast("B"))
-    h.update(memoryview(mesh.triangles()).cast("B"))
+    h.update(mesh.fingerprint().encode())        # in the runtime: the prefetch thread needs no numpy
     return folder / f"setup-{h.hexdigest()[:40]}.bin"
 
 

@@ -32,6 +32,11 @@ namespace snapshot_detail {
 class Reader;
 }
 
+// What names a mesh in the setup cache's file names: CRC-32s of its
+// vertices, triangles and bounds, with their counts (a collision only
+// misses the cache: SetupSnapshot::matches compares the mesh itself).
+std::string mesh_fingerprint(const Mesh& mesh);
+
 class SetupSnapshot {
 public:
     // The setup of a Simulation of `mesh` with n surfels and `seed`, whose
