@@ -7,7 +7,10 @@ either, importing the compiler, reading and checking the effect, all on one
 core.  ``start`` reads the file on a background thread from the moment the
 command line is parsed (``Mesh.load`` releases the GIL) and then samples the
 surfels on it (``SurfelSample``: the sampling needs only the mesh, the surfel
-count and the seed, not the effect).  ``scene._load_mesh`` ``take``s the mesh
+count and the seed, not the effect), unless the setup cache keeps this
+mesh's setup (setup_cache.py): then that is read and prepared instead, on
+the same thread, and ``sample_for`` hands out the ``SetupSnapshot``.
+``scene._load_mesh`` ``take``s the mesh
 instead of reading the file again, and the runner hands ``sample_for(mesh,
 ...)`` to the ``Simulation``, which uses the surfels only if they are the
 ones it would sample itself (same mesh, count and seed: checked in the
