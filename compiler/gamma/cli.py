@@ -323,18 +323,27 @@ def _read(path: str) -> str:
         raise _Fail(f"cannot read '{path}': {err.strerror or err}") from None
 
 
-def _load(path: str, params=()):
-    from .frontend.checker import check
-    from .frontend.diagnostics import render
-    from .frontend.parser import parse
-
+def _load(path: str, params=(), cached: bool = False):
+    """The checked effect of ``path``; ``cached``: through the compiled-effect
+    cache (backends/effect_cache.py), which also keeps its kernels."""
     overrides = {}
     for name, value in params:
         if name in overrides:
             raise _Fail(f"--param {name} is given twice")
         overrides[name] = value
-    effect = check(parse(_read(path), path), overrides)
+    source = _read(path)
+    if cached:
+        from .backends import effect_cache
+
+        effect = effect_cache.check(path, source, overrides)
+    else:
+        from .frontend.checker import check
+        from .frontend.parser import parse
+
+        effect = check(parse(source, path), overrides)
     if effect.warnings:
+        from .frontend.diagnostics import render
+
         print(render(effect.warnings, effect.path, effect.source), file=sys.stderr)
     return effect
 
@@ -563,7 +572,7 @@ def _main(argv=None) -> int:
         png_worker.start()              # before any thread: it forks (png_worker.py)
         # read, and its surfels sampled, while the effect is read and checked
         prefetch.start(args.scene, args.surfels, args.seed, args.threads)
-    from .frontend.checker import UsageError
+    from .frontend.resolve import UsageError
     from .frontend.diagnostics import GammaError
 
     try:
@@ -580,7 +589,7 @@ def _main(argv=None) -> int:
             return EXIT_OK
         if args.command == "sweep":
             return _sweep(args)
-        effect = _load(args.file, getattr(args, "param", ()))
+        effect = _load(args.file, getattr(args, "param", ()), cached=args.command == "run")
         if args.command == "check":
             return EXIT_OK
         if args.command == "emit":
@@ -690,6 +699,9 @@ def _leave(status: int) -> None:
     setup_cache = sys.modules.get("gamma.driver.setup_cache")
     if setup_cache is not None:
         setup_cache.wait()              # a setup being kept for the next run: whole or not at all
+    effect_cache = sys.modules.get("gamma.backends.effect_cache")
+    if effect_cache is not None:
+        effect_cache.wait()             # likewise a compiled effect
     if ordinary:
         for stream in (sys.stdout, sys.stderr):
             try:

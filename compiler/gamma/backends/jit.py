@@ -57,6 +57,17 @@ def compile_ir(module: ir.Module | str, optimise: bool = True) -> llvm.ModuleRef
     return ref
 
 
+def position_independent_object(ir_text: str) -> bytes:
+    """The kernels of ``ir_text`` as a position-independent ELF object, for a
+    shared object (effect_cache.py): optimised by the same pipeline for the
+    same CPU as the JIT's, only the relocation model differs."""
+    _initialise()
+    target = llvm.Target.from_triple(llvm.get_process_triple())
+    machine = target.create_target_machine(cpu=llvm.get_host_cpu_name(), opt=3, reloc="pic",
+                                           codemodel="default")
+    return machine.emit_object(compile_ir(ir_text))
+
+
 def assembly(module: ir.Module) -> str:
     return _target_machine().emit_assembly(compile_ir(module))
 
@@ -107,7 +118,8 @@ class JitKernels:
     def __init__(self, effect: Effect, cache: Path | None | str = "default"):
         self.ir = generate(effect)
         folder = cache_dir() if cache == "default" else cache
-        text = str(self.ir)
+        self.ir_text = text = str(self.ir)
+        self.llvm_version = tuple(llvm.llvm_version_info)
         key = cache_key(text)
         path = folder / f"{key}.o" if folder is not None else None
         cached = None

@@ -118,7 +118,7 @@ def surfel_digest(sim) -> str:
 
 def make_job(rt, effect, kernels, opts, scene, sim, build_config) -> TraceJob:
     return TraceJob(
-        key=uuid.uuid4().hex, ir=str(kernels.ir), symbols=sorted(kernels.address),
+        key=uuid.uuid4().hex, ir=kernels.ir_text, symbols=sorted(kernels.address),
         config_calls=record_config(build_config, rt, effect, kernels, opts, scene.bounds, scene.down),
         vertices=np.ascontiguousarray(scene.mesh.vertices()), triangles=np.ascontiguousarray(scene.mesh.triangles()),
         triangle_surface=np.ascontiguousarray(scene.triangle_surface, dtype=np.int32),

@@ -21,7 +21,6 @@ import numpy as np
 from .. import abi, __version__
 from . import budget
 from ..frontend.ast import Pos
-from ..backends.jit import JitKernels
 from ..ir.effect import Effect, Length, Source
 from ..frontend.diagnostics import Diagnostic, GammaError
 
@@ -134,7 +133,7 @@ def source_arguments(src: Source, lo, hi, diagonal: float, down) -> dict:
     return args
 
 
-def build_config(rt, effect: Effect, kernels: JitKernels, opts: "RunOptions", bounds, down):
+def build_config(rt, effect: Effect, kernels, opts: "RunOptions", bounds, down):
     lo, hi = (np.asarray(b, float) for b in bounds)
     diagonal = float(np.linalg.norm(hi - lo))
     cfg = rt.Config()
@@ -363,7 +362,7 @@ class Run:
     out: Path
     rt: object                     # gamma._runtime
     scene: object                  # scene.Scene
-    kernels: JitKernels            # owns the machine code ``sim`` calls: keep alive
+    kernels: object                # owns the machine code ``sim`` calls (JitKernels, SharedKernels): keep alive
     sim: object                    # gamma._runtime.Simulation
     camera: tuple                  # eye, target, up, fov (camera.auto_camera)
     threads: int
@@ -548,8 +547,10 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     mesh = scene.mesh
     folder.remove_stale_temporaries(out)
     folder.recover(out)
+    from ..backends.effect_cache import SharedKernels, kernels_for
+
     t0 = time.perf_counter()
-    kernels = call(JitKernels, effect)
+    kernels = call(kernels_for, effect)
     compile_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
     try:
@@ -625,8 +626,12 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         "setup_phases": dict(getattr(sim, "setup_seconds", {})),
         # what the setup took from the setup cache (setup_cache.py): "setup", "surfels" or "nothing"
         "setup_from_cache": getattr(sim, "from_snapshot", "nothing"),
+        # where the kernels came from: "compiled", "kernel cache" (machine code, linked by the JIT)
+        # or "effect cache" (the checked effect and a shared object: backends/effect_cache.py)
+        "kernels_from": ("effect cache" if isinstance(kernels, SharedKernels)
+                         else "kernel cache" if kernels.from_cache else "compiled"),
         "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
-                     "llvm": ".".join(map(str, llvm_version())),
+                     "llvm": ".".join(map(str, kernels.llvm_version)),
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
         "rendered": shown,
@@ -689,7 +694,7 @@ def _resume_or_set_aside(effect, opts, scene, kernels, sim, out) -> tuple:
     files set aside: (key, earlier summary or None, first iteration)."""
     from . import folder, resume
 
-    key = resume.run_key(str(kernels.ir), scene, opts)
+    key = resume.run_key(kernels.ir_text, scene, opts)
     earlier, first = None, 1
     if opts.resume:
         if shape_changes(effect):
@@ -752,12 +757,6 @@ class NonFiniteReport:
                           f"{count} times in iteration {iteration}; those results were not stored",
                           file=sys.stderr)
                 self.by_key[key]["count"] += count
-
-
-def llvm_version():
-    import llvmlite.binding
-
-    return llvmlite.binding.llvm_version_info
 
 
 def _cpu_count() -> int:

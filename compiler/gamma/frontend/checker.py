@@ -32,7 +32,7 @@ from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
 from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
-                      is_file, path_problem, shown_path, stdlib_dir)
+                      is_file, path_problem, resolved, shown_path, stdlib_dir)
 
 __all__ = ["check", "load", "Effect", "Kernel", "Length", "Place", "Source", "Surface", "TonType",
            "UsageError", "stdlib_dir", "EVENTS"]
@@ -465,7 +465,7 @@ class _Checker:
         if problem:
             self.error(arg.pos, f"cannot read texture '{shown_path(arg.value)}': {problem}")
             return None
-        path = (Path(self.unit.path).resolve().parent / arg.value).resolve()
+        path = resolved(resolved(Path(self.unit.path)).parent / arg.value)
         if not is_file(path):
             self.error(arg.pos, f"cannot find texture '{arg.value}' next to {Path(self.unit.path).name}")
             return None

@@ -101,11 +101,75 @@ def shown_path(text: str) -> str:
     return shown if len(shown) <= 80 else shown[:77] + "..."
 
 
+#: While ``observing``: what the check learnt from the file system, in order
+#: (``("is_file", path, answer)``, ``("resolve", path, answer)``,
+#: ``("read", path, sha256 of the text)``).  The compiled-effect cache
+#: (backends/effect_cache.py) keeps them beside the checked effect and asks
+#: them again before it trusts it.
+_observed: list | None = None
+
+
+class observing:
+    """``with observing() as facts:`` records, into the list ``facts``, every
+    file-system answer the check inside depends on (main thread only)."""
+
+    def __enter__(self) -> list:
+        global _observed
+        self.outer, _observed = _observed, []
+        return _observed
+
+    def __exit__(self, *exc) -> None:
+        global _observed
+        _observed = self.outer
+
+
+def _note(kind: str, path: Path, answer) -> None:
+    if _observed is not None:
+        _observed.append((kind, str(path), answer))
+
+
 def is_file(path: Path) -> bool:
     try:
-        return path.is_file()
+        answer = path.is_file()
     except (OSError, ValueError):
+        answer = False
+    _note("is_file", path, answer)
+    return answer
+
+
+def resolved(path: Path) -> Path:
+    """``path.resolve()`` (absolute, symbolic links followed)."""
+    answer = path.resolve()
+    _note("resolve", path, str(answer))
+    return answer
+
+
+def read_text(path: Path) -> str:
+    """The UTF-8 text of ``path`` (OSError, UnicodeDecodeError)."""
+    text = path.read_text(encoding="utf-8")
+    if _observed is not None:
+        import hashlib
+
+        _note("read", path, hashlib.sha256(text.encode("utf-8")).hexdigest())
+    return text
+
+
+def fact_holds(kind: str, path: str, answer) -> bool:
+    """Whether the file system still answers ``answer`` (a fact ``observing``
+    recorded); never raises."""
+    try:
+        if kind == "is_file":
+            return is_file(Path(path)) == answer
+        if kind == "resolve":
+            return str(Path(path).resolve()) == answer
+        if kind == "read":
+            import hashlib
+
+            text = Path(path).read_text(encoding="utf-8")
+            return hashlib.sha256(text.encode("utf-8")).hexdigest() == answer
+    except (OSError, ValueError, RuntimeError):   # RuntimeError: a symbolic-link loop
         return False
+    return False
 
 
 def display_path(path: Path) -> str:
@@ -145,7 +209,7 @@ class Program:
         recipes_seen: set[str] = set()
         self._recipes_seen = recipes_seen
         self._load(self.main, {n: (v, A.Pos(1, 1)) for n, v in overrides.items() if "." not in n},
-                   (str(Path(module.path).resolve()),))
+                   (str(resolved(Path(module.path))),))
         for recipe, names in self.recipe_overrides.items():
             if recipe not in recipes_seen:
                 imported = ", ".join(Path(u.path).stem for u in self.units if not u.main) or "none"
@@ -178,7 +242,7 @@ class Program:
                 elif value is not None:
                     args[init.name] = (value, init.pos)
             try:
-                text = found.read_text(encoding="utf-8")
+                text = read_text(found)
             except (OSError, UnicodeDecodeError) as err:
                 error(d.pos, f"cannot read '{d.path}': {err}")
                 continue
@@ -202,8 +266,8 @@ class Program:
         if problem:
             self.report.error(d.pos, f"cannot import '{shown_path(d.path)}': {problem}", unit.file)
             return None
-        for base in (Path(unit.path).resolve().parent, stdlib_dir()):
-            candidate = (base / d.path).resolve()
+        for base in (resolved(Path(unit.path)).parent, stdlib_dir()):
+            candidate = resolved(base / d.path)
             if is_file(candidate):
                 return candidate
         self.report.error(d.pos, f"cannot find '{d.path}' next to {Path(unit.path).name} or in the "

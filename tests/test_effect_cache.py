@@ -1,0 +1,233 @@
+"""gammac run keeps the checked effect and its kernels as a shared object
+(gamma/backends/effect_cache.py): a rerun imports neither the parser (lark)
+nor LLVM (llvmlite) and writes the same files; the shared object computes
+what the JIT's code computes, bit for bit; whatever the check learnt from
+the file system (imports found, shadowed, changed; textures) is asked again;
+a damaged entry or shared object is never used; without a C compiler
+nothing is kept and nothing breaks."""
+
+import ctypes
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, ptr, same, set_key
+from test_prefetch import folder_hash
+
+from gamma.backends import effect_cache
+from gamma.backends.jit import JitKernels
+from gamma.frontend.diagnostics import GammaError
+from gamma.ir.builtins import FUNCTIONS
+
+BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
+
+#: gammac run in this interpreter, then the names of the modules it imported
+#: that a rerun should not need, written to the file $IMPORTED.
+SCRIPT = """
+import os, sys
+from gamma import cli
+status = cli.main(sys.argv[1:])
+with open(os.environ["IMPORTED"], "w") as f:
+    f.write(",".join(sorted({m.split(".")[0] for m in sys.modules} & {"lark", "llvmlite"})))
+sys.exit(status)
+"""
+
+
+def run(tmp_path, cache, name, effect=ROOT / "examples" / "patina.gamma", *extra, env=None):
+    """gammac run (bunny, 3000 surfels) with the cache folder ``cache``: its
+    output folder, summary, stderr and the parser/LLVM modules it imported."""
+    out = tmp_path / name
+    imported = tmp_path / f"{name}.imported"
+    args = ["run", effect, "--scene", BUNNY, "--surfels", "3000", "--tons", "20000",
+            "--iterations", "2", "--threads", "2", "--quiet", "--out", out, *extra]
+    r = subprocess.run([sys.executable, "-c", SCRIPT, *map(str, args)], capture_output=True, text=True,
+                       timeout=600, env=dict(env or os.environ, GAMMA_CACHE_DIR=str(cache),
+                                             IMPORTED=str(imported)))
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    return out, summary, r.stderr, imported.read_text().split(",") if imported.read_text() else []
+
+
+def entries(cache):
+    return sorted(p.name for p in cache.glob("effect-*"))
+
+
+def test_a_rerun_takes_the_effect_and_its_shared_object_and_writes_the_same_files(tmp_path):
+    cache = tmp_path / "cache"
+    first, summary, _, imported = run(tmp_path, cache, "first")
+    assert summary["kernels_from"] == "compiled" and imported == ["lark", "llvmlite"]
+    assert sorted(n.rsplit(".", 1)[1] for n in entries(cache)) == ["bin", "so"]
+    second, summary, _, imported = run(tmp_path, cache, "second")
+    assert summary["kernels_from"] == "effect cache"
+    assert imported == []                               # neither the parser nor LLVM
+    assert summary["versions"]["llvm"] == json.loads((first / "summary.json").read_text())["versions"]["llvm"]
+    off, summary, _, _ = run(tmp_path, "off", "off")
+    assert summary["kernels_from"] == "compiled"
+    assert folder_hash(first) == folder_hash(second) == folder_hash(off)
+
+
+def test_warnings_are_printed_again_and_another_param_is_compiled_again(tmp_path):
+    effect = tmp_path / "warned.gamma"
+    effect.write_text("param unused = 1\n"
+                      "ton T { motion straight = 1 carry a = 1 }\n"
+                      "surface S { property p = 0 }\n"
+                      "source s = environment(sphere) emits T count 10\n"
+                      "on settle(t: T, s: S) { s.p += 0.5 * t.a }\n")
+    cache = tmp_path / "cache"
+    _, summary, first_err, _ = run(tmp_path, cache, "a", effect)
+    assert "unused" in first_err and summary["kernels_from"] == "compiled"
+    _, summary, second_err, _ = run(tmp_path, cache, "b", effect)
+    assert summary["kernels_from"] == "effect cache"
+    assert second_err.replace(f"{tmp_path}/b/", f"{tmp_path}/a/") == first_err
+    _, summary, _, _ = run(tmp_path, cache, "c", effect, "--param", "unused=2")
+    assert summary["kernels_from"] != "effect cache"
+
+
+def every_builtin_body() -> str:
+    """An update body that calls every scalar built-in on the row's values."""
+    args = ["s.p", "s.q", "(s.p * 0.5 + 0.25)"]
+    lines = []
+    for name, fn in sorted(FUNCTIONS.items()):
+        if fn.appearance_only or fn.args is not None or name == "random":
+            continue
+        count = fn.min_args if fn.max_args is None else fn.max_args
+        lines.append(f"s.q += {name}({', '.join(args[i % 3] for i in range(count))})" if count else
+                     f"s.q += {name}()")
+    return "\n".join(lines + ["s.p = s.p * random() + s.q"])
+
+
+def test_the_shared_object_computes_what_the_jit_computes(tmp_path, monkeypatch):
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    source = HEADER + ("on hit(t: T, s: S) {\n t.a = pow(abs(t.a), t.b) + noise(position) + fbm(position, 4)\n"
+                       " s.q += exp(t.b) * random() + length(cross(normal, direction)) + dot(normal, direction)\n"
+                       " s.p += length(normalize(direction)) * log(abs(t.a))\n}\n"
+                       f"update(s: S) {{\n{every_builtin_body()}\n}}\n")
+    jit_effect = effect_cache.check("every.gamma", source, {})
+    jit = effect_cache.kernels_for(jit_effect)
+    assert isinstance(jit, JitKernels)
+    effect_cache.wait()
+    effect = effect_cache.check("every.gamma", source, {})
+    shared = effect_cache.kernels_for(effect)
+    assert isinstance(shared, effect_cache.SharedKernels) and effect == jit_effect
+    hit_k = next(k for k in effect.kernels if k.event == "hit")
+    upd_k = next(k for k in effect.kernels if k.event == "update")
+    rng = np.random.default_rng(7)
+    special = np.array([0.0, -0.0, 1.0, -1.0, 0.5, 1e-42, 3.4e38, np.inf, -np.inf, np.nan, 123.25], np.float32)
+    for _ in range(300):
+        pick = lambda n: np.where(rng.random(n) < 0.3, rng.choice(special, n),
+                                  rng.standard_normal(n) * 10.0 ** rng.integers(-3, 4, n)).astype(np.float32)
+        ton, surf = pick(2), pick(effect.row_width)
+        vec = pick(9)
+        ctx = GammaContext(iteration=int(rng.integers(1, 50)), interactions=int(rng.integers(1, 10)),
+                           position=(ctypes.c_float * 3)(*vec[0:3]), normal=(ctypes.c_float * 3)(*vec[3:6]),
+                           direction=(ctypes.c_float * 3)(*vec[6:9]))
+        set_key(ctx, int(rng.integers(0, 2**63)))
+        results = []
+        for kernels in (jit, shared):
+            ton_c, delta, row = ton.copy(), np.zeros_like(surf), surf.copy()
+            bad_hit = TRANSPORT(kernels.address[hit_k.symbol])(ptr(ton_c), ptr(surf), ptr(delta), ctypes.byref(ctx))
+            bad_update = UPDATE(kernels.address[upd_k.symbol])(ptr(row), ctypes.byref(ctx))
+            results.append((ton_c, delta, row, bad_hit, bad_update))
+        (a_ton, a_delta, a_row, a_bh, a_bu), (b_ton, b_delta, b_row, b_bh, b_bu) = results
+        assert same(a_ton, b_ton) and same(a_delta, b_delta) and same(a_row, b_row)
+        assert (a_bh, a_bu) == (b_bh, b_bu)
+
+
+def checked_from_cache(path, source="", overrides=None):
+    """effect_cache.check of the file ``path`` (its text read now), and
+    whether the effect came from the cache."""
+    text = source or path.read_text()
+    effect = effect_cache.check(str(path.name), text, overrides or {})
+    came = isinstance(effect_cache.kernels_for(effect), effect_cache.SharedKernels)
+    effect_cache.wait()
+    return effect, came
+
+
+def test_what_the_check_saw_on_disk_is_asked_again(tmp_path, monkeypatch):
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    main = tmp_path / "main.gamma"
+    main.write_text('import "patina.gamma"\n')
+    effect, came = checked_from_cache(main)
+    assert set(effect.tons) == {"Weather"} and not came     # the standard library's recipe
+    effect, came = checked_from_cache(main)
+    assert set(effect.tons) == {"Weather"} and came
+    # a file next to the effect now shadows the standard library's
+    (tmp_path / "patina.gamma").write_text(
+        "ton Local { motion straight = 1 carry x = 1 }\nsurface S { property p = 0 }\n"
+        "source s = environment(sphere) emits Local count 10\non settle(t: Local, s: S) { s.p += t.x }\n")
+    effect, came = checked_from_cache(main)
+    assert set(effect.tons) == {"Local"} and not came
+    assert checked_from_cache(main)[1]
+    # ... and is changed
+    (tmp_path / "patina.gamma").write_text((tmp_path / "patina.gamma").read_text().replace("Local", "Other"))
+    effect, came = checked_from_cache(main)
+    assert set(effect.tons) == {"Other"} and not came
+    # a texture that is gone is an error again, not a cached effect
+    (tmp_path / "red.png").write_bytes(b"not read by the check")
+    textured = tmp_path / "textured.gamma"
+    textured.write_text(HEADER + 'appearance(s: S) { color = texture("red.png") }\n')
+    assert not checked_from_cache(textured)[1] and checked_from_cache(textured)[1]
+    (tmp_path / "red.png").unlink()
+    with pytest.raises(GammaError, match="cannot find texture 'red.png'"):
+        checked_from_cache(textured)
+    # another working folder is another key (messages show paths relative to it)
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    assert not checked_from_cache(main.resolve(), main.read_text())[1]
+
+
+def test_a_damaged_entry_or_shared_object_is_not_used_and_is_replaced(tmp_path, monkeypatch):
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(cache))
+    monkeypatch.chdir(tmp_path)
+    main = tmp_path / "m.gamma"
+    main.write_text(HEADER + "on settle(t: T, s: S) { s.p += t.a }\n")
+    assert not checked_from_cache(main)[1] and checked_from_cache(main)[1]
+    (entry,) = cache.glob("effect-*.bin")
+    for name, cut in (("bin", False), ("so", False), ("bin", True)):
+        (path,) = cache.glob(f"effect-*.{name}")
+        data = bytearray(path.read_bytes())
+        if cut:
+            del data[len(data) // 2:]
+        else:
+            data[len(data) // 2] ^= 0x40
+        path.write_bytes(bytes(data))
+        effect, came = checked_from_cache(main)
+        assert not came and set(effect.tons) == {"T"}
+        assert checked_from_cache(main)[1]                  # written again, whole
+    entry.write_bytes(b"garbage")
+    assert effect_cache.load(entry.name[len("effect-"):-len(".bin")]) is None   # never raises
+
+
+def test_without_a_c_compiler_nothing_is_kept_and_the_run_is_the_same(tmp_path):
+    cache = tmp_path / "cache"
+    bare = tmp_path / "bin"
+    bare.mkdir()
+    env = dict(os.environ, PATH=str(bare))
+    first, summary, _, _ = run(tmp_path, cache, "first", env=env)
+    assert summary["kernels_from"] == "compiled" and entries(cache) == []
+    second, summary, _, _ = run(tmp_path, cache, "second", env=env)
+    assert summary["kernels_from"] == "kernel cache"     # the JIT's machine code, as before
+    assert folder_hash(first) == folder_hash(second)
+
+
+def test_the_least_recently_used_entries_go_first(tmp_path, monkeypatch):
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(cache))
+    monkeypatch.setattr(effect_cache, "MAX_ENTRIES", 2)
+    monkeypatch.chdir(tmp_path)
+    main = tmp_path / "m.gamma"
+    for k in ("1", "2", "3"):
+        main.write_text(HEADER + f"on settle(t: T, s: S) {{ s.p += t.a * {k} }}\n")
+        checked_from_cache(main)
+    assert len(list(cache.glob("effect-*.bin"))) == 2 and len(list(cache.glob("effect-*.so"))) == 2
+    assert checked_from_cache(main)[1]                     # the newest is kept
+    main.write_text(HEADER + "on settle(t: T, s: S) { s.p += t.a * 1 }\n")
+    assert not checked_from_cache(main)[1]                 # the oldest is not
