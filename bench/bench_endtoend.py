@@ -21,10 +21,11 @@ what is left of the setup once those are taken (including any wait for them),
 and the sampling's own time is reported beside, overlapping the start-up.
 
 Three kinds of run are reported, each in a cache folder of its own
-(GAMMA_CACHE_DIR): the first run of the effect on the mesh (the kernels
-compiled, the setup made), a run of an effect compiled before on a new mesh
-or surfel count (the setup made), and the same run again (kernels and setup
-from the caches: driver/setup_cache.py).
+(GAMMA_CACHE_DIR): the first run of the effect on the mesh (the effect
+checked, the kernels compiled, the setup made), a run of an effect run before
+on a new mesh or surfel count (the effect and its kernels from the effect
+cache, the setup made), and the same run again (effect, kernels and setup
+from the caches: backends/effect_cache.py, driver/setup_cache.py).
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ def one_run(args, out: Path, cache: Path) -> dict:
            "outputs": summary.get("output_seconds", {}), "wait": summary.get("writer_wait_seconds", nan),
            # the surfels sampled while gammac started up (prefetch.py), when the setup took them
            "sample_ahead": summary.get("setup_phases", {}).get("sample_ahead"),
-           "from_cache": summary.get("setup_from_cache")}
+           "from_cache": summary.get("setup_from_cache"), "kernels_from": summary.get("kernels_from")}
     # where the wall time went, in the order it is spent (summary.json's own clocks):
     # start-up (imports, parse, check) | scene | compile | setup | the rest of start
     # (output folder, camera, ...) | the loop's trace + update | the loop's other work
@@ -89,12 +90,13 @@ def main() -> None:
 
     load_before = load_average()
     # Three kinds of run, each in a cache folder of its own per repeat: the
-    # first run of the effect on the mesh (nothing cached: the kernels are
-    # compiled, the setup made); the effect compiled before but a new mesh or
-    # surfel count (the setup made); the same run again (kernels and setup
-    # from the caches, setup_cache.py).
-    kinds = {"first run (nothing cached)": [], "kernels cached, setup made": [],
-             "run again (kernels and setup cached)": []}
+    # first run of the effect on the mesh (nothing cached: the effect checked,
+    # the kernels compiled, the setup made); the effect run before but a new
+    # mesh or surfel count (the effect and kernels from the effect cache, the
+    # setup made); the same run again (effect, kernels and setup from the
+    # caches: backends/effect_cache.py, driver/setup_cache.py).
+    kinds = {"first run (nothing cached)": [], "effect cached, setup made": [],
+             "run again (effect and setup cached)": []}
     with tempfile.TemporaryDirectory() as tmp:
         for rep in range(args.repeats):
             cache = Path(tmp) / f"cache{rep}"
@@ -103,13 +105,14 @@ def main() -> None:
                     for kept in cache.glob("setup-*.bin"):
                         kept.unlink()
                 runs.append(one_run(args, Path(tmp) / f"run{rep}-{k}", cache))
-    expected = {"first run (nothing cached)": "nothing", "kernels cached, setup made": "nothing",
-                "run again (kernels and setup cached)": "setup"}
+    expected = {"first run (nothing cached)": ("nothing", "compiled"),
+                "effect cached, setup made": ("nothing", "effect cache"),
+                "run again (effect and setup cached)": ("setup", "effect cache")}
     for kind, runs in kinds.items():
-        took = {r["from_cache"] for r in runs}
+        took = {(r["from_cache"], r["kernels_from"]) for r in runs}
         if took != {expected[kind]}:
-            raise SystemExit(f"bench_endtoend: the {kind!r} runs took {sorted(map(str, took))} from the setup "
-                             f"cache, not {expected[kind]!r} (a setup too large to keep?)")
+            raise SystemExit(f"bench_endtoend: the {kind!r} runs took (setup, kernels) {sorted(map(str, took))} "
+                             f"from the caches, not {expected[kind]!r} (a setup too large to keep? no C compiler?)")
     # Work behind the loop (the outputs, the setup cache's write, the pictures' rays) shares the
     # cores with the trace and lengthens a run's own trace + update: the quietest trace + update
     # of every run of this bench is a second denominator that this cannot flatter.
@@ -135,7 +138,7 @@ def main() -> None:
         ahead = ("surfels sampled during the start-up in " + f"{best['sample_ahead']:.2f} s"
                  if best["sample_ahead"] is not None else "")
         busy = ", ".join(f"{kind} {seconds:.2f} s" for kind, seconds in sorted(best["outputs"].items()))
-        notes.append(f"{kind}: setup took {best['from_cache']} from the setup cache"
+        notes.append(f"{kind}: kernels {best['kernels_from']}, setup took {best['from_cache']} from the setup cache"
                      + (f", {ahead}" if ahead else "") + f"; outputs' busy time {busy or 'not reported'}, "
                      f"the loop waited {best['wait']:.2f} s for the writer")
     info = (f"`gammac run examples/patina.gamma`, bunny, {args.surfels:,} surfels, {args.tons:,} γ-tons/iteration, "
