@@ -572,7 +572,7 @@ def _main(argv=None) -> int:
         png_worker.start()              # before any thread: it forks (png_worker.py)
         # read, and its surfels sampled, while the effect is read and checked
         prefetch.start(args.scene, args.surfels, args.seed, args.threads)
-    from .frontend.resolve import UsageError
+    from .frontend.diagnostics import UsageError
     from .frontend.diagnostics import GammaError
 
     try:

@@ -15,7 +15,7 @@ compiled an effect, this module keeps in ``cache_dir()``:
   the system's C compiler (``cc -shared``);
 - ``effect-KEY.bin``: the checked ``Effect`` (pickled), the file-system
   facts its check depended on (every file it read, with its SHA-256, and
-  every path it tested or resolved, with the answer: ``resolve.observing``),
+  every path it tested or resolved, with the answer: ``filefacts.observing``),
   the kernels' IR text (a run's resume key hashes it), the LLVM version and
   the SHA-256 of the shared object; the whole behind its own SHA-256.
 
@@ -149,7 +149,7 @@ def load(key: str | None):
     try:
         import pickle
 
-        from ..frontend.resolve import fact_holds
+        from ..frontend.filefacts import fact_holds
 
         head = len(MAGIC) + 32
         if not blob.startswith(MAGIC) or hashlib.sha256(blob[head:]).digest() != blob[len(MAGIC):head]:
@@ -185,7 +185,7 @@ def check(path: str, source: str, overrides: dict):
         return effect
     from ..frontend.checker import check as check_module
     from ..frontend.parser import parse
-    from ..frontend.resolve import observing
+    from ..frontend.filefacts import observing
 
     with observing() as facts:
         effect = check_module(parse(source, path), overrides)

@@ -32,7 +32,8 @@ from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
 from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
-                      is_file, path_problem, resolved, shown_path, stdlib_dir)
+                      path_problem, shown_path, stdlib_dir)
+from .filefacts import is_file, resolved
 
 __all__ = ["check", "load", "Effect", "Kernel", "Length", "Place", "Source", "Surface", "TonType",
            "UsageError", "stdlib_dir", "EVENTS"]

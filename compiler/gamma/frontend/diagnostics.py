@@ -17,6 +17,10 @@ from dataclasses import dataclass
 from .ast import Pos
 
 
+class UsageError(Exception):
+    """A mistake on the command line rather than in the file (exit status 2)."""
+
+
 @dataclass(frozen=True)
 class SourceFile:
     path: str

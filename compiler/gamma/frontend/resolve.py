@@ -24,13 +24,10 @@ from .. import abi
 from ..ir.builtins import CONTEXT_VALUES, FUNCTIONS, component_index
 from ..ir.effect import Surface, TonType, Var
 from . import ast as A
-from .diagnostics import Diagnostic, GammaError, Report, SourceFile, did_you_mean
+from .diagnostics import Diagnostic, GammaError, Report, SourceFile, UsageError, did_you_mean
+from .filefacts import is_file, read_text, resolved
 
 MOTION_NAMES = abi.REFLECTANCE_SLOTS  # straight, parabolic, flow
-
-
-class UsageError(Exception):
-    """A mistake on the command line rather than in the file (exit status 2)."""
 
 
 class NotConstant(Exception):
@@ -99,77 +96,6 @@ def shown_path(text: str) -> str:
     """A file name as it may be printed: control characters escaped, long ones cut."""
     shown = text.encode("unicode_escape").decode("ascii") if not text.isprintable() else text
     return shown if len(shown) <= 80 else shown[:77] + "..."
-
-
-#: While ``observing``: what the check learnt from the file system, in order
-#: (``("is_file", path, answer)``, ``("resolve", path, answer)``,
-#: ``("read", path, sha256 of the text)``).  The compiled-effect cache
-#: (backends/effect_cache.py) keeps them beside the checked effect and asks
-#: them again before it trusts it.
-_observed: list | None = None
-
-
-class observing:
-    """``with observing() as facts:`` records, into the list ``facts``, every
-    file-system answer the check inside depends on (main thread only)."""
-
-    def __enter__(self) -> list:
-        global _observed
-        self.outer, _observed = _observed, []
-        return _observed
-
-    def __exit__(self, *exc) -> None:
-        global _observed
-        _observed = self.outer
-
-
-def _note(kind: str, path: Path, answer) -> None:
-    if _observed is not None:
-        _observed.append((kind, str(path), answer))
-
-
-def is_file(path: Path) -> bool:
-    try:
-        answer = path.is_file()
-    except (OSError, ValueError):
-        answer = False
-    _note("is_file", path, answer)
-    return answer
-
-
-def resolved(path: Path) -> Path:
-    """``path.resolve()`` (absolute, symbolic links followed)."""
-    answer = path.resolve()
-    _note("resolve", path, str(answer))
-    return answer
-
-
-def read_text(path: Path) -> str:
-    """The UTF-8 text of ``path`` (OSError, UnicodeDecodeError)."""
-    text = path.read_text(encoding="utf-8")
-    if _observed is not None:
-        import hashlib
-
-        _note("read", path, hashlib.sha256(text.encode("utf-8")).hexdigest())
-    return text
-
-
-def fact_holds(kind: str, path: str, answer) -> bool:
-    """Whether the file system still answers ``answer`` (a fact ``observing``
-    recorded); never raises."""
-    try:
-        if kind == "is_file":
-            return is_file(Path(path)) == answer
-        if kind == "resolve":
-            return str(Path(path).resolve()) == answer
-        if kind == "read":
-            import hashlib
-
-            text = Path(path).read_text(encoding="utf-8")
-            return hashlib.sha256(text.encode("utf-8")).hexdigest() == answer
-    except (OSError, ValueError, RuntimeError):   # RuntimeError: a symbolic-link loop
-        return False
-    return False
 
 
 def display_path(path: Path) -> str:
