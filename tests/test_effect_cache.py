@@ -139,11 +139,12 @@ def test_the_shared_object_computes_what_the_jit_computes(tmp_path, monkeypatch)
         assert (a_bh, a_bu) == (b_bh, b_bu)
 
 
-def checked_from_cache(path, source="", overrides=None):
-    """effect_cache.check of the file ``path`` (its text read now), and
-    whether the effect came from the cache."""
+def checked_from_cache(path, source="", overrides=None, given=None):
+    """effect_cache.check of the file ``path`` (its text read now), named on
+    the command line as ``given`` (default: its name), and whether the
+    effect came from the cache."""
     text = source or path.read_text()
-    effect = effect_cache.check(str(path.name), text, overrides or {})
+    effect = effect_cache.check(given or path.name, text, overrides or {})
     came = isinstance(effect_cache.kernels_for(effect), effect_cache.SharedKernels)
     effect_cache.wait()
     return effect, came
@@ -180,7 +181,7 @@ def test_what_the_check_saw_on_disk_is_asked_again(tmp_path, monkeypatch):
     # another working folder is another key (messages show paths relative to it)
     (tmp_path / "elsewhere").mkdir()
     monkeypatch.chdir(tmp_path / "elsewhere")
-    assert not checked_from_cache(main.resolve(), main.read_text())[1]
+    assert not checked_from_cache(main, given=str(main))[1]
 
 
 def test_a_damaged_entry_or_shared_object_is_not_used_and_is_replaced(tmp_path, monkeypatch):
@@ -231,3 +232,74 @@ def test_the_least_recently_used_entries_go_first(tmp_path, monkeypatch):
     assert checked_from_cache(main)[1]                     # the newest is kept
     main.write_text(HEADER + "on settle(t: T, s: S) { s.p += t.a * 1 }\n")
     assert not checked_from_cache(main)[1]                 # the oldest is not
+
+
+def test_the_working_folder_the_param_order_and_a_relative_cache_folder(tmp_path, monkeypatch):
+    monkeypatch.setenv("GAMMA_CACHE_DIR", "cache")           # relative: in the working folder
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "lib.gamma").write_text("param unused = 1\n")
+    main = tmp_path / "main.gamma"
+    main.write_text('param a = 1\nparam b = 2\nimport "lib.gamma"\n' + HEADER
+                    + "on settle(t: T, s: S) { s.p += t.a * a * b }\n")
+    absolute = str(main.resolve())
+    here, came = checked_from_cache(main, given=absolute)
+    assert not came and checked_from_cache(main, given=absolute)[1]
+    # the same absolute path from another folder: its messages name the import otherwise
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path / "cache"))
+    there, came = checked_from_cache(main, given=absolute)
+    shown = lambda effect: next(w.file.path for w in effect.warnings if "'unused'" in w.message)
+    assert not came and shown(here) == "lib.gamma" and shown(there) == str((tmp_path / "lib.gamma").resolve())
+    # --param in another order is another check (the effect keeps the order given)
+    monkeypatch.chdir(tmp_path)
+    for overrides in ({"a": 3.0, "b": 4.0}, {"b": 4.0, "a": 3.0}):
+        effect, came = checked_from_cache(main, main.read_text(), overrides)
+        assert not came and list(effect.overrides) == list(overrides)
+    assert checked_from_cache(main, main.read_text(), {"b": 4.0, "a": 3.0})[1]
+
+
+def test_a_missing_library_or_a_failing_compiler_costs_only_time(tmp_path, monkeypatch):
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(cache))
+    monkeypatch.chdir(tmp_path)
+    main = tmp_path / "m.gamma"
+    main.write_text(HEADER + "on settle(t: T, s: S) { s.p += t.a * 5 }\n")
+    assert not checked_from_cache(main)[1]
+    (library,) = cache.glob("effect-*.so")
+    library.unlink()
+    assert not checked_from_cache(main)[1] and checked_from_cache(main)[1]
+    # a C compiler that fails: nothing kept, the kernels from the JIT
+    main.write_text(HEADER + "on settle(t: T, s: S) { s.p += t.a * 6 }\n")
+    failing = tmp_path / "bin"
+    failing.mkdir()
+    (failing / "cc").write_text("#!/bin/sh\nexit 1\n")
+    (failing / "cc").chmod(0o755)
+    monkeypatch.setenv("PATH", str(failing))
+    before = entries(cache)
+    effect, came = checked_from_cache(main)
+    assert not came and entries(cache) == before and not checked_from_cache(main)[1]
+
+
+def test_orphaned_libraries_and_stale_temporaries_are_removed(tmp_path, monkeypatch):
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(cache))
+    monkeypatch.chdir(tmp_path)
+    cache.mkdir()
+    old = 1_000_000_000
+    orphan = cache / "effect-0123-4567.so"
+    young_orphan = cache / "effect-89ab-cdef.so"
+    stale_file, stale_folder = cache / ".effect-dead.bin.x1", cache / ".effect-dead"
+    fresh_file = cache / ".effect-live.bin.x2"
+    for path in (orphan, young_orphan, stale_file, fresh_file):
+        path.write_bytes(b"x")
+    stale_folder.mkdir()
+    (stale_folder / "kernels.o").write_bytes(b"x")
+    for path in (orphan, stale_file, stale_folder):
+        os.utime(path, (old, old))
+    main = tmp_path / "m.gamma"
+    main.write_text(HEADER + "on settle(t: T, s: S) { s.p += t.a * 7 }\n")
+    checked_from_cache(main)
+    assert not orphan.exists() and not stale_file.exists() and not stale_folder.exists()
+    assert young_orphan.exists() and fresh_file.exists()      # perhaps another process's, being written
+    assert checked_from_cache(main)[1]

@@ -700,8 +700,8 @@ def _leave(status: int) -> None:
     if setup_cache is not None:
         setup_cache.wait()              # a setup being kept for the next run: whole or not at all
     effect_cache = sys.modules.get("gamma.backends.effect_cache")
-    if effect_cache is not None:
-        effect_cache.wait()             # likewise a compiled effect
+    if effect_cache is not None and status == EXIT_OK:
+        effect_cache.wait()             # likewise a compiled effect (not after a failure or ^C: it can wait)
     if ordinary:
         for stream in (sys.stdout, sys.stderr):
             try:

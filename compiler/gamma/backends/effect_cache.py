@@ -20,11 +20,12 @@ compiled an effect, this module keeps in ``cache_dir()``:
   the SHA-256 of the shared object; the whole behind its own SHA-256.
 
 KEY hashes what the check and the code depend on besides those facts: the
-compiler (every ``.py`` and ``.lark`` file of the package, and where it is),
-Python's version, llvmlite's library, the CPU (``/proc/cpuinfo``'s model and
-flags: the JIT compiles for the host CPU), the working folder (error
-messages show paths relative to it), the effect file's path as given and
-resolved, its text and the ``--param`` values.  A later run with the same
+compiler (every ``.py`` and ``.lark`` file of the package, and where it is;
+the grammar), Python's version, lark and llvmlite's library as installed,
+the CPU (``/proc/cpuinfo``'s model and flags: the JIT compiles for the host
+CPU), the working folder (messages show paths relative to it), the effect
+file's path as given and resolved, its text and the ``--param`` values in
+their order.  A later run with the same
 KEY asks the facts again (a few ``stat`` calls and reads); when every one
 still holds it takes the ``Effect`` from the file and ``dlopen``s the
 shared object (``kernels_for``) instead of parsing, checking and compiling.
@@ -70,38 +71,43 @@ class SharedKernels:
     def __init__(self, path: Path, symbols: list[str], ir_text: str, llvm_version: tuple):
         import ctypes
 
-        self.library = ctypes.CDLL(str(path))
+        # absolute: a name without a slash would be looked for in the system's folders
+        self.library = ctypes.CDLL(os.path.abspath(path))
         self.address = {s: ctypes.cast(getattr(self.library, s), ctypes.c_void_p).value for s in symbols}
         self.ir_text = ir_text
         self.llvm_version = llvm_version
 
 
 def _compiler_build() -> str:
-    """A hash of the compiler itself: every source file of the package."""
+    """A hash of the compiler itself: every source file of the package, and
+    the grammar where the parser finds it (in a source checkout, outside)."""
     global _compiler
     if _compiler is None:
         package = Path(__file__).resolve().parent.parent
         h = hashlib.sha256(str(package).encode() + b"\0" + sys.version.encode() + b"\0")
+        grammars = [package.parent.parent / "language" / "gamma.lark"]   # frontend/parser.grammar_path
         for path in sorted(p for p in package.rglob("*")
-                           if p.suffix in (".py", ".lark") and "__pycache__" not in p.parts):
-            h.update(str(path.relative_to(package)).encode() + b"\0")
+                           if p.suffix in (".py", ".lark") and "__pycache__" not in p.parts) + \
+                [g for g in grammars if g.is_file()]:
+            h.update(str(path).encode() + b"\0")
             h.update(path.read_bytes())
         _compiler = h.hexdigest()
     return _compiler
 
 
-def _llvm_library() -> str:
-    """llvmlite's library, by size and time (llvmlite is not imported)."""
+def _installed(package: str, *files: str) -> str:
+    """Where ``package`` is installed and the size and time of the first of
+    ``files`` it has (the package is not imported)."""
     import importlib.util
 
-    spec = importlib.util.find_spec("llvmlite")
-    for folder in spec.submodule_search_locations or ():
-        for name in ("libllvmlite.so", "libllvmlite.dylib", "llvmlite.dll"):
-            path = Path(folder) / "binding" / name
+    spec = importlib.util.find_spec(package)
+    for folder in (spec.submodule_search_locations or ()) if spec else ():
+        for name in files:
+            path = Path(folder) / name
             if path.is_file():
                 st = path.stat()
                 return f"{path}|{st.st_size}|{st.st_mtime_ns}"
-    raise OSError("llvmlite's library not found")
+    raise OSError(f"{package} not found")
 
 
 def _cpu() -> str:
@@ -128,8 +134,12 @@ def key_for(path: str, source: str, overrides: dict) -> str | None:
     try:
         from .. import abi
 
-        parts = [_compiler_build(), str(abi.ABI_VERSION), _llvm_library(), _cpu(), os.getcwd(), path,
-                 str(Path(path).resolve()), json.dumps(sorted(overrides.items())), source]
+        # the parser (lark) and LLVM (llvmlite's library) as installed; --param in the order
+        # given (the effect keeps it)
+        parts = [_compiler_build(), str(abi.ABI_VERSION), _installed("lark", "__init__.py"),
+                 _installed("llvmlite", "binding/libllvmlite.so", "binding/libllvmlite.dylib",
+                            "binding/llvmlite.dll"), _cpu(), os.getcwd(), path, str(Path(path).resolve()),
+                 json.dumps(list(overrides.items())), source]
     except (OSError, ValueError, RuntimeError, AttributeError):
         return None
     return hashlib.sha256("\0".join(parts).encode("utf-8", "surrogatepass")).hexdigest()[:40]
@@ -252,11 +262,11 @@ def _keep(unsaved: tuple, ir_text: str, symbols: list[str], llvm_version: tuple)
                            stderr=subprocess.DEVNULL, timeout=120)
             shared = library.read_bytes()
         digest = hashlib.sha256(shared).hexdigest()
+        # An older library of this key goes (its entry is replaced next).  Another process
+        # keeping the same key at the same time may remove ours in turn: its entry then
+        # names a library that is gone, and the next run compiles and keeps it again.
         for older in folder.glob(f"effect-{key}-*.so"):
-            try:
-                older.unlink()
-            except OSError:
-                pass
+            _unlink(str(older))
         atomic_write(folder / _library_name(key, digest), shared)
         body = pickle.dumps({"key": key, "effect": pickled, "facts": facts,
                              "ir_text": ir_text, "symbols": symbols, "llvm_version": list(llvm_version),
@@ -270,17 +280,46 @@ def _keep(unsaved: tuple, ir_text: str, symbols: list[str], llvm_version: tuple)
 
 #: Entries kept at most; the least recently used are removed first.
 MAX_ENTRIES = 200
+#: A temporary file or folder older than this was left by a process that
+#: died while keeping an entry (that takes well under a minute).
+STALE_TEMPORARY_SECONDS = 3600
 
 
 def _trim(folder: Path) -> None:
-    entries = sorted((e.stat().st_mtime_ns, e.path) for e in os.scandir(folder)
-                     if e.name.startswith("effect-") and e.name.endswith(".bin"))
-    for _, path in entries[:max(0, len(entries) - MAX_ENTRIES)]:
-        for stale in [path, *Path(path).parent.glob(f"{Path(path).stem}-*.so")]:
-            try:
-                os.unlink(stale)
-            except OSError:
-                pass
+    """Remove the least recently used entries beyond MAX_ENTRIES, shared
+    objects no entry names, and the temporaries of writes that never ended.
+    Other processes may be removing the same files: each is tried alone."""
+    import shutil
+    import time
+
+    entries, libraries = [], []
+    for e in os.scandir(folder):
+        try:
+            st = e.stat()
+        except OSError:
+            continue
+        if e.name.startswith(".effect-") and time.time() - st.st_mtime > STALE_TEMPORARY_SECONDS:
+            shutil.rmtree(e.path, ignore_errors=True) if e.is_dir() else _unlink(e.path)
+        elif e.name.startswith("effect-") and e.name.endswith(".bin"):
+            entries.append((st.st_mtime_ns, e.name[:-len(".bin")]))
+        elif e.name.startswith("effect-") and e.name.endswith(".so") and time.time() - st.st_mtime > 60:
+            libraries.append(e.name)        # (a young one may be an entry's, its .bin being written)
+    entries.sort()
+    removed = {stem for _, stem in entries[:max(0, len(entries) - MAX_ENTRIES)]}
+    kept = {stem for _, stem in entries} - removed
+    for stem in removed:
+        for path in [os.path.join(folder, stem + ".bin"), *map(str, Path(folder).glob(f"{stem}-*.so"))]:
+            _unlink(path)
+    for name in libraries:
+        if name.rsplit("-", 1)[0] not in kept:
+            _unlink(os.path.join(folder, name))
+
+
+def _unlink(path: str) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
 
 
 def wait() -> None:

@@ -60,7 +60,9 @@ def compile_ir(module: ir.Module | str, optimise: bool = True) -> llvm.ModuleRef
 def position_independent_object(ir_text: str) -> bytes:
     """The kernels of ``ir_text`` as a position-independent ELF object, for a
     shared object (effect_cache.py): optimised by the same pipeline for the
-    same CPU as the JIT's, only the relocation model differs."""
+    same CPU as the JIT's; only the addressing differs (relocation and code
+    model: PC-relative instead of absolute 64-bit addresses), not one
+    arithmetic instruction."""
     _initialise()
     target = llvm.Target.from_triple(llvm.get_process_triple())
     machine = target.create_target_machine(cpu=llvm.get_host_cpu_name(), opt=3, reloc="pic",
@@ -118,7 +120,7 @@ class JitKernels:
     def __init__(self, effect: Effect, cache: Path | None | str = "default"):
         self.ir = generate(effect)
         folder = cache_dir() if cache == "default" else cache
-        self.ir_text = text = str(self.ir)
+        text = str(self.ir)
         self.llvm_version = tuple(llvm.llvm_version_info)
         key = cache_key(text)
         path = folder / f"{key}.o" if folder is not None else None
@@ -135,6 +137,8 @@ class JitKernels:
                     pass
         self.from_cache = cached is not None
         self._build(effect, path, key, cached)
+        # the IR as the JIT compiled it (its triple and data layout set): resume keys hash it
+        self.ir_text = str(self.ir)
         if self.from_cache and not all(self.address.values()):
             self.from_cache = False           # a cached object without our symbols
             self._build(effect, path, key, None)
