@@ -83,19 +83,39 @@ def state(sim):
                                     sim.rows())]
 
 
-def test_the_surfels_sampled_ahead_are_the_setups_own():
+def test_the_surfels_sampled_ahead_are_the_setups_own(monkeypatch):
+    monkeypatch.setattr(prefetch, "_surfaces", None)
+    prefetch.expect(2)                  # known before the sampling ends: no setup made ahead
     prefetch.start(str(BUNNY), 2000, 3, 1)
     mesh = prefetch.take(BUNNY)
     sample = prefetch.sample_for(mesh, 2000, 3)
-    assert sample is not None and sample.ok and sample.matches(mesh, 2000, 3)
+    assert isinstance(sample, rt.SurfelSample)
+    assert sample.ok and sample.matches(mesh, 2000, 3)
     assert prefetch.sample_for(mesh, 2000, 3) is None        # handed out once
     with_sample = rt.Simulation(mesh, config(mesh), sample)
     assert "sample_ahead" in with_sample.setup_seconds        # it was taken ...
+    assert "ahead" not in with_sample.setup_seconds and not with_sample.setup_made_ahead
     assert not sample.ok
     plain = rt.Simulation(mesh, config(mesh))
     assert "sample_ahead" not in plain.setup_seconds
     for a, b in zip(state(with_sample), state(plain)):        # ... and it is what the setup samples
         assert np.array_equal(a, b)
+
+
+def test_the_setup_made_ahead_is_the_setups_own(monkeypatch):
+    monkeypatch.setattr(prefetch, "_surfaces", None)        # the effect not known yet: one surface assumed
+    prefetch.start(str(BUNNY), 2000, 3, 1)
+    mesh = prefetch.take(BUNNY)
+    made = prefetch.sample_for(mesh, 2000, 3)
+    assert isinstance(made, rt.SetupSnapshot) and made.made_ahead and made.prepared
+    assert made.matches(mesh, 2000, 3) and not made.matches(mesh, 2000, 4)
+    taken = rt.Simulation(mesh, config(mesh), None, made)
+    assert taken.from_snapshot == "setup" and taken.setup_made_ahead and made.taken
+    assert {"ahead", "sample_ahead"} <= set(taken.setup_seconds)
+    plain = rt.Simulation(mesh, config(mesh))
+    for a, b in zip(state(taken), state(plain)):
+        assert np.array_equal(a, b)
+    assert np.array_equal(np.asarray(taken.setup_snapshot()), np.asarray(plain.setup_snapshot()))
 
 
 def test_surfels_sampled_for_another_count_or_seed_are_not_used():
@@ -168,6 +188,49 @@ def test_gammac_run_takes_the_surfels_sampled_ahead_and_writes_the_same_files(tm
     assert "sample_ahead" not in json.loads((tmp_path / "plain" / "summary.json").read_text())["setup_phases"]
     assert len(list((tmp_path / "ahead" / "renders").glob("iter_*.png"))) == 2
     assert folder_hash(tmp_path / "ahead") == folder_hash(tmp_path / "plain")
+
+
+NO_AHEAD = NO_SAMPLE.replace("prefetch.worth_sampling = lambda *args: False",
+                            "prefetch.AHEAD_MAX_SURFELS = 0")
+
+
+def summary_of(folder):
+    import json
+
+    return json.loads((folder / "summary.json").read_text())
+
+
+def test_a_setup_made_ahead_for_one_surface_is_taken_whole_and_writes_the_same_files(tmp_path):
+    args = ["run", ROOT / "examples" / "patina.gamma", "--scene", BUNNY, "--surfels", "3000", "--tons", "20000",
+            "--iterations", "2", "--threads", "2", "--quiet"]
+    ahead = run_gammac(*args, "--out", tmp_path / "ahead")
+    assert ahead.returncode == 0, ahead.stderr
+    sampled = subprocess.run([sys.executable, "-c", NO_AHEAD, *map(str, args), "--out", str(tmp_path / "sampled")],
+                             capture_output=True, text=True, timeout=600)
+    assert sampled.returncode == 0, sampled.stderr
+    made = summary_of(tmp_path / "ahead")
+    assert "ahead" in made["setup_phases"] and "sample_ahead" in made["setup_phases"]
+    assert made["setup_from_cache"] == "nothing"            # made here, not read from the cache
+    only_sampled = summary_of(tmp_path / "sampled")
+    assert "ahead" not in only_sampled["setup_phases"] and "sample_ahead" in only_sampled["setup_phases"]
+    assert folder_hash(tmp_path / "ahead") == folder_hash(tmp_path / "sampled")
+
+
+def test_two_surfaces_take_only_the_surfels_of_a_setup_made_ahead_and_write_the_same_files(tmp_path):
+    args = ["run", ROOT / "examples" / "stain-bleeding.gamma", "--scene", ROOT / "examples" / "scenes" /
+            "staircase.obj", "--assign", "chain=Iron", "--assign", "*=Cement", "--surfels", "4000",
+            "--tons", "20000", "--iterations", "2", "--threads", "2", "--quiet"]
+    outs = {}
+    for name, script in (("default", None), ("sampled", NO_AHEAD), ("plain", NO_SAMPLE)):
+        out = tmp_path / name
+        r = (run_gammac(*args, "--out", out) if script is None else
+             subprocess.run([sys.executable, "-c", script, *map(str, args), "--out", str(out)],
+                            capture_output=True, text=True, timeout=600))
+        assert r.returncode == 0, r.stderr
+        outs[name] = out
+    default = summary_of(outs["default"])
+    assert "ahead" not in default["setup_phases"] and default["setup_from_cache"] == "nothing"
+    assert folder_hash(outs["default"]) == folder_hash(outs["sampled"]) == folder_hash(outs["plain"])
 
 
 def test_an_effect_error_comes_first_while_the_surfels_are_sampled(tmp_path):

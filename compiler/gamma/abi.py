@@ -119,7 +119,7 @@ BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
                "SurfelSample", "SetupSnapshot"),
     "SurfelSample": ("ok", "matches", "seconds"),
-    "SetupSnapshot": ("read", "matches", "prepare", "prepared", "taken", "surfels"),
+    "SetupSnapshot": ("read", "matches", "prepare", "prepared", "taken", "surfels", "make_ahead", "made_ahead"),
     "Mesh": ("load", "from_arrays", "num_vertices", "num_triangles", "degenerate_dropped", "bounds",
              "vertices", "fingerprint", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
     "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",
@@ -132,7 +132,7 @@ BINDING = {
                    "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
                    "num_prepared_points", "bake_prepared", "cancel", "surfel_measures", "from_snapshot",
-                   "setup_snapshot", "setup_snapshot_bytes"),
+                   "setup_snapshot", "setup_snapshot_bytes", "setup_made_ahead"),
 }
 
 

@@ -590,6 +590,10 @@ def _main(argv=None) -> int:
         if args.command == "sweep":
             return _sweep(args)
         effect = _load(args.file, getattr(args, "param", ()), cached=args.command == "run")
+        if args.command == "run":
+            from .driver import prefetch
+
+            prefetch.expect(len(effect.surfaces))   # a setup made ahead is for one surface
         if args.command == "check":
             return EXIT_OK
         if args.command == "emit":

@@ -3,6 +3,7 @@
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/array.h>
 #include <nanobind/stl/string.h>
+#include <nanobind/stl/unique_ptr.h>
 #include <nanobind/stl/vector.h>
 
 #include <embree3/rtcore.h>
@@ -427,7 +428,19 @@ NB_MODULE(_runtime, m) {
             "mesh"_a, "threads"_a,
             "Builds now, for the binding it holds, what a Simulation of `mesh` would build next to it (BVH, "
             "kd-trees, corner normals); never raises.")
-        .def_prop_ro("prepared", &gammart::SetupSnapshot::prepared);
+        .def_prop_ro("prepared", &gammart::SetupSnapshot::prepared)
+        .def_static(
+            "make_ahead",
+            [](const gammart::Mesh& mesh, gammart::SurfelSample& sample, int threads) {
+                // pure C++: gammac makes it on a thread while it starts up
+                nb::gil_scoped_release nogil;
+                return gammart::SetupSnapshot::make_ahead(mesh, sample, threads);
+            },
+            "mesh"_a, "sample"_a, "threads"_a,
+            "The setup a Simulation of `mesh` with `sample`'s surfels (moved out) makes when every triangle is "
+            "on one surface, made now and prepared (prefetch.py); raises ValueError if the sample holds none.")
+        .def_prop_ro("made_ahead", &gammart::SetupSnapshot::made_ahead,
+                     "Whether make_ahead made it (not the setup cache).");
 
     nb::class_<gammart::Simulation>(m, "Simulation")
         .def(
@@ -448,6 +461,9 @@ NB_MODULE(_runtime, m) {
                 return s.from_snapshot() == F::Setup ? "setup" : s.from_snapshot() == F::Surfels ? "surfels" : "nothing";
             },
             "What the setup took from its SetupSnapshot: \"setup\", \"surfels\" (another binding) or \"nothing\".")
+        .def_prop_ro("setup_made_ahead", &gammart::Simulation::setup_made_ahead,
+                     "Whether what the setup took from its SetupSnapshot was made ahead (make_ahead), not read "
+                     "from the setup cache.")
         .def(
             "setup_snapshot",
             [](const gammart::Simulation& s) {
@@ -660,11 +676,13 @@ NB_MODULE(_runtime, m) {
                          d["measures"] = s.setup_seconds().measures;
                          d["normals"] = s.setup_seconds().normals;
                          if (s.setup_seconds().sample_ahead > 0) d["sample_ahead"] = s.setup_seconds().sample_ahead;
+                         if (s.setup_seconds().ahead > 0) d["ahead"] = s.setup_seconds().ahead;
                          return d;
                      },
                      "Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle lookup, "
                      "splat kernel, per-surfel measures, the renders' corner normals; sample_ahead: the "
-                     "SurfelSample's sampling, when the setup used it.")
+                     "SurfelSample's sampling, when the setup used it; ahead: the rest of a setup made ahead "
+                     "(SetupSnapshot.make_ahead), when it was taken whole.")
         .def_prop_ro("lookup_stats",
                      [](const gammart::Simulation& s) {
                          const gammart::SceneIndex& ix = s.scene_index();

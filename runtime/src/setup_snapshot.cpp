@@ -12,7 +12,10 @@
 #include <sys/stat.h>
 #include <zlib.h>
 
+#include <tbb/task_group.h>
+
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -415,6 +418,59 @@ void SetupSnapshot::prepare(const Mesh& mesh, int threads) {
     } catch (const std::exception&) {
         index_.reset();
     }
+}
+
+namespace {
+// As the Simulation: the splat kernel beside the triangle lookup up to this
+// many surfels, after it above (their temporaries together; simulation.cpp).
+constexpr size_t kSplatBesideMaxSurfels = 500000;
+}  // namespace
+
+std::unique_ptr<SetupSnapshot> SetupSnapshot::make_ahead(const Mesh& mesh, SurfelSample& sample, int threads) {
+    if (!sample.ok() || !sample.matches(mesh, sample.count(), sample.seed()))
+        throw Error("setup ahead: the sample holds no surfels of this mesh");
+    const auto t0 = std::chrono::steady_clock::now();
+    std::unique_ptr<SetupSnapshot> s(new SetupSnapshot());
+    const size_t n = sample.count();
+    s->n_ = n;
+    s->seed_ = sample.seed();
+    s->n_surfaces_ = 1;
+    s->made_ahead_ = true;
+    s->sample_seconds_ = sample.seconds();
+    s->vertices_ = mesh.vertices;
+    s->triangles_ = mesh.triangles;
+    s->lo_hi_ = {mesh.lo[0], mesh.lo[1], mesh.lo[2], mesh.hi[0], mesh.hi[1], mesh.hi[2]};
+    s->tri_surface_.assign(mesh.triangles.size() / 3, 0);
+    // What Simulation::Simulation does for this binding, in its order.
+    auto index = std::make_unique<SceneIndex>();
+    index->build_geometry(mesh, s->tri_surface_, 1);
+    std::vector<float> normals;
+    run_with_threads(threads, [&] {
+        tbb::task_group beside;
+        try {
+            beside.run([&] { normals = corner_normals(mesh, {}, kDefaultCreaseDeg); });
+            s->surf_ = sample.take();
+            const std::vector<int32_t> surfel_surface(n, 0);
+            const float sigma = float(std::sqrt(mesh.area() / double(n)));
+            auto splat = [&] {
+                s->splat_ = build_splat_kernel(s->surf_.position.data(), s->surf_.normal.data(),
+                                               surfel_surface.data(), n, sigma);
+            };
+            const bool splat_beside = n <= kSplatBesideMaxSurfels;
+            if (splat_beside) beside.run(splat);
+            index->build_surfels(s->surf_.position.data(), surfel_surface.data(), n, sigma, threads);
+            if (!splat_beside) splat();
+            beside.wait();
+        } catch (...) {
+            beside.cancel();
+            beside.wait();
+            throw;
+        }
+    });
+    s->index_ = std::move(index);
+    s->corner_normals_ = std::move(normals);
+    s->seconds_ahead_ = seconds_since(t0);
+    return s;
 }
 
 std::unique_ptr<SceneIndex> SetupSnapshot::take_index() {

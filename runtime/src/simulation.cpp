@@ -88,6 +88,11 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
     else if (snapshot != nullptr && snapshot->matches_surfels(mesh_, size_t(c.surfels), c.seed))
         from_snapshot_ = FromSnapshot::Surfels;
     const bool whole = from_snapshot_ == FromSnapshot::Setup;
+    if (from_snapshot_ != FromSnapshot::Nothing && snapshot->made_ahead()) {
+        setup_made_ahead_ = true;
+        setup_seconds_.sample_ahead = snapshot->sample_seconds();
+        if (whole) setup_seconds_.ahead = snapshot->seconds_ahead();
+    }
     const bool prepared = whole && snapshot->prepared();
     auto t0 = std::chrono::steady_clock::now();
     if (prepared) {

@@ -9,6 +9,7 @@
 #include "gamma/error.h"
 #include "gamma/setup_snapshot.h"
 #include "gamma/simulation.h"
+#include "gamma/surfel_state.h"
 #include "helpers.h"
 
 using namespace gammart;
@@ -22,20 +23,20 @@ extern "C" int32_t snapshot_deposit(float*, const float*, float* delta, const Ga
     return 0;
 }
 
-Config bunny_config(int threads) {
+Config bunny_config(int threads, int surfaces = 2) {
     Config c;
     c.surfels = 6000;
     c.seed = 11;
     c.threads = threads;
     c.row_width = 4;
-    c.surface_rows = {{0, 0, 0, 0}, {0, 0, 0, 0}};
+    c.surface_rows.assign(size_t(surfaces), {0, 0, 0, 0});
     const int t = c.add_ton_type(0, 0, 0, {}, 1.0f, 0.1f);
     Source s;
     s.kind = "sphere";
     s.ton_type = t;
     s.count = 20000;
     c.add_source(s);
-    for (int surface : {0, 1})
+    for (int surface = 0; surface < surfaces; ++surface)
         for (int event : {GAMMA_EVENT_HIT, GAMMA_EVENT_SETTLE})
             c.set_transport(event, t, surface, uint64_t(reinterpret_cast<uintptr_t>(&snapshot_deposit)), true);
     return c;
@@ -114,6 +115,47 @@ TEST(SetupSnapshot, ASetupFromItsSnapshotIsTheSameSetupAndTracesTheSameRows) {
         EXPECT_EQ(again.from_snapshot(), Simulation::FromSnapshot::Nothing);
         expect_same_setup(fresh, again);
     }
+}
+
+TEST(SetupSnapshot, ASetupMadeAheadForOneSurfaceIsTheSimulationsOwnOrGivesOnlyItsSurfels) {
+    const Bunny bunny;
+    for (int threads : {1, 2}) {
+        // one surface: every triangle on it, the binding a setup made ahead assumes
+        Config one = bunny_config(threads, 1);
+        Simulation fresh(bunny.mesh, one);
+        SurfelSample sample(bunny.mesh, size_t(one.surfels), one.seed, 3 - threads);
+        auto ahead = SetupSnapshot::make_ahead(bunny.mesh, sample, 3 - threads);
+        EXPECT_FALSE(sample.ok());                      // its surfels moved into the setup
+        EXPECT_TRUE(ahead->made_ahead() && ahead->prepared());
+        Simulation taken(bunny.mesh, one, nullptr, ahead.get());
+        EXPECT_EQ(taken.from_snapshot(), Simulation::FromSnapshot::Setup);
+        EXPECT_TRUE(taken.setup_made_ahead());
+        EXPECT_GT(taken.setup_seconds().ahead, 0.0);
+        expect_same_setup(fresh, taken);
+        EXPECT_EQ(taken.corner_normals(), fresh.corner_normals());
+        EXPECT_EQ(taken.setup_snapshot(), fresh.setup_snapshot());
+        for (int it = 1; it <= 2; ++it) {
+            EXPECT_EQ(fresh.trace(it).interactions, taken.trace(it).interactions);
+            fresh.update(it);
+            taken.update(it);
+        }
+        EXPECT_EQ(fresh.rows(), taken.rows());
+        // two surfaces: only the surfels are taken, the rest built for that binding
+        Config two = bunny_config(threads);
+        two.triangle_surface = bunny.binding;
+        SurfelSample sample2(bunny.mesh, size_t(two.surfels), two.seed, threads);
+        auto ahead2 = SetupSnapshot::make_ahead(bunny.mesh, sample2, threads);
+        Simulation surfels_only(bunny.mesh, two, nullptr, ahead2.get());
+        EXPECT_EQ(surfels_only.from_snapshot(), Simulation::FromSnapshot::Surfels);
+        EXPECT_TRUE(surfels_only.setup_made_ahead());
+        Simulation plain(bunny.mesh, two);
+        expect_same_setup(surfels_only, plain);
+        EXPECT_EQ(surfels_only.corner_normals(), plain.corner_normals());
+    }
+    // a sample without surfels (another mesh's count of zero) is refused
+    SurfelSample empty(bunny.mesh, 0, 1, 1);
+    EXPECT_NE(expect_error([&] { SetupSnapshot::make_ahead(bunny.mesh, empty, 1); }).find("no surfels"),
+              std::string::npos);
 }
 
 TEST(SetupSnapshot, IsTakenOnlyForTheSameMeshCountSeedAndBinding) {

@@ -7,7 +7,10 @@ either, importing the compiler, reading and checking the effect, all on one
 core.  ``start`` reads the file on a background thread from the moment the
 command line is parsed (``Mesh.load`` releases the GIL) and then samples the
 surfels on it (``SurfelSample``: the sampling needs only the mesh, the surfel
-count and the seed, not the effect), unless the setup cache keeps this
+count and the seed, not the effect), and then makes the rest of the setup
+for every triangle on one surface (``SetupSnapshot.make_ahead``; not once
+the effect is known to have another number of surfaces: ``expect``), unless
+the setup cache keeps this
 mesh's setup (setup_cache.py): then that is read and prepared instead, on
 the same thread, and ``sample_for`` hands out the ``SetupSnapshot``.
 ``scene._load_mesh`` ``take``s the mesh
@@ -113,10 +116,39 @@ def _cached_setup(mesh, surfels: int, seed: int, threads: int):
     return snapshot
 
 
+#: Surfel counts up to which the rest of the setup is made ahead too (above,
+#: a setup made ahead for the wrong binding would be held, in memory, beside
+#: the Simulation's own).
+AHEAD_MAX_SURFELS = 500_000
+#: The number of surfaces of the effect being run, once known (``expect``).
+_surfaces: int | None = None
+
+
+def expect(surfaces: int) -> None:
+    """The effect has ``surfaces`` surfaces: a setup made ahead assumes one
+    (every triangle on it), so with any other count none is made from now
+    on (one being made is still handed out: the Simulation then takes only
+    its surfels)."""
+    global _surfaces
+    _surfaces = surfaces
+
+
 def _sample(mesh, surfels: int, seed: int, threads: int):
+    """The surfels sampled, and then, unless the effect is known to have
+    another number of surfaces than one, the rest of the setup made for
+    every triangle on one surface (``SetupSnapshot.make_ahead``: what the
+    Simulation would make for that binding, bit for bit; it takes it whole
+    only when its binding is that one, else only the surfels).  The core
+    gammac's start-up leaves idle makes most of the setup of a first run."""
     from .. import _runtime
 
-    return _runtime.SurfelSample(mesh, surfels, seed, threads)
+    sample = _runtime.SurfelSample(mesh, surfels, seed, threads)
+    if not sample.ok or surfels > AHEAD_MAX_SURFELS or _surfaces not in (None, 1):
+        return sample
+    try:
+        return _runtime.SetupSnapshot.make_ahead(mesh, sample, threads)
+    except Exception:  # noqa: BLE001 - the Simulation sets up (and reports) as always
+        return None
 
 
 def _signature(path: str):

@@ -625,7 +625,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         "start_seconds": None,
         "setup_phases": dict(getattr(sim, "setup_seconds", {})),
         # what the setup took from the setup cache (setup_cache.py): "setup", "surfels" or "nothing"
-        "setup_from_cache": getattr(sim, "from_snapshot", "nothing"),
+        "setup_from_cache": "nothing" if getattr(sim, "setup_made_ahead", False)
+                            else getattr(sim, "from_snapshot", "nothing"),
         # where the kernels came from: "compiled", "kernel cache" (machine code, linked by the JIT)
         # or "effect cache" (the checked effect and a shared object: backends/effect_cache.py)
         "kernels_from": ("effect cache" if isinstance(kernels, SharedKernels)
@@ -683,7 +684,7 @@ def _simulation(rt, mesh, cfg):
     elif ahead is None:                 # nothing read ahead (a scene file, a glTF, ...)
         snapshot = setup_cache.load(mesh, cfg.surfels, cfg.seed)
     sim = rt.Simulation(mesh, cfg, ahead, snapshot)
-    if sim.from_snapshot != "setup":
+    if sim.from_snapshot != "setup" or sim.setup_made_ahead:
         setup_cache.store(sim, mesh, cfg.surfels, cfg.seed)
     return sim
 

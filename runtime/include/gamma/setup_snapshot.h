@@ -24,6 +24,7 @@
 #include "gamma/mesh.h"
 #include "gamma/scene_index.h"
 #include "gamma/splat.h"
+#include "gamma/surfel_state.h"
 #include "gamma/surfels.h"
 
 namespace gammart {
@@ -55,6 +56,20 @@ public:
     // consistent snapshot.
     static SetupSnapshot read(const std::string& path);
 
+    // The setup a Simulation of `mesh` with `sample`'s surfels makes when
+    // every triangle is on one surface (the binding of every effect with one
+    // surface), made now and prepared, the surfels moved out of `sample`.
+    // `gammac run` makes it on a core its start-up leaves idle, before it
+    // knows the effect (prefetch.py); a Simulation takes it whole only when
+    // its binding is that one (`matches`), else only its surfels.  Made
+    // exactly as the Simulation makes its own setup, so a run set up from it
+    // is the same bit for bit.  Throws Error if `sample` holds no surfels.
+    static std::unique_ptr<SetupSnapshot> make_ahead(const Mesh& mesh, SurfelSample& sample, int threads);
+    // Whether it was made by make_ahead (not read from the setup cache), and
+    // in how many seconds (wall time, the sampling not included).
+    bool made_ahead() const { return made_ahead_; }
+    double seconds_ahead() const { return seconds_ahead_; }
+    double sample_seconds() const { return sample_seconds_; }   // the sample's own
     // Whether a Simulation of this mesh, count, seed and binding would set
     // up exactly what this holds (and it has not been taken yet).
     bool matches(const Mesh& mesh, size_t n, uint64_t seed, const std::vector<int32_t>& tri_surface,
@@ -97,6 +112,8 @@ private:
     uint64_t seed_ = 0;
     int32_t n_surfaces_ = 0;
     bool taken_ = false;
+    bool made_ahead_ = false;
+    double seconds_ahead_ = 0, sample_seconds_ = 0;
     std::vector<float> vertices_, lo_hi_;
     std::vector<int32_t> triangles_, tri_surface_;
     SurfelSet surf_;

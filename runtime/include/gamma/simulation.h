@@ -182,15 +182,21 @@ public:
     // Wall time of setup's phases: surfel sampling, BVH, kd-trees + triangle
     // lookup, splat kernel, per-surfel measures, the renders' corner normals;
     // sample_ahead: the wall time of the surfels sampled ahead, when they
-    // were used (then `sample` is only the time taken to adopt them).
+    // were used (then `sample` is only the time taken to adopt them); ahead:
+    // the wall time of the rest of a setup made ahead (SetupSnapshot::
+    // make_ahead), when it was taken whole.
     struct SetupSeconds {
-        double sample = 0, geometry = 0, surfels = 0, splat = 0, measures = 0, normals = 0, sample_ahead = 0;
+        double sample = 0, geometry = 0, surfels = 0, splat = 0, measures = 0, normals = 0, sample_ahead = 0,
+               ahead = 0;
     };
     const SetupSeconds& setup_seconds() const { return setup_seconds_; }
     // What the setup took from a SetupSnapshot: nothing, the surfels only
     // (another binding), or the surfels, the lookup and the splat kernel.
     enum class FromSnapshot { Nothing, Surfels, Setup };
     FromSnapshot from_snapshot() const { return from_snapshot_; }
+    // Whether what it took from its SetupSnapshot was made ahead (make_ahead:
+    // made in this process, not read from the setup cache).
+    bool setup_made_ahead() const { return setup_made_ahead_; }
     // The setup as SetupSnapshot bytes (throws Error once the shape changed:
     // the snapshot is of the setup, before any shape step).
     std::vector<uint8_t> setup_snapshot() const;
@@ -238,6 +244,7 @@ private:
     void update_corner_normals();
     SetupSeconds setup_seconds_;
     FromSnapshot from_snapshot_ = FromSnapshot::Nothing;
+    bool setup_made_ahead_ = false;
 };
 
 }  // namespace gammart

@@ -51,6 +51,8 @@ public:
     bool matches(const Mesh& mesh, size_t n, uint64_t seed) const;
     // The surfels, moved out: afterwards ok() is false.
     SurfelSet take();
+    size_t count() const { return n_; }
+    uint64_t seed() const { return seed_; }
     double seconds() const { return seconds_; }  // wall time of the sampling
 
 private:
