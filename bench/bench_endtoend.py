@@ -66,6 +66,8 @@ def one_run(args, out: Path, cache: Path) -> dict:
            "outputs": summary.get("output_seconds", {}), "wait": summary.get("writer_wait_seconds", nan),
            # the surfels sampled while gammac started up (prefetch.py), when the setup took them
            "sample_ahead": summary.get("setup_phases", {}).get("sample_ahead"),
+           # and the rest of the setup made after them, for one surface (SetupSnapshot.make_ahead)
+           "ahead": summary.get("setup_phases", {}).get("ahead"),
            "from_cache": summary.get("setup_from_cache"), "kernels_from": summary.get("kernels_from")}
     # where the wall time went, in the order it is spent (summary.json's own clocks):
     # start-up (imports, parse, check) | scene | compile | setup | the rest of start
@@ -137,6 +139,8 @@ def main() -> None:
                     f"{best['loop_other']:.2f} | {best['finish']:.2f} | {best['outside']:.2f} |")
         ahead = ("surfels sampled during the start-up in " + f"{best['sample_ahead']:.2f} s"
                  if best["sample_ahead"] is not None else "")
+        if best["ahead"] is not None:
+            ahead += f", the rest of the setup made after them in {best['ahead']:.2f} s"
         busy = ", ".join(f"{kind} {seconds:.2f} s" for kind, seconds in sorted(best["outputs"].items()))
         notes.append(f"{kind}: kernels {best['kernels_from']}, setup took {best['from_cache']} from the setup cache"
                      + (f", {ahead}" if ahead else "") + f"; outputs' busy time {busy or 'not reported'}, "
