@@ -142,7 +142,7 @@ def _false_colour_reference(value, shade, vmin, vmax, label, title) -> bytes:
     from PIL import ImageDraw, ImageFont
 
     from gamma.driver.outputs import viridis
-    from gamma.driver.png_worker import PNG_COMPRESS_LEVEL
+    from gamma.driver.outputs import PNG_COMPRESS_LEVEL
 
     h, w = value.shape
     span = vmax - vmin if vmax > vmin else 1.0

@@ -117,7 +117,7 @@ STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions
 #: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.
 BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
-               "SurfelSample", "SetupSnapshot"),
+               "SurfelSample", "SetupSnapshot", "encode_pngs"),
     "SurfelSample": ("ok", "matches", "seconds"),
     "SetupSnapshot": ("read", "matches", "prepare", "prepared", "taken", "surfels", "make_ahead", "made_ahead"),
     "Mesh": ("load", "from_arrays", "num_vertices", "num_triangles", "degenerate_dropped", "bounds",

@@ -558,18 +558,10 @@ def _sweep(args) -> int:
 
 
 def main(argv=None) -> int:
-    try:
-        return _main(argv)
-    finally:
-        _stop_png_worker()
-
-
-def _main(argv=None) -> int:
     args = _parser().parse_args(_join_negative_vectors(list(sys.argv[1:] if argv is None else argv)))
     if args.command == "run":
-        from .driver import prefetch, png_worker
+        from .driver import prefetch
 
-        png_worker.start()              # before any thread: it forks (png_worker.py)
         # read, and its surfels sampled, while the effect is read and checked
         prefetch.start(args.scene, args.surfels, args.seed, args.threads)
     from .frontend.diagnostics import UsageError
@@ -677,13 +669,6 @@ def _main(argv=None) -> int:
     except KeyboardInterrupt:
         print("gammac: interrupted", file=sys.stderr)
         return 130
-
-
-def _stop_png_worker() -> None:
-    """End ``gammac run``'s PNG worker process, if it was started."""
-    png_worker = sys.modules.get("gamma.driver.png_worker")
-    if png_worker is not None:
-        png_worker.stop()
 
 
 def _leave(status: int) -> None:

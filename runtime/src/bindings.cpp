@@ -8,11 +8,14 @@
 
 #include <embree3/rtcore.h>
 
+#include <algorithm>
+#include <cstdint>
 #include <cstring>
 
 #include "gamma/config.h"
 #include "gamma/error.h"
 #include "gamma/mesh.h"
+#include "gamma/png_encode.h"
 #include "gamma/sampling.h"
 #include "gamma/remesh.h"
 #include "gamma/shape_step.h"
@@ -183,6 +186,33 @@ NB_MODULE(_runtime, m) {
         },
         "p0"_a, "d"_a, "D"_a, "down"_a, "floor_height"_a,
         "Landing on the plane dot(x, up) = floor_height: (piecewise-linear as traced, analytic).");
+
+    m.def(
+        "encode_pngs",
+        [](nb::handle pictures, int level, int threads) {
+            using U8 = nb::ndarray<const uint8_t, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+            std::vector<U8> arrays;       // held while the GIL is released
+            std::vector<gammart::RgbPicture> rgb;
+            for (nb::handle item : pictures) {
+                U8 a;
+                if (!nb::try_cast(item, a) || a.shape(2) != 3)
+                    throw Error("encode_pngs: each picture must be a C-contiguous uint8[height, width, 3] array");
+                rgb.push_back({a.data(), int(std::min<size_t>(a.shape(1), INT32_MAX)),
+                               int(std::min<size_t>(a.shape(0), INT32_MAX))});
+                arrays.push_back(std::move(a));
+            }
+            std::vector<std::vector<uint8_t>> encoded;
+            {
+                nb::gil_scoped_release nogil;
+                encoded = gammart::encode_pngs_rgb(rgb, level, threads);
+            }
+            nb::list out;
+            for (const auto& png : encoded) out.append(nb::bytes(reinterpret_cast<const char*>(png.data()), png.size()));
+            return out;
+        },
+        "pictures"_a, "level"_a, "threads"_a,
+        "The PNG files (bytes) of uint8[height, width, 3] pictures, as Pillow's save(format='PNG', "
+        "compress_level=level) writes them (gamma/png_encode.h), encoded `threads` at a time without the GIL.");
 
     nb::class_<gammart::Mesh>(m, "Mesh")
         .def_static(

@@ -18,12 +18,7 @@ import threading
 
 
 def prepare_outputs(progress: bool, pictures: bool, picture_height: int) -> threading.Thread:
-    """Start the warm-up thread (daemon) and return it (joining is optional);
-    with pictures, the PNG worker (png_worker.py) gets ready too."""
-    if pictures:
-        from . import png_worker
-
-        png_worker.prepare()
+    """Start the warm-up thread (daemon) and return it (joining is optional)."""
     thread = threading.Thread(target=_warm, args=(progress, pictures, picture_height),
                               name="gamma-warmup", daemon=True)
     thread.start()

@@ -182,47 +182,23 @@ class FalseColourWriter(Writer):
             with run.behind.timings.timed("renders"):
                 value, shade = run.call(run.sim.render, values, eye, target, up, fov, width, height, run.threads)
             run.behind.timed("renders", _write_false_colour, path, canvas, value, shade, title)
-        # two pictures at a time: one encoded here, one in the PNG worker (png_worker.py) if there is
-        # one; written in order
-        from . import png_worker
-
-        worker = png_worker.worker()
-        step = 2 if worker is not None else 1
-        for k in range(0, len(pictures), step):
-            run.behind.timed("renders", _write_false_colour_views, pictures[k:k + step], canvas, view, vmin, vmax,
-                             run.threads, worker)
+        if pictures:
+            run.behind.timed("renders", _write_false_colour_views, pictures, canvas, view, vmin, vmax, run.threads)
 
 
 def _write_false_colour(path: Path, canvas, value, shade, title) -> None:
     atomic_write(path, canvas.png(value, shade, title))
 
 
-def _write_false_colour_views(items: list, canvas, view, vmin, vmax, threads, worker=None) -> None:
-    """The pictures of ``items`` [(path, title, values)], the second one (if
-    any) encoded by ``worker`` (png_worker.py) while this thread encodes the
-    others; encoded here instead if the worker fails.  Written in order."""
-    from .png_worker import WorkerFailed
+def _write_false_colour_views(items: list, canvas, view, vmin, vmax, threads: int) -> None:
+    """The pictures of ``items`` [(path, title, values)]: coloured in the
+    runtime, titled here (Pillow), encoded in the runtime ``threads`` at a
+    time (no GIL), then written in order."""
+    from .outputs import PNG_COMPRESS_LEVEL, encode_pngs
 
-    pictures = [view.picture(values, vmin, vmax, canvas.background, threads) for _, _, values in items]
-    encoded: list = [None] * len(items)
-    sent = []
-    if worker is not None and worker.alive and len(items) > 1:
-        # one picture in flight at most: a second job could wait for the worker to read it
-        # while the worker waits for its first reply to be read
-        try:
-            worker.send(canvas.frame, canvas.height, items[1][1], pictures[1])
-            sent.append(1)
-        except WorkerFailed:
-            pass
-    for i in range(len(items)):
-        if i not in sent:
-            encoded[i] = canvas.png(None, None, items[i][1], picture=pictures[i])
-    for i in sent:
-        try:
-            encoded[i] = worker.receive()
-        except WorkerFailed:
-            encoded[i] = canvas.png(None, None, items[i][1], picture=pictures[i])
-    for (path, _, _), data in zip(items, encoded):
+    titled = [canvas.titled(view.picture(values, vmin, vmax, canvas.background, threads), title)
+              for _, title, values in items]
+    for (path, _, _), data in zip(items, encode_pngs(titled, PNG_COMPRESS_LEVEL, threads)):
         atomic_write(path, data)
 
 
@@ -252,9 +228,9 @@ class AppearanceWriter(Writer):
                              run.threads, opts.samples, sun_direction(run.camera), opts.ao_samples, it)
         run.nonfinite.add_appearance(it, run.sim.last_render_stats()["nonfinite"])
         rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
-        picture = Image.fromarray((rgb * 255 + 0.5).astype(np.uint8))
-        self.frames.append(picture)
-        run.behind.timed("renders", _write_png, run.out / "renders" / f"iter_{it:04d}.png", picture)
+        pixels = (rgb * 255 + 0.5).astype(np.uint8)
+        self.frames.append(Image.fromarray(pixels))
+        run.behind.timed("renders", _write_png, run.out / "renders" / f"iter_{it:04d}.png", pixels)
 
     def on_run_finished(self, event: RunFinished) -> None:
         if self.frames:
@@ -262,9 +238,10 @@ class AppearanceWriter(Writer):
 
 
 def _write_png(path: Path, picture) -> None:
-    buffer = io.BytesIO()
-    picture.save(buffer, format="PNG")
-    atomic_write(path, buffer.getvalue())
+    """``picture`` as Pillow's ``save(format="PNG")`` writes it, encoded without the GIL."""
+    from .outputs import PILLOW_DEFAULT_LEVEL, encode_pngs
+
+    atomic_write(path, encode_pngs([picture], PILLOW_DEFAULT_LEVEL)[0])
 
 
 def write_sequence(frames: list, folder: Path) -> None:
@@ -282,9 +259,7 @@ def write_sequence(frames: list, folder: Path) -> None:
     for slot, index in enumerate(chosen):
         strip.paste(frames[index], (slot * w, 0))
         draw.text((slot * w + 8, 8), f"iteration {index + 1}", fill=(0, 0, 0))
-    buffer = io.BytesIO()
-    strip.save(buffer, format="PNG")
-    atomic_write(folder / "strip.png", buffer.getvalue())
+    _write_png(folder / "strip.png", strip)
 
 
 def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
