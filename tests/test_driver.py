@@ -114,3 +114,45 @@ def test_the_queue_is_bounded_ordered_and_reports_the_first_error():
             failing(boom)
             failing(done.append, "skipped")
     assert "skipped" not in done
+
+
+def test_the_outputs_are_written_in_order_and_the_summary_says_completed_last(tmp_path, bumpy_obj, monkeypatch):
+    """Each iteration's map then summary behind the loop; after it the false-colour
+    pictures (encoded together in the runtime) in iteration order; summary.json
+    with ``"completed": true`` last, once every other file is whole."""
+    import json
+
+    from gamma.driver import writers
+
+    written = []
+    real = writers.atomic_write
+
+    def recording(path, data, *args, **kwargs):
+        real(path, data, *args, **kwargs)
+        completed = json.loads(path.read_bytes())["completed"] if path.name == "summary.json" else None
+        written.append((str(path.relative_to(tmp_path / "out")), completed))
+
+    monkeypatch.setattr(writers, "atomic_write", recording)
+    monkeypatch.setattr(writers, "write_json", lambda path, obj: recording(path, json.dumps(obj).encode()))
+    run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, tmp_path / "out"))
+    per_iteration = [(f"maps/iter_{i:04d}.ply", None) for i in (1, 2, 3)]
+    assert [w for w in written if w[0].startswith("maps/")] == per_iteration
+    assert written[-4:] == [(f"renders/iter_{i:04d}.png", None) for i in (1, 2, 3)] + [("summary.json", True)]
+    assert [c for name, c in written if name == "summary.json"] == [False, False, False, True]
+
+
+def test_a_failure_encoding_the_pictures_after_the_loop_is_a_run_error_and_keeps_the_earlier_run(
+        tmp_path, bumpy_obj, monkeypatch):
+    from gamma.driver import outputs
+
+    out = tmp_path / "out"
+    run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, out))
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def full(pictures, level, threads=1):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(outputs, "encode_pngs", full)
+    with pytest.raises(RunError, match="cannot write to .*No space left on device"):
+        run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, out, seed=2))
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
