@@ -17,8 +17,8 @@ from gamma.frontend.checker import load
 
 
 def _options(scene, out, **kw):
-    return RunOptions(scene=str(scene), out=str(out), surfels=2000, tons=5000, iterations=3,
-                      width=64, height=64, progress=False, **kw)
+    return RunOptions(**dict(dict(scene=str(scene), out=str(out), surfels=2000, tons=5000, iterations=3,
+                                  width=64, height=64, progress=False), **kw))
 
 
 def test_writers_see_every_event_in_order(tmp_path, bumpy_obj):
@@ -156,3 +156,35 @@ def test_a_failure_encoding_the_pictures_after_the_loop_is_a_run_error_and_keeps
     with pytest.raises(RunError, match="cannot write to .*No space left on device"):
         run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, out, seed=2))
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+def test_the_false_colour_scale_is_the_whole_runs_with_ranges_worked_out_behind_the_loop(
+        tmp_path, bumpy_obj, monkeypatch):
+    """The iterations' value ranges are worked out behind the loop (the last one
+    after it): the pictures' scale is still the largest 99.5th percentile and
+    the least value of every iteration's finite values.  The property grows
+    in the first iteration and wears away after it, so the largest percentile
+    is the first iteration's and the least value the last one's."""
+    from gamma.driver import outputs
+
+    scales = []
+
+    class Recording(outputs.FalseColourCanvas):
+        def __init__(self, width, height, vmin, vmax, label):
+            scales.append((vmin, vmax, label))
+            super().__init__(width, height, vmin, vmax, label)
+
+    monkeypatch.setattr(outputs, "FalseColourCanvas", Recording)
+    effect = tmp_path / "wear.gamma"
+    effect.write_text("ton Grit {\n    motion straight = 1.0\n}\n\n"
+                      "surface Stone {\n    reflectance straight = 0.5\n    property finish = 1.0\n}\n\n"
+                      "source air = environment(sphere) emits Grit count 5000 strength 1\n\n"
+                      "on settle(t: Grit, s: Stone) {\n    s.finish += 30 - 25 * iteration\n}\n")
+    out = tmp_path / "out"
+    run(load(str(effect)), _options(bumpy_obj, out, iterations=4))
+    values = [read_ply(out / "maps" / f"iter_{i:04d}.ply")["finish"] for i in (1, 2, 3, 4)]
+    finite = [v[np.isfinite(v)] for v in values]
+    highs = [float(np.percentile(f, 99.5)) for f in finite]
+    lows = [float(f.min()) for f in finite]
+    assert scales == [(min(0.0, min(lows)), max(highs), "finish")]
+    assert max(highs) > highs[-1] and min(lows) < min(0.0, lows[0])    # neither from one iteration alone

@@ -32,7 +32,7 @@ from .. import abi, __version__
 from ..files import atomic_write
 from .camera import sun_direction
 from .events import IterationUpdated, RunFinished, Writer
-from .outputs import mesh_ply_bytes, ply_bytes, write_json
+from .outputs import mesh_ply_bytes, ply_parts, write_json
 
 
 def _timed_on_loop(kind: str):
@@ -83,7 +83,7 @@ def add_output_times(run, summary: dict) -> None:
 
 
 def _write_ply(path: Path, columns: dict, comments: list[str]) -> None:
-    atomic_write(path, ply_bytes(columns, comments))
+    atomic_write(path, ply_parts(columns, comments))
 
 
 class SummaryWriter(Writer):
@@ -110,6 +110,10 @@ class FalseColourWriter(Writer):
     def __init__(self, property: str, folder: Path):
         self.property, self.folder = property, folder
         self.history: list[np.ndarray] = []
+        # per iteration: value_range of its values, worked out behind the loop (UNMEASURED
+        # until then; the last iteration's and any the writer has not reached are worked
+        # out once the loop is done)
+        self.ranges: list = []
         self.casting = None             # the view's rays being cast (a Future), if they are
 
     def on_setup_done(self, event) -> None:
@@ -119,6 +123,7 @@ class FalseColourWriter(Writer):
         run = event.run
         for it in range(1, run.first_iteration):
             self.history.append(read_ply(run.out / "maps" / f"iter_{it:04d}.ply")[self.property])
+            self.ranges.append(UNMEASURED)
         # An effect that never changes the shape has its final geometry now: the rays of every
         # picture are cast beside the loop (no GIL; on the cores its serial stretches leave),
         # not after it, where a user waits for the pictures.
@@ -143,6 +148,13 @@ class FalseColourWriter(Writer):
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         self.history.append(event.properties[self.property].copy())
+        self.ranges.append(UNMEASURED)
+        if event.iteration < event.run.opts.iterations:
+            # while the next iteration is traced, not after the loop where a user waits
+            event.run.behind.timed("renders", self._measure, len(self.history) - 1)
+
+    def _measure(self, k: int) -> None:
+        self.ranges[k] = value_range(self.history[k])
 
     def on_run_finished(self, event: RunFinished) -> None:
         from .outputs import FalseColourCanvas
@@ -156,9 +168,10 @@ class FalseColourWriter(Writer):
         # out here
         casting, self.casting = self.casting or self._cast(run), None
         try:
-            finite = [h[np.isfinite(h)] for h in self.history]
-            vmax = max((float(np.percentile(f, 99.5)) for f in finite if f.size), default=1.0)
-            vmin = min(0.0, min((float(f.min()) for f in finite if f.size), default=0.0))
+            ranges = [value_range(h) if r is UNMEASURED else r for h, r in zip(self.history, self.ranges)]
+            found = [r for r in ranges if r is not None]
+            vmax = max((high for high, _ in found), default=1.0)
+            vmin = min(0.0, min((low for _, low in found), default=0.0))
             if vmax <= vmin:
                 vmax = vmin + 1.0
             # one frame (colour bar, ticks) for every picture of the run
@@ -184,6 +197,20 @@ class FalseColourWriter(Writer):
             run.behind.timed("renders", _write_false_colour, path, canvas, value, shade, title)
         if pictures:
             run.behind.timed("renders", _write_false_colour_views, pictures, canvas, view, vmin, vmax, run.threads)
+
+
+#: A FalseColourWriter.ranges entry not worked out yet.
+UNMEASURED = object()
+
+
+def value_range(values: np.ndarray) -> tuple[float, float] | None:
+    """(99.5th percentile, least) of the finite ``values`` (one iteration's),
+    or None if none is finite: the run's scale is the largest percentile and
+    the least value (or 0) of its iterations."""
+    finite = values[np.isfinite(values)]
+    if not finite.size:
+        return None
+    return float(np.percentile(finite, 99.5)), float(finite.min())
 
 
 def _write_false_colour(path: Path, canvas, value, shade, title) -> None:
