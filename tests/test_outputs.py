@@ -220,3 +220,57 @@ def test_summary_splits_the_wall_time(patina_run):
     assert summary["finish_seconds"] > 0 and summary["writer_wait_seconds"] >= 0
     assert set(summary["output_seconds"]) == {"maps", "summary", "renders"}
     assert all(seconds > 0 for seconds in summary["output_seconds"].values())
+
+
+def _frames(n=4, size=(48, 30)):
+    rng = np.random.default_rng(5)
+    return [Image.fromarray(rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)) for _ in range(n)]
+
+
+def test_the_sequence_files_are_made_side_by_side_as_one_after_the_other(tmp_path):
+    """GIF here, MP4 and strip on threads of their own: the GIF and the strip
+    are the bytes of making each alone, the MP4 plays (index first)."""
+    import io
+
+    from gamma.driver.writers import write_sequence, write_strip
+
+    frames = _frames()
+    write_sequence(frames, tmp_path)
+    alone = io.BytesIO()
+    frames[0].save(alone, format="GIF", save_all=True, append_images=frames[1:], duration=400, loop=0)
+    assert (tmp_path / "sequence.gif").read_bytes() == alone.getvalue()
+    (tmp_path / "alone").mkdir()
+    write_strip(frames, tmp_path / "alone" / "strip.png")
+    assert (tmp_path / "strip.png").read_bytes() == (tmp_path / "alone" / "strip.png").read_bytes()
+    assert Image.open(tmp_path / "strip.png").size == (48 * 4, 30)
+    mp4 = (tmp_path / "sequence.mp4").read_bytes()
+    assert 0 < mp4.index(b"moov") < mp4.index(b"mdat")
+    assert sorted(p.name for p in tmp_path.iterdir() if p.is_file()) == ["sequence.gif", "sequence.mp4", "strip.png"]
+
+
+def test_a_failing_sequence_file_is_raised_once_the_others_are_whole(tmp_path, monkeypatch):
+    from gamma.driver import writers
+
+    def no_ffmpeg(frames, path, fps=4):
+        raise OSError(2, "ffmpeg not found")
+
+    monkeypatch.setattr(writers, "write_mp4", no_ffmpeg)
+    with pytest.raises(OSError, match="ffmpeg not found"):
+        writers.write_sequence(_frames(), tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sequence.gif", "strip.png"]   # whole, no temporary
+    assert Image.open(tmp_path / "strip.png").size == (48 * 4, 30)
+    monkeypatch.undo()
+
+    class Unsavable(Image.Image):
+        def save(self, *args, **kwargs):
+            raise OSError(28, "No space left on device")
+
+    frames = _frames()
+    broken = Unsavable()
+    broken.__dict__.update(frames[0].__dict__)
+    folder = tmp_path / "gif"
+    folder.mkdir()
+    with pytest.raises(OSError, match="No space left"):
+        writers.write_sequence([broken] + frames[1:], folder)
+    # the MP4 and the strip were finished (not abandoned half-written) before the error came back
+    assert sorted(p.name for p in folder.iterdir()) == ["sequence.mp4", "strip.png"]

@@ -272,21 +272,40 @@ def _write_png(path: Path, picture) -> None:
 
 
 def write_sequence(frames: list, folder: Path) -> None:
-    """The iterations as an animated GIF, an MP4 and a strip of (at most 5) of them."""
-    buffer = io.BytesIO()
-    frames[0].save(buffer, format="GIF", save_all=True, append_images=frames[1:], duration=400, loop=0)
-    atomic_write(folder / "sequence.gif", buffer.getvalue())
-    write_mp4(frames, folder / "sequence.mp4")
-    chosen = sorted({round(i * (len(frames) - 1) / 4) for i in range(5)}) if len(frames) > 1 else [0]
+    """The iterations as an animated GIF, an MP4 and a strip of (at most 5)
+    of them.  The MP4 (an ffmpeg process fed the frames) and the strip (its
+    PNG encoded without the GIL) are made on threads of their own while the
+    GIF is made here (Pillow holds the GIL for it): the three took their sum
+    one after the other, after the loop.  All three are written, or have
+    failed, when this returns; the first error (GIF, MP4, strip) is raised."""
+    from concurrent.futures import wait
+
+    from . import background
+
+    others = [background.start(write_mp4, frames, folder / "sequence.mp4", name="gamma-mp4"),
+              background.start(write_strip, frames, folder / "strip.png", name="gamma-strip")]
+    try:
+        buffer = io.BytesIO()
+        frames[0].save(buffer, format="GIF", save_all=True, append_images=frames[1:], duration=400, loop=0)
+        atomic_write(folder / "sequence.gif", buffer.getvalue())
+    finally:
+        wait(others)
+    for made in others:
+        made.result()
+
+
+def write_strip(frames: list, path: Path) -> None:
+    """Up to 5 of the frames side by side (the first, the last, evenly between), each labelled."""
     from PIL import Image, ImageDraw
 
+    chosen = sorted({round(i * (len(frames) - 1) / 4) for i in range(5)}) if len(frames) > 1 else [0]
     w, h = frames[0].size
     strip = Image.new("RGB", (w * len(chosen), h), (255, 255, 255))
     draw = ImageDraw.Draw(strip)
     for slot, index in enumerate(chosen):
         strip.paste(frames[index], (slot * w, 0))
         draw.text((slot * w + 8, 8), f"iteration {index + 1}", fill=(0, 0, 0))
-    _write_png(folder / "strip.png", strip)
+    _write_png(path, strip)
 
 
 def write_mp4(frames: list, path: Path, fps: int = 4) -> None:
