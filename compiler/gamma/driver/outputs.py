@@ -173,8 +173,8 @@ class FalseColourCanvas:
         w, h = width, height
         self.width, self.height, self.vmin = w, h, vmin
         self.span = span = vmax - vmin if vmax > vmin else 1.0
-        # the gradient is the same along a row: each row's byte worked out once
-        # (as (value * 1.0) * 255 + 0.5 of every pixel: the same float64 steps), then repeated
+        # the gradient is the same along a row: each row's byte worked out once, then repeated
+        # (the bytes of scaling every pixel: value * 1.0 is value, so the float64 steps are the same)
         shade = (np.linspace(0.97, 0.85, h) * 255 + 0.5).astype(np.uint8)
         self.background = np.ascontiguousarray(np.broadcast_to(shade[:, None, None], (h, w, 3)))
         canvas = Image.new("RGB", (w + self.BAR_WIDTH, h), (255, 255, 255))
