@@ -83,8 +83,9 @@ const uint8_t* filter_row(const uint8_t* raw, const uint8_t* prev, size_t bytes,
 }  // namespace
 
 std::vector<uint8_t> encode_png_rgb(const uint8_t* rgb, int width, int height, int level) {
-    if (width < 1 || height < 1 || width > (1 << 24) || height > (1 << 24))
-        throw Error("encode_png: width and height must be from 1 to 16777216");
+    // a row's filter sums (int, as Pillow's) stay below 2^31: 128 * 3 * 2^22 = 1.6e9
+    if (width < 1 || height < 1 || width > (1 << 22) || height > (1 << 24))
+        throw Error("encode_png: width must be from 1 to 4194304 and height from 1 to 16777216");
     if (level < -1 || level > 9) throw Error("encode_png: the zlib level must be from -1 to 9");
     const size_t bytes = size_t(width) * kBytesPerPixel;
     // ImageFile._save's buffer: each encoder call returns it full (an IDAT chunk) or ends the image

@@ -166,6 +166,7 @@ TEST(PngEncode, RefusesBadSizesAndLevels) {
     const uint8_t rgb[3] = {1, 2, 3};
     EXPECT_THROW(encode_png_rgb(rgb, 0, 1, 1), Error);
     EXPECT_THROW(encode_png_rgb(rgb, 1, 0, 1), Error);
+    EXPECT_THROW(encode_png_rgb(rgb, (1 << 22) + 1, 1, 1), Error);   // refused before reading a byte
     EXPECT_THROW(encode_png_rgb(rgb, 1, 1, 10), Error);
     EXPECT_THROW(encode_png_rgb(rgb, 1, 1, -2), Error);
 }
