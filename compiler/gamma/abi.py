@@ -189,7 +189,15 @@ def c_header() -> str:
 
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "--header":
-        with open(sys.argv[2], "w", encoding="utf-8") as out:
-            out.write(c_header())
+        # Written only when it changes: an edit of this file that leaves the header as it
+        # was (a BINDING name, a comment) then rebuilds nothing (Ninja's restat).
+        try:
+            with open(sys.argv[2], encoding="utf-8") as old:
+                unchanged = old.read() == c_header()
+        except OSError:
+            unchanged = False
+        if not unchanged:
+            with open(sys.argv[2], "w", encoding="utf-8") as out:
+                out.write(c_header())
     else:
         sys.stdout.write(c_header())
