@@ -6,6 +6,7 @@ stays under its limit."""
 
 import json
 import os
+import struct
 import subprocess
 import sys
 import textwrap
@@ -17,7 +18,7 @@ from conftest import ROOT
 from test_prefetch import folder_hash
 
 from gamma import _runtime as rt
-from gamma.driver import setup_cache
+from gamma.driver import prefetch, setup_cache
 
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
@@ -131,6 +132,90 @@ def test_the_key_follows_the_mesh_count_and_seed(tmp_path, monkeypatch):
     assert setup_cache.path_for(rt.Mesh.load(str(BUNNY)), 3000, 1) == setup_cache.path_for(mesh, 3000, 1)
 
 
+def build_id(module_file):
+    """The linker's build ID in the module file (its NT_GNU_BUILD_ID note), as hex."""
+    data = open(module_file, "rb").read()
+    note = struct.pack("<III4s", 4, 20, 3, b"GNU\0")    # name size, 20 bytes of SHA-1, NT_GNU_BUILD_ID
+    at = data.index(note) + len(note)
+    assert data.count(note) == 1
+    return data[at:at + 20].hex()
+
+
+def test_the_name_is_the_runtime_build_the_mesh_count_and_seed(tmp_path, monkeypatch):
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path))
+    mesh = rt.Mesh.load(str(BUNNY))
+    assert rt.RUNTIME_BUILD == build_id(rt.__file__)            # the build, not the version string
+    assert setup_cache.path_for(mesh, 3000, 1) == tmp_path / f"setup-{rt.RUNTIME_BUILD}-{mesh.fingerprint()}-3000-1.bin"
+    assert rt.setup_cache_name(mesh, 3000, 2**63 - 1).endswith(f"-3000-{2**63 - 1}.bin")
+
+
+def config_for(mesh, surfels=3000, seed=1):
+    cfg = rt.Config()
+    cfg.surfels, cfg.seed, cfg.threads, cfg.row_width = surfels, seed, 2, 4
+    cfg.surface_rows = [[0.0, 0.0, 0.0, 1.0]]
+    return cfg
+
+
+def setup_state(sim):
+    return [np.asarray(a) for a in (sim.surfel_positions(), sim.surfel_normals(), sim.surfel_surfaces(),
+                                    sim.corner_normals(), sim.setup_snapshot())]
+
+
+def keep_setup(mesh, surfels=3000, seed=1):
+    sim = rt.Simulation(mesh, config_for(mesh, surfels, seed))
+    setup_cache.store(sim, mesh, surfels, seed)
+    setup_cache.wait()
+    return sim
+
+
+def test_the_read_ahead_gives_the_cached_setup_prepared_and_the_same_setup(tmp_path, monkeypatch):
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path))
+    fresh = keep_setup(rt.Mesh.load(str(BUNNY)))
+    prefetch.start(str(BUNNY), 3000, 1, 2)
+    mesh = prefetch.take(BUNNY)
+    snapshot = prefetch.sample_for(mesh, 3000, 1)
+    assert isinstance(snapshot, rt.SetupSnapshot) and snapshot.prepared
+    sim = rt.Simulation(mesh, config_for(mesh), None, snapshot)
+    assert sim.from_snapshot == "setup" and snapshot.taken
+    # the runner's own load (nothing read ahead) gives the same setup, unprepared
+    loaded = setup_cache.load(mesh, 3000, 1)
+    assert loaded is not None and not loaded.prepared
+    from_loaded = rt.Simulation(mesh, config_for(mesh), None, loaded)
+    assert from_loaded.from_snapshot == "setup"
+    for a, b, c in zip(setup_state(sim), setup_state(from_loaded), setup_state(fresh)):
+        assert np.array_equal(a, b) and np.array_equal(a, c)
+
+
+def test_the_read_ahead_refuses_what_it_cannot_use_and_never_raises(tmp_path, monkeypatch):
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path))
+    keep_setup(rt.Mesh.load(str(BUNNY)))
+    (path,) = kept(tmp_path)
+    whole = path.read_bytes()
+    for damaged in (whole[:len(whole) // 2], whole[:100] + bytes([whole[100] ^ 1]) + whole[101:]):
+        path.write_bytes(damaged)
+        mesh, signature, snapshot = rt.read_mesh_ahead(str(BUNNY), str(tmp_path), 3000, 1, 2)
+        assert mesh is not None and snapshot is None and not path.exists()
+        assert signature == prefetch._signature(str(BUNNY))
+    # a count or seed with none kept, the cache off (no folder), no count: the mesh only
+    path.write_bytes(whole)
+    for folder, surfels, seed in ((str(tmp_path), 3000, 2), (str(tmp_path), 2999, 1), ("", 3000, 1),
+                                  (str(tmp_path), 0, 1)):
+        mesh, _, snapshot = rt.read_mesh_ahead(str(BUNNY), folder, surfels, seed, 2)
+        assert mesh is not None and snapshot is None
+    assert path.read_bytes() == whole
+    # files it cannot read as a mesh: nothing (read again, and reported, by scene.py)
+    (tmp_path / "garbage.obj").write_text("v 0 0 0\nf 1 2 3 4 5\n")
+    os.mkfifo(tmp_path / "pipe.obj")
+    for bad in ("garbage.obj", "pipe.obj", "missing.obj", "."):
+        assert rt.read_mesh_ahead(str(tmp_path / bad), str(tmp_path), 3000, 1, 2) == (None, None, None)
+    # prefetch: the mesh read ahead, the setup refused, the surfels sampled instead
+    path.write_bytes(whole[:-1])
+    prefetch.start(str(BUNNY), 3000, 1, 2)
+    mesh = prefetch.take(BUNNY)
+    sample = prefetch.sample_for(mesh, 3000, 1)
+    assert isinstance(sample, rt.SurfelSample) and sample.ok and not path.exists()
+
+
 NO_PREFETCH = textwrap.dedent("""
     import sys
     from gamma.driver import prefetch
@@ -142,7 +227,7 @@ NO_PREFETCH = textwrap.dedent("""
 
 SLOW_WRITE = textwrap.dedent("""
     import sys, time
-    from gamma.driver import setup_cache
+    from gamma.driver import prefetch, setup_cache
     write = setup_cache._write
     def slow(*args):
         time.sleep(1.5)                               # still writing when the run is done

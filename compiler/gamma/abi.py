@@ -117,9 +117,11 @@ STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions
 #: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.
 BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
-               "SurfelSample", "SetupSnapshot", "encode_pngs"),
+               "SurfelSample", "SetupSnapshot", "encode_pngs", "RUNTIME_BUILD", "setup_cache_name",
+               "read_mesh_ahead"),
     "SurfelSample": ("ok", "matches", "seconds"),
-    "SetupSnapshot": ("read", "matches", "prepare", "prepared", "taken", "surfels", "make_ahead", "made_ahead"),
+    "SetupSnapshot": ("read", "load_cached", "matches", "prepare", "prepared", "taken", "surfels", "make_ahead",
+                      "made_ahead"),
     "Mesh": ("load", "from_arrays", "num_vertices", "num_triangles", "degenerate_dropped", "bounds",
              "vertices", "fingerprint", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),
     "Config": ("surfels", "seed", "threads", "max_interactions", "row_width", "surface_rows", "down",

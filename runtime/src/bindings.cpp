@@ -17,6 +17,7 @@
 #include "gamma/mesh.h"
 #include "gamma/png_encode.h"
 #include "gamma/sampling.h"
+#include "gamma/setup_cache.h"
 #include "gamma/remesh.h"
 #include "gamma/shape_step.h"
 #include "gamma/simulation.h"
@@ -470,7 +471,53 @@ NB_MODULE(_runtime, m) {
             "The setup a Simulation of `mesh` with `sample`'s surfels (moved out) makes when every triangle is "
             "on one surface, made now and prepared (prefetch.py); raises ValueError if the sample holds none.")
         .def_prop_ro("made_ahead", &gammart::SetupSnapshot::made_ahead,
-                     "Whether make_ahead made it (not the setup cache).");
+                     "Whether make_ahead made it (not the setup cache).")
+        .def_static(
+            "load_cached",
+            [](const std::string& folder, const gammart::Mesh& mesh, int64_t surfels, uint64_t seed) -> nb::object {
+                std::unique_ptr<gammart::SetupSnapshot> snapshot;
+                if (surfels > 0) {
+                    nb::gil_scoped_release nogil;
+                    snapshot = gammart::load_cached_setup(folder, mesh, size_t(surfels), seed);
+                }
+                return snapshot ? nb::cast(std::move(*snapshot), nb::rv_policy::move) : nb::none();
+            },
+            "folder"_a, "mesh"_a, "surfels"_a, "seed"_a,
+            "The snapshot the setup cache in `folder` keeps for this mesh, count and seed (setup_cache_name), or "
+            "None: none kept, a file that cannot be read (left alone), or one damaged, cut short or not a "
+            "snapshot of this build (removed).  A file taken is marked recently used.  Never raises.");
+
+    m.attr("RUNTIME_BUILD") = gammart::runtime_build();
+    m.def(
+        "setup_cache_name",
+        [](const gammart::Mesh& mesh, int64_t surfels, uint64_t seed) {
+            nb::gil_scoped_release nogil;
+            return gammart::setup_cache_name(mesh, surfels > 0 ? size_t(surfels) : 0, seed);
+        },
+        "mesh"_a, "surfels"_a, "seed"_a,
+        "The setup cache's file name for this mesh, count and seed: "
+        "setup-{RUNTIME_BUILD}-{mesh.fingerprint()}-{surfels}-{seed}.bin (empty: the build is unknown, no cache).");
+    m.def(
+        "read_mesh_ahead",
+        [](const std::string& path, const std::string& cache_folder, int64_t surfels, uint64_t seed, int threads) {
+            gammart::MeshAhead ahead;
+            {
+                // the whole chain without the GIL: gammac's main thread is importing meanwhile
+                nb::gil_scoped_release nogil;
+                ahead = gammart::read_mesh_ahead(path, cache_folder, surfels > 0 ? size_t(surfels) : 0, seed,
+                                                 threads);
+            }
+            if (!ahead.mesh) return nb::make_tuple(nb::none(), nb::none(), nb::none());
+            const gammart::FileSignature& s = ahead.signature;
+            return nb::make_tuple(nb::cast(std::move(*ahead.mesh), nb::rv_policy::move),
+                                  nb::make_tuple(s.size, s.mtime_ns, s.inode, s.device),
+                                  ahead.setup ? nb::cast(std::move(*ahead.setup), nb::rv_policy::move) : nb::none());
+        },
+        "path"_a, "cache_folder"_a, "surfels"_a, "seed"_a, "threads"_a,
+        "gammac run's read-ahead (gamma/setup_cache.h): (mesh, (size, mtime_ns, inode, device) of the file as "
+        "read, the setup cache's SetupSnapshot for it prepared on `threads` threads or None), or (None, None, "
+        "None) when the file is not a regular file, cannot be read, or changed meanwhile.  `cache_folder` "
+        "empty or `surfels` 0: no setup is looked for.  Never raises.");
 
     nb::class_<gammart::Simulation>(m, "Simulation")
         .def(

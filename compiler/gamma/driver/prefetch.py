@@ -11,8 +11,10 @@ count and the seed, not the effect), and then makes the rest of the setup
 for every triangle on one surface (``SetupSnapshot.make_ahead``; not once
 the effect is known to have another number of surfaces: ``expect``), unless
 the setup cache keeps this
-mesh's setup (setup_cache.py): then that is read and prepared instead, on
-the same thread, and ``sample_for`` hands out the ``SetupSnapshot``.
+mesh's setup (setup_cache.py): then that is read and prepared instead, and
+``sample_for`` hands out the ``SetupSnapshot``.  The read, the cache file's
+name, its reading and checking and the preparing are one runtime call
+(``_runtime.read_mesh_ahead``), which holds no GIL while gammac imports.
 ``scene._load_mesh`` ``take``s the mesh
 instead of reading the file again, and the runner hands ``sample_for(mesh,
 ...)`` to the ``Simulation``, which uses the surfels only if they are the
@@ -52,41 +54,44 @@ _handed: list["_Read"] = []      # reads whose mesh ``take`` handed out, their s
 
 class _Read:
     """One file read ahead: ``mesh``, a Future of the Mesh (or None), and
-    once it is set, ``sampled``, a Future of its SurfelSample (None: none)."""
+    once it is set, ``sampled``, a Future of its SurfelSample or
+    SetupSnapshot (None: none)."""
 
     def __init__(self, path: str, surfels: int | None, seed: int, threads: int):
         self.path = path
         self.signature = None
         self.sampled: Future | None = None
-        self.mesh = background.start(self._work, surfels, seed, threads, name="gamma-mesh-read")
+        if surfels is not None and not worth_sampling(surfels, seed, threads):
+            surfels = None
+        # the cache's folder found here, on the main thread, which imports gamma.files anyway
+        from ..files import cache_dir
 
-    def _work(self, surfels, seed, threads):
+        folder = cache_dir() if surfels is not None else None
+        self.mesh = background.start(self._work, surfels, seed, threads, folder, name="gamma-mesh-read")
+
+    def _work(self, surfels, seed, threads, folder):
+        # The read, the setup cache's file named, read, checked and prepared: one
+        # runtime call, without the GIL.  As several calls from here, this thread
+        # waited, in a third of the runs, 0.1-0.2 s for the GIL between them while
+        # gammac imported (setup_cache.h).
         try:
-            from ..files import file_problem
-
-            if file_problem(self.path):      # a directory, a FIFO, missing: reported later
-                return None
-            signature = _signature(self.path)
             from .. import _runtime
 
-            mesh = _runtime.Mesh.load(self.path)
-            if _signature(self.path) != signature:
-                return None
+            mesh, signature, snapshot = _runtime.read_mesh_ahead(
+                self.path, str(folder) if folder is not None else "", surfels or 0,
+                seed if surfels is not None else 0, threads)
         except Exception:  # noqa: BLE001 - read again (and reported) by scene.py
             return None
+        if mesh is None:                 # a directory, a FIFO, missing, unreadable, changed: reported later
+            return None
         self.signature = signature
-        if surfels is not None and worth_sampling(surfels, seed, threads):
-            # The setup cache's snapshot, when one is kept, is read and prepared right here: on
-            # a thread of its own it waited, in a third of the runs, 0.1-0.2 s for the GIL
-            # (to start, and between its steps) while gammac imported.  Sampling takes longer:
-            # on a thread of its own, so the mesh is handed out before it ends.
-            snapshot = _cached_setup(mesh, surfels, seed, threads)
-            if snapshot is not None:
-                self.sampled = Future()
-                self.sampled.set_running_or_notify_cancel()
-                self.sampled.set_result(snapshot)
-            else:
-                self.sampled = background.start(_sample, mesh, surfels, seed, threads, name="gamma-surfel-sample")
+        if snapshot is not None:
+            self.sampled = Future()
+            self.sampled.set_running_or_notify_cancel()
+            self.sampled.set_result(snapshot)
+        elif surfels is not None:
+            # Sampling takes longer: on a thread of its own, so the mesh is handed out before it ends.
+            self.sampled = background.start(_sample, mesh, surfels, seed, threads, name="gamma-surfel-sample")
         return mesh
 
 
@@ -102,18 +107,6 @@ def _forget() -> None:
         read.mesh.exception()
         if read.sampled is not None:
             read.sampled.exception()
-
-
-def _cached_setup(mesh, surfels: int, seed: int, threads: int):
-    """The setup kept in the setup cache for this mesh, count and seed, as a
-    SetupSnapshot prepared (what the setup would build beside it is built
-    now, for the binding it holds), or None."""
-    from . import setup_cache
-
-    snapshot = setup_cache.load(mesh, surfels, seed)
-    if snapshot is not None:
-        snapshot.prepare(mesh, threads)
-    return snapshot
 
 
 #: Surfel counts up to which the rest of the setup is made ahead too (above,

@@ -6,13 +6,18 @@ The setup of 100,000 surfels on the bunny takes ~0.35 s on two cores, of
 1.6M surfels on a 1M-triangle mesh ~8 s; an artist runs one effect after
 another on the same mesh.  ``Simulation.setup_snapshot`` gives the setup as
 bytes (runtime/include/gamma/setup_snapshot.h); they are kept in
-``cache_dir()`` as ``setup-KEY.bin``, KEY a hash of the runtime build, the
-mesh's fingerprint (CRC-32s of its vertices, triangles and bounds), the
-count and the seed (the binding of
+``cache_dir()`` as ``setup-BUILD-MESH-COUNT-SEED.bin``: BUILD the runtime
+build (the linker's build ID of its module, ``_runtime.RUNTIME_BUILD``), MESH
+the mesh's fingerprint (CRC-32s of its vertices, triangles and bounds, with
+their counts), then the surfel count and the seed.  The runtime makes the
+name (``_runtime.setup_cache_name``), so that ``gammac run`` can read the
+file on its read-ahead thread in one call without the GIL
+(``_runtime.read_mesh_ahead``, prefetch.py).  The binding of
 triangles to surfaces, which comes from the effect, is inside the file: a
-run with another binding takes only the surfels, and stores its own setup).
+run with another binding takes only the surfels, and stores its own setup.
 A file is the snapshot followed by its CRC-32 and a mark; one that is
-damaged, cut short or of another build is never used (and is removed), and
+damaged or cut short is never used (and is removed; one of another build
+has another name, and goes when the cache is trimmed), and
 the runtime takes a snapshot only when the mesh, count, seed and binding
 are exactly its own, so a run set up from the cache is the same, bit for
 bit, as one set up from scratch.  ``GAMMA_CACHE_DIR=off`` turns it off
@@ -27,7 +32,6 @@ in memory until written), is not kept.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import struct
 import threading
@@ -38,7 +42,7 @@ from pathlib import Path
 from ..files import atomic_write, cache_dir
 
 #: Trailer after the snapshot: CRC-32 of the snapshot, then this mark (the
-#: runtime's SetupSnapshot.read checks both).
+#: runtime's SetupSnapshot.read and load_cached check both).
 MARK = b"GMSC"
 TRAILER = struct.Struct("<I4s")
 #: Default bound on the setup files kept together, in bytes.
@@ -58,65 +62,34 @@ def limit_bytes() -> int:
         return LIMIT_BYTES
 
 
-_build: bytes | None = None
-
-
-def _runtime_build() -> bytes:
-    """The runtime build: a hash of its module file (its version string stays
-    the same across builds whose sampling or lookup differ)."""
-    global _build
-    if _build is None:
-        from .. import _runtime
-
-        with open(_runtime.__file__, "rb") as f:
-            _build = hashlib.sha256(f.read()).digest()
-    return _build
-
-
 def path_for(mesh, surfels: int, seed: int) -> Path | None:
     """The cache file of a setup of ``surfels`` surfels on ``mesh`` with
-    ``seed``, or None when the cache is off."""
+    ``seed``, or None when the cache is off (or the runtime does not know
+    its build)."""
     folder = cache_dir()
     if folder is None:
         return None
-    from .. import abi
+    from .. import _runtime
 
-    h = hashlib.sha256()
-    h.update(b"gamma setup 1|%d|" % abi.ABI_VERSION)
-    h.update(_runtime_build())
-    h.update(b"|%d|%d|" % (int(surfels), int(seed)))
-    h.update(mesh.fingerprint().encode())        # in the runtime: the prefetch thread needs no numpy
-    return folder / f"setup-{h.hexdigest()[:40]}.bin"
+    name = _runtime.setup_cache_name(mesh, int(surfels), int(seed))
+    return folder / name if name else None
 
 
 def load(mesh, surfels: int, seed: int):
     """The SetupSnapshot kept for this mesh, count and seed, or None (none
-    kept, the cache off, or a file that is not whole: then it is removed).
-    Never raises."""
-    try:
-        path = path_for(mesh, surfels, seed)
-        if path is None or not path.is_file():
-            return None
-    except (OSError, ValueError):
+    kept, the cache off, or a file that is not whole: then it is removed;
+    one that cannot be read is left alone).  Never raises."""
+    folder = cache_dir()
+    if folder is None:
         return None
     from .. import _runtime
 
     try:
-        # read straight into the runtime's arrays, its checksum checked there
-        snapshot = _runtime.SetupSnapshot.read(str(path))
-    except ValueError:                  # damaged, cut short, not a snapshot: replaced by this run's
-        try:
-            path.unlink()
-        except OSError:
-            pass
+        # read straight into the runtime's arrays, its checksum checked, a file
+        # refused removed and a file taken marked recently used: all there
+        return _runtime.SetupSnapshot.load_cached(str(folder), mesh, int(surfels), int(seed))
+    except (TypeError, ValueError, OverflowError):  # a count or seed the runtime cannot take
         return None
-    except RuntimeError:                # a file that cannot be read (another user's): left alone
-        return None
-    try:
-        os.utime(path)                  # recently used: removed last
-    except OSError:
-        pass
-    return snapshot
 
 
 def store(sim, mesh, surfels: int, seed: int) -> None:
