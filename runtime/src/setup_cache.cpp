@@ -14,7 +14,11 @@
 #include <fstream>
 #include <vector>
 
+#include <tbb/task_group.h>
+
 #include "gamma/error.h"
+#include "gamma/shading.h"
+#include "gamma/threads.h"
 
 namespace gammart {
 namespace {
@@ -126,23 +130,39 @@ std::string setup_cache_name(const Mesh& mesh, size_t surfels, uint64_t seed) {
            std::to_string(seed) + ".bin";
 }
 
+namespace {
+
+// The cache file for this mesh, count and seed in `folder` if there is one
+// (a regular file), else "".
+std::string cached_setup_path(const std::string& folder, const Mesh& mesh, size_t surfels, uint64_t seed) {
+    const std::string name = setup_cache_name(mesh, surfels, seed);
+    if (folder.empty() || name.empty()) return "";
+    const std::string path = folder + "/" + name;
+    struct stat st {};
+    return ::stat(path.c_str(), &st) == 0 && S_ISREG(st.st_mode) ? path : "";
+}
+
+// load_cached_setup's reading of `path` (cached_setup_path's).
+std::unique_ptr<SetupSnapshot> read_cached_setup(const std::string& path) {
+    try {
+        auto snapshot = std::make_unique<SetupSnapshot>(SetupSnapshot::read(path));
+        ::utimes(path.c_str(), nullptr);   // recently used: trimmed last (a failure only costs order)
+        return snapshot;
+    } catch (const Error&) {
+        ::unlink(path.c_str());            // damaged, cut short, not a snapshot: this run's replaces it
+    } catch (const std::exception&) {      // cannot be read (another user's file): left alone
+    }
+    return nullptr;
+}
+
+}  // namespace
+
 std::unique_ptr<SetupSnapshot> load_cached_setup(const std::string& folder, const Mesh& mesh, size_t surfels,
                                                  uint64_t seed) {
     try {
-        const std::string name = setup_cache_name(mesh, surfels, seed);
-        if (folder.empty() || name.empty()) return nullptr;
-        const std::string path = folder + "/" + name;
-        struct stat st {};
-        if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return nullptr;
-        try {
-            auto snapshot = std::make_unique<SetupSnapshot>(SetupSnapshot::read(path));
-            ::utimes(path.c_str(), nullptr);   // recently used: trimmed last (a failure only costs order)
-            return snapshot;
-        } catch (const Error&) {
-            ::unlink(path.c_str());            // damaged, cut short, not a snapshot: this run's replaces it
-            return nullptr;
-        }
-    } catch (const std::exception&) {          // cannot be read (another user's file): left alone
+        const std::string path = cached_setup_path(folder, mesh, surfels, seed);
+        return path.empty() ? nullptr : read_cached_setup(path);
+    } catch (const std::exception&) {
         return nullptr;
     }
 }
@@ -156,9 +176,24 @@ MeshAhead read_mesh_ahead(const std::string& path, const std::string& cache_fold
         if (!signature_of(path, before)) return ahead;
         auto mesh = std::make_unique<Mesh>(Mesh::load(path));
         if (!signature_of(path, after) || !(after == before)) return ahead;
-        if (!cache_folder.empty() && surfels > 0) {
-            ahead.setup = load_cached_setup(cache_folder, *mesh, surfels, seed);
-            if (ahead.setup) ahead.setup->prepare(*mesh, threads);
+        const std::string cached = surfels > 0 ? cached_setup_path(cache_folder, *mesh, surfels, seed) : "";
+        if (!cached.empty()) {
+            // The renders' corner normals need the mesh only: computed beside the
+            // file's reading, which is one core's work (their result never
+            // depends on the scheduling).
+            std::vector<float> normals;
+            run_with_threads(threads, [&] {
+                tbb::task_group beside;
+                beside.run([&] { normals = corner_normals(*mesh, {}, kDefaultCreaseDeg); });
+                try {
+                    ahead.setup = read_cached_setup(cached);
+                } catch (...) {
+                    beside.wait();
+                    throw;
+                }
+                beside.wait();
+            });
+            if (ahead.setup) ahead.setup->prepare(*mesh, threads, std::move(normals));
         }
         ahead.mesh = std::move(mesh);
         ahead.signature = before;

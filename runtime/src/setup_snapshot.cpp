@@ -398,6 +398,10 @@ void SetupSnapshot::move_lookup_into(SceneIndex& index) {
 }
 
 void SetupSnapshot::prepare(const Mesh& mesh, int threads) {
+    prepare(mesh, threads, {});
+}
+
+void SetupSnapshot::prepare(const Mesh& mesh, int threads, std::vector<float> default_corner_normals) {
     if (taken_ || index_ || !matches_surfels(mesh, n_, seed_)) return;
     try {
         auto index = std::make_unique<SceneIndex>();
@@ -406,10 +410,11 @@ void SetupSnapshot::prepare(const Mesh& mesh, int threads) {
         for (size_t i = 0; i < n_; ++i) surfel_surface[i] = tri_surface_[size_t(surf_.triangle[i])];
         // the Simulation's smoothing width, computed as it computes it
         const float sigma = float(std::sqrt(mesh.area() / double(n_)));
-        std::vector<float> normals;
+        std::vector<float> normals = std::move(default_corner_normals);
+        const bool have_normals = normals.size() == 9 * mesh.num_triangles();
         run_with_threads(threads, [&] {
             index->index_surfels(surf_.position.data(), surfel_surface.data(), n_, sigma);
-            normals = corner_normals(mesh, {}, kDefaultCreaseDeg);
+            if (!have_normals) normals = corner_normals(mesh, {}, kDefaultCreaseDeg);
         });
         // the lookup last: a failure above leaves the snapshot whole
         move_lookup_into(*index);

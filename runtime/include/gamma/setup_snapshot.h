@@ -91,6 +91,11 @@ public:
     // snapshot's; never throws (a failure leaves it unprepared, and the
     // Simulation builds as always, reporting any error there).
     void prepare(const Mesh& mesh, int threads);
+    // The same with the corner normals given: corner_normals(mesh, {},
+    // kDefaultCreaseDeg), computed beforehand (read_mesh_ahead computes them
+    // while it reads the snapshot); computed here if they are not 9 per
+    // triangle.
+    void prepare(const Mesh& mesh, int threads, std::vector<float> default_corner_normals);
     bool prepared() const { return index_ != nullptr; }
     // prepare's index and corner normals, moved out (once).
     std::unique_ptr<SceneIndex> take_index();
