@@ -146,6 +146,14 @@ TEST(SetupCache, TheReadAheadGivesTheMeshAndTheCachedSetupPreparedAndTheSameSetu
     EXPECT_EQ(from_loaded.from_snapshot(), Simulation::FromSnapshot::Setup);
     EXPECT_EQ(from_loaded.setup_snapshot(), restored.setup_snapshot());
 
+    // at one thread (the corner normals computed beside the file's reading, or after it): the same
+    MeshAhead one = read_mesh_ahead(kBunny, folder.path.string(), 3000, 5, 1);
+    ASSERT_TRUE(one.mesh && one.setup && one.setup->prepared());
+    Simulation from_one(*one.mesh, c, nullptr, one.setup.get());
+    EXPECT_EQ(from_one.from_snapshot(), Simulation::FromSnapshot::Setup);
+    EXPECT_EQ(from_one.corner_normals(), fresh.corner_normals());
+    EXPECT_EQ(from_one.setup_snapshot(), restored.setup_snapshot());
+
     // no setup looked for: no folder, no count; none kept for another seed or count
     for (const MeshAhead& other : {read_mesh_ahead(kBunny, "", 3000, 5, 2), read_mesh_ahead(kBunny, folder.path.string(), 0, 5, 2),
                                    read_mesh_ahead(kBunny, folder.path.string(), 3000, 6, 2),

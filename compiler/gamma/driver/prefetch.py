@@ -57,29 +57,28 @@ class _Read:
     once it is set, ``sampled``, a Future of its SurfelSample or
     SetupSnapshot (None: none)."""
 
-    def __init__(self, path: str, surfels: int | None, seed: int, threads: int):
+    def __init__(self, path: str, read_mesh_ahead, surfels: int | None, seed: int, threads: int):
         self.path = path
         self.signature = None
         self.sampled: Future | None = None
         if surfels is not None and not worth_sampling(surfels, seed, threads):
             surfels = None
-        # the cache's folder found here, on the main thread, which imports gamma.files anyway
+        # The cache's folder found here, on the main thread, which imports gamma.files
+        # anyway: the thread goes straight into the runtime.
         from ..files import cache_dir
 
         folder = cache_dir() if surfels is not None else None
-        self.mesh = background.start(self._work, surfels, seed, threads, folder, name="gamma-mesh-read")
+        self.mesh = background.start(self._work, read_mesh_ahead, surfels, seed, threads,
+                                     str(folder) if folder is not None else "", name="gamma-mesh-read")
 
-    def _work(self, surfels, seed, threads, folder):
+    def _work(self, read_mesh_ahead, surfels, seed, threads, folder):
         # The read, the setup cache's file named, read, checked and prepared: one
         # runtime call, without the GIL.  As several calls from here, this thread
         # waited, in a third of the runs, 0.1-0.2 s for the GIL between them while
         # gammac imported (setup_cache.h).
         try:
-            from .. import _runtime
-
-            mesh, signature, snapshot = _runtime.read_mesh_ahead(
-                self.path, str(folder) if folder is not None else "", surfels or 0,
-                seed if surfels is not None else 0, threads)
+            mesh, signature, snapshot = read_mesh_ahead(self.path, folder, surfels or 0,
+                                                        seed if surfels is not None else 0, threads)
         except Exception:  # noqa: BLE001 - read again (and reported) by scene.py
             return None
         if mesh is None:                 # a directory, a FIFO, missing, unreadable, changed: reported later
@@ -174,10 +173,17 @@ def start(path: str, surfels: int | None = None, seed: int = 1, threads: int = 0
     ``threads`` threads (0: all cores)."""
     if Path(path).suffix.lower() not in SUFFIXES:
         return
+    try:
+        # imported here, on the main thread, which imports it anyway (for the run)
+        from .. import _runtime
+
+        read_mesh_ahead = _runtime.read_mesh_ahead
+    except Exception:  # noqa: BLE001 - a runtime that does not load is reported by the runner
+        return
     with _lock:
         if _key(path) in _pending:
             return
-        _pending[_key(path)] = _Read(path, surfels, seed, threads)
+        _pending[_key(path)] = _Read(path, read_mesh_ahead, surfels, seed, threads)
 
 
 def take(path: Path | str):
