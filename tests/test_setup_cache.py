@@ -174,7 +174,7 @@ def test_the_read_ahead_gives_the_cached_setup_prepared_and_the_same_setup(tmp_p
     prefetch.start(str(BUNNY), 3000, 1, 2)
     mesh = prefetch.take(BUNNY)
     snapshot = prefetch.sample_for(mesh, 3000, 1)
-    assert isinstance(snapshot, rt.SetupSnapshot) and snapshot.prepared
+    assert isinstance(snapshot, rt.SetupSnapshot) and snapshot.prepared and not snapshot.made_ahead  # the cache's
     sim = rt.Simulation(mesh, config_for(mesh), None, snapshot)
     assert sim.from_snapshot == "setup" and snapshot.taken
     # the runner's own load (nothing read ahead) gives the same setup, unprepared
@@ -208,12 +208,15 @@ def test_the_read_ahead_refuses_what_it_cannot_use_and_never_raises(tmp_path, mo
     os.mkfifo(tmp_path / "pipe.obj")
     for bad in ("garbage.obj", "pipe.obj", "missing.obj", "."):
         assert rt.read_mesh_ahead(str(tmp_path / bad), str(tmp_path), 3000, 1, 2) == (None, None, None)
-    # prefetch: the mesh read ahead, the setup refused, the surfels sampled instead
+    # prefetch: the mesh read ahead, the setup refused, the surfels sampled instead (and, for
+    # one surface, the rest of the setup made ahead: not the cache's)
     path.write_bytes(whole[:-1])
     prefetch.start(str(BUNNY), 3000, 1, 2)
     mesh = prefetch.take(BUNNY)
     sample = prefetch.sample_for(mesh, 3000, 1)
-    assert isinstance(sample, rt.SurfelSample) and sample.ok and not path.exists()
+    assert not path.exists()
+    assert (sample.made_ahead if isinstance(sample, rt.SetupSnapshot)
+            else isinstance(sample, rt.SurfelSample) and sample.ok)
 
 
 NO_PREFETCH = textwrap.dedent("""
