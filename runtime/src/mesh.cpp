@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <charconv>
 #include <cfloat>
 #include <cmath>
 #include <cstdlib>
@@ -13,6 +14,7 @@
 #include <fstream>
 #include <mutex>
 #include <sstream>
+#include <string_view>
 #include <unordered_map>
 
 #include "gamma/error.h"
@@ -149,11 +151,47 @@ bool valid_utf8(const std::string& s) {
     return true;
 }
 
-std::string trim(const std::string& s, size_t a = 0) {
+std::string trim(std::string_view s, size_t a = 0) {
     while (a < s.size() && is_space(s[a])) ++a;
     size_t b = s.size();
     while (b > a && is_space(s[b - 1])) --b;
-    return s.substr(a, b - a);
+    return std::string(s.substr(a, b - a));
+}
+
+// The numbers of an OBJ line, read as strtod and strtoll read them (the
+// reader's results and errors are those it always gave), without the
+// copies: the lines are views of the file's text, not NUL-terminated, and
+// std::from_chars reads a plain decimal number the same (both round
+// correctly).  Anything else -- a leading '+', hex, out of range, text
+// right after the number -- is read by strtod / strtoll on a copy, as before.
+
+// strtod(p) on the line that ends at `end`: false if it reads nothing, else
+// the value, and p moved past what it read.
+bool read_double(const char*& p, const char* end, double& value) {
+    const char* q = p;
+    while (q < end && is_space(*q)) ++q;
+    const auto fast = std::from_chars(q, end, value);
+    if (fast.ec == std::errc() && (fast.ptr == end || is_space(*fast.ptr))) {
+        p = fast.ptr;
+        return true;
+    }
+    const std::string rest(p, end);
+    char* stop = nullptr;
+    value = std::strtod(rest.c_str(), &stop);
+    if (stop == rest.c_str()) return false;
+    p += stop - rest.c_str();
+    return true;
+}
+
+// strtoll(s, &stop, 10) with *stop == '\0' afterwards (all of s read, as far
+// as C sees it).
+bool read_whole_integer(std::string_view s, long long& value) {
+    const auto fast = std::from_chars(s.data(), s.data() + s.size(), value);
+    if (fast.ec == std::errc() && fast.ptr == s.data() + s.size()) return true;
+    const std::string copy(s);
+    char* stop = nullptr;
+    value = std::strtoll(copy.c_str(), &stop, 10);
+    return *stop == '\0';
 }
 
 }  // namespace
@@ -210,48 +248,46 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
     std::vector<int64_t> tri_vt, face_vt;
     std::vector<Pending> vt_src, face_vt_src;
     bool all_corners_have_vt = true;
+    const std::string_view all(text);
     while (pos < text.size()) {
         size_t eol = text.find('\n', pos);
         if (eol == std::string::npos) eol = text.size();
-        std::string line = text.substr(pos, eol - pos);
+        std::string_view line = all.substr(pos, eol - pos);
         pos = eol + 1;
         ++line_no;
         size_t hash = line.find('#');
-        if (hash != std::string::npos) line.resize(hash);
+        if (hash != std::string_view::npos) line = line.substr(0, hash);
         size_t a = 0;
         while (a < line.size() && is_space(line[a])) ++a;
         size_t b = a;
         while (b < line.size() && !is_space(line[b])) ++b;
-        const std::string kw = line.substr(a, b - a);
+        const std::string_view kw = line.substr(a, b - a);
+        const char* const line_end = line.data() + line.size();
         if (kw == "v") {
-            const char* p = line.c_str() + b;
+            const char* p = line.data() + b;
             float xyz[3];
             for (int k = 0; k < 3; ++k) {
-                char* endp = nullptr;
-                double c = std::strtod(p, &endp);
-                if (endp == p)
+                double c = 0;
+                if (!read_double(p, line_end, c))
                     throw Error(where + "line " + std::to_string(line_no) + ": cannot read vertex coordinates");
                 if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
                     throw Error(non_finite_vertex(name, verts.size() / 3));
                 xyz[k] = float(c);
-                p = endp;
             }
             verts.insert(verts.end(), xyz, xyz + 3);
         } else if (kw == "vt") {
             // vt u [v [w]]: v defaults to 0, w is ignored.
-            const char* p = line.c_str() + b;
+            const char* p = line.data() + b;
             float uv[2] = {0.0f, 0.0f};
             for (int k = 0; k < 2; ++k) {
-                char* endp = nullptr;
-                double c = std::strtod(p, &endp);
-                if (endp == p) {
+                double c = 0;
+                if (!read_double(p, line_end, c)) {
                     if (k == 1) break;
                     throw Error(where + "line " + std::to_string(line_no) + ": cannot read texture coordinates");
                 }
                 if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
                     throw Error(where + "line " + std::to_string(line_no) + ": texture coordinate is not finite");
                 uv[k] = float(c);
-                p = endp;
             }
             texcoords.insert(texcoords.end(), uv, uv + 2);
         } else if (kw == "f") {
@@ -261,30 +297,31 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
             face_vt_src.clear();
             // The whitespace-separated tokens `istringstream >> std::string` would give
             // (lines hold no '\n'), without a stream per face: ~70 ms on the bunny.
-            std::string tok;
             for (size_t q = b;;) {
                 while (q < line.size() && is_space(line[q])) ++q;
                 if (q >= line.size()) break;
                 size_t e = q;
                 while (e < line.size() && !is_space(line[e])) ++e;
-                tok.assign(line, q, e - q);
+                const std::string_view tok = line.substr(q, e - q);
                 q = e;
+                auto unreadable = [&] {
+                    return Error(where + "face on line " + std::to_string(line_no) + ": cannot read '" +
+                                 std::string(tok) + "'");
+                };
                 // Texture index: between the first and the second '/'.
                 const size_t s1 = tok.find('/');
-                std::string tpart;
-                if (s1 != std::string::npos) {
+                std::string_view tpart;
+                if (s1 != std::string_view::npos) {
                     const size_t s2 = tok.find('/', s1 + 1);
-                    tpart = tok.substr(s1 + 1, s2 == std::string::npos ? std::string::npos : s2 - s1 - 1);
+                    tpart = tok.substr(s1 + 1, s2 == std::string_view::npos ? std::string_view::npos : s2 - s1 - 1);
                 }
                 if (tpart.empty()) {
                     all_corners_have_vt = false;
                     face_vt.push_back(0);
                     face_vt_src.push_back({line_no, 0});
                 } else {
-                    char* tend = nullptr;
-                    long long tidx = std::strtoll(tpart.c_str(), &tend, 10);
-                    if (*tend != '\0')
-                        throw Error(where + "face on line " + std::to_string(line_no) + ": cannot read '" + tok + "'");
+                    long long tidx = 0;
+                    if (!read_whole_integer(tpart, tidx)) throw unreadable();
                     const int64_t nt = int64_t(texcoords.size() / 2);
                     int64_t tz = tidx < 0 ? nt + tidx : tidx - 1;
                     if (tidx < 0 && tz < 0)
@@ -294,11 +331,9 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
                     face_vt.push_back(tz);
                     face_vt_src.push_back({line_no, tidx});
                 }
-                const std::string first = tok.substr(0, tok.find('/'));
-                char* endp = nullptr;
-                long long idx = std::strtoll(first.c_str(), &endp, 10);
-                if (first.empty() || *endp != '\0')
-                    throw Error(where + "face on line " + std::to_string(line_no) + ": cannot read '" + tok + "'");
+                const std::string_view first = tok.substr(0, tok.find('/'));
+                long long idx = 0;
+                if (first.empty() || !read_whole_integer(first, idx)) throw unreadable();
                 const int64_t nv = int64_t(verts.size() / 3);
                 int64_t zero_based;
                 if (idx < 0) {

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <functional>
 #include <limits>
@@ -162,6 +163,39 @@ TEST(Mesh, ObjIndexOutOfRange) {
     msg = gamma_test::expect_error([] { Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", "p.obj"); });
     EXPECT_EQ(msg.find('\n'), std::string::npos);
     EXPECT_NE(msg.find("line 4"), std::string::npos) << msg;
+}
+
+// The reader takes plain decimal numbers without copying the line (mesh.cpp,
+// read_double / read_whole_integer); what strtod and strtoll accept besides
+// (a leading '+', hex, out of range, text after a number) reads as it did.
+TEST(Mesh, ObjNumbersReadAsStrtodAndStrtollReadThem) {
+    auto f = [](const char* text) { return float(std::strtod(text, nullptr)); };
+    Mesh m = Mesh::parse_obj(
+        "v +1 0x1p3 -.5e1\n"
+        "v 1e-400 4.9e-324 .5\r\n"
+        "v 0.1 0.30000000000000004 3.4028234e38x\n"   // text right after the last number: ignored, as ever
+        "v\t7\t 8  9 # comment\n"
+        "vt +0.25 0x1p-1\nvt 1\nvt 0 1\n"
+        "f +1/+1 2/2 -1/-1\n",
+        "numbers.obj");
+    const std::vector<float> vertices = {1.0f, 8.0f, -5.0f, 0.0f, 0.0f, 0.5f, f("0.1"), f("0.30000000000000004"),
+                                         f("3.4028234e38"), 7.0f, 8.0f, 9.0f};
+    EXPECT_EQ(m.vertices, vertices);
+    EXPECT_EQ(m.triangles, (std::vector<int32_t>{0, 1, 3}));
+    ASSERT_TRUE(m.has_uvs());
+    EXPECT_EQ(m.uvs, (std::vector<float>{0.25f, 0.5f, 1.0f, 0.0f, 0.0f, 1.0f}));
+    const std::string three = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::parse_obj(three + "v 1,2,3\n", "p.obj"); }),
+              "mesh 'p.obj': line 4: cannot read vertex coordinates");
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::parse_obj(three + "f 1 2 3a\n", "p.obj"); }),
+              "mesh 'p.obj': face on line 4: cannot read '3a'");
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::parse_obj(three + "f 1 2/x 3\n", "p.obj"); }),
+              "mesh 'p.obj': face on line 4: cannot read '2/x'");
+    // strtoll's clamp of a huge index, reported as written then
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::parse_obj(three + "f 1 2 99999999999999999999\n", "p.obj"); }),
+              "mesh 'p.obj': face on line 4 has vertex index 9223372036854775807 out of range (3 vertices)");
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::parse_obj(three + "v 0 1e39 0\n", "p.obj"); }),
+              "mesh 'p.obj': vertex 3 has a non-finite coordinate");
 }
 
 TEST(Mesh, ExtentErrors) {
