@@ -120,7 +120,7 @@ BINDING = {
                "SurfelSample", "SetupSnapshot", "encode_pngs", "RUNTIME_BUILD", "setup_cache_name",
                "read_mesh_ahead"),
     "SurfelSample": ("ok", "matches", "seconds"),
-    "SetupSnapshot": ("read", "load_cached", "matches", "prepare", "prepared", "taken", "surfels", "make_ahead",
+    "SetupSnapshot": ("load_cached", "matches", "prepared", "taken", "surfels", "make_ahead",
                       "made_ahead"),
     "Mesh": ("load", "from_arrays", "num_vertices", "num_triangles", "degenerate_dropped", "bounds",
              "vertices", "fingerprint", "has_uvs", "triangle_uvs", "part_names", "triangle_labels", "triangles"),

@@ -431,16 +431,6 @@ NB_MODULE(_runtime, m) {
     nb::class_<gammart::SetupSnapshot>(m, "SetupSnapshot",
                                        "An earlier setup's surfels, lookup and splat kernel "
                                        "(gamma/setup_snapshot.h): Simulation.setup_snapshot's bytes, parsed.")
-        .def_static(
-            "read",
-            [](const std::string& path) {
-                // pure C++: gammac reads on a thread while it starts up
-                nb::gil_scoped_release nogil;
-                return gammart::SetupSnapshot::read(path);
-            },
-            "path"_a,
-            "Reads a setup cache file (setup_cache.py); raises ValueError if it cannot be read, is damaged, or "
-            "is not one whole, consistent snapshot of this build.")
         .def_prop_ro("surfels", &gammart::SetupSnapshot::surfels)
         .def(
             "matches",
@@ -450,15 +440,6 @@ NB_MODULE(_runtime, m) {
             "mesh"_a, "surfels"_a, "seed"_a,
             "Whether a Simulation of this mesh, count and seed would take at least its surfels.")
         .def_prop_ro("taken", &gammart::SetupSnapshot::taken, "Whether a Simulation took it (it is then empty).")
-        .def(
-            "prepare",
-            [](gammart::SetupSnapshot& s, const gammart::Mesh& mesh, int threads) {
-                nb::gil_scoped_release nogil;
-                s.prepare(mesh, threads);
-            },
-            "mesh"_a, "threads"_a,
-            "Builds now, for the binding it holds, what a Simulation of `mesh` would build next to it (BVH, "
-            "kd-trees, corner normals); never raises.")
         .def_prop_ro("prepared", &gammart::SetupSnapshot::prepared)
         .def_static(
             "make_ahead",

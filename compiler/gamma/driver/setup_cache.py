@@ -42,7 +42,7 @@ from pathlib import Path
 from ..files import atomic_write, cache_dir
 
 #: Trailer after the snapshot: CRC-32 of the snapshot, then this mark (the
-#: runtime's SetupSnapshot.read and load_cached check both).
+#: runtime's SetupSnapshot.load_cached checks both).
 MARK = b"GMSC"
 TRAILER = struct.Struct("<I4s")
 #: Default bound on the setup files kept together, in bytes.
