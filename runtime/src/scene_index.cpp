@@ -11,6 +11,7 @@
 
 #include "gamma/error.h"
 #include "gamma/float_points.h"
+#include "gamma/lookup_pruning.h"
 #include "gamma/point_columns.h"
 #include "gamma/threads.h"
 
@@ -42,7 +43,7 @@ struct PointTree {
 
 // Candidates of a sphere tested against its nearest this many surfels when
 // the lookup drops the ones that can never be the nearest.
-constexpr size_t kPruningSurfels = 8;
+constexpr size_t kPruningSurfels = LookupPruning::kNearest;
 // The lookup's column index: columns this many surfel spacings wide; the
 // nearest surfel to a sphere's centre searched first within this many
 // spacings, doubled up to kNearestAttempts times (then the kd-tree).
@@ -149,11 +150,9 @@ void SceneIndex::build_geometry(const Mesh& mesh, std::vector<int32_t> tri_surfa
     triangle_spheres(mesh, mesh.diagonal());
     lookup_grids_.clear();
     lookup_cells_.clear();
-    lookup_cand_.clear();
-    lookup_ids_.clear();
     lookup_packed_.clear();
     lookup_cell_at_.clear();
-    lookup_head_.assign(m, TriangleHead{});
+    lookup_head_.clear();   // no lookup until the surfels are searched: the kd-tree answers
     lookup_n_candidates_ = 0;
     rtcCommitGeometry(geom);
     geom_id_ = rtcAttachGeometry(scene_, geom);
@@ -421,7 +420,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
                     const float R2 = float(R * R);
                     found.clear();
-                    cols.within(c, R2, [&](uint32_t i, float d2) { found.push_back(distance_key(d2, i)); });
+                    cols.append_within(c, R2, found, [](uint32_t i, float d2) { return distance_key(d2, i); });
                     // Drop the surfels that are never the nearest in the
                     // sphere B(c, r): y loses to x everywhere in B when
                     // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
@@ -440,28 +439,21 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                         std::sort(found.begin(), found.end());
                     }
                     const double r = std::sqrt(double(L.reach2));
-                    // y can lose to x only if |c-y| + |c-x| > 2r (with
-                    // |y-x| >= |c-y| - |c-x| the test's left side is at most
-                    // 2r|y-x| otherwise, below its right side by the whole
-                    // margin): the pairs that cannot pass skip the distance.
-                    double from_c[kPruningSurfels];
-                    for (size_t k = 0; k < nx; ++k) from_c[k] = std::sqrt(double(key_distance(found[k])));
-                    kept.clear();
-                    for (const uint64_t f : found) {
-                        const float* y = &tree.pos[3 * size_t(key_index(f))];
-                        const double cy2 = double(key_distance(f));
-                        const double cy = std::sqrt(cy2);
-                        bool never = false;
-                        for (size_t k = 0; k < nx && !never; ++k) {
-                            if (found[k] == f || cy + from_c[k] <= 2.0 * r) continue;
-                            const float* x = &tree.pos[3 * size_t(key_index(found[k]))];
-                            const double ex = double(y[0]) - x[0], ey = double(y[1]) - x[1], ez = double(y[2]) - x[2];
-                            const double yx = std::sqrt(ex * ex + ey * ey + ez * ez);
-                            const double scale = r + cy + yx;
-                            never = cy2 - double(key_distance(found[k])) > 2.0 * r * yx + 1e-3 * scale * scale;
-                        }
-                        if (!never) kept.push_back(f);
+                    LookupPruning::Nearest X;
+                    for (size_t k = 0; k < nx; ++k)
+                        X.set(k, &tree.pos[3 * size_t(key_index(found[k]))], key_distance(found[k]));
+                    X.close(nx);
+                    // written at every step, kept by advancing the cursor
+                    // (no branch on the outcome)
+                    kept.resize(found.size());
+                    size_t n_kept = 0;
+                    for (size_t p = 0; p < found.size(); ++p) {
+                        const uint64_t f = found[p];
+                        kept[n_kept] = f;
+                        n_kept += !LookupPruning::never(X, &tree.pos[3 * size_t(key_index(f))],
+                                                        double(key_distance(f)), p, r);
                     }
+                    kept.resize(n_kept);
                     found.swap(kept);
                     if (found.size() > limit || found.empty()) return found.size();
                     if (ball2) *ball2 = R2;
@@ -574,9 +566,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     // The blocks laid out as the scan reads them (see TriangleHead): per
     // triangle its head, the candidates past the head's in triangle order,
     // then each cell's block in cell order -- the blocks' offsets counted
-    // first, then every block written in parallel (what used to be one
-    // serial copy into lookup_cand_ / lookup_ids_ and one serial pass
-    // packing them: the same entries at the same places).
+    // first, then every block written in parallel.
     constexpr uint32_t K = kInlineCandidates;
     struct BlockAt {
         size_t cand = 0, grids = 0, cells = 0, tail = 0, cell_entries = 0;
@@ -604,6 +594,8 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     lookup_grids_.resize(at[nblocks].grids);
     lookup_cells_.resize(at[nblocks].cells);
     lookup_cell_at_.assign(at[nblocks].cells, kNoBlock);
+    // (both left unwritten by their allocator: the loop below writes every
+    // head and entry, in parallel)
     decltype(lookup_packed_) packed(entries);
     if (lookup_head_.size() != m) lookup_head_.resize(m);
     tbb::parallel_for(size_t(0), nblocks, [&](size_t b) {
@@ -649,9 +641,6 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     });
     lookup_packed_.swap(packed);
     lookup_n_candidates_ = n_cand;
-    // The entries are held once, packed.
-    std::vector<Candidate>().swap(lookup_cand_);
-    std::vector<uint32_t>().swap(lookup_ids_);
 }
 
 static_assert(sizeof(SceneIndex::PackedEntry) == 20, "packed lookup entries are 20 bytes");
@@ -772,7 +761,6 @@ bool SceneIndex::same_lookup(const SceneIndex& o) const {
 size_t SceneIndex::lookup_bytes() const {
     return lookup_tri_.capacity() * sizeof(TriangleLookup) + lookup_vertices_.capacity() * sizeof(float) +
            lookup_grids_.capacity() * sizeof(TriangleGrid) + lookup_cells_.capacity() * sizeof(TriangleLookup) +
-           lookup_cand_.capacity() * sizeof(Candidate) + lookup_ids_.capacity() * sizeof(uint32_t) +
            lookup_packed_.capacity() * sizeof(PackedEntry) + lookup_head_.capacity() * sizeof(TriangleHead) +
            lookup_cell_at_.capacity() * sizeof(uint32_t) + lookup_ball2_.capacity() * sizeof(float);
 }

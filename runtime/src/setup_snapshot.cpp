@@ -393,8 +393,6 @@ void SetupSnapshot::move_lookup_into(SceneIndex& index) {
     index.lookup_ball2_ = std::move(lookup_ball2_);
     index.lookup_n_candidates_ = size_t(lookup_n_candidates_);
     index.lookup_reused_ = 0;
-    std::vector<SceneIndex::Candidate>().swap(index.lookup_cand_);
-    std::vector<uint32_t>().swap(index.lookup_ids_);
 }
 
 void SetupSnapshot::prepare(const Mesh& mesh, int threads) {

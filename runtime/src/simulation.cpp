@@ -19,35 +19,36 @@ namespace gammart {
 namespace {
 
 // Refuses a surface that has triangles but received no surfel: its hits
-// would touch another surface's surfel and run that surface's rules.
+// would touch another surface's surfel and run that surface's rules.  The
+// areas are only for the message: summed once a surface is refused.
 void require_surfels_on_every_surface(const Mesh& mesh, const SceneIndex& index, int64_t surfels) {
     const std::vector<size_t> per = index.surfels_per_surface();
     const std::vector<int32_t>& tri_surface = index.tri_surface();
     std::vector<size_t> triangles(per.size(), 0);
-    std::vector<double> area(per.size(), 0.0);
-    for (size_t t = 0; t < tri_surface.size(); ++t) {
-        const size_t s = size_t(tri_surface[t]);
-        ++triangles[s];
-        const float* a = &mesh.vertices[3 * size_t(mesh.triangles[3 * t])];
-        const float* b = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + 1])];
-        const float* c = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + 2])];
-        const double u[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
-        const double v[3] = {double(c[0]) - a[0], double(c[1]) - a[1], double(c[2]) - a[2]};
-        const double x = u[1] * v[2] - u[2] * v[1], y = u[2] * v[0] - u[0] * v[2], z = u[0] * v[1] - u[1] * v[0];
-        area[s] += 0.5 * std::sqrt(x * x + y * y + z * z);
-    }
-    const double total = mesh.area();
+    for (const int32_t s : tri_surface) ++triangles[size_t(s)];
     for (size_t s = 0; s < per.size(); ++s) {
         if (triangles[s] == 0 || per[s] > 0) continue;
+        double area = 0.0;
+        for (size_t t = 0; t < tri_surface.size(); ++t) {
+            if (size_t(tri_surface[t]) != s) continue;
+            const float* a = &mesh.vertices[3 * size_t(mesh.triangles[3 * t])];
+            const float* b = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + 1])];
+            const float* c = &mesh.vertices[3 * size_t(mesh.triangles[3 * t + 2])];
+            const double u[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
+            const double v[3] = {double(c[0]) - a[0], double(c[1]) - a[1], double(c[2]) - a[2]};
+            const double x = u[1] * v[2] - u[2] * v[1], y = u[2] * v[0] - u[0] * v[2], z = u[0] * v[1] - u[1] * v[0];
+            area += 0.5 * std::sqrt(x * x + y * y + z * z);
+        }
+        const double total = mesh.area();
         // the count printed as an integer (bounded): "%.0f" of a huge ratio could overflow the buffer
         const long long needed =
-            static_cast<long long>(std::min(std::ceil(4.0 * total / std::max(area[s], 1e-300)), 1e18));
+            static_cast<long long>(std::min(std::ceil(4.0 * total / std::max(area, 1e-300)), 1e18));
         char buf[512];
         std::snprintf(buf, sizeof buf,
                       "config: surface %zu has %zu triangle(s) (%.3g%% of the scene's area) but received no "
                       "surfel at %lld surfels, so its rules could never run on it; raise the surfel count to "
                       "about %lld or more, or assign those triangles to another surface",
-                      s, triangles[s], 100.0 * area[s] / total, static_cast<long long>(surfels), needed);
+                      s, triangles[s], 100.0 * area / total, static_cast<long long>(surfels), needed);
         throw Error(buf);
     }
 }

@@ -34,7 +34,7 @@ void radius_search(const FloatPointsKdTree& tree, const float* q, float r2,
 }
 void radius_search(const PointColumns& cols, const float* q, float r2,
                    std::vector<std::pair<uint32_t, float>>& found) {
-    cols.within(q, r2, [&](uint32_t i, float d2) { found.emplace_back(i, d2); });
+    cols.append_within(q, r2, found, [](uint32_t i, float d2) { return std::pair<uint32_t, float>(i, d2); });
 }
 
 template <class Search>

@@ -1,6 +1,7 @@
 // The column index's radius queries give exactly the set a nanoflann kd-tree's
 // radius search gives (its float metric and strict `<`), which is what lets
-// the triangle lookup and the splat kernel use either with the same result.
+// the triangle lookup and the splat kernel use either with the same result;
+// append_within gives what within does, in the same order.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -40,6 +41,14 @@ size_t expect_same_sets(const std::vector<float>& pts, const std::vector<float>&
             Found a, b;
             kd.radiusSearch(&queries[3 * q], r2, a, nanoflann::SearchParams(32, 0.0f, false));
             cols.within(&queries[3 * q], r2, [&](uint32_t i, float d2) { b.emplace_back(i, d2); });
+            // append_within: the same entries in the same order, after what
+            // the vector held
+            Found appended = {{123456u, -1.0f}};
+            cols.append_within(&queries[3 * q], r2, appended,
+                               [](uint32_t i, float d2) { return std::pair<uint32_t, float>(i, d2); });
+            Found expected = {{123456u, -1.0f}};
+            expected.insert(expected.end(), b.begin(), b.end());
+            EXPECT_EQ(appended, expected) << "query " << q << " radius " << r;
             a = sorted(a);
             b = sorted(b);
             EXPECT_EQ(a, b) << "query " << q << " radius " << r;
@@ -106,4 +115,7 @@ TEST(PointColumns, DegenerateSets) {
     size_t n = 0;
     empty.within(queries.data(), 1.0f, [&](uint32_t, float) { ++n; });
     EXPECT_EQ(n, 0u);
+    std::vector<uint32_t> none;
+    empty.append_within(queries.data(), 1.0f, none, [](uint32_t i, float) { return i; });
+    EXPECT_TRUE(none.empty());
 }

@@ -8,6 +8,7 @@
 // either and get the same result; the search box is padded far beyond float
 // rounding, and the final test is that metric itself.
 #pragma once
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -38,6 +39,39 @@ public:
     // particular order.
     template <class F>
     void within(const float q[3], float r2, F&& f) const {
+        scan(q, r2, [&](uint32_t lo, uint32_t end, float c1) {
+            for (uint32_t k = lo; k < end && !(key_[k] > c1); ++k) {
+                const float d2 = metric(q, &pos_[3 * size_t(k)]);
+                if (d2 < r2) f(id_[k], d2);
+            }
+        });
+    }
+
+    // Appends make(index, d2) to `out` for the points `within` finds, in
+    // within's order.  Every point scanned is written and the end advanced
+    // only past the ones inside: no branch on each point's outcome (taken
+    // or not at random, those branches cost more than the writes).
+    template <class T, class Make>
+    void append_within(const float q[3], float r2, std::vector<T>& out, Make&& make) const {
+        size_t n = out.size();
+        scan(q, r2, [&](uint32_t lo, uint32_t end, float c1) {
+            if (out.size() < n + (end - lo)) out.resize(std::max(2 * out.size(), n + (end - lo)));
+            T* o = out.data();
+            for (uint32_t k = lo; k < end && !(key_[k] > c1); ++k) {
+                const float d2 = metric(q, &pos_[3 * size_t(k)]);
+                o[n] = make(id_[k], d2);
+                n += d2 < r2;
+            }
+        });
+        out.resize(n);
+    }
+
+private:
+    // visit(lo, end, c1) for each column the query's box meets: lo is its
+    // first point with a key at least the box's lower end in w, end the
+    // column's end; the caller scans from lo while the key is <= c1.
+    template <class Visit>
+    void scan(const float q[3], float r2, Visit&& visit) const {
         if (id_.empty() || !(r2 > 0)) return;
         // |q_k - p_k| <= sqrt(d2) * (1 + 2e-7) for the float metric: a pad
         // of 1e-5 relative covers it many times over.
@@ -49,22 +83,21 @@ public:
         for (int i = i0; i <= i1; ++i)
             for (int j = j0; j <= j1; ++j) {
                 const size_t col = size_t(i) * size_t(nv_) + size_t(j);
-                uint32_t lo = start_[col], hi = start_[col + 1];
-                if (lo == hi) continue;
-                // first point with key >= c0 (keys: the third coordinate)
-                while (lo < hi) {
-                    const uint32_t mid = lo + (hi - lo) / 2;
-                    if (key_[mid] < c0) lo = mid + 1;
-                    else hi = mid;
+                const uint32_t begin = start_[col], end = start_[col + 1];
+                if (begin == end) continue;
+                // the first point with key >= c0 (keys: the third
+                // coordinate), by halving without a branch on the
+                // comparisons (a conditional move each)
+                const float* base = key_.data() + begin;
+                for (uint32_t len = end - begin; len > 1;) {
+                    const uint32_t half = len / 2;
+                    base = base[half] < c0 ? base + half : base;
+                    len -= half;
                 }
-                for (uint32_t k = lo, end = start_[col + 1]; k < end && !(key_[k] > c1); ++k) {
-                    const float d2 = metric(q, &pos_[3 * size_t(k)]);
-                    if (d2 < r2) f(id_[k], d2);
-                }
+                visit(uint32_t(base - key_.data()) + (*base < c0 ? 1u : 0u), end, c1);
             }
     }
 
-private:
     int column_of(double x, double lo, int n) const {
         const double t = std::floor((x - lo) * inv_side_);
         if (!(t >= 0)) return 0;  // also NaN

@@ -170,15 +170,16 @@ public:
     int surfel_builds() const { return surfel_builds_; }
 
     struct Trees;
-    // One lookup entry: a candidate surfel's position and its distance from
-    // the triangle's centre (entries sorted by it, so a scan stops early);
-    // its global index is in lookup_ids_ at the same place.
+    // One lookup entry while the lookup is built: a candidate surfel's
+    // position and its distance from the triangle's centre (entries sorted
+    // by it, so a scan stops early); its global index is kept beside it.
     struct Candidate {
         float x, y, z, from_centre;
     };
     // Per triangle (or cell): bounding sphere (centre, squared reach) and
-    // its candidates lookup_cand_[begin, begin + count); count 0 = the
-    // triangle's grid if it has one (grid != kNoGrid), else the kd-tree.
+    // its candidates, [begin, begin + count) of all candidates in triangle
+    // and cell order (held packed: lookup_head_ / lookup_packed_); count 0 =
+    // the triangle's grid if it has one (grid != kNoGrid), else the kd-tree.
     static constexpr uint32_t kNoGrid = UINT32_MAX;
     struct TriangleLookup {
         float cx, cy, cz, reach2;
@@ -249,10 +250,8 @@ private:
     std::vector<float> lookup_vertices_;        // 9 per triangle: its corners
     std::vector<TriangleGrid> lookup_grids_;
     std::vector<TriangleLookup> lookup_cells_;
-    std::vector<Candidate> lookup_cand_;
-    std::vector<uint32_t> lookup_ids_;
     // The packed form the scan reads (compute_lookup writes it straight
-    // from its blocks; lookup_cand_ and lookup_ids_ stay empty).
+    // from its blocks).
     std::vector<PackedEntry, HugePageAllocator<PackedEntry>> lookup_packed_;
     std::vector<TriangleHead, HugePageAllocator<TriangleHead>> lookup_head_;  // per triangle
     std::vector<uint32_t> lookup_cell_at_;   // per cell: its block or kNoBlock
