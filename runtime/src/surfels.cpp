@@ -51,6 +51,7 @@
 #include <tbb/parallel_sort.h>
 
 #include "gamma/error.h"
+#include "gamma/huge_pages.h"
 #include "gamma/philox.h"
 
 #ifdef GAMMA_SURFEL_TIMING
@@ -105,13 +106,15 @@ inline uint64_t cell_key(uint64_t x, uint64_t y, uint64_t z) {
 // A heap array of n trivially copyable values left uninitialised: the
 // parallel loop that fills it is the first to touch its pages (a
 // std::vector would zero them all in one thread first, and the first touch
-// of fresh memory, the kernel's page faults included, costs about a
-// millisecond per MB here).
+// of fresh memory, the kernel's page faults included, costs about half a
+// millisecond per MB here).  From HugePageAllocator: an array of 2 MiB or
+// more is advised as transparent huge pages, whose first touch costs a
+// fraction of that.
 template <class T>
 class Uninitialised {
 public:
     Uninitialised() = default;
-    explicit Uninitialised(size_t n) : p_(new T[n]), n_(n) {}
+    explicit Uninitialised(size_t n) : p_(n ? HugePageAllocator<T>().allocate(n) : nullptr, Free{n}), n_(n) {}
     T& operator[](size_t i) { return p_[i]; }
     const T& operator[](size_t i) const { return p_[i]; }
     T* data() { return p_.get(); }
@@ -123,7 +126,11 @@ public:
     }
 
 private:
-    std::unique_ptr<T[]> p_;
+    struct Free {
+        size_t n = 0;
+        void operator()(T* p) const noexcept { HugePageAllocator<T>().deallocate(p, n); }
+    };
+    std::unique_ptr<T[], Free> p_;
     size_t n_ = 0;
 };
 
@@ -988,11 +995,11 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
     const size_t m = mesh.num_triangles();
     const float* V = mesh.vertices.data();
     const int32_t* T = mesh.triangles.data();
-    std::vector<double> cum(m);
+    Uninitialised<double> cum(m);
     // The corners of each triangle side by side: a candidate falls on a
     // random triangle, and reads one record instead of an index row and
     // three vertex rows at four random places.
-    std::vector<std::array<float, 9>> corners(m);
+    Uninitialised<std::array<float, 9>> corners(m);
     // Each triangle's half cross product length in parallel, then their
     // running sum in order (the same additions as one loop).
     tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
@@ -1026,7 +1033,7 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
     auto bound = [&](size_t b) { return double(b) * (total / double(n_buckets)); };
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_buckets + 1, 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t b = r.begin(); b < r.end(); ++b)
-            guide[b] = uint32_t(std::upper_bound(cum.begin(), cum.end(), bound(b)) - cum.begin());
+            guide[b] = uint32_t(std::upper_bound(cum.data(), cum.data() + m, bound(b)) - cum.data());
     });
     const size_t nc = kCandidatesPerSurfel * n;
     SurfelCandidates out;
@@ -1047,9 +1054,9 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
         size_t g = size_t(std::clamp(target / total * double(n_buckets), 0.0, double(n_buckets - 1)));
         while (g > 0 && bound(g) > target) --g;                     // bound(g) <= target
         while (g + 1 < n_buckets && !(bound(g + 1) > target)) ++g;  // target < bound(g + 1)
-        const auto first = cum.begin() + guide[g];
-        const auto last = g + 1 < n_buckets ? cum.begin() + guide[g + 1] : cum.end();
-        size_t t = size_t(std::upper_bound(first, last, target) - cum.begin());
+        const double* first = cum.data() + guide[g];
+        const double* last = g + 1 < n_buckets ? cum.data() + guide[g + 1] : cum.data() + m;
+        size_t t = size_t(std::upper_bound(first, last, target) - cum.data());
         if (t >= m) t = m - 1;
         double r1 = std::sqrt(double(u01(r[2]))), r2 = u01(r[3]);
         double ba = 1.0 - r1, bb = r1 * (1.0 - r2), bc = r1 * r2;
@@ -1066,7 +1073,7 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
 SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     if (n == 0) throw Error("surfel count must be at least 1");
     const size_t m = mesh.num_triangles();
-    std::vector<float> tri_normal(3 * m);
+    Uninitialised<float> tri_normal(3 * m);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
     for (size_t t = r.begin(); t < r.end(); ++t) {
         const float* a = &mesh.vertices[3 * size_t(mesh.triangles[3 * t])];
