@@ -1043,29 +1043,44 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
     std::vector<float>& cand = out.position;
     std::vector<int32_t>& cand_tri = out.triangle;
     const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
-    // Each candidate depends only on (seed, i): generated in parallel.
+    // Each candidate depends only on (seed, i): generated in parallel, in
+    // runs of kCandidateRun: first every candidate's triangle (the fetch of
+    // its corners started at once), then the points, by when the corners
+    // have arrived (a candidate's triangle is a random one: its record was a
+    // cache miss waited for in turn).
+    constexpr size_t kCandidateRun = 512;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nc, 4096), [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-        Philox4 r = philox4x32_10({kSamplingIteration, uint32_t(i), uint32_t(uint64_t(i) >> 32), 0}, key);
-        // 53-bit uniform for the triangle choice (24 bits are too coarse for
-        // very large meshes), 24-bit floats for the barycentrics.
-        double u = (double(r[0] >> 5) * 67108864.0 + double(r[1] >> 6)) * (1.0 / 9007199254740992.0);
-        double target = u * total;
-        size_t g = size_t(std::clamp(target / total * double(n_buckets), 0.0, double(n_buckets - 1)));
-        while (g > 0 && bound(g) > target) --g;                     // bound(g) <= target
-        while (g + 1 < n_buckets && !(bound(g + 1) > target)) ++g;  // target < bound(g + 1)
-        const double* first = cum.data() + guide[g];
-        const double* last = g + 1 < n_buckets ? cum.data() + guide[g + 1] : cum.data() + m;
-        size_t t = size_t(std::upper_bound(first, last, target) - cum.data());
-        if (t >= m) t = m - 1;
-        double r1 = std::sqrt(double(u01(r[2]))), r2 = u01(r[3]);
-        double ba = 1.0 - r1, bb = r1 * (1.0 - r2), bc = r1 * r2;
-        const float* a = corners[t].data();
-        const float* b = a + 3;
-        const float* c = a + 6;
-        for (int k = 0; k < 3; ++k) cand[3 * i + k] = float(ba * a[k] + bb * b[k] + bc * c[k]);
-        cand_tri[i] = int32_t(t);
-    }
+        uint32_t bary[kCandidateRun][2];
+        for (size_t run = range.begin(); run < range.end(); run += kCandidateRun) {
+            const size_t run_end = std::min(range.end(), run + kCandidateRun);
+            for (size_t i = run; i < run_end; ++i) {
+                Philox4 r = philox4x32_10({kSamplingIteration, uint32_t(i), uint32_t(uint64_t(i) >> 32), 0}, key);
+                // 53-bit uniform for the triangle choice (24 bits are too coarse for
+                // very large meshes), 24-bit floats for the barycentrics.
+                double u = (double(r[0] >> 5) * 67108864.0 + double(r[1] >> 6)) * (1.0 / 9007199254740992.0);
+                double target = u * total;
+                size_t g = size_t(std::clamp(target / total * double(n_buckets), 0.0, double(n_buckets - 1)));
+                while (g > 0 && bound(g) > target) --g;                     // bound(g) <= target
+                while (g + 1 < n_buckets && !(bound(g + 1) > target)) ++g;  // target < bound(g + 1)
+                const double* first = cum.data() + guide[g];
+                const double* last = g + 1 < n_buckets ? cum.data() + guide[g + 1] : cum.data() + m;
+                size_t t = size_t(std::upper_bound(first, last, target) - cum.data());
+                if (t >= m) t = m - 1;
+                __builtin_prefetch(corners[t].data());
+                __builtin_prefetch(corners[t].data() + 8);   // a record may straddle two lines
+                cand_tri[i] = int32_t(t);
+                bary[i - run][0] = r[2];
+                bary[i - run][1] = r[3];
+            }
+            for (size_t i = run; i < run_end; ++i) {
+                double r1 = std::sqrt(double(u01(bary[i - run][0]))), r2 = u01(bary[i - run][1]);
+                double ba = 1.0 - r1, bb = r1 * (1.0 - r2), bc = r1 * r2;
+                const float* a = corners[size_t(cand_tri[i])].data();
+                const float* b = a + 3;
+                const float* c = a + 6;
+                for (int k = 0; k < 3; ++k) cand[3 * i + k] = float(ba * a[k] + bb * b[k] + bc * c[k]);
+            }
+        }
     });
     return out;
 }
