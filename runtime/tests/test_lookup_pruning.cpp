@@ -46,12 +46,31 @@ float squared_distance(const float* a, const float* b) {
     return d;
 }
 
+// Both forms on each case, and how often the rule pruned.
+struct Tally {
+    size_t cases = 0, pruned = 0;
+    ::testing::AssertionResult same(const LookupPruning::Nearest& X, const float* y, double cy2, size_t self,
+                                    double r) {
+        const bool scalar = LookupPruning::never_scalar(X, y, cy2, self, r);
+        ++cases;
+        pruned += scalar;
+        if (LookupPruning::never(X, y, cy2, self, r) == scalar) return ::testing::AssertionSuccess();
+        return ::testing::AssertionFailure() << "the packed form says " << (scalar ? "keep" : "prune");
+    }
+    // many cases, both outcomes common: the comparison means something
+    void expect_both_outcomes() const {
+        EXPECT_GT(cases, 50000u);
+        EXPECT_GT(pruned, cases / 10);
+        EXPECT_LT(pruned, cases - cases / 10);
+    }
+};
+
 }  // namespace
 
 TEST(LookupPruning, PackedTestAnswersAsTheScalarRule) {
     std::mt19937 rng(14);
     std::uniform_real_distribution<float> u(-1.0f, 1.0f);
-    size_t cases = 0, pruned = 0;
+    Tally tally;
     for (int sphere = 0; sphere < 3000; ++sphere) {
         // points around a sphere of radius r (a triangle's) on a slightly
         // bent sheet, as surfels around a triangle
@@ -73,17 +92,11 @@ TEST(LookupPruning, PackedTestAnswersAsTheScalarRule) {
             const float* y = &pts[3 * order[p]];
             const double cy2 = double(squared_distance(s.c, y));
             const size_t self = p < X.n ? p : LookupPruning::kNearest;
-            const bool scalar = LookupPruning::never_scalar(X, y, cy2, self, s.r);
-            ASSERT_EQ(LookupPruning::never(X, y, cy2, self, s.r), scalar)
+            ASSERT_TRUE(tally.same(X, y, cy2, self, s.r))
                 << "sphere " << sphere << " point " << p << " of " << order.size() << ", " << X.n << " x";
-            ++cases;
-            pruned += scalar;
         }
     }
-    EXPECT_GT(cases, 50000u);
-    // both outcomes are common, so the comparison means something
-    EXPECT_GT(pruned, cases / 10);
-    EXPECT_LT(pruned, cases - cases / 10);
+    tally.expect_both_outcomes();
 }
 
 TEST(LookupPruning, CasesNearTheBoundaryOfTheTest) {
@@ -95,7 +108,7 @@ TEST(LookupPruning, CasesNearTheBoundaryOfTheTest) {
     // checks is the lanes, the masks and the operands near the boundary.)
     std::mt19937 rng(5);
     std::uniform_real_distribution<double> u(0.0, 1.0);
-    size_t cases = 0, pruned = 0;
+    Tally tally;
     for (int i = 0; i < 20000; ++i) {
         const double r = 0.05 + u(rng);
         Sphere s{{0.0f, 0.0f, 0.0f}, r};
@@ -123,16 +136,11 @@ TEST(LookupPruning, CasesNearTheBoundaryOfTheTest) {
             for (int k = 0; k < 2; ++k)
                 for (int step = 0; step < std::abs(nudge); ++step)
                     y[k] = std::nextafter(y[k], nudge > 0 ? 2.0f * y[k] : 0.0f);
-            const double cy2 = double(squared_distance(s.c, y));
-            const bool scalar = LookupPruning::never_scalar(X, y, cy2, LookupPruning::kNearest, r);
-            ASSERT_EQ(LookupPruning::never(X, y, cy2, LookupPruning::kNearest, r), scalar) << "case " << i;
-            ++cases;
-            pruned += scalar;
+            ASSERT_TRUE(tally.same(X, y, double(squared_distance(s.c, y)), LookupPruning::kNearest, r))
+                << "case " << i;
         }
     }
-    EXPECT_GT(cases, 50000u);
-    EXPECT_GT(pruned, cases / 10);
-    EXPECT_LT(pruned, cases - cases / 10);
+    tally.expect_both_outcomes();
 }
 
 TEST(LookupPruning, TheSlotGivenAsSelfAndTheSlotsPastTheCountNeverDecide) {

@@ -8,11 +8,10 @@
 // pages.
 // A vector's resize, count constructor or argument-less emplace leaves the
 // new elements unwritten here (no value-initialisation): these arrays are
-// written whole by
-// parallel loops before anything reads them, and a value-initialisation
-// would first write them all in one thread (the first touch of their pages
-// included).  Hence only for trivially copyable, trivially destructible
-// elements.
+// written whole by parallel loops before anything reads them, and a
+// value-initialisation would first write them all in one thread (the first
+// touch of their pages included).  Hence only for trivially copyable,
+// trivially destructible elements.
 #pragma once
 #include <cstddef>
 #include <cstdlib>
