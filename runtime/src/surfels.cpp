@@ -51,7 +51,6 @@
 #include <tbb/parallel_sort.h>
 
 #include "gamma/error.h"
-#include "gamma/huge_pages.h"
 #include "gamma/philox.h"
 
 #ifdef GAMMA_SURFEL_TIMING
@@ -107,14 +106,15 @@ inline uint64_t cell_key(uint64_t x, uint64_t y, uint64_t z) {
 // parallel loop that fills it is the first to touch its pages (a
 // std::vector would zero them all in one thread first, and the first touch
 // of fresh memory, the kernel's page faults included, costs about half a
-// millisecond per MB here).  From HugePageAllocator: an array of 2 MiB or
-// more is advised as transparent huge pages, whose first touch costs a
-// fraction of that.
+// millisecond per MB here).  Not advised as transparent huge pages: at 1.6M
+// surfels (arrays of hundreds of MB, freed and made again pass after pass)
+// that raised the setup's kernel time from ~1.2 to ~3.5 s, the huge pages
+// being found by compaction.
 template <class T>
 class Uninitialised {
 public:
     Uninitialised() = default;
-    explicit Uninitialised(size_t n) : p_(n ? HugePageAllocator<T>().allocate(n) : nullptr, Free{n}), n_(n) {}
+    explicit Uninitialised(size_t n) : p_(new T[n]), n_(n) {}
     T& operator[](size_t i) { return p_[i]; }
     const T& operator[](size_t i) const { return p_[i]; }
     T* data() { return p_.get(); }
@@ -126,11 +126,7 @@ public:
     }
 
 private:
-    struct Free {
-        size_t n = 0;
-        void operator()(T* p) const noexcept { HugePageAllocator<T>().deallocate(p, n); }
-    };
-    std::unique_ptr<T[], Free> p_;
+    std::unique_ptr<T[]> p_;
     size_t n_ = 0;
 };
 
