@@ -43,16 +43,16 @@ import json
 import os
 import sys
 import threading
-from concurrent.futures import Future, wait as wait_futures
 from pathlib import Path
 
+from ..driver import background
 from ..files import atomic_write, cache_dir
 
 #: ``effect-KEY.bin`` starts with this, then the SHA-256 of the pickle after it.
 MAGIC = b"gamma-effect\x001\x00"
 
 _lock = threading.Lock()
-_writes: list[Future] = []
+_writes = background.Pending()
 #: id(effect) -> (effect, SharedKernels) for the effects ``load`` returned
 _loaded: dict[int, tuple] = {}
 #: id(effect) -> (effect, key, pickled effect, facts) for effects checked here, to keep
@@ -224,12 +224,9 @@ def kernels_for(effect):
 
     kernels = JitKernels(effect)
     if unsaved is not None and unsaved[0] is effect:
-        from ..driver import background
-
         future = background.start(_keep, unsaved[1:], kernels.ir_text, sorted(kernels.address),
                                   kernels.llvm_version, name="gamma-effect-cache")
-        with _lock:
-            _writes.append(future)
+        _writes.add(future)
     return kernels
 
 
@@ -324,7 +321,4 @@ def _unlink(path: str) -> None:
 
 def wait() -> None:
     """Wait for the entries being kept (before the process ends)."""
-    with _lock:
-        pending = list(_writes)
-        _writes.clear()
-    wait_futures(pending)
+    _writes.wait()

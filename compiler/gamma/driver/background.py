@@ -50,6 +50,24 @@ def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Futu
     return future
 
 
+class Pending:
+    """Calls that must end before the process does (a cache file being
+    written): ``add`` each one's Future, and ``wait`` before leaving."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._futures: list[Future] = []
+
+    def add(self, future: Future) -> None:
+        with self._lock:
+            self._futures.append(future)
+
+    def wait(self) -> None:
+        with self._lock:
+            pending, self._futures = self._futures, []
+        wait(pending)
+
+
 @atexit.register
 def _wait_for_running() -> None:
     with _lock:

@@ -34,12 +34,11 @@ from __future__ import annotations
 
 import os
 import struct
-import threading
 import zlib
-from concurrent.futures import Future, wait as wait_futures
 from pathlib import Path
 
 from ..files import atomic_write, cache_dir
+from . import background
 
 #: Trailer after the snapshot: CRC-32 of the snapshot, then this mark (the
 #: runtime's SetupSnapshot.load_cached checks both).
@@ -50,8 +49,7 @@ LIMIT_BYTES = 1 << 30
 #: Largest snapshot kept (it is held in memory while it is written).
 STORE_MAX_BYTES = 256 << 20
 
-_writes: list[Future] = []
-_lock = threading.Lock()
+_writes = background.Pending()
 
 
 def limit_bytes() -> int:
@@ -103,13 +101,10 @@ def store(sim, mesh, surfels: int, seed: int) -> None:
         if path is None or sim.setup_snapshot_bytes > min(limit_bytes() // 2, STORE_MAX_BYTES):
             return
         data = sim.setup_snapshot()
-        from . import background
-
         future = background.start(_write, path, data, name="gamma-setup-cache")
     except Exception:  # noqa: BLE001 - see above
         return
-    with _lock:
-        _writes.append(future)
+    _writes.add(future)
 
 
 def _write(path: Path, data) -> None:
@@ -158,7 +153,4 @@ def _trim(folder: Path, keep: Path) -> None:
 
 def wait() -> None:
     """Wait for the setups being written (before the process ends)."""
-    with _lock:
-        pending = list(_writes)
-        _writes.clear()
-    wait_futures(pending)
+    _writes.wait()
