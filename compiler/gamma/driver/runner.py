@@ -567,7 +567,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
             if warm_outputs:
                 from .warmup import prepare_outputs
 
-                prepare_outputs(opts.progress, shown is not None or looks, opts.height)
+                prepare_outputs(shown is not None or looks, bool(looks), opts.height)
             sim = call(_simulation, rt, mesh, cfg)
     except (ValueError, TypeError, RuntimeError) as err:
         message = str(err).removeprefix("config: ")

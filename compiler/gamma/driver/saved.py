@@ -172,10 +172,10 @@ def export_saved(folder, iterations: list[int] | None, bake_size: int, threads: 
     writer = ExportWriter(bake_size, run_ranges(summary, folder, saved, names))
     session.out = folder
     session.behind = WriteQueue()
-    from tqdm import tqdm
+    from .progress import progress as shown
 
     with session.behind:
-        for it in tqdm(chosen, unit=" iteration", file=sys.stderr, disable=not progress, desc="export"):
+        for it in shown(chosen, unit=" iteration", file=sys.stderr, disable=not progress, desc="export"):
             load_iteration(session, folder, it)
             writer.on_iteration_updated(IterationUpdated(session, it, None, {}, {}))
     return chosen

@@ -421,14 +421,13 @@ def _safe_name(name: str) -> str:
 
 
 class ProgressWriter(Writer):
-    """A progress bar with the elapsed time and the time left (tqdm) on stderr;
-    ``--quiet`` leaves it out."""
+    """A progress bar with the elapsed time and the time left on stderr
+    (progress.py); ``--quiet`` leaves it out."""
 
     def __init__(self, total: int, what: str = "iteration"):
-        from tqdm import tqdm
+        from .progress import ProgressBar
 
-        self.bar = tqdm(total=total, unit=f" {what}", file=sys.stderr, dynamic_ncols=True,
-                        bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt}{unit} [{elapsed}<{remaining}]{postfix}")
+        self.bar = ProgressBar(total, unit=f" {what}", file=sys.stderr)
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         record = event.record
@@ -436,8 +435,7 @@ class ProgressWriter(Writer):
         # and would flatter the rate.
         hitting = record["emitted"] - record.get("missed", 0)
         rate = hitting / max(record["trace_seconds"], 1e-9)
-        self.bar.set_postfix_str(f"{record['trace_seconds']:.2f} s trace, {rate / 1e3:.0f}k hitting γ-tons/s",
-                                 refresh=False)
+        self.bar.set_postfix_str(f"{record['trace_seconds']:.2f} s trace, {rate / 1e3:.0f}k hitting γ-tons/s")
         self.bar.update(1)
 
     def on_run_finished(self, event) -> None:
