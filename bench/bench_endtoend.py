@@ -20,12 +20,14 @@ samples the surfels while it starts up (driver/prefetch.py): "setup" is then
 what is left of the setup once those are taken (including any wait for them),
 and the sampling's own time is reported beside, overlapping the start-up.
 
-Three kinds of run are reported, each in a cache folder of its own
+Four kinds of run are reported, each repeat in a cache folder of its own
 (GAMMA_CACHE_DIR): the first run of the effect on the mesh (the effect
 checked, the kernels compiled, the setup made), a run of an effect run before
 on a new mesh or surfel count (the effect and its kernels from the effect
-cache, the setup made), and the same run again (effect, kernels and setup
-from the caches: backends/effect_cache.py, driver/setup_cache.py).
+cache, the setup made), the same run again (effect, kernels and setup from
+the caches: backends/effect_cache.py, driver/setup_cache.py), and the effect
+edited (a constant changed, the look-development loop: checked and compiled
+again, the setup from the setup cache).
 """
 
 from __future__ import annotations
@@ -46,8 +48,8 @@ SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 GAMMAC = Path(sys.executable).parent / "gammac"
 
 
-def one_run(args, out: Path, cache: Path) -> dict:
-    cmd = [str(GAMMAC), "run", str(ROOT / "examples" / "patina.gamma"), "--scene", str(SCENE),
+def one_run(args, out: Path, cache: Path, effect: Path = ROOT / "examples" / "patina.gamma") -> dict:
+    cmd = [str(GAMMAC), "run", str(effect), "--scene", str(SCENE),
            "--surfels", str(args.surfels), "--tons", str(args.tons), "--iterations", str(args.iterations),
            "--threads", str(args.threads), "--out", str(out)]
     env = dict(os.environ, GAMMA_CACHE_DIR=str(cache))
@@ -91,14 +93,20 @@ def main() -> None:
     args = ap.parse_args()
 
     load_before = load_average()
-    # Three kinds of run, each in a cache folder of its own per repeat: the
+    # Kinds of run, each in a cache folder of its own per repeat: the
     # first run of the effect on the mesh (nothing cached: the effect checked,
     # the kernels compiled, the setup made); the effect run before but a new
     # mesh or surfel count (the effect and kernels from the effect cache, the
     # setup made); the same run again (effect, kernels and setup from the
     # caches: backends/effect_cache.py, driver/setup_cache.py).
+    # A fourth: the effect edited (a constant changed, as a user tuning a
+    # look does) and run on the same mesh: its kernels compiled again, the
+    # setup from the setup cache.
     kinds = {"first run (nothing cached)": [], "effect cached, setup made": [],
-             "run again (effect and setup cached)": []}
+             "run again (effect and setup cached)": [], "effect edited, setup cached": []}
+    patina = (ROOT / "examples" / "patina.gamma").read_text()
+    if "0.05 * t.patina" not in patina:
+        raise SystemExit("bench_endtoend: examples/patina.gamma no longer has the constant the edited run changes")
     with tempfile.TemporaryDirectory() as tmp:
         for rep in range(args.repeats):
             cache = Path(tmp) / f"cache{rep}"
@@ -106,10 +114,15 @@ def main() -> None:
                 if k == 1:
                     for kept in cache.glob("setup-*.bin"):
                         kept.unlink()
-                runs.append(one_run(args, Path(tmp) / f"run{rep}-{k}", cache))
+                effect = ROOT / "examples" / "patina.gamma"
+                if k == 3:
+                    effect = Path(tmp) / f"patina-edited{rep}.gamma"
+                    effect.write_text(patina.replace("0.05 * t.patina", f"{0.05 + 0.001 * (rep + 1):.3f} * t.patina"))
+                runs.append(one_run(args, Path(tmp) / f"run{rep}-{k}", cache, effect))
     expected = {"first run (nothing cached)": ("nothing", "compiled"),
                 "effect cached, setup made": ("nothing", "effect cache"),
-                "run again (effect and setup cached)": ("setup", "effect cache")}
+                "run again (effect and setup cached)": ("setup", "effect cache"),
+                "effect edited, setup cached": ("setup", "compiled")}
     for kind, runs in kinds.items():
         took = {(r["from_cache"], r["kernels_from"]) for r in runs}
         if took != {expected[kind]}:
@@ -149,7 +162,7 @@ def main() -> None:
             f"{n} iterations, {args.threads} threads, default outputs; wall time of the whole process "
             f"(start-up, compile, setup, outputs) / the run's own trace + update time, median of "
             f"{args.repeats} runs per kind (min–max beside), and the median wall time / the least trace + update "
-            f"of all {3 * args.repeats} runs (quietest: {quietest / n:.3f} s/iteration); the median run's "
+            f"of all {len(kinds) * args.repeats} runs (quietest: {quietest / n:.3f} s/iteration); the median run's "
             f"seconds split by summary.json's clocks; "
             f"outputs' busy time is on any thread, overlapping the loop behind it; " + "; ".join(notes)
             + f"; {cpu_name()}, {os.cpu_count()} cores, load average {load_before:.1f} → {load_average():.1f}")
