@@ -282,3 +282,34 @@ def test_stale_temporary_files_are_removed_and_fresh_ones_kept(tmp_path):
     os.utime(stale, (old, old))
     run(tmp_path, cache, "one")
     assert not stale.exists() and fresh.exists()
+
+
+def test_a_setup_taken_behind_the_run_is_the_same_file(tmp_path, monkeypatch):
+    mesh = rt.Mesh.load(str(BUNNY))
+    sim = rt.Simulation(mesh, config_for(mesh))
+    files = {}
+    for behind in (False, True):
+        monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path / str(behind)))
+        setup_cache.store(sim, mesh, 3000, 1, behind=behind)
+        setup_cache.wait()
+        (files[behind],) = kept(tmp_path / str(behind))
+    assert files[True].name == files[False].name
+    assert files[True].read_bytes() == files[False].read_bytes()
+
+
+def test_the_runner_takes_the_setup_behind_the_loop_only_when_nothing_changes_the_shape(tmp_path, monkeypatch):
+    from gamma import compile
+    from gamma.driver import runner
+
+    monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path / "cache"))
+    seen = []
+    monkeypatch.setattr(setup_cache, "store", lambda sim, mesh, surfels, seed, behind=False: seen.append(behind))
+    # patina, then patina whose surface follows its property (SPEC: shape)
+    moving = tmp_path / "moving.gamma"
+    moving.write_text((ROOT / "examples" / "patina.gamma").read_text().replace(
+        "property patina = 0.0", "property patina = 0.0\n    shape patina = 0.001"))
+    for effect in (ROOT / "examples" / "patina.gamma", moving):
+        opts = runner.RunOptions(scene=str(BUNNY), out=str(tmp_path / effect.stem), iterations=1, surfels=2000,
+                                 tons=2000, width=16, height=16, progress=False)
+        runner.run(compile(str(effect)), opts)
+    assert seen == [True, False]       # a surface that moves: its setup is taken before the loop

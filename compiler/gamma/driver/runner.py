@@ -559,6 +559,9 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         sim = None
         if reuse is not None:
             try:
+                from . import setup_cache
+
+                setup_cache.wait()      # its setup may still be being taken for the cache (store's behind)
                 call(reuse.reconfigure, cfg)
                 sim = reuse
             except (ValueError, RuntimeError):
@@ -568,7 +571,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                 from .warmup import prepare_outputs
 
                 prepare_outputs(shown is not None or looks, bool(looks), opts.height)
-            sim = call(_simulation, rt, mesh, cfg)
+            sim = call(_simulation, rt, mesh, cfg, not any(s.shape for s in effect.surfaces.values()))
     except (ValueError, TypeError, RuntimeError) as err:
         message = str(err).removeprefix("config: ")
         names = list(effect.surfaces)
@@ -670,11 +673,13 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     return session
 
 
-def _simulation(rt, mesh, cfg):
+def _simulation(rt, mesh, cfg, shape_static: bool = False):
     """``Simulation(mesh, cfg)``, with the setup cache's snapshot for it or
     the surfels ``gammac run`` sampled on ``mesh`` while it started up
     (prefetch.py, setup_cache.py: used only if they are this setup's); a
-    setup not taken whole from the cache is kept there for the next run."""
+    setup not taken whole from the cache is kept there for the next run
+    (taken from the simulation behind the loop when ``shape_static``: no
+    rule of the effect changes the shape)."""
     from . import prefetch, setup_cache
 
     ahead = prefetch.sample_for(mesh, cfg.surfels, cfg.seed)
@@ -685,7 +690,7 @@ def _simulation(rt, mesh, cfg):
         snapshot = setup_cache.load(mesh, cfg.surfels, cfg.seed)
     sim = rt.Simulation(mesh, cfg, ahead, snapshot)
     if sim.from_snapshot != "setup" or sim.setup_made_ahead:
-        setup_cache.store(sim, mesh, cfg.surfels, cfg.seed)
+        setup_cache.store(sim, mesh, cfg.surfels, cfg.seed, behind=shape_static)
     return sim
 
 
