@@ -118,7 +118,8 @@ STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions
 BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
                "SurfelSample", "SetupSnapshot", "encode_pngs", "RUNTIME_BUILD", "setup_cache_name",
-               "read_mesh_ahead"),
+               "read_mesh_ahead", "FalseColourView"),
+    "FalseColourView": ("width", "height", "shade", "values", "picture", "to_bytes", "from_bytes"),
     "SurfelSample": ("ok", "matches", "seconds"),
     "SetupSnapshot": ("load_cached", "matches", "prepared", "taken", "surfels", "make_ahead",
                       "made_ahead"),
@@ -134,7 +135,7 @@ BINDING = {
                    "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
                    "num_prepared_points", "bake_prepared", "cancel", "surfel_measures", "from_snapshot",
-                   "setup_snapshot", "setup_snapshot_bytes", "setup_made_ahead"),
+                   "setup_snapshot", "setup_snapshot_bytes", "setup_made_ahead", "false_colour_view"),
 }
 
 

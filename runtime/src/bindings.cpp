@@ -404,7 +404,28 @@ NB_MODULE(_runtime, m) {
              },
              "values"_a, "vmin"_a, "vmax"_a, "background"_a, "threads"_a,
              "uint8[height, width, 3]: the false-colour picture of `values` on the scale vmin..vmax, as "
-             "gamma.driver.outputs.FalseColourCanvas.picture makes it from Simulation.render's images.");
+             "gamma.driver.outputs.FalseColourCanvas.picture makes it from Simulation.render's images.")
+        .def(
+            "to_bytes",
+            [](const gammart::FalseColourView& v) {
+                std::vector<uint8_t> out;
+                {
+                    nb::gil_scoped_release nogil;
+                    out = v.to_bytes();
+                }
+                const size_t n = out.size();
+                return to_numpy<uint8_t>(std::move(out), {n});
+            },
+            "uint8[n]: the view as bytes (gamma/renderer.h), for the cache of views.")
+        .def_static(
+            "from_bytes",
+            [](nb::bytes data) {
+                const auto* p = reinterpret_cast<const uint8_t*>(data.c_str());
+                const size_t n = data.size();
+                nb::gil_scoped_release nogil;
+                return gammart::FalseColourView::from_bytes(p, n);
+            },
+            "data"_a, "The view to_bytes gave (ValueError for bytes that are not a whole view).");
 
     nb::class_<gammart::SurfelSample>(m, "SurfelSample",
                                       "Surfels sampled ahead of a Simulation's setup (gamma/surfel_state.h).")

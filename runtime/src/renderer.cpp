@@ -7,6 +7,7 @@
 #include <tbb/parallel_for.h>
 
 #include <chrono>
+#include <cstring>
 #include <cmath>
 #include <limits>
 #include <mutex>
@@ -220,6 +221,100 @@ float FalseColourView::value(size_t px, const float* values) const {
     double sv = 0;
     for (size_t j = 0; j < count[px]; ++j) sv += weight[px * K + j] * values[index[px * K + j]];
     return float(sv);
+}
+
+namespace {
+
+// FalseColourView::to_bytes's header.
+struct ViewHeader {
+    char magic[4];
+    uint32_t version;
+    int32_t width, height;
+    uint64_t surfels;
+    uint32_t neighbours;           // kSmoothingNeighbours when written
+    uint32_t unused;
+    uint64_t entries;              // neighbours of every pixel that hit, together
+};
+constexpr char kViewMagic[4] = {'G', 'M', 'F', 'V'};
+constexpr uint32_t kViewVersion = 1;
+
+}  // namespace
+
+std::vector<uint8_t> FalseColourView::to_bytes() const {
+    constexpr size_t K = kSmoothingNeighbours;
+    const size_t npx = count.size();
+    size_t entries = 0;
+    for (uint8_t c : count)
+        if (c != kMissed) entries += c;
+    ViewHeader h{};
+    std::memcpy(h.magic, kViewMagic, 4);
+    h.version = kViewVersion;
+    h.width = width;
+    h.height = height;
+    h.surfels = surfels;
+    h.neighbours = uint32_t(K);
+    h.entries = entries;
+    std::vector<uint8_t> out(sizeof h + npx + npx * sizeof(float) + entries * (sizeof(uint32_t) + sizeof(double)));
+    uint8_t* o = out.data();
+    auto put = [&o](const void* p, size_t bytes) {
+        if (bytes) std::memcpy(o, p, bytes);
+        o += bytes;
+    };
+    put(&h, sizeof h);
+    put(count.data(), npx);
+    put(shade.data(), npx * sizeof(float));
+    for (size_t px = 0; px < npx; ++px)
+        if (count[px] != kMissed) put(&index[px * K], count[px] * sizeof(uint32_t));
+    for (size_t px = 0; px < npx; ++px)
+        if (count[px] != kMissed) put(&weight[px * K], count[px] * sizeof(double));
+    return out;
+}
+
+FalseColourView FalseColourView::from_bytes(const uint8_t* data, size_t size) {
+    constexpr size_t K = kSmoothingNeighbours;
+    auto fail = [](const std::string& why) -> void { throw Error("false-colour view: " + why); };
+    ViewHeader h{};
+    if (size < sizeof h) fail("it ends early");
+    std::memcpy(&h, data, sizeof h);
+    if (std::memcmp(h.magic, kViewMagic, 4) != 0 || h.version != kViewVersion || h.neighbours != K)
+        fail("not a view of this layout");
+    if (h.width <= 0 || h.height <= 0 || h.surfels == 0 || h.surfels > uint64_t(UINT32_MAX))
+        fail("inconsistent sizes");
+    const size_t npx = size_t(h.width) * size_t(h.height);
+    const size_t tail = npx * (1 + sizeof(float));
+    if ((size - sizeof h) < tail || h.entries > npx * K ||
+        (size - sizeof h - tail) != h.entries * (sizeof(uint32_t) + sizeof(double)))
+        fail("its size differs from its header's");
+    FalseColourView v;
+    v.width = h.width;
+    v.height = h.height;
+    v.surfels = size_t(h.surfels);
+    const uint8_t* p = data + sizeof h;
+    v.count.assign(p, p + npx);
+    p += npx;
+    v.shade.resize(npx);
+    std::memcpy(v.shade.data(), p, npx * sizeof(float));
+    p += npx * sizeof(float);
+    size_t entries = 0;
+    for (uint8_t c : v.count) {
+        if (c != kMissed && c > K) fail("a pixel has too many neighbours");
+        if (c != kMissed) entries += c;
+    }
+    if (entries != h.entries) fail("its neighbours differ from its header's");
+    v.index.assign(npx * K, 0);
+    v.weight.assign(npx * K, 0.0);
+    const uint8_t* weights = p + entries * sizeof(uint32_t);
+    for (size_t px = 0; px < npx; ++px) {
+        const size_t c = v.count[px];
+        if (c == kMissed) continue;
+        std::memcpy(&v.index[px * K], p, c * sizeof(uint32_t));
+        std::memcpy(&v.weight[px * K], weights, c * sizeof(double));
+        p += c * sizeof(uint32_t);
+        weights += c * sizeof(double);
+        for (size_t j = 0; j < c; ++j)
+            if (v.index[px * K + j] >= v.surfels) fail("a neighbour is not a surfel");
+    }
+    return v;
 }
 
 namespace {

@@ -125,7 +125,7 @@ def _take_and_write(sim, path: Path) -> None:
 def _write(path: Path, data) -> None:
     try:
         atomic_write(path, (memoryview(data), TRAILER.pack(zlib.crc32(memoryview(data)), MARK)))
-        _trim(path.parent, keep=path)
+        trim(path.parent, keep=path)
     except OSError:
         pass                            # an unwritable cache only costs time
 
@@ -135,35 +135,60 @@ def _write(path: Path, data) -> None:
 STALE_TEMPORARY_SECONDS = 3600
 
 
-def _trim(folder: Path, keep: Path) -> None:
+def keep_behind(future) -> None:
+    """A cache write started elsewhere (view_cache.py) that ``wait`` waits for too."""
+    _writes.add(future)
+
+
+#: A setup's false-colour views (view_cache.py: ``view-STEM-KEY.bin``, STEM
+#: the setup file's name between ``setup-`` and ``.bin``) live as long as it
+#: does, the most recently used VIEWS_PER_SETUP of them; they are not counted
+#: in the limit (a 512 x 512 view of the bunny is ~11 MB).
+VIEWS_PER_SETUP = 4
+
+
+def trim(folder: Path, keep: Path) -> None:
     """Remove the least recently used setup files until the rest fit the
-    limit, and the temporary files of writes that never finished."""
+    limit, the views of setups no longer kept and all but the most recent
+    views of each, and the temporary files of writes that never finished."""
     import time
 
-    files = []
+    setups, views = [], []
     for entry in os.scandir(folder):
         try:
             st = entry.stat()
         except OSError:
             continue
-        if entry.name.startswith(".setup-") and time.time() - st.st_mtime > STALE_TEMPORARY_SECONDS:
-            try:
-                os.unlink(entry.path)
-            except OSError:
-                pass
+        if entry.name.startswith((".setup-", ".view-")) and time.time() - st.st_mtime > STALE_TEMPORARY_SECONDS:
+            _unlink(entry.path)
         elif entry.name.startswith("setup-") and entry.name.endswith(".bin"):
-            files.append((st.st_mtime_ns, st.st_size, Path(entry.path)))
-    total = sum(size for _, size, _ in files)
-    for _, size, path in sorted(files):
+            setups.append((st.st_mtime_ns, st.st_size, Path(entry.path)))
+        elif entry.name.startswith("view-") and entry.name.endswith(".bin"):
+            views.append((st.st_mtime_ns, Path(entry.path)))
+    total = sum(size for _, size, _ in setups)
+    kept = {path.name for _, _, path in setups}
+    for _, size, path in sorted(setups):
         if total <= limit_bytes():
             break
         if path == keep:
             continue
-        try:
-            path.unlink()
+        if _unlink(path):
             total -= size
-        except OSError:
-            pass
+            kept.discard(path.name)
+    per_setup: dict[str, int] = {}
+    for _, path in sorted(views, reverse=True):         # the most recently used first
+        stem = path.name[len("view-"):].rsplit("-", 1)[0]
+        per_setup[stem] = count = per_setup.get(stem, 0) + 1
+        if path != keep and (f"setup-{stem}.bin" not in kept or count > VIEWS_PER_SETUP):
+            _unlink(path)
+
+
+def _unlink(path) -> bool:
+    try:
+        os.unlink(path)
+        return True
+    except OSError:
+        return False
 
 
 def wait() -> None:

@@ -128,23 +128,23 @@ class FalseColourWriter(Writer):
         # picture are cast beside the loop (no GIL; on the cores its serial stretches leave),
         # not after it, where a user waits for the pictures.
         if not any(s.shape for s in run.effect.surfaces.values()):
-            self.casting = self._cast(run)
+            self.casting = self._cast(run, keep=True)
 
     #: Largest picture whose rays are kept for every iteration's picture
     #: (a FalseColourView holds ~100 bytes per pixel); a larger one casts them
     #: again per picture.
     VIEW_PIXELS = 1 << 20
 
-    def _cast(self, run):
+    def _cast(self, run, keep: bool = False):
         """The view's rays cast on a thread of their own (a Future), or None for
-        a picture too large to keep them."""
+        a picture too large to keep them.  ``keep``: the geometry never
+        changes, so the view is read from the cache of views if it holds it
+        (view_cache.py), and kept there once cast if not."""
         if run.opts.width * run.opts.height > self.VIEW_PIXELS:
             return None
         from . import background
 
-        eye, target, up, fov = run.camera
-        return background.start(run.behind.timings.call, "renders", run.sim.false_colour_view, eye, target, up,
-                                fov, run.opts.width, run.opts.height, run.threads, name="gamma-view-rays")
+        return background.start(run.behind.timings.call, "renders", _view, run, keep, name="gamma-view-rays")
 
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         self.history.append(event.properties[self.property].copy())
@@ -211,6 +211,21 @@ def value_range(values: np.ndarray) -> tuple[float, float] | None:
     if not finite.size:
         return None
     return float(np.percentile(finite, 99.5)), float(finite.min())
+
+
+def _view(run, keep: bool):
+    """``run``'s false-colour view: from the cache of views (``keep``), or cast
+    (and then kept, with ``keep``)."""
+    from . import view_cache
+
+    eye, target, up, fov = run.camera
+    width, height = run.opts.width, run.opts.height
+    path = view_cache.path_for(run) if keep else None
+    view = view_cache.load(path, width, height)
+    if view is None:
+        view = run.sim.false_colour_view(eye, target, up, fov, width, height, run.threads)
+        view_cache.store(path, view)
+    return view
 
 
 def _write_false_colour(path: Path, canvas, value, shade, title) -> None:

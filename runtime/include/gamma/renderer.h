@@ -88,6 +88,15 @@ struct FalseColourView {
     // is NaN.  vmax > vmin.
     void picture(const float* values, double vmin, double vmax, const uint8_t* background, int threads,
                  uint8_t* out_rgb) const;
+
+    // The view as bytes, for gammac's cache of views (driver/view_cache.py):
+    // a header, count and shade per pixel, then the neighbours and weights
+    // of the pixels whose ray hit (the others' are never read); and back.
+    // from_bytes checks every count and index against the header (a
+    // gammart::Error for bytes that are not a whole view of this layout),
+    // so a view read back is safe to use whatever the bytes.
+    std::vector<uint8_t> to_bytes() const;
+    static FalseColourView from_bytes(const uint8_t* data, size_t size);
 };
 
 // Casts the camera's rays once (out arrays as render_false_colour's).
