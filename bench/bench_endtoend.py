@@ -111,8 +111,8 @@ def main() -> None:
         for rep in range(args.repeats):
             cache = Path(tmp) / f"cache{rep}"
             for k, runs in enumerate(kinds.values()):
-                if k == 1:
-                    for kept in cache.glob("setup-*.bin"):
+                if k == 1:              # as for a new mesh: no setup, no pictures' rays (view_cache.py)
+                    for kept in [*cache.glob("setup-*.bin"), *cache.glob("view-*.bin")]:
                         kept.unlink()
                 effect = ROOT / "examples" / "patina.gamma"
                 if k == 3:
