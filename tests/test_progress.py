@@ -2,6 +2,7 @@
 place, and a stderr that refuses writes, which must never stop a run."""
 
 import io
+import os
 import re
 
 from gamma.driver.progress import ProgressBar, clock, progress
@@ -19,7 +20,7 @@ def test_the_line_fills_its_width_with_the_bar_in_proportion():
     bar.update(2)
     bar.set_postfix_str("0.61 s trace, 397k hitting γ-tons/s")
     line = bar.line(100)
-    assert len(line) == 100
+    assert len(line) == 99                                    # a line as wide as the terminal would wrap
     m = re.fullmatch(r" 40%\|(.*)\| 2/5 iteration \[\d\d:\d\d<\d\d:\d\d\], 0\.61 s trace, 397k hitting γ-tons/s",
                      line)
     assert m, line
@@ -44,15 +45,45 @@ def test_the_bar_is_redrawn_in_place_and_ends_its_line():
     assert "3/3 iteration" in text.split("\r")[-1]
 
 
-def test_a_shorter_line_blanks_the_rest_of_the_longer_one():
+def test_a_shorter_line_blanks_the_rest_of_the_longer_one(monkeypatch):
     out = io.StringIO()
+    monkeypatch.setenv("COLUMNS", "120")
     bar = ProgressBar(2, file=out)
-    bar.set_postfix_str("a long postfix " * 8)    # longer than the line's width
     bar.update(1)
-    bar.set_postfix_str("")
+    monkeypatch.setenv("COLUMNS", "80")                       # the terminal made narrower
     bar.update(1)
     first, second = out.getvalue().split("\r")[2:]
-    assert len(first) > 100 and len(second) == len(first) and second.endswith(" ")
+    assert len(first) == 119 and len(second) == 119 and second.endswith(" " * 40)
+    assert len(second.rstrip(" ")) <= 79
+
+
+def test_a_narrow_terminal_drops_the_postfix_then_cells_never_wraps():
+    bar = ProgressBar(5, file=io.StringIO())
+    bar.update(2)
+    bar.set_postfix_str("0.61 s trace, 397k hitting γ-tons/s")
+    wide, narrow, tiny = bar.line(120), bar.line(60), bar.line(12)
+    assert wide.endswith("γ-tons/s") and len(wide) == 119
+    assert "trace" not in narrow and len(narrow) == 59 and narrow.endswith("]")   # the postfix went, the bar stayed
+    assert re.fullmatch(r" 40%\|█+[ ▏▎▍▌▋▊▉]* *\| 2/5 iteration \[\d\d:\d\d<\d\d:\d\d\]", narrow)
+    assert len(tiny) == 11                                    # cut, never longer than the terminal
+
+
+def test_the_width_is_the_bars_own_terminal_or_columns(monkeypatch):
+    monkeypatch.delenv("COLUMNS", raising=False)
+    assert ProgressBar(1, file=io.StringIO())._width() == 100  # not a terminal
+    monkeypatch.setenv("COLUMNS", "73")
+    assert ProgressBar(1, file=io.StringIO())._width() == 73
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+        def fileno(self):
+            return 99
+
+    monkeypatch.delenv("COLUMNS")
+    monkeypatch.setattr("os.get_terminal_size", lambda fd: os.terminal_size((64, 20)) if fd == 99 else None)
+    assert ProgressBar(1, file=Terminal())._width() == 64      # asked of the bar's file, not of stdout
 
 
 def test_a_refused_write_stops_the_drawing_not_the_caller():

@@ -85,22 +85,28 @@ def test_another_seed_is_set_up_again_and_kept_beside(tmp_path):
 
 def test_the_cache_keeps_under_its_limit_the_most_recent_first(tmp_path):
     cache = tmp_path / "cache"
-    run(tmp_path, cache, "one", "--seed", "1")
+    # pictures of 16 x 16: their false-colour views, which count towards the limit too
+    # (view_cache.py), are a few kB beside setups of ~1 MB
+    run(tmp_path, cache, "one", "--size", "16", "--seed", "1")
     size = kept(cache)[0].stat().st_size
     limit_mb = 2.5 * size / (1 << 20)               # room for two
-    run(tmp_path, cache, "two", "--seed", "2", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
+    run(tmp_path, cache, "two", "--size", "16", "--seed", "2", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
     first_two = kept(cache)
     assert len(first_two) == 2
-    _, took = run(tmp_path, cache, "one-again", "--seed", "1", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
+    _, took = run(tmp_path, cache, "one-again", "--size", "16", "--seed", "1",
+                  env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
     assert took == "setup"                          # used now: the most recent
-    run(tmp_path, cache, "three", "--seed", "3", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
+    run(tmp_path, cache, "three", "--size", "16", "--seed", "3",
+        env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
     assert len(kept(cache)) == 2
-    assert sum(p.stat().st_size for p in kept(cache)) <= limit_mb * (1 << 20)
-    _, took = run(tmp_path, cache, "one-last", "--seed", "1", env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
+    assert sum(p.stat().st_size for p in [*kept(cache), *cache.glob("view-*.bin")]) <= limit_mb * (1 << 20)
+    _, took = run(tmp_path, cache, "one-last", "--size", "16", "--seed", "1",
+                  env={"GAMMA_SETUP_CACHE_MB": str(limit_mb)})
     assert took == "setup"                          # seed 2's, the least recently used, went
     # a snapshot larger than half the limit is not kept
     small = tmp_path / "small"
-    run(tmp_path, small, "tiny-limit", env={"GAMMA_SETUP_CACHE_MB": str(1.5 * size / (1 << 20))})
+    run(tmp_path, small, "tiny-limit", "--size", "16",
+        env={"GAMMA_SETUP_CACHE_MB": str(1.5 * size / (1 << 20))})
     assert kept(small) == []
 
 

@@ -35,8 +35,8 @@ def spied(tmp_path, monkeypatch):
     seen = {"loaded": [], "stored": []}
     load, store = view_cache.load, view_cache.store
 
-    def spy_load(path, width, height):
-        view = load(path, width, height)
+    def spy_load(path, width, height, surfels):
+        view = load(path, width, height, surfels)
         seen["loaded"].append(view is not None)
         return view
 
@@ -64,7 +64,7 @@ def test_a_second_run_reads_its_view_and_writes_the_same_files(tmp_path, monkeyp
     assert folder_hash(second) == folder_hash(first)
     monkeypatch.setenv("GAMMA_CACHE_DIR", "off")
     off = run(tmp_path, "off")
-    assert spied["loaded"][-1] is False and spied["stored"][-1] is False
+    assert spied == {"loaded": [False, True], "stored": [True, False]}     # nothing read, nothing kept
     assert folder_hash(off) == folder_hash(first)
 
 
@@ -87,12 +87,28 @@ def test_a_damaged_view_is_removed_and_cast_again(tmp_path, spied, damage):
     assert kept.read_bytes() != bytes(data)                 # cast again and kept whole
 
 
+def test_a_whole_view_of_another_surfel_count_or_unreadable_bytes_cost_only_a_cast(tmp_path, spied):
+    first = run(tmp_path, "first")
+    (path,) = views(tmp_path)
+    _, other = cast_view(48, 40)                              # 2000 surfels, not the run's 3000
+    from gamma.driver import setup_cache
+
+    for data in (bytes(other.to_bytes()),
+                 struct.pack("<4sIiiQII Q", b"GMFV", 1, 2147418113, 1718039348, 3000, 8, 0, 0) + b"\0" * 4):
+        setup_cache.write_with_trailer(path, data, view_cache.MARK)   # whole, its checksum right
+        again = run(tmp_path, "again")
+        assert spied["loaded"][-1] is False and spied["stored"][-1] is True
+        assert folder_hash(again) == folder_hash(first)
+        assert view_cache.load(path, 48, 40, 3000) is not None        # cast again and kept
+    assert view_cache.load(path, 48, 40, 2999) is None and not path.exists()   # refused: removed
+
+
 def test_a_shape_that_changes_keeps_no_view(tmp_path, spied):
     moving = tmp_path / "moving.gamma"
     moving.write_text(PATINA.read_text().replace("property patina = 0.0",
                                                  "property patina = 0.0\n    shape patina = 0.001"))
     run(tmp_path, "moving", effect=moving)
-    assert spied == {"loaded": [False], "stored": [False]} and views(tmp_path) == []
+    assert spied == {"loaded": [], "stored": [False]} and views(tmp_path) == []
 
 
 def cast_view(width=40, height=30):
@@ -137,7 +153,17 @@ def test_bytes_that_are_not_a_whole_view_are_refused():
         "index": data[:first_index] + struct.pack("<I", surfels) + data[first_index + 4:],
         "count": data[:header.size] + bytes([9]) + data[header.size + 1:],
         "empty": b"",
+        # sizes whose products wrap around 2^64: 44 bytes claiming ~3.7e18 pixels
+        "wrapping": header.pack(b"GMFV", 1, 2147418113, 1718039348, 1000, 8, 0, 0) + b"\0" * 4,
+        "entries": header.pack(b"GMFV", 1, width, height, surfels, k, 0, 2**61) + data[header.size:],
     }
+    # a hit pixel's weight or shade out of [0, 1] (a picture's bytes come from them)
+    count = data[header.size:header.size + npx]
+    hit = next(px for px in range(npx) if count[px] != 0xFF)
+    shade_at = header.size + npx + 4 * hit
+    bad["shade"] = data[:shade_at] + struct.pack("<f", float("inf")) + data[shade_at + 4:]
+    first_weight = first_index + 4 * entries
+    bad["weight"] = data[:first_weight] + struct.pack("<d", -0.5) + data[first_weight + 8:]
     for what, blob in bad.items():
         with pytest.raises(ValueError):
             rt.FalseColourView.from_bytes(blob)
@@ -171,32 +197,31 @@ def test_the_key_follows_what_the_view_depends_on(tmp_path, monkeypatch):
     assert len({base, *others}) == len(others) + 1
     monkeypatch.setenv("GAMMA_CACHE_DIR", "off")
     assert view_cache.path_for(types.SimpleNamespace(scene=scene, opts=opts, camera=camera)) is None
-    assert view_cache.load(None, 1, 1) is None
+    assert view_cache.load(None, 1, 1, 1) is None
 
 
-def test_views_live_as_long_as_their_setup_the_most_recent_few(tmp_path, monkeypatch):
+def test_views_live_as_long_as_their_setup_the_most_recent_few_under_the_limit(tmp_path, monkeypatch):
     from gamma.driver import setup_cache
 
-    monkeypatch.setenv("GAMMA_SETUP_CACHE_MB", "1")
+    monkeypatch.setenv("GAMMA_SETUP_CACHE_MB", "100")
     setups = {stem: tmp_path / f"setup-{stem}.bin" for stem in ("aaa-100-1", "bbb-100-1")}
     for k, path in enumerate(setups.values()):
         path.write_bytes(b"s" * 300_000)
         os.utime(path, ns=(k * 10**9, k * 10**9))           # aaa's the least recently used
-    made = []
     for k in range(6):
         for stem in setups:
-            view = tmp_path / f"view-{stem}-{k:016x}.bin"
-            view.write_bytes(b"v" * 400_000)                  # views are not counted in the limit
+            view = tmp_path / f"view-{stem}-{k:032x}.bin"
+            view.write_bytes(b"v" * 100_000)
             os.utime(view, ns=(k * 10**9, k * 10**9))
-            made.append(view)
-    orphan = tmp_path / "view-ccc-100-1-0000000000000000.bin"
+    orphan = tmp_path / f"view-ccc-100-1-{0:032x}.bin"        # its setup is not kept
     orphan.write_bytes(b"v")
     setup_cache.trim(tmp_path, keep=setups["bbb-100-1"])
     assert sorted(p.name for p in tmp_path.glob("setup-*")) == ["setup-aaa-100-1.bin", "setup-bbb-100-1.bin"]
-    assert sorted(p.name for p in tmp_path.glob("view-*")) == [f"view-{stem}-{k:016x}.bin"
+    assert sorted(p.name for p in tmp_path.glob("view-*")) == [f"view-{stem}-{k:032x}.bin"
                                                              for stem in setups for k in (2, 3, 4, 5)]
-    # over the limit: aaa's setup goes, and its views with it
-    (tmp_path / "setup-ccc-100-1.bin").write_bytes(b"s" * 600_000)
-    setup_cache.trim(tmp_path, keep=tmp_path / "setup-ccc-100-1.bin")
-    assert not setups["aaa-100-1"].exists() and setups["bbb-100-1"].exists()
-    assert {p.name.rsplit("-", 1)[0] for p in tmp_path.glob("view-*")} == {"view-bbb-100-1"}
+    # views count towards the limit: over it, the least recently used go first, a setup's views with it
+    monkeypatch.setenv("GAMMA_SETUP_CACHE_MB", str(1_000_000 / (1 << 20)))
+    setup_cache.trim(tmp_path, keep=setups["bbb-100-1"])
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == ["setup-bbb-100-1.bin"] + [f"view-bbb-100-1-{k:032x}.bin" for k in (2, 3, 4, 5)], left
+    assert sum(p.stat().st_size for p in tmp_path.iterdir()) <= 1_000_000

@@ -119,7 +119,7 @@ BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
                "SurfelSample", "SetupSnapshot", "encode_pngs", "RUNTIME_BUILD", "setup_cache_name",
                "read_mesh_ahead", "FalseColourView"),
-    "FalseColourView": ("width", "height", "shade", "values", "picture", "to_bytes", "from_bytes"),
+    "FalseColourView": ("width", "height", "surfels", "shade", "values", "picture", "to_bytes", "from_bytes"),
     "SurfelSample": ("ok", "matches", "seconds"),
     "SetupSnapshot": ("load_cached", "matches", "prepared", "taken", "surfels", "make_ahead",
                       "made_ahead"),

@@ -363,6 +363,8 @@ NB_MODULE(_runtime, m) {
     nb::class_<gammart::FalseColourView>(m, "FalseColourView",
                                          "Simulation.false_colour_view's rays, cast once for many pictures.")
         .def_prop_ro("width", [](const gammart::FalseColourView& v) { return v.width; })
+        .def_prop_ro("surfels", [](const gammart::FalseColourView& v) { return v.surfels; },
+                     "The surfels of the simulation it was cast on (values have one each).")
         .def_prop_ro("height", [](const gammart::FalseColourView& v) { return v.height; })
         .def("shade",
              [](const gammart::FalseColourView& v) {

@@ -280,10 +280,15 @@ FalseColourView FalseColourView::from_bytes(const uint8_t* data, size_t size) {
         fail("not a view of this layout");
     if (h.width <= 0 || h.height <= 0 || h.surfels == 0 || h.surfels > uint64_t(UINT32_MAX))
         fail("inconsistent sizes");
+    // Every size bounded by the bytes there are, by division, before any
+    // product is formed: a header's sizes cannot make one wrap around.
+    const size_t body = size - sizeof h;
+    constexpr size_t kPixelBytes = 1 + sizeof(float), kEntryBytes = sizeof(uint32_t) + sizeof(double);
+    if (size_t(h.width) > body / kPixelBytes || size_t(h.height) > body / kPixelBytes / size_t(h.width))
+        fail("its size differs from its header's");
     const size_t npx = size_t(h.width) * size_t(h.height);
-    const size_t tail = npx * (1 + sizeof(float));
-    if ((size - sizeof h) < tail || h.entries > npx * K ||
-        (size - sizeof h - tail) != h.entries * (sizeof(uint32_t) + sizeof(double)))
+    const size_t tail = npx * kPixelBytes;
+    if (h.entries > (body - tail) / kEntryBytes || h.entries > npx * K || body - tail != h.entries * kEntryBytes)
         fail("its size differs from its header's");
     FalseColourView v;
     v.width = h.width;
@@ -311,8 +316,13 @@ FalseColourView FalseColourView::from_bytes(const uint8_t* data, size_t size) {
         std::memcpy(&v.weight[px * K], weights, c * sizeof(double));
         p += c * sizeof(uint32_t);
         weights += c * sizeof(double);
-        for (size_t j = 0; j < c; ++j)
+        for (size_t j = 0; j < c; ++j) {
             if (v.index[px * K + j] >= v.surfels) fail("a neighbour is not a surfel");
+            const double w = v.weight[px * K + j];
+            if (!(w >= 0.0 && w <= 1.0)) fail("a weight is not in [0, 1]");
+        }
+        // a shade cast is 0.25 + 0.75 |cos|: a picture's bytes come from it
+        if (!(v.shade[px] >= 0.0f && v.shade[px] <= 1.0f)) fail("a shade is not in [0, 1]");
     }
     return v;
 }

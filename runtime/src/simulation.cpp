@@ -163,6 +163,7 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
 Simulation::~Simulation() = default;
 
 std::vector<uint8_t> Simulation::setup_snapshot() const {
+    std::shared_lock<std::shared_mutex> reading(setup_lock_);
     if (shape_.rebuilds() > 0) throw Error("setup snapshot: the shape of the scene changed since the setup");
     return SetupSnapshot::write(mesh_, cfg_.seed, state_.surf, *index_, state_.splat);
 }
@@ -172,6 +173,7 @@ size_t Simulation::setup_snapshot_bytes() const {
 }
 
 void Simulation::reconfigure(const Config& config) {
+    std::unique_lock<std::shared_mutex> changing(setup_lock_);
     auto refuse = [](const std::string& why) { throw Error("reconfigure: " + why); };
     if (shape_.rebuilds() > 0) refuse("the shape of the scene changed");
     if (config.surfels != cfg_.surfels || config.seed != cfg_.seed) refuse("another surfel count or seed");
@@ -294,6 +296,7 @@ TraceStats Simulation::trace(int iteration) {
 }
 
 ShapeStats Simulation::shape(int iteration) {
+    std::unique_lock<std::shared_mutex> changing(setup_lock_);
     ShapeStats st = shape_.apply(iteration, mesh_, state_, index_, frame_);
     if (st.changed) {
         if (!base_.triangle_material.empty()) {

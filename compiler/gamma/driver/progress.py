@@ -14,7 +14,7 @@ full disk), the bar stops drawing and the run goes on.
 
 from __future__ import annotations
 
-import shutil
+import os
 import sys
 import time
 
@@ -63,7 +63,8 @@ class ProgressBar:
         self._write("\n")
 
     def line(self, width: int | None = None) -> str:
-        """The bar's text as drawn now, ``width`` columns at most (default: the terminal's)."""
+        """The bar's text as drawn now, fitting ``width`` columns less one (a
+        line as wide as the terminal wraps; default: the file's terminal)."""
         elapsed = time.monotonic() - self.started
         if self.n and self.total:
             remaining = clock(elapsed / self.n * max(self.total - self.n, 0))
@@ -73,21 +74,31 @@ class ProgressBar:
         fraction = min(self.n / self.total, 1.0) if self.total else 0.0
         left += f"{fraction * 100:3.0f}%|"
         right = f"| {self.n}/{self.total}{self.unit} [{clock(elapsed)}<{remaining}]"
-        if self.postfix:
-            right += f", {self.postfix}"
         if width is None:
             width = self._width()
-        cells = max(width - len(left) - len(right), 1)
+        room = max(width - 1, 1)
+        postfix = f", {self.postfix}" if self.postfix else ""
+        if len(left) + 1 + len(right) + len(postfix) > room:
+            postfix = ""                # the postfix goes first, then the bar's cells
+        cells = max(room - len(left) - len(right) - len(postfix), 0)
         filled, part = divmod(int(fraction * cells * 8), 8)
         bar = "█" * filled
         if filled < cells:
             bar += (_BLOCKS[part] if part else " ") + " " * (cells - filled - 1)
-        return left + bar + right
+        return (left + bar + right + postfix)[:room]
 
     def _width(self) -> int:
+        """Columns of the terminal the bar is drawn on ($COLUMNS first, as
+        shutil has it), or _DEFAULT_WIDTH when it is not a terminal."""
+        try:
+            columns = int(os.environ.get("COLUMNS", "0"))
+        except ValueError:
+            columns = 0
+        if columns > 0:
+            return columns
         try:
             if self.file.isatty():
-                return shutil.get_terminal_size((_DEFAULT_WIDTH, 24)).columns
+                return os.get_terminal_size(self.file.fileno()).columns or _DEFAULT_WIDTH
         except (AttributeError, ValueError, OSError):
             pass
         return _DEFAULT_WIDTH

@@ -559,10 +559,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         sim = None
         if reuse is not None:
             try:
-                from . import setup_cache
-
-                setup_cache.wait()      # its setup may still be being taken for the cache (store's behind)
-                call(reuse.reconfigure, cfg)
+                call(reuse.reconfigure, cfg)    # waits for a setup still being taken for the cache
                 sim = reuse
             except (ValueError, RuntimeError):
                 sim = None              # another surfel set is needed: build it
@@ -571,7 +568,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                 from .warmup import prepare_outputs
 
                 prepare_outputs(shown is not None or looks, bool(looks), opts.height)
-            sim = call(_simulation, rt, mesh, cfg, not any(s.shape for s in effect.surfaces.values()))
+            sim = call(_simulation, rt, mesh, cfg, not shape_changes(effect))
     except (ValueError, TypeError, RuntimeError) as err:
         message = str(err).removeprefix("config: ")
         names = list(effect.surfaces)

@@ -94,8 +94,7 @@ def store(sim, mesh, surfels: int, seed: int, behind: bool = False) -> None:
     """Keep ``sim``'s setup (just made, not taken from the cache) for the
     next run, written on a thread of their own.  The bytes are taken now,
     or with ``behind`` on that thread too: only for a simulation whose
-    surfels, index and mesh nothing changes while it runs (no shape rules,
-    and not reconfigured before ``wait``).  Taking them (~30 ms and 39 MB
+    shape no rule changes (the runtime's reconfigure waits for it).  Taking them (~30 ms and 39 MB
     copied for 100,000 surfels on the bunny) was the last step between the
     setup and the first trace.  Never raises: a setup not kept only costs
     the next run time."""
@@ -124,10 +123,26 @@ def _take_and_write(sim, path: Path) -> None:
 
 def _write(path: Path, data) -> None:
     try:
-        atomic_write(path, (memoryview(data), TRAILER.pack(zlib.crc32(memoryview(data)), MARK)))
-        trim(path.parent, keep=path)
+        write_with_trailer(path, data, MARK)
     except OSError:
         pass                            # an unwritable cache only costs time
+
+
+def write_with_trailer(path: Path, data, mark: bytes) -> None:
+    """``data`` then its CRC-32 and ``mark`` written to ``path`` (atomically),
+    then the folder trimmed (this file kept)."""
+    atomic_write(path, (memoryview(data), TRAILER.pack(zlib.crc32(memoryview(data)), mark)))
+    trim(path.parent, keep=path)
+
+
+def body_of(data: bytes, mark: bytes) -> memoryview | None:
+    """What ``write_with_trailer`` wrote, or None if the trailer is not
+    ``mark`` or the CRC-32 differs (a file damaged or cut short)."""
+    if len(data) < TRAILER.size:
+        return None
+    body = memoryview(data)[:-TRAILER.size]
+    crc, found = TRAILER.unpack(data[-TRAILER.size:])
+    return body if found == mark and crc == zlib.crc32(body) else None
 
 
 #: A temporary file of a write older than this was left by a process that
@@ -141,49 +156,63 @@ def keep_behind(future) -> None:
 
 
 #: A setup's false-colour views (view_cache.py: ``view-STEM-KEY.bin``, STEM
-#: the setup file's name between ``setup-`` and ``.bin``) live as long as it
-#: does, the most recently used VIEWS_PER_SETUP of them; they are not counted
-#: in the limit (a 512 x 512 view of the bunny is ~11 MB).
+#: the setup file's name between ``setup-`` and ``.bin``) count towards the
+#: limit with the setups, live only as long as their setup's file, and the
+#: most recently used VIEWS_PER_SETUP of each are kept.
+VIEW_PREFIX = "view-"
 VIEWS_PER_SETUP = 4
 
 
 def trim(folder: Path, keep: Path) -> None:
-    """Remove the least recently used setup files until the rest fit the
-    limit, the views of setups no longer kept and all but the most recent
-    views of each, and the temporary files of writes that never finished."""
+    """Remove the least recently used setup and view files until the rest
+    fit the limit (a setup's views with it), the views of setups not kept
+    and all but the most recent views of each, and the temporary files of
+    writes that never finished.  ``keep`` (the file just written) stays."""
     import time
 
-    setups, views = [], []
+    files = []                          # (mtime, size, path, setup stem or None)
     for entry in os.scandir(folder):
         try:
             st = entry.stat()
         except OSError:
             continue
-        if entry.name.startswith((".setup-", ".view-")) and time.time() - st.st_mtime > STALE_TEMPORARY_SECONDS:
-            _unlink(entry.path)
-        elif entry.name.startswith("setup-") and entry.name.endswith(".bin"):
-            setups.append((st.st_mtime_ns, st.st_size, Path(entry.path)))
-        elif entry.name.startswith("view-") and entry.name.endswith(".bin"):
-            views.append((st.st_mtime_ns, Path(entry.path)))
-    total = sum(size for _, size, _ in setups)
-    kept = {path.name for _, _, path in setups}
-    for _, size, path in sorted(setups):
+        name = entry.name
+        if name.startswith((".setup-", "." + VIEW_PREFIX)) and time.time() - st.st_mtime > STALE_TEMPORARY_SECONDS:
+            unlink_quietly(entry.path)
+        elif name.startswith("setup-") and name.endswith(".bin"):
+            files.append((st.st_mtime_ns, st.st_size, Path(entry.path), None))
+        elif name.startswith(VIEW_PREFIX) and name.endswith(".bin"):
+            stem = name[len(VIEW_PREFIX):-len(".bin")].rsplit("-", 1)[0]
+            files.append((st.st_mtime_ns, st.st_size, Path(entry.path), stem))
+    setups = {path.name for _, _, path, stem in files if stem is None}
+    seen: dict[str, int] = {}
+    gone = set()
+    for _, _, path, stem in sorted(files, key=lambda f: f[0], reverse=True):   # the most recent first
+        if stem is None or path == keep:
+            continue
+        seen[stem] = count = seen.get(stem, 0) + 1
+        if f"setup-{stem}.bin" not in setups or count > VIEWS_PER_SETUP:
+            gone.add(path)
+    total = sum(size for _, size, path, _ in files if path not in gone)
+    for _, size, path, stem in sorted(files, key=lambda f: f[0]):              # the least recent first
         if total <= limit_bytes():
             break
-        if path == keep:
+        if path == keep or path in gone:
             continue
-        if _unlink(path):
-            total -= size
-            kept.discard(path.name)
-    per_setup: dict[str, int] = {}
-    for _, path in sorted(views, reverse=True):         # the most recently used first
-        stem = path.name[len("view-"):].rsplit("-", 1)[0]
-        per_setup[stem] = count = per_setup.get(stem, 0) + 1
-        if path != keep and (f"setup-{stem}.bin" not in kept or count > VIEWS_PER_SETUP):
-            _unlink(path)
+        gone.add(path)
+        total -= size
+        if stem is None:                # its views go with it
+            for _, view_size, view, view_stem in files:
+                if view_stem is not None and f"setup-{view_stem}.bin" == path.name and view not in gone \
+                        and view != keep:
+                    gone.add(view)
+                    total -= view_size
+    for path in gone:
+        unlink_quietly(path)
 
 
-def _unlink(path) -> bool:
+def unlink_quietly(path) -> bool:
+    """Remove ``path``; whether it was (another process may be trimming too)."""
     try:
         os.unlink(path)
         return True

@@ -127,7 +127,9 @@ class FalseColourWriter(Writer):
         # An effect that never changes the shape has its final geometry now: the rays of every
         # picture are cast beside the loop (no GIL; on the cores its serial stretches leave),
         # not after it, where a user waits for the pictures.
-        if not any(s.shape for s in run.effect.surfaces.values()):
+        from .runner import shape_changes
+
+        if not shape_changes(run.effect):
             self.casting = self._cast(run, keep=True)
 
     #: Largest picture whose rays are kept for every iteration's picture
@@ -221,7 +223,7 @@ def _view(run, keep: bool):
     eye, target, up, fov = run.camera
     width, height = run.opts.width, run.opts.height
     path = view_cache.path_for(run) if keep else None
-    view = view_cache.load(path, width, height)
+    view = view_cache.load(path, width, height, run.sim.num_surfels) if path is not None else None
     if view is None:
         view = run.sim.false_colour_view(eye, target, up, fov, width, height, run.threads)
         view_cache.store(path, view)

@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <shared_mutex>
 #include <string>
 #include <vector>
 
@@ -198,7 +199,10 @@ public:
     // made in this process, not read from the setup cache).
     bool setup_made_ahead() const { return setup_made_ahead_; }
     // The setup as SetupSnapshot bytes (throws Error once the shape changed:
-    // the snapshot is of the setup, before any shape step).
+    // the snapshot is of the setup, before any shape step).  It may be taken
+    // on another thread while the simulation traces and updates (gammac
+    // keeps it for the setup cache behind the loop): what it reads only
+    // reconfigure and shape change, and those wait for it (setup_lock_).
     std::vector<uint8_t> setup_snapshot() const;
     // setup_snapshot's size, without making it (an upper bound).
     size_t setup_snapshot_bytes() const;
@@ -241,6 +245,8 @@ private:
     mutable std::vector<float> corner_normals_;
     mutable bool corner_normals_stale_ = false;
     mutable std::mutex corner_normals_mutex_;
+    // Held shared by setup_snapshot, exclusively by reconfigure and shape.
+    mutable std::shared_mutex setup_lock_;
     void update_corner_normals();
     SetupSeconds setup_seconds_;
     FromSnapshot from_snapshot_ = FromSnapshot::Nothing;
