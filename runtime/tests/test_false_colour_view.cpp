@@ -85,3 +85,26 @@ TEST(FalseColourViewBytes, DamagedOrCutBytesAreRefusedOrSafe) {
     EXPECT_THROW(FalseColourView::from_bytes(longer.data(), longer.size()), Error);
     EXPECT_THROW(FalseColourView::from_bytes(bytes.data(), 0), Error);
 }
+
+TEST(FalseColourViewBytes, HeaderSizesThatWouldWrapAreRefused) {
+    // magic, version, width, height, surfels, neighbours, unused, entries: sizes whose
+    // products wrap around 2^64 (width * height * 5 is 4 modulo 2^64 here)
+    struct Header {
+        char magic[4];
+        uint32_t version;
+        int32_t width, height;
+        uint64_t surfels;
+        uint32_t neighbours, unused;
+        uint64_t entries;
+    } h{{'G', 'M', 'F', 'V'}, 1, 2147418113, 1718039348, 1000, uint32_t(kSmoothingNeighbours), 0, 0};
+    std::vector<uint8_t> data(sizeof h + 4, 0);
+    std::memcpy(data.data(), &h, sizeof h);
+    EXPECT_THROW(FalseColourView::from_bytes(data.data(), data.size()), Error);
+    // a whole view's header claiming more neighbours than its bytes hold
+    const FalseColourView view = cast(*sphere_simulation());
+    std::vector<uint8_t> bytes = view.to_bytes();
+    std::memcpy(&h, bytes.data(), sizeof h);
+    h.entries = uint64_t(1) << 61;
+    std::memcpy(bytes.data(), &h, sizeof h);
+    EXPECT_THROW(FalseColourView::from_bytes(bytes.data(), bytes.size()), Error);
+}
