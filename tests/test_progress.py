@@ -117,3 +117,14 @@ def test_disabled_draws_nothing_and_progress_yields_every_item():
         seen.append((item, out.getvalue().count("\r")))
     assert seen == [("a", 1), ("b", 2)]                       # drawn before each item is handed out
     assert out.getvalue().endswith("\n") and "2/2 iteration" in out.getvalue().split("\r")[-1]
+
+
+def test_a_stderr_without_block_characters_gets_an_ascii_bar():
+    raw = io.BytesIO()
+    ascii_err = io.TextIOWrapper(raw, encoding="ascii", errors="backslashreplace")
+    bar = ProgressBar(4, file=ascii_err)
+    bar.update(3)
+    bar.close()
+    text = raw.getvalue().decode("ascii")
+    last = text.strip().split("\r")[-1]
+    assert re.fullmatch(r" 75%\|#+[1-9]? *\| 3/4 iteration \[\d\d:\d\d<\d\d:\d\d\]", last), last

@@ -20,8 +20,22 @@ import time
 
 #: Partial blocks for the bar's last cell: tqdm's characters, so a bar looks as it did.
 _BLOCKS = " ▏▎▍▌▋▊▉█"
+#: ... and where the file's encoding has no block characters (tqdm's ascii bar).
+_ASCII_BLOCKS = " 123456789#"
 #: Width assumed when stderr is not a terminal (a pipe, a file, a test's capture).
 _DEFAULT_WIDTH = 100
+
+
+def _can_write(file, text: str) -> bool:
+    """Whether ``file``'s encoding has ``text`` (a file without one: yes)."""
+    encoding = getattr(file, "encoding", None)
+    if not encoding:
+        return True
+    try:
+        text.encode(encoding)
+        return True
+    except (UnicodeEncodeError, LookupError):
+        return False
 
 
 def clock(seconds: float) -> str:
@@ -46,6 +60,7 @@ class ProgressBar:
         self.drawing = not disable
         self.closed = False
         self.drawn = 0                  # length of the line on screen: a shorter one blanks the rest
+        self.blocks = _BLOCKS if _can_write(self.file, _BLOCKS) else _ASCII_BLOCKS
         self._draw()
 
     def set_postfix_str(self, text: str) -> None:
@@ -81,10 +96,11 @@ class ProgressBar:
         if len(left) + 1 + len(right) + len(postfix) > room:
             postfix = ""                # the postfix goes first, then the bar's cells
         cells = max(room - len(left) - len(right) - len(postfix), 0)
-        filled, part = divmod(int(fraction * cells * 8), 8)
-        bar = "█" * filled
+        steps = len(self.blocks) - 1
+        filled, part = divmod(int(fraction * cells * steps), steps)
+        bar = self.blocks[-1] * filled
         if filled < cells:
-            bar += (_BLOCKS[part] if part else " ") + " " * (cells - filled - 1)
+            bar += (self.blocks[part] if part else " ") + " " * (cells - filled - 1)
         return (left + bar + right + postfix)[:room]
 
     def _width(self) -> int:
