@@ -135,7 +135,8 @@ BINDING = {
                    "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
                    "num_prepared_points", "bake_prepared", "cancel", "surfel_measures", "from_snapshot",
-                   "setup_snapshot", "setup_snapshot_bytes", "setup_made_ahead", "false_colour_view"),
+                   "setup_snapshot", "setup_snapshot_bytes", "setup_made_ahead", "false_colour_view",
+                   "write_setup_snapshot"),
 }
 
 

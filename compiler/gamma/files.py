@@ -59,15 +59,18 @@ def cache_dir() -> Path | None:
 
 
 def atomic_write(path: Path, data, mode: int | None = None) -> None:
-    """Write ``data`` (bytes, or a tuple of buffers written one after the
-    other) to ``path``; the file gets ``mode`` (default: 0666 less the
-    umask)."""
+    """Write ``data`` (bytes, a tuple of buffers written one after the
+    other, or a callable given the open binary file, which writes it) to
+    ``path``; the file gets ``mode`` (default: 0666 less the umask)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            for part in data if isinstance(data, tuple) else (data,):
-                f.write(part)
+            if callable(data):
+                data(f)
+            else:
+                for part in data if isinstance(data, tuple) else (data,):
+                    f.write(part)
         os.chmod(tmp, (0o666 & ~_umask()) if mode is None else mode)  # mkstemp creates 0600
         os.replace(tmp, path)
     except BaseException:

@@ -546,6 +546,15 @@ NB_MODULE(_runtime, m) {
                      "Whether what the setup took from its SetupSnapshot was made ahead (make_ahead), not read "
                      "from the setup cache.")
         .def(
+            "write_setup_snapshot",
+            [](const gammart::Simulation& s, int fd) {
+                nb::gil_scoped_release nogil;
+                return s.write_setup_snapshot(fd);
+            },
+            "fd"_a,
+            "setup_snapshot()'s bytes written to the open file descriptor `fd` as they are made, without the "
+            "GIL (no copy of the whole setup in memory); their CRC-32 (zlib's).")
+        .def(
             "setup_snapshot",
             [](const gammart::Simulation& s) {
                 std::vector<uint8_t> bytes;

@@ -10,11 +10,13 @@
 #include "gamma/setup_snapshot.h"
 
 #include <sys/stat.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include <tbb/task_group.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -55,27 +57,69 @@ struct SectionHeader {
     uint64_t count;
 };
 
+// Writes a snapshot into memory, or straight to a file descriptor (then the
+// CRC-32 of what it wrote is kept, for the cache file's trailer): the cache
+// keeps a 100,000-surfel setup of the bunny (39 MB) without first copying
+// it into fresh memory, which cost ~30 ms of its ~45.
 class Writer {
 public:
-    explicit Writer(std::vector<uint8_t>& out) : out_(out) {}
+    explicit Writer(std::vector<uint8_t>& out) : out_(&out) {}
+    explicit Writer(int fd) : fd_(fd) { buffer_.reserve(kBuffered); }
     void raw(const void* p, size_t bytes) {
         const auto* b = static_cast<const uint8_t*>(p);
-        out_.insert(out_.end(), b, b + bytes);
+        written_ += bytes;
+        if (out_) {
+            out_->insert(out_->end(), b, b + bytes);
+            return;
+        }
+        for (size_t k = 0; k < bytes; k += size_t(1) << 30)   // zlib's length is 32 bits
+            crc_ = crc32(crc_, b + k, uInt(std::min(bytes - k, size_t(1) << 30)));
+        if (bytes >= kBuffered) {                             // large sections: straight from the arrays
+            flush();
+            write_all(b, bytes);
+        } else {
+            buffer_.insert(buffer_.end(), b, b + bytes);
+            if (buffer_.size() >= kBuffered) flush();
+        }
     }
     template <typename T>
     void section(Section tag, const T* data, size_t count) {
         const SectionHeader h{tag, uint32_t(sizeof(T)), uint64_t(count)};
         raw(&h, sizeof h);
         if (count) raw(data, count * sizeof(T));
-        out_.resize((out_.size() + 7) / 8 * 8, 0);
+        static constexpr uint8_t kZeros[8] = {};
+        raw(kZeros, (8 - written_ % 8) % 8);
     }
     template <typename V>
     void section(Section tag, const V& v) {
         section(tag, v.data(), v.size());
     }
+    // Writes what is buffered; the CRC-32 of everything written.
+    uLong finish() {
+        flush();
+        return crc_;
+    }
 
 private:
-    std::vector<uint8_t>& out_;
+    static constexpr size_t kBuffered = size_t(1) << 16;
+    void flush() {
+        if (!buffer_.empty()) write_all(buffer_.data(), buffer_.size());
+        buffer_.clear();
+    }
+    void write_all(const uint8_t* p, size_t bytes) {
+        while (bytes > 0) {
+            const ssize_t n = ::write(fd_, p, std::min(bytes, size_t(1) << 30));
+            if (n < 0 && errno == EINTR) continue;
+            if (n <= 0) throw std::runtime_error(std::string("setup snapshot: cannot write: ") + std::strerror(errno));
+            p += n;
+            bytes -= size_t(n);
+        }
+    }
+    std::vector<uint8_t>* out_ = nullptr;
+    int fd_ = -1;
+    std::vector<uint8_t> buffer_;
+    size_t written_ = 0;
+    uLong crc_ = crc32(0L, Z_NULL, 0);
 };
 
 // Reads a snapshot from memory, or from a file (then the CRC-32 of what it
@@ -181,6 +225,19 @@ std::vector<uint8_t> SetupSnapshot::write(const Mesh& mesh, uint64_t seed, const
     std::vector<uint8_t> out;
     out.reserve(bytes(mesh, surf, index, splat));
     Writer w(out);
+    write_to(w, mesh, seed, surf, index, splat);
+    return out;
+}
+
+uint32_t SetupSnapshot::write_fd(int fd, const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
+                                 const SceneIndex& index, const SplatKernel& splat) {
+    Writer w(fd);
+    write_to(w, mesh, seed, surf, index, splat);
+    return uint32_t(w.finish());
+}
+
+void SetupSnapshot::write_to(Writer& w, const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
+                             const SceneIndex& index, const SplatKernel& splat) {
     Header h{};
     std::memcpy(h.magic, kMagic, sizeof kMagic);
     h.format = kFormat;
@@ -224,7 +281,6 @@ std::vector<uint8_t> SetupSnapshot::write(const Mesh& mesh, uint64_t seed, const
     w.section(kLookupCellAt, index.lookup_cell_at_);
     w.section(kLookupBall2, index.lookup_ball2_);
     one(w, kLookupCandidates, uint64_t(index.lookup_n_candidates_));
-    return out;
 }
 
 SetupSnapshot::SetupSnapshot(const uint8_t* data, size_t size) {

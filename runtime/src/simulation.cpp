@@ -168,6 +168,12 @@ std::vector<uint8_t> Simulation::setup_snapshot() const {
     return SetupSnapshot::write(mesh_, cfg_.seed, state_.surf, *index_, state_.splat);
 }
 
+uint32_t Simulation::write_setup_snapshot(int fd) const {
+    std::shared_lock<std::shared_mutex> reading(setup_lock_);
+    if (shape_.rebuilds() > 0) throw Error("setup snapshot: the shape of the scene changed since the setup");
+    return SetupSnapshot::write_fd(fd, mesh_, cfg_.seed, state_.surf, *index_, state_.splat);
+}
+
 size_t Simulation::setup_snapshot_bytes() const {
     return SetupSnapshot::bytes(mesh_, state_.surf, *index_, state_.splat);
 }

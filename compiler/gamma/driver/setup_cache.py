@@ -114,11 +114,19 @@ def store(sim, mesh, surfels: int, seed: int, behind: bool = False) -> None:
 
 
 def _take_and_write(sim, path: Path) -> None:
+    """``sim``'s setup written to the cache file as the runtime makes it
+    (straight to the file, without the GIL: no 39 MB copy of the bunny's
+    setup in memory first), then its trailer."""
+    def write(f) -> None:
+        f.flush()                       # nothing buffered yet: the runtime writes to the descriptor
+        crc = sim.write_setup_snapshot(f.fileno())
+        f.write(TRAILER.pack(crc, MARK))
+
     try:
-        data = sim.setup_snapshot()     # without the GIL
+        atomic_write(path, write)
+        trim(path.parent, keep=path)
     except Exception:  # noqa: BLE001 - a setup not kept only costs the next run time
-        return
-    _write(path, data)
+        pass
 
 
 def _write(path: Path, data) -> None:

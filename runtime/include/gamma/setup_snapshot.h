@@ -31,6 +31,7 @@ namespace gammart {
 
 namespace snapshot_detail {
 class Reader;
+class Writer;
 }
 
 // What names a mesh in the setup cache's file names: CRC-32s of its
@@ -45,6 +46,11 @@ public:
     // given, as bytes.
     static std::vector<uint8_t> write(const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
                                       const SceneIndex& index, const SplatKernel& splat);
+    // `write`'s bytes written to the file descriptor `fd` as they are made
+    // (no copy of the whole setup in memory); their CRC-32.  Throws
+    // std::runtime_error if a write fails.
+    static uint32_t write_fd(int fd, const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
+                             const SceneIndex& index, const SplatKernel& splat);
     // The size of `write`'s bytes (an upper bound, within a few hundred bytes).
     static size_t bytes(const Mesh& mesh, const SurfelSet& surf, const SceneIndex& index, const SplatKernel& splat);
     // Parses `write`'s bytes (copied); throws Error if they are not one
@@ -111,6 +117,8 @@ public:
 private:
     SetupSnapshot() = default;
     void parse(snapshot_detail::Reader& r);
+    static void write_to(snapshot_detail::Writer& w, const Mesh& mesh, uint64_t seed, const SurfelSet& surf,
+                         const SceneIndex& index, const SplatKernel& splat);
     void move_lookup_into(SceneIndex& index);
 
     size_t n_ = 0;

@@ -204,6 +204,9 @@ public:
     // keeps it for the setup cache behind the loop): what it reads only
     // reconfigure and shape change, and those wait for it (setup_lock_).
     std::vector<uint8_t> setup_snapshot() const;
+    // setup_snapshot's bytes written to the file descriptor `fd` as they are
+    // made (SetupSnapshot::write_fd); their CRC-32.
+    uint32_t write_setup_snapshot(int fd) const;
     // setup_snapshot's size, without making it (an upper bound).
     size_t setup_snapshot_bytes() const;
 
