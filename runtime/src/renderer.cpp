@@ -197,29 +197,56 @@ FalseColourView false_colour_view(const RenderScene& rs, std::array<float, 3> ey
     view.surfels = rs.state.size();
     const size_t npx = size_t(width) * size_t(height);
     view.count.assign(npx, FalseColourView::kMissed);
-    view.index.assign(npx * K, 0);
-    view.weight.assign(npx * K, 0.0);
+    view.first.assign(npx, 0);
     view.shade.assign(npx, std::numeric_limits<float>::quiet_NaN());
+    // Each row's neighbours in a buffer of its own, then the rows' one after
+    // the other (in row order: the same arrays at any thread count).
+    std::vector<std::vector<uint32_t>> row_index(static_cast<size_t>(height));
+    std::vector<std::vector<double>> row_weight(static_cast<size_t>(height));
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
-            for (int y = r.begin(); y < r.end(); ++y)
+            uint32_t idx[K];
+            double w[K];
+            for (int y = r.begin(); y < r.end(); ++y) {
+                std::vector<uint32_t>& ri = row_index[size_t(y)];
+                std::vector<double>& rw = row_weight[size_t(y)];
                 for (int x = 0; x < width; ++x) {
                     const size_t px = size_t(y) * size_t(width) + size_t(x);
                     size_t k = 0;
-                    if (false_colour_pixel(rs, cam, light, x, y, &view.index[px * K], &view.weight[px * K], &k,
-                                           &view.shade[px]))
+                    if (false_colour_pixel(rs, cam, light, x, y, idx, w, &k, &view.shade[px])) {
                         view.count[px] = uint8_t(k);
+                        view.first[px] = uint32_t(ri.size());   // within the row: offset below
+                        ri.insert(ri.end(), idx, idx + k);
+                        rw.insert(rw.end(), w, w + k);
+                    }
                 }
+            }
         });
     });
+    size_t entries = 0;
+    for (int y = 0; y < height; ++y) entries += row_index[size_t(y)].size();
+    if (entries > size_t(UINT32_MAX)) throw Error("false_colour_view: the picture is too large");
+    view.index.reserve(entries);
+    view.weight.reserve(entries);
+    for (int y = 0; y < height; ++y) {
+        const uint32_t base = uint32_t(view.index.size());
+        for (int x = 0; x < width; ++x) {
+            const size_t px = size_t(y) * size_t(width) + size_t(x);
+            if (view.count[px] != FalseColourView::kMissed) view.first[px] += base;
+        }
+        view.index.insert(view.index.end(), row_index[size_t(y)].begin(), row_index[size_t(y)].end());
+        view.weight.insert(view.weight.end(), row_weight[size_t(y)].begin(), row_weight[size_t(y)].end());
+        std::vector<uint32_t>().swap(row_index[size_t(y)]);
+        std::vector<double>().swap(row_weight[size_t(y)]);
+    }
     return view;
 }
 
 float FalseColourView::value(size_t px, const float* values) const {
-    constexpr size_t K = kSmoothingNeighbours;
     if (count[px] == kMissed) return std::numeric_limits<float>::quiet_NaN();
     double sv = 0;
-    for (size_t j = 0; j < count[px]; ++j) sv += weight[px * K + j] * values[index[px * K + j]];
+    const size_t at = first[px];
+    for (size_t j = 0; j < count[px]; ++j) sv += weight[at + j] * values[index[at + j]];
     return float(sv);
 }
 
@@ -243,9 +270,7 @@ constexpr uint32_t kViewVersion = 1;
 std::vector<uint8_t> FalseColourView::to_bytes() const {
     constexpr size_t K = kSmoothingNeighbours;
     const size_t npx = count.size();
-    size_t entries = 0;
-    for (uint8_t c : count)
-        if (c != kMissed) entries += c;
+    const size_t entries = index.size();
     ViewHeader h{};
     std::memcpy(h.magic, kViewMagic, 4);
     h.version = kViewVersion;
@@ -263,10 +288,8 @@ std::vector<uint8_t> FalseColourView::to_bytes() const {
     put(&h, sizeof h);
     put(count.data(), npx);
     put(shade.data(), npx * sizeof(float));
-    for (size_t px = 0; px < npx; ++px)
-        if (count[px] != kMissed) put(&index[px * K], count[px] * sizeof(uint32_t));
-    for (size_t px = 0; px < npx; ++px)
-        if (count[px] != kMissed) put(&weight[px * K], count[px] * sizeof(double));
+    put(index.data(), entries * sizeof(uint32_t));
+    put(weight.data(), entries * sizeof(double));
     return out;
 }
 
@@ -306,21 +329,24 @@ FalseColourView FalseColourView::from_bytes(const uint8_t* data, size_t size) {
         if (c != kMissed) entries += c;
     }
     if (entries != h.entries) fail("its neighbours differ from its header's");
-    v.index.assign(npx * K, 0);
-    v.weight.assign(npx * K, 0.0);
-    const uint8_t* weights = p + entries * sizeof(uint32_t);
+    if (entries > size_t(UINT32_MAX)) fail("it has too many neighbours");
+    v.index.resize(entries);
+    v.weight.resize(entries);
+    if (entries) {
+        std::memcpy(v.index.data(), p, entries * sizeof(uint32_t));
+        std::memcpy(v.weight.data(), p + entries * sizeof(uint32_t), entries * sizeof(double));
+    }
+    v.first.assign(npx, 0);
+    size_t at = 0;
     for (size_t px = 0; px < npx; ++px) {
         const size_t c = v.count[px];
         if (c == kMissed) continue;
-        std::memcpy(&v.index[px * K], p, c * sizeof(uint32_t));
-        std::memcpy(&v.weight[px * K], weights, c * sizeof(double));
-        p += c * sizeof(uint32_t);
-        weights += c * sizeof(double);
-        for (size_t j = 0; j < c; ++j) {
-            if (v.index[px * K + j] >= v.surfels) fail("a neighbour is not a surfel");
-            const double w = v.weight[px * K + j];
-            if (!(w >= 0.0 && w <= 1.0)) fail("a weight is not in [0, 1]");
+        v.first[px] = uint32_t(at);
+        for (size_t j = at; j < at + c; ++j) {
+            if (v.index[j] >= v.surfels) fail("a neighbour is not a surfel");
+            if (!(v.weight[j] >= 0.0 && v.weight[j] <= 1.0)) fail("a weight is not in [0, 1]");
         }
+        at += c;
         // a shade cast is 0.25 + 0.75 |cos|: a picture's bytes come from it
         if (!(v.shade[px] >= 0.0f && v.shade[px] <= 1.0f)) fail("a shade is not in [0, 1]");
     }

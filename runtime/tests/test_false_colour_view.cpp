@@ -42,6 +42,9 @@ TEST(FalseColourViewBytes, ReadBackTheSameView) {
     EXPECT_EQ(back.height, view.height);
     EXPECT_EQ(back.surfels, view.surfels);
     EXPECT_EQ(back.count, view.count);
+    EXPECT_EQ(back.first, view.first);
+    EXPECT_EQ(back.index, view.index);
+    EXPECT_EQ(0, std::memcmp(back.weight.data(), view.weight.data(), view.weight.size() * sizeof(double)));
     EXPECT_EQ(0, std::memcmp(back.shade.data(), view.shade.data(), view.shade.size() * sizeof(float)));
     std::vector<float> values(view.surfels);
     for (size_t i = 0; i < values.size(); ++i) values[i] = float(i % 17) * 0.25f;
@@ -61,7 +64,8 @@ TEST(FalseColourViewBytes, DamagedOrCutBytesAreRefusedOrSafe) {
             for (size_t px = 0; px < v.count.size(); ++px) {
                 if (v.count[px] == FalseColourView::kMissed) continue;
                 ASSERT_LE(v.count[px], size_t(kSmoothingNeighbours));
-                for (size_t j = 0; j < v.count[px]; ++j) ASSERT_LT(v.index[px * kSmoothingNeighbours + j], v.surfels);
+                ASSERT_LE(size_t(v.first[px]) + v.count[px], v.index.size());
+                for (size_t j = 0; j < v.count[px]; ++j) ASSERT_LT(v.index[v.first[px] + j], v.surfels);
             }
             EXPECT_EQ(v.count.size(), size_t(v.width) * size_t(v.height));
         } catch (const Error&) {
@@ -107,4 +111,10 @@ TEST(FalseColourViewBytes, HeaderSizesThatWouldWrapAreRefused) {
     h.entries = uint64_t(1) << 61;
     std::memcpy(bytes.data(), &h, sizeof h);
     EXPECT_THROW(FalseColourView::from_bytes(bytes.data(), bytes.size()), Error);
+}
+
+TEST(FalseColourViewBytes, TheSameViewAtOneAndTwoThreads) {
+    const Simulation& sim = *sphere_simulation();
+    const FalseColourView one = sim.false_colour_view({0.3f, 0.4f, 3.0f}, {0, 0, 0}, {0, 1, 0}, 45.0f, 24, 20, 1);
+    EXPECT_EQ(one.to_bytes(), cast(sim).to_bytes());
 }

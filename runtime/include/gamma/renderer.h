@@ -70,8 +70,13 @@ struct FalseColourView {
     int width = 0, height = 0;
     size_t surfels = 0;            // the values read have one per surfel
     std::vector<uint8_t> count;    // neighbours per pixel; kMissed where the ray missed
-    std::vector<uint32_t> index;   // kSmoothingNeighbours per pixel
-    std::vector<double> weight;    // kSmoothingNeighbours per pixel
+    // The neighbours of the pixels that hit, one after the other in pixel
+    // order: pixel px's are index/weight[first[px]] .. + count[px] (a
+    // picture of the bunny at 512 x 512 hits ~20 % of its pixels: ~5 MB
+    // here, against 25 MB for kSmoothingNeighbours slots per pixel).
+    std::vector<uint32_t> first;   // height*width; 0 where the ray missed
+    std::vector<uint32_t> index;
+    std::vector<double> weight;
     std::vector<float> shade;      // height*width; NaN on the background
     static constexpr uint8_t kMissed = 0xFF;
 
