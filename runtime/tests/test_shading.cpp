@@ -2,7 +2,11 @@
 // flat where asked, the same whether or not triangles share vertex indices.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
+#include <cstring>
+#include <map>
+#include <vector>
 
 #include "gamma/shading.h"
 #include "helpers.h"
@@ -101,4 +105,73 @@ TEST(Shading, ShadingNormalInterpolatesAndFacesTheViewer) {
     const V3 back = gammart::shading_normal(c, 3, 0.3f, 0.3f, ng * -1.0f);
     EXPECT_LT(gammart::dot(back, ng), 0.0f);
     EXPECT_EQ(gammart::shading_normal({}, 3, 0.3f, 0.3f, ng), ng);
+}
+
+namespace {
+
+// corner_normals as the plain rule says, serially: each corner's normal sums
+// the area-weighted normals of the corners at its position (bit for bit, -0
+// as +0) whose face is within the crease angle, in corner order.
+std::vector<float> reference_corner_normals(const gammart::Mesh& mesh, const std::vector<uint8_t>& flat,
+                                            float crease_deg) {
+    using gammart::V3;
+    const size_t m = mesh.num_triangles();
+    auto position = [&](size_t corner) {
+        std::array<uint32_t, 3> bits{};
+        const float* p = mesh.vertices.data() + 3 * size_t(mesh.triangles[corner]);
+        for (int c = 0; c < 3; ++c) {
+            const float x = p[c] == 0.0f ? 0.0f : p[c];
+            std::memcpy(&bits[size_t(c)], &x, sizeof x);
+        }
+        return bits;
+    };
+    std::map<std::array<uint32_t, 3>, std::vector<size_t>> at;
+    for (size_t i = 0; i < 3 * m; ++i) at[position(i)].push_back(i);
+    std::vector<V3> weighted(m), unit(m);
+    for (size_t t = 0; t < m; ++t) {
+        auto p = [&](int k) {
+            const float* v = mesh.vertices.data() + 3 * size_t(mesh.triangles[3 * t + size_t(k)]);
+            return V3{v[0], v[1], v[2]};
+        };
+        weighted[t] = gammart::cross(p(1) - p(0), p(2) - p(0));
+        unit[t] = gammart::normalize(weighted[t]);
+    }
+    const float cos_crease = std::cos(crease_deg * 3.14159265358979f / 180.0f);
+    auto own = [&](size_t t) { return !flat.empty() && flat[t]; };
+    std::vector<float> out(9 * m);
+    for (size_t i = 0; i < 3 * m; ++i) {
+        const size_t t = i / 3;
+        V3 n = unit[t];
+        if (!own(t)) {
+            V3 sum{0, 0, 0};
+            for (size_t q : at[position(i)]) {
+                const size_t o = q / 3;
+                if (o == t || (!own(o) && gammart::dot(unit[o], unit[t]) >= cos_crease)) sum += weighted[o];
+            }
+            const V3 s = gammart::normalize(sum);
+            n = gammart::dot(s, s) > 0.0f ? s : unit[t];
+        }
+        out[3 * i] = n.x, out[3 * i + 1] = n.y, out[3 * i + 2] = n.z;
+    }
+    return out;
+}
+
+}  // namespace
+
+TEST(Shading, CornerNormalsAreThePlainRuleBitForBit) {
+    // a sphere whose vertices are shared, the step whose quads share none
+    // (equal positions, different vertices), with and without flat parts
+    const gammart::Mesh meshes[] = {gamma_test::icosphere(3), step_edge()};
+    for (const gammart::Mesh& mesh : meshes) {
+        std::vector<uint8_t> flat(mesh.num_triangles(), 0);
+        for (size_t t = 0; t < flat.size(); t += 3) flat[t] = 1;
+        for (const auto& f : {std::vector<uint8_t>{}, flat})
+            for (float crease : {60.0f, 10.0f, 180.0f}) {
+                const std::vector<float> got = gammart::corner_normals(mesh, f, crease);
+                const std::vector<float> want = reference_corner_normals(mesh, f, crease);
+                ASSERT_EQ(got.size(), want.size());
+                EXPECT_EQ(0, std::memcmp(got.data(), want.data(), got.size() * sizeof(float)))
+                    << mesh.num_triangles() << " triangles, crease " << crease << ", flat " << f.size();
+            }
+    }
 }
