@@ -14,11 +14,31 @@ int resolve_threads(int threads) {
     return std::min(threads, kMaxThreads);
 }
 
+namespace {
+// The thread count of the arena whose run_with_threads body this thread is
+// running (0: none).
+thread_local int entered_arena_threads = 0;
+}  // namespace
+
 void run_with_threads(int threads, const std::function<void()>& f) {
     const int n = resolve_threads(threads);
+    // Called again from inside that body with the same count (a pass whose
+    // steps each run_with_threads): the steps share the one arena instead of
+    // each making its own and waiting for the workers to join it.
+    if (entered_arena_threads == n) {
+        f();
+        return;
+    }
     tbb::global_control gc(tbb::global_control::max_allowed_parallelism, size_t(n));
     tbb::task_arena arena(n);
-    arena.execute(f);
+    arena.execute([&] {
+        struct Restore {
+            int outer;
+            ~Restore() { entered_arena_threads = outer; }
+        } restore{entered_arena_threads};
+        entered_arena_threads = n;
+        f();
+    });
 }
 
 }  // namespace gammart

@@ -60,27 +60,32 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     total_st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
     const size_t n = state.size();
     bool any_record = false;
-    for (int64_t first = 0; first < nchunks; first += batch) {
-        const int64_t last = std::min(nchunks, first + batch);
-        run_chunks(iteration, first, last, index, frame, state, logs_.data(),
-                   record_rays_ ? ray_logs_.data() + first : nullptr);
-        int64_t held = 0;
-        for (int64_t k = 0; k < last - first; ++k) {
-            total_st.add(logs_[size_t(k)].st);
-            held += int64_t(logs_[size_t(k)].surfel.size());
+    // The batches, their sums and the splat run in one arena: each of these
+    // steps would otherwise make its own (run_with_threads) and wait for the
+    // workers to join it, ~2 per batch.
+    run_with_threads(cfg_.threads, [&] {
+        for (int64_t first = 0; first < nchunks; first += batch) {
+            const int64_t last = std::min(nchunks, first + batch);
+            run_chunks(iteration, first, last, index, frame, state, logs_.data(),
+                       record_rays_ ? ray_logs_.data() + first : nullptr);
+            int64_t held = 0;
+            for (int64_t k = 0; k < last - first; ++k) {
+                total_st.add(logs_[size_t(k)].st);
+                held += int64_t(logs_[size_t(k)].surfel.size());
+            }
+            total_st.log_records_peak = std::max(total_st.log_records_peak, held);
+            if (held == 0 || P <= 0) continue;
+            if (!any_record)   // D, then (with a splat kernel) its spread
+                merge_scratch_.assign((state.splat.offset.size() == n + 1 ? 2 : 1) * n * size_t(P), 0.0f);
+            any_record = true;
+            accumulate_chunk_logs(logs_, last - first, n, P, merge_scratch_.data(), cfg_.threads);
         }
-        total_st.log_records_peak = std::max(total_st.log_records_peak, held);
-        if (held == 0 || P <= 0) continue;
-        if (!any_record)   // D, then (with a splat kernel) its spread
-            merge_scratch_.assign((state.splat.offset.size() == n + 1 ? 2 : 1) * n * size_t(P), 0.0f);
-        any_record = true;
-        accumulate_chunk_logs(logs_, last - first, n, P, merge_scratch_.data(), cfg_.threads);
-    }
-    if (any_record) {
-        float* spread = merge_scratch_.size() > n * size_t(P) ? merge_scratch_.data() + n * size_t(P) : nullptr;
-        add_chunk_sums(merge_scratch_.data(), spread, n, GAMMA_ROW_HEADER, P, state.rows.data(), cfg_.threads,
-                       &state.splat);
-    }
+        if (any_record) {
+            float* spread = merge_scratch_.size() > n * size_t(P) ? merge_scratch_.data() + n * size_t(P) : nullptr;
+            add_chunk_sums(merge_scratch_.data(), spread, n, GAMMA_ROW_HEADER, P, state.rows.data(), cfg_.threads,
+                           &state.splat);
+        }
+    });
     total_st.trace_seconds = seconds_since(t0);
     return total_st;
 }
@@ -351,9 +356,14 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         };
         // The kernels of one interaction of gamma-ton g (of ton type `type`).
         auto run_kernels = [&](const Step& step, int type, int64_t g) {
-            const V3 p = step.p, n = step.n, dir = step.dir;
             const uint32_t s = step.s;
             const int surface = surf_of[s];
+            const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
+            const TransportSlot& ev = K.slot(step.event, type, surface);
+            // An interaction no rule handles (most reflections) needs no
+            // context: none is built, no measure is read.
+            if (!hit.fn && !ev.fn) return;
+            const V3 p = step.p, n = step.n, dir = step.dir;
             GammaContext ctx;
             ctx.position[0] = p.x; ctx.position[1] = p.y; ctx.position[2] = p.z;
             ctx.normal[0] = n.x; ctx.normal[1] = n.y; ctx.normal[2] = n.z;
@@ -376,13 +386,9 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                     ctx.accessibility = back ? measures.accessibility_back[s] : measures.accessibility[s];
                 if (!measures.curvature.empty()) ctx.curvature = back ? -measures.curvature[s] : measures.curvature[s];
             }
-            const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
-            const TransportSlot& ev = K.slot(step.event, type, surface);
-            if (hit.fn || ev.fn) {
-                const uint64_t key = mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(step.inter));
-                if (hit.fn) call(hit, s, ctx, key);
-                if (ev.fn) call(ev, s, ctx, key);
-            }
+            const uint64_t key = mix64(mix64(mix64(seed ^ uint64_t(iter_u)) ^ uint64_t(g)) ^ uint64_t(step.inter));
+            if (hit.fn) call(hit, s, ctx, key);
+            if (ev.fn) call(ev, s, ctx, key);
         };
         std::array<PhiloxStream, kEmitGroup> run_rng;
         std::array<V3, kEmitGroup> run_org, run_dir;
@@ -490,15 +496,25 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 const int type = c.sources[sched.active[e.a]].ton_type;
                 const TonType& tt = c.ton_types[size_t(type)];
                 ton_weight = weight[e.a];
-                std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
                 ++st.emitted;
-                for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type) * ton_weight;
                 if (path.end == LifeEnd::Missed) {
+                    // Nothing runs on a miss (three gamma-tons in four of an
+                    // environment source): what it carries is emitted and
+                    // escapes at once, read from its initial carry without
+                    // copying it into `carry` (a mass property's carry index
+                    // lies within its ton type's initial carry: config.cpp).
                     ++st.escaped;
                     ++st.missed;
-                    end_life(type, false);
+                    for (size_t j = 0; j < M; ++j) {
+                        const int ci = MP[j].carry[size_t(type)];
+                        const double v = ci >= 0 ? double(tt.initial_carry[size_t(ci)]) : 0.0;
+                        st.mass[j].emitted += v * ton_weight;
+                        st.mass[j].escaped += v * ton_weight;
+                    }
                     continue;
                 }
+                std::copy(tt.initial_carry.begin(), tt.initial_carry.end(), carry.begin());
+                for (size_t j = 0; j < M; ++j) st.mass[j].emitted += carried(j, type) * ton_weight;
                 for (uint32_t at = path.first_step; at != kNoStep; at = steps[at].next)
                     run_kernels(steps[at], type, g);
                 // A path the rounds left alive (they stopped at the step
