@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <string>
 
@@ -54,6 +55,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     // batch size never changes the result.  A cancelled pass throws from
     // run_chunks before its sums reach the rows.
     const int64_t batch = trace_batch_chunks(cfg_);
+    const UniformReflectance reflectance = uniform_reflectance(index, state);
     if (logs_.size() < size_t(std::min(batch, nchunks))) logs_.resize(size_t(std::min(batch, nchunks)));
     ray_logs_.assign(record_rays_ ? size_t(nchunks) : 0, {});
     TraceStats total_st;
@@ -66,7 +68,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
     run_with_threads(cfg_.threads, [&] {
         for (int64_t first = 0; first < nchunks; first += batch) {
             const int64_t last = std::min(nchunks, first + batch);
-            run_chunks(iteration, first, last, index, frame, state, logs_.data(),
+            run_chunks(iteration, first, last, index, frame, state, reflectance, logs_.data(),
                        record_rays_ ? ray_logs_.data() + first : nullptr);
             int64_t held = 0;
             for (int64_t k = 0; k < last - first; ++k) {
@@ -98,7 +100,7 @@ std::vector<ChunkLog> Tracer::trace_chunks(int iteration, int64_t first, int64_t
                     ") are not within the " + std::to_string(nchunks) + " chunks of iteration " +
                     std::to_string(iteration));
     std::vector<ChunkLog> logs(size_t(last - first));
-    run_chunks(iteration, first, last, index, frame, state, logs.data(), nullptr);
+    run_chunks(iteration, first, last, index, frame, state, uniform_reflectance(index, state), logs.data(), nullptr);
     return logs;
 }
 
@@ -178,9 +180,36 @@ TraceStats Tracer::merge_end(SurfelState& state) {
     return st;
 }
 
+Tracer::UniformReflectance Tracer::uniform_reflectance(const SceneIndex& index, const SurfelState& state) {
+    const size_t n_surfaces = size_t(std::max(index.n_surfaces(), 0));
+    UniformReflectance r;
+    r.uniform.assign(n_surfaces, 0);
+    r.columns.assign(n_surfaces, {});
+    std::vector<uint8_t> seen(n_surfaces, 0);
+    const size_t W = size_t(state.width);
+    for (size_t s = 0; s < state.size(); ++s) {
+        const int32_t surface = state.surface[s];
+        if (surface < 0 || size_t(surface) >= n_surfaces) continue;
+        const float* row = state.rows.data() + s * W;
+        auto& columns = r.columns[size_t(surface)];
+        if (!seen[size_t(surface)]) {
+            seen[size_t(surface)] = 1;
+            r.uniform[size_t(surface)] = 1;
+            std::memcpy(columns.data(), row, sizeof(columns));
+        } else if (r.uniform[size_t(surface)] && std::memcmp(columns.data(), row, sizeof(columns)) != 0) {
+            r.uniform[size_t(surface)] = 0;
+        }
+    }
+    // the lookup finds a surfel of the triangle's own surface only where
+    // that surface has surfels in the index too
+    for (size_t f = 0; f < n_surfaces; ++f)
+        if (!index.has_surfels(int(f))) r.uniform[f] = 0;
+    return r;
+}
+
 void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
-                        const SceneFrame& frame, const SurfelState& state, ChunkLog* out,
-                        std::vector<RecordedRay>* rays_out) const {
+                        const SceneFrame& frame, const SurfelState& state, const UniformReflectance& reflectance,
+                        ChunkLog* out, std::vector<RecordedRay>* rays_out) const {
     const Config& c = cfg_;
     const KernelTable& K = kernels_;
     const int W = state.width;
@@ -281,7 +310,8 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             V3 org, d0, p, n;
             uint32_t prim, s;
             size_t a;  // active source
-            bool hit;
+            int event;  // of the first interaction (plan)
+            bool hit, need_surfel;
         };
         std::array<Emitted, kEmitGroup> group_slots;
         // A gamma-ton's path while the group's paths advance, and one
@@ -292,8 +322,10 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             float ks, kp, kf;
             int inter;
             V3 p, n, dir;
-            uint32_t prim, s;
+            uint32_t prim, s;  // s: kNoSurfel where the interaction needs none (plan)
             uint32_t first_step, last_step;
+            int event;         // of the interaction at p (plan)
+            bool need_surfel;
             LifeEnd end;
         };
         struct Step {
@@ -303,6 +335,32 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             uint32_t next;
         };
         std::array<Path, kEmitGroup> paths;
+        constexpr uint32_t kNoSurfel = UINT32_MAX;
+        const std::vector<int32_t>& tri_surface = index.tri_surface();
+        // The event of the interaction where a path has just landed, drawn
+        // there: it is the gamma-ton's next draw whenever it is drawn (the
+        // motion's draws came before it, nothing else draws from the stream
+        // in between), so drawing it at the landing changes no draw.  Returns
+        // whether the interaction needs its surfel: for the rules of its
+        // event or of every hit, or for its reflectances where its
+        // surface's surfels differ in them.  Otherwise the surfel is never
+        // looked up (most reflections of most effects).
+        auto plan = [&](PhiloxStream& rng, float ks, float kp, float kf, int type, uint32_t prim,
+                        int& event) -> bool {
+            const float xi = rng.next();
+            const float c1 = std::min(ks, 1.0f);
+            const float c2 = std::min(c1 + kp, 1.0f);
+            const float c3 = std::min(c2 + kf, 1.0f);
+            event = xi < c1 ? GAMMA_EVENT_REFLECT
+                  : xi < c2 ? GAMMA_EVENT_BOUNCE
+                  : xi < c3 ? GAMMA_EVENT_FLOW
+                            : GAMMA_EVENT_SETTLE;
+            if (prim >= tri_surface.size()) return true;
+            const int surface = tri_surface[prim];
+            if (surface < 0 || size_t(surface) >= reflectance.uniform.size() || !reflectance.uniform[size_t(surface)])
+                return true;
+            return K.slot(GAMMA_EVENT_HIT, type, surface).fn != nullptr || K.slot(event, type, surface).fn != nullptr;
+        };
         std::vector<Step> steps;
         std::vector<uint32_t> alive;
         alive.reserve(kEmitGroup);
@@ -320,21 +378,17 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
         // continuation of the paths a round left alive both advance by it.
         auto advance = [&](uint32_t k, Step& step) -> bool {
             Path& path = paths[k];
-            const TonType& tt = c.ton_types[size_t(c.sources[sched.active[group_slots[k].a]].ton_type)];
+            const int type = c.sources[sched.active[group_slots[k].a]].ton_type;
+            const TonType& tt = c.ton_types[size_t(type)];
             PhiloxStream& rng = group_slots[k].rng;
             const int inter = ++path.inter;
-            const float xi = rng.next();
-            const float c1 = std::min(path.ks, 1.0f);
-            const float c2 = std::min(c1 + path.kp, 1.0f);
-            const float c3 = std::min(c2 + path.kf, 1.0f);
-            const int event = xi < c1 ? GAMMA_EVENT_REFLECT
-                            : xi < c2 ? GAMMA_EVENT_BOUNCE
-                            : xi < c3 ? GAMMA_EVENT_FLOW
-                                      : GAMMA_EVENT_SETTLE;
+            const int event = path.event;
             step = Step{path.p, path.n, path.dir, path.s, inter, event, kNoStep};
             if (event == GAMMA_EVENT_SETTLE) { path.end = LifeEnd::Settled; return false; }
             if (inter >= max_inter) { path.end = LifeEnd::Capped; return false; }
-            const float* row = rows + size_t(path.s) * W;
+            // without its surfel, the surface's columns (the same in every surfel of it)
+            const float* row = path.s != kNoSurfel ? rows + size_t(path.s) * W
+                                                   : reflectance.columns[size_t(tri_surface[path.prim])].data();
             const float ds = row[GAMMA_ROW_REFLECTANCE_STRAIGHT], dp = row[GAMMA_ROW_REFLECTANCE_PARABOLIC],
                         df = row[GAMMA_ROW_REFLECTANCE_FLOW];
             const float kp_left = std::max(path.kp - dp, 0.0f);
@@ -352,10 +406,13 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             path.n = w.n;
             path.dir = w.dir;
             path.prim = w.prim;
+            path.s = kNoSurfel;  // until find_surfel, if the next interaction needs it
+            path.need_surfel = plan(rng, path.ks, path.kp, path.kf, type, path.prim, path.event);
             return true;
         };
         // The kernels of one interaction of gamma-ton g (of ton type `type`).
         auto run_kernels = [&](const Step& step, int type, int64_t g) {
+            if (step.s == kNoSurfel) return;  // no rule runs there (plan)
             const uint32_t s = step.s;
             const int surface = surf_of[s];
             const TransportSlot& hit = K.slot(GAMMA_EVENT_HIT, type, surface);
@@ -424,14 +481,22 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 ++st.rays;
                 index.cast(w.rh, e.org, e.d0, 0.0f);
                 e.hit = land(w.rh, e.org, e.d0, e.p, e.n, e.prim);
-                if (e.hit) index.prefetch_lookup(e.prim);
-                if (k >= kRestLag && group[k - kRestLag].hit) index.prefetch_lookup_rest(group[k - kRestLag].prim);
+                e.need_surfel = false;
+                if (e.hit) {
+                    const int type = c.sources[sched.active[e.a]].ton_type;
+                    const TonType& tt = c.ton_types[size_t(type)];
+                    e.need_surfel = plan(e.rng, tt.ks, tt.kp, tt.kf, type, e.prim, e.event);
+                    if (e.need_surfel) index.prefetch_lookup(e.prim);
+                }
+                if (k >= kRestLag && group[k - kRestLag].need_surfel)
+                    index.prefetch_lookup_rest(group[k - kRestLag].prim);
             }
             for (size_t k = n_group > kRestLag ? n_group - kRestLag : 0; k < n_group; ++k)
-                if (group[k].hit) index.prefetch_lookup_rest(group[k].prim);
+                if (group[k].need_surfel) index.prefetch_lookup_rest(group[k].prim);
             for (size_t k = 0; k < n_group; ++k) {
                 Emitted& e = group[k];
-                if (!e.hit) continue;
+                e.s = kNoSurfel;
+                if (!e.need_surfel) continue;
                 const float pa[3] = {e.p.x, e.p.y, e.p.z};
                 e.s = index.nearest_on_triangle(e.prim, pa);
                 const float* row = rows + size_t(e.s) * W;
@@ -464,12 +529,14 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 path.n = e.n;
                 path.dir = e.d0;
                 path.prim = e.prim;
-                path.s = e.s;  // found in the group's second pass
+                path.s = e.s;  // found in the group's second pass, if needed
+                path.event = e.event;
+                path.need_surfel = e.need_surfel;
                 alive.push_back(uint32_t(k));
             }
             while (!alive.empty() && steps.size() < step_budget) {
                 for (uint32_t k : alive)
-                    if (paths[k].inter > 0) find_surfel(paths[k]);
+                    if (paths[k].inter > 0 && paths[k].need_surfel) find_surfel(paths[k]);
                 size_t still = 0;
                 for (uint32_t k : alive) {
                     Path& path = paths[k];
@@ -481,7 +548,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                     else steps[path.last_step].next = at;
                     path.last_step = at;
                     if (!goes_on) continue;
-                    index.prefetch_lookup(path.prim);
+                    if (path.need_surfel) index.prefetch_lookup(path.prim);
                     alive[still++] = k;
                 }
                 alive.resize(still);
@@ -522,7 +589,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 // at once: its path and draws are those the rounds would have
                 // made, its kernels run in the same order.
                 while (path.end == LifeEnd::Alive) {
-                    if (path.inter > 0) find_surfel(path);
+                    if (path.inter > 0 && path.need_surfel) find_surfel(path);
                     Step step;
                     advance(uint32_t(k), step);
                     run_kernels(step, type, g);

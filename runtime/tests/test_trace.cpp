@@ -477,3 +477,125 @@ TEST(Trace, StepBudgetNeverChangesResults) {
         }
     }
 }
+
+namespace {
+// A hit rule that reads and writes nothing: it only makes every interaction
+// one whose surfel the tracer must look up.
+extern "C" int32_t k_hit_nothing(float*, const float*, float*, const GammaContext*) { return 0; }
+// An update rule that makes surface 0's straight reflectance differ from
+// surfel to surfel (from the second iteration on).
+extern "C" int32_t k_update_reflectance(float* surf, const GammaContext* ctx) {
+    surf[GAMMA_ROW_REFLECTANCE_STRAIGHT] = 0.2f + 0.3f * std::fabs(ctx->position[0]);
+    return 0;
+}
+}  // namespace
+
+// The tracer looks an interaction's surfel up only where something needs it:
+// a rule of the interaction's event or of every hit, or reflectances that
+// differ between the surfels of the surface (Tracer::uniform_reflectance).
+// Elsewhere it reads the surface's reflectances.  A hit rule that does
+// nothing forces every lookup: with and without it, the rows and counters
+// are the same bit for bit, on a surface whose reflectances are uniform and
+// on one whose reflectances an update rule has made differ, at 1 and 2
+// threads.
+TEST(Trace, SurfelLookedUpOnlyWhereNeededSameResults) {
+    struct Outcome {
+        std::vector<float> rows;
+        std::vector<int64_t> counts;
+        std::vector<std::vector<uint8_t>> uniform;   // per iteration, per surface
+    };
+    auto run = [](int threads, bool every_lookup) {
+        Mesh m = gamma_test::icosphere(3);
+        const int W = 5;
+        Config c = base_config(W, 0.3f);
+        c.surfels = 3000;
+        c.threads = threads;
+        c.max_interactions = 3;
+        c.surface_rows.push_back({0.15f, 0, 0, 0.5f, 0.25f});
+        c.triangle_surface.resize(m.num_triangles());
+        for (size_t i = 0; i < m.num_triangles(); ++i) c.triangle_surface[i] = int32_t(i % 2);
+        int t0 = c.add_ton_type(1, 0, 0, {1.0f});
+        int t1 = c.add_ton_type(0.8f, 0, 0, {0.5f});
+        c.add_source("point", t0, 20000, {0.1f, 0, 0});
+        c.add_source("sphere", t1, 20000);
+        for (int ty : {t0, t1})
+            for (int s : {0, 1}) {
+                c.set_transport(GAMMA_EVENT_SETTLE, ty, s, addr(reinterpret_cast<void*>(&k_settle)), true);
+                if (every_lookup)
+                    c.set_transport(GAMMA_EVENT_HIT, ty, s, addr(reinterpret_cast<void*>(&k_hit_nothing)), false);
+            }
+        // reflections of ton type 1 on surface 1 run a rule too
+        c.set_transport(GAMMA_EVENT_REFLECT, t1, 1, addr(reinterpret_cast<void*>(&k_hit)), true);
+        c.set_update(0, addr(reinterpret_cast<void*>(&k_update_reflectance)));
+        Simulation sim(m, c);
+        Outcome out;
+        for (int it = 1; it <= 3; ++it) {
+            out.uniform.push_back(Tracer::uniform_reflectance(sim.scene_index(), sim.state()).uniform);
+            const TraceStats st = sim.trace(it);
+            sim.update(it);
+            out.counts.insert(out.counts.end(), {st.emitted, st.missed, st.escaped, st.settled, st.capped,
+                                                 st.interactions, st.rays});
+        }
+        out.rows = sim.rows();
+        return out;
+    };
+    const Outcome base = run(1, false);
+    // the first iteration finds both surfaces uniform, the later ones surface 0 no longer
+    ASSERT_EQ(base.uniform.size(), 3u);
+    EXPECT_EQ(base.uniform[0], (std::vector<uint8_t>{1, 1}));
+    EXPECT_EQ(base.uniform[1], (std::vector<uint8_t>{0, 1}));
+    EXPECT_EQ(base.uniform[2], (std::vector<uint8_t>{0, 1}));
+    EXPECT_GT(base.counts[4], 0);   // some lives capped (at 3 interactions)
+    for (int threads : {1, 2})
+        for (bool every : {false, true}) {
+            if (threads == 1 && !every) continue;
+            const Outcome o = run(threads, every);
+            EXPECT_EQ(o.counts, base.counts) << threads << " threads, every lookup " << every;
+            ASSERT_EQ(o.rows.size(), base.rows.size());
+            EXPECT_EQ(0, std::memcmp(o.rows.data(), base.rows.data(), o.rows.size() * sizeof(float)))
+                << threads << " threads, every lookup " << every;
+        }
+}
+
+// Tracer::uniform_reflectance: a surface is uniform when it has surfels and
+// all of them hold the same reflectance columns, bit for bit (-0 and +0
+// differ); a surface without surfels is not.
+TEST(Trace, UniformReflectanceNeedsEqualColumnsAndSurfels) {
+    Mesh m = gamma_test::icosphere(2);
+    Config c = base_config(4, 0.3f);
+    c.surfels = 500;
+    c.surface_rows.push_back({0.1f, 0.2f, 0.3f, 0});
+    c.surface_rows.push_back({0.1f, 0.2f, 0.3f, 0});
+    c.triangle_surface.assign(m.num_triangles(), 0);
+    for (size_t i = 0; i < m.num_triangles(); i += 2) c.triangle_surface[i] = 1;   // surface 2: no triangle
+    int t = c.add_ton_type(1, 0, 0, {});
+    c.add_source("point", t, 10, {0, 0, 0});
+    Simulation sim(m, c);
+    EXPECT_EQ(Tracer::uniform_reflectance(sim.scene_index(), sim.state()).uniform,
+              (std::vector<uint8_t>{1, 1, 0}));
+    std::vector<float> rows = sim.rows();
+    const auto& surface = sim.state().surface;
+    // surface 0 with a straight reflectance of +0 everywhere, then -0 in one surfel
+    std::vector<float> zeroed = rows;
+    for (size_t s = 0; s < surface.size(); ++s) {
+        if (surface[s] != 0) continue;
+        rows[s * 4 + GAMMA_ROW_REFLECTANCE_STRAIGHT] = 0.0f;
+        zeroed[s * 4 + GAMMA_ROW_REFLECTANCE_STRAIGHT] = 0.0f;
+    }
+    for (size_t s = 0; s < surface.size(); ++s)
+        if (surface[s] == 0) {
+            zeroed[s * 4 + GAMMA_ROW_REFLECTANCE_STRAIGHT] = -0.0f;
+            break;
+        }
+    sim.set_rows(rows.data());
+    EXPECT_EQ(Tracer::uniform_reflectance(sim.scene_index(), sim.state()).uniform,
+              (std::vector<uint8_t>{1, 1, 0}));
+    sim.set_rows(zeroed.data());
+    EXPECT_EQ(Tracer::uniform_reflectance(sim.scene_index(), sim.state()).uniform,
+              (std::vector<uint8_t>{0, 1, 0}));
+    // a property column that differs does not matter
+    rows[3] = 7.0f;
+    sim.set_rows(rows.data());
+    EXPECT_EQ(Tracer::uniform_reflectance(sim.scene_index(), sim.state()).uniform,
+              (std::vector<uint8_t>{1, 1, 0}));
+}

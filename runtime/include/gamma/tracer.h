@@ -71,11 +71,22 @@ public:
     void set_cancel_flag(std::atomic<bool>* flag) { cancel_ = flag; }
     std::vector<RecordedRay> take_recorded_rays();
 
+    // Per surface: whether it has surfels that all hold the same reflectance
+    // columns (bit for bit), and those columns.  An interaction on such a
+    // surface needs its surfel only for the rules that run there (the
+    // tracer looks it up then, not at every hit).
+    struct UniformReflectance {
+        std::vector<uint8_t> uniform;
+        std::vector<std::array<float, GAMMA_ROW_HEADER>> columns;
+    };
+    static UniformReflectance uniform_reflectance(const SceneIndex& index, const SurfelState& state);
+
 private:
     // Traces chunks [first, last) into out[0 .. last - first); with
     // rays_out, also keeps each chunk's cast rays in rays_out[0 .. last - first).
     void run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index, const SceneFrame& frame,
-                    const SurfelState& state, ChunkLog* out, std::vector<RecordedRay>* rays_out) const;
+                    const SurfelState& state, const UniformReflectance& reflectance, ChunkLog* out,
+                    std::vector<RecordedRay>* rays_out) const;
 
     const Config& cfg_;
     const KernelTable& kernels_;
