@@ -500,9 +500,15 @@ std::unique_ptr<SetupSnapshot> SetupSnapshot::make_ahead(const Mesh& mesh, Surfe
     s->triangles_ = mesh.triangles;
     s->lo_hi_ = {mesh.lo[0], mesh.lo[1], mesh.lo[2], mesh.hi[0], mesh.hi[1], mesh.hi[2]};
     s->tri_surface_.assign(mesh.triangles.size() / 3, 0);
-    // What Simulation::Simulation does for this binding, in its order.
+    // What Simulation::Simulation does for this binding, in its order (the
+    // BVH first at one thread, beside the rest up to the kd-trees at more).
     auto index = std::make_unique<SceneIndex>();
-    index->build_geometry(mesh, s->tri_surface_, 1);
+    auto build_geometry = [&] { index->build_geometry(mesh, s->tri_surface_, 1); };
+    std::unique_ptr<ThreadBeside> geometry;
+    if (resolve_threads(threads) == 1)
+        build_geometry();
+    else
+        geometry = std::make_unique<ThreadBeside>(build_geometry);
     std::vector<float> normals;
     run_with_threads(threads, [&] {
         tbb::task_group beside;
@@ -517,6 +523,7 @@ std::unique_ptr<SetupSnapshot> SetupSnapshot::make_ahead(const Mesh& mesh, Surfe
             };
             const bool splat_beside = n <= kSplatBesideMaxSurfels;
             if (splat_beside) beside.run(splat);
+            if (geometry) geometry->wait();
             index->build_surfels(s->surf_.position.data(), surfel_surface.data(), n, sigma, threads);
             if (!splat_beside) splat();
             beside.wait();

@@ -63,7 +63,7 @@ constexpr size_t kSplatBesideMaxSurfels = 500000;
 Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead, SetupSnapshot* snapshot)
     : mesh_(mesh), cfg_(config) {
     const Config& c = cfg_;
-    std::vector<int32_t> tri_surface = validate_config(c, mesh_);
+    const std::vector<int32_t> tri_surface = validate_config(c, mesh_);
     frame_ = SceneFrame::of(mesh_, c.down);
     sources_ = build_sources(c, frame_);
     kernels_ = KernelTable::from_config(c);
@@ -78,9 +78,12 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
     // tail and remaining serial stretches, e.g. the kernel's transposition,
     // leave a core to the other); above, after them: both hold large
     // temporaries, and together they lifted the peak of 1.6M surfels on the
-    // bunny from 1,873 to 2,057 MiB.  The Embree BVH is built first,
-    // outside the arena, with the threads it always had (its layout never
-    // depends on the configured count).
+    // bunny from 1,873 to 2,057 MiB.  The Embree BVH is built outside the
+    // arena, with the threads it always had (its layout never depends on
+    // the configured count): at one thread first, as before; at more, on a
+    // thread of its own beside the sampling (nothing before the kd-trees
+    // and the lookup needs it), so its serial stretches no longer hold up
+    // the setup.
     // A snapshot of this setup (setup_snapshot.h) gives the surfels, the
     // lookup and the splat kernel; prepared, the BVH, the kd-trees and the
     // corner normals too.
@@ -96,14 +99,23 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
     }
     const bool prepared = whole && snapshot->prepared();
     auto t0 = std::chrono::steady_clock::now();
+    auto build_geometry = [&] {
+        const auto t = std::chrono::steady_clock::now();
+        index_->build_geometry(mesh_, tri_surface, nsurf);
+        setup_seconds_.geometry = seconds_since(t);
+    };
+    std::unique_ptr<ThreadBeside> geometry;
     if (prepared) {
         index_ = snapshot->take_index();
         corner_normals_ = snapshot->take_corner_normals();
+        setup_seconds_.geometry = seconds_since(t0);
     } else {
         index_ = std::make_unique<SceneIndex>();
-        index_->build_geometry(mesh_, std::move(tri_surface), nsurf);
+        if (resolve_threads(c.threads) == 1)
+            build_geometry();
+        else
+            geometry = std::make_unique<ThreadBeside>(build_geometry);
     }
-    setup_seconds_.geometry = seconds_since(t0);
     run_with_threads(c.threads, [&] {
         tbb::task_group beside;
         try {
@@ -115,12 +127,12 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
                 });
             t0 = std::chrono::steady_clock::now();
             if (from_snapshot_ != FromSnapshot::Nothing) {
-                state_ = SurfelState::of(snapshot->take_surfels(), index_->tri_surface(), c.surface_rows);
+                state_ = SurfelState::of(snapshot->take_surfels(), tri_surface, c.surface_rows);
             } else if (ahead != nullptr && ahead->matches(mesh, size_t(c.surfels), c.seed)) {
                 setup_seconds_.sample_ahead = ahead->seconds();
-                state_ = SurfelState::of(ahead->take(), index_->tri_surface(), c.surface_rows);
+                state_ = SurfelState::of(ahead->take(), tri_surface, c.surface_rows);
             } else {
-                state_ = SurfelState::sample(mesh_, index_->tri_surface(), size_t(c.surfels), c.seed, c.surface_rows);
+                state_ = SurfelState::sample(mesh_, tri_surface, size_t(c.surfels), c.seed, c.surface_rows);
             }
             setup_seconds_.sample = seconds_since(t0);
             const float sigma = float(std::sqrt(mesh_.area() / double(state_.size())));
@@ -132,6 +144,7 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
             };
             const bool splat_beside = !whole && state_.size() <= kSplatBesideMaxSurfels;
             if (splat_beside) beside.run(splat);
+            if (geometry) geometry->wait();
             t0 = std::chrono::steady_clock::now();
             if (whole) {
                 if (!prepared)

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <memory>
 #include <utility>
 
@@ -229,33 +230,83 @@ SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, c
 }
 
 namespace {
+// Targets per range of the transposition below (at most 65536: a target's
+// place in its range is held in 16 bits).
+constexpr size_t kTargetsPerRange = 4096;
+
+// The transposition into gather form, in parallel and the same, entry for
+// entry, as one pass over the sources in ascending order (which leaves every
+// target's list sorted by source): the targets are cut into ranges; each
+// block of sources counts its entries per range; the entries are then moved
+// into their range's stretch of the result, the blocks' parts in block
+// order (so by ascending source); and each range orders its stretch by
+// target, a stable counting sort (the sources stay ascending).  Neither the
+// ranges nor the blocks depend on the thread count.
 SplatKernel gather_form(const std::vector<ScatterBlock>& blocks, size_t n) {
     SplatKernel k;
     k.offset.assign(n + 1, 0);
     if (n == 0) return k;
-    // Transpose into gather form; iterating sources in ascending order keeps
-    // every target's list sorted by source.
-    size_t total = 0;
-    for (const ScatterBlock& B : blocks) {
-        total += B.entries.size();
-        for (const auto& e : B.entries) ++k.offset[size_t(e.first) + 1];
-    }
-    for (size_t j = 0; j < n; ++j) k.offset[j + 1] += k.offset[j];
+    const size_t nblocks = blocks.size(), nranges = (n + kTargetsPerRange - 1) / kTargetsPerRange;
+    // at[r * nblocks + b]: block b's entries in range r, then where they go
+    // (the offsets are 32-bit: so are these)
+    std::vector<uint32_t> at(nranges * nblocks, 0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 16), [&](const tbb::blocked_range<size_t>& range) {
+        std::vector<uint32_t> count(nranges);
+        for (size_t b = range.begin(); b < range.end(); ++b) {
+            std::fill(count.begin(), count.end(), 0);
+            for (const auto& e : blocks[b].entries) ++count[e.first / kTargetsPerRange];
+            for (size_t r = 0; r < nranges; ++r) at[r * nblocks + b] = count[r];
+        }
+    });
+    std::vector<size_t> range_at(nranges + 1, 0);
+    tbb::parallel_for(size_t(0), nranges, [&](size_t r) {
+        size_t sum = 0;
+        for (size_t b = 0; b < nblocks; ++b) sum += at[r * nblocks + b];
+        range_at[r + 1] = sum;
+    });
+    for (size_t r = 0; r < nranges; ++r) range_at[r + 1] += range_at[r];
+    tbb::parallel_for(size_t(0), nranges, [&](size_t r) {
+        uint32_t next = uint32_t(range_at[r]);
+        for (size_t b = 0; b < nblocks; ++b) next += std::exchange(at[r * nblocks + b], next);
+    });
+    const size_t total = range_at[nranges];
     k.source.resize(total);
     k.weight.resize(total);
-    std::vector<uint32_t> fill(k.offset.begin(), k.offset.end() - 1);
-    for (size_t b = 0; b < blocks.size(); ++b) {
-        const ScatterBlock& B = blocks[b];
-        for (size_t i = 0; i < B.end.size(); ++i) {
-            const uint32_t s = uint32_t(b * kSourcesPerBlock + i);
-            for (uint32_t e = i ? B.end[i - 1] : 0; e < B.end[i]; ++e) {
-                const auto& [j, w] = B.entries[e];
-                const uint32_t at = fill[j]++;
-                k.source[at] = s;
-                k.weight[at] = w;
+    std::vector<uint16_t> in_range(total);   // each moved entry's target, less its range's first
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 16), [&](const tbb::blocked_range<size_t>& range) {
+        std::vector<uint32_t> next(nranges);
+        for (size_t b = range.begin(); b < range.end(); ++b) {
+            const ScatterBlock& B = blocks[b];
+            for (size_t r = 0; r < nranges; ++r) next[r] = at[r * nblocks + b];
+            for (size_t i = 0; i < B.end.size(); ++i) {
+                const uint32_t s = uint32_t(b * kSourcesPerBlock + i);
+                for (uint32_t e = i ? B.end[i - 1] : 0; e < B.end[i]; ++e) {
+                    const auto& [j, w] = B.entries[e];
+                    const size_t to = next[j / kTargetsPerRange]++;
+                    k.source[to] = s;
+                    k.weight[to] = w;
+                    in_range[to] = uint16_t(j % kTargetsPerRange);
+                }
             }
         }
-    }
+    });
+    tbb::parallel_for(size_t(0), nranges, [&](size_t r) {
+        const size_t first = r * kTargetsPerRange, targets = std::min(n - first, kTargetsPerRange);
+        const size_t begin = range_at[r], end = range_at[r + 1];
+        std::vector<uint32_t> fill(targets + 1, 0);
+        for (size_t e = begin; e < end; ++e) ++fill[size_t(in_range[e]) + 1];
+        for (size_t t = 0; t < targets; ++t) {
+            fill[t + 1] += fill[t];
+            k.offset[first + t + 1] = uint32_t(begin + fill[t + 1]);
+        }
+        const std::vector<uint32_t> source(k.source.begin() + std::ptrdiff_t(begin), k.source.begin() + std::ptrdiff_t(end));
+        const std::vector<float> weight(k.weight.begin() + std::ptrdiff_t(begin), k.weight.begin() + std::ptrdiff_t(end));
+        for (size_t e = begin; e < end; ++e) {
+            const size_t to = begin + fill[in_range[e]]++;
+            k.source[to] = source[e - begin];
+            k.weight[to] = weight[e - begin];
+        }
+    });
     k.mean_neighbours = double(total) / double(n);
     return k;
 }

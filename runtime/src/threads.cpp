@@ -6,6 +6,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <utility>
 
 namespace gammart {
 
@@ -19,6 +20,24 @@ namespace {
 // running (0: none).
 thread_local int entered_arena_threads = 0;
 }  // namespace
+
+ThreadBeside::ThreadBeside(const std::function<void()>& f)
+    : thread_([this, f] {
+          try {
+              f();
+          } catch (...) {
+              error_ = std::current_exception();
+          }
+      }) {}
+
+ThreadBeside::~ThreadBeside() {
+    if (thread_.joinable()) thread_.join();
+}
+
+void ThreadBeside::wait() {
+    if (thread_.joinable()) thread_.join();
+    if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
+}
 
 void run_with_threads(int threads, const std::function<void()>& f) {
     const int n = resolve_threads(threads);

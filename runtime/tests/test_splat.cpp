@@ -76,6 +76,72 @@ TEST(Splat, BitIdenticalAcrossThreads) {
     EXPECT_NEAR(sa, si, 1e-3 * si);
 }
 
+// The kernel is the rule of splat.h computed pair by pair, bit for bit, with
+// the sources of every target in ascending order, at 1 and 3 threads: on
+// 10,800 surfels in shuffled order, so every source's targets fall in
+// several of the transposition's ranges of targets.
+TEST(Splat, GatherFormIsEveryNeighbourhoodTransposedAtAnyThreadCount) {
+    const float h = 0.01f;
+    const Grid g0 = make_grid(60, h);
+    const size_t n = g0.surf.size();
+    ASSERT_GT(n, size_t(2 * 4096));
+    std::vector<size_t> order(n);
+    for (size_t i = 0; i < n; ++i) order[i] = (i * 7919) % n;   // 7919 is prime, n = 10,800 is not its multiple
+    Grid g;
+    for (size_t i : order) g.add(g0.pos[3 * i], g0.pos[3 * i + 1], g0.pos[3 * i + 2], g0.surf[i]);
+    ASSERT_EQ(g.surf.size(), n);
+    // Reference: each source's neighbourhood by testing every pair, in the
+    // float arithmetic splat.cpp does, then transposed serially.
+    const float r = 2.0f * h, r2 = r * r;
+    const double inv2s2 = 1.0 / (2.0 * double(h) * double(h));
+    std::vector<std::vector<std::pair<uint32_t, float>>> into(n);   // per target: (source, weight)
+    for (size_t s = 0; s < n; ++s) {
+        const float* ps = &g.pos[3 * s];
+        const float* ns = &g.nrm[3 * s];
+        std::vector<std::pair<uint32_t, double>> hood;   // ascending target
+        for (size_t j = 0; j < n; ++j) {
+            const float* pj = &g.pos[3 * j];
+            float d2 = 0.0f;
+            for (int c = 0; c < 3; ++c) {
+                const float d = ps[c] - pj[c];
+                d2 += d * d;
+            }
+            if (j != s) {
+                if (!(d2 < r2) || g.surf[j] != g.surf[s]) continue;
+                const float* nj = &g.nrm[3 * j];
+                if (ns[0] * nj[0] + ns[1] * nj[1] + ns[2] * nj[2] < 0.5f) continue;
+                const float off = (pj[0] - ps[0]) * ns[0] + (pj[1] - ps[1]) * ns[1] + (pj[2] - ps[2]) * ns[2];
+                if (std::fabs(off) > 0.5f * h) continue;
+            } else {
+                d2 = 0.0f;
+            }
+            hood.emplace_back(uint32_t(j), std::exp(-double(d2) * inv2s2));
+        }
+        double sum = 0;
+        for (const auto& e : hood) sum += e.second;
+        for (const auto& e : hood) into[e.first].emplace_back(uint32_t(s), float(e.second / sum));
+    }
+    for (int threads : {1, 3}) {
+        SplatKernel k;
+        run_with_threads(threads, [&] { k = build_splat_kernel(g.pos.data(), g.nrm.data(), g.surf.data(), n, h); });
+        ASSERT_EQ(k.offset.size(), n + 1) << threads;
+        ASSERT_EQ(k.offset[0], 0u);
+        size_t entries = 0, crossing = 0;
+        for (size_t j = 0; j < n; ++j) {
+            ASSERT_EQ(k.offset[j + 1] - k.offset[j], into[j].size()) << "target " << j << ", " << threads << " thread(s)";
+            for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e) {
+                const auto& want = into[j][e - k.offset[j]];
+                EXPECT_EQ(k.source[e], want.first);
+                EXPECT_EQ(k.weight[e], want.second);
+                crossing += k.source[e] / 4096 != j / 4096;
+            }
+            entries += into[j].size();
+        }
+        EXPECT_EQ(k.source.size(), entries);
+        EXPECT_GT(crossing, entries / 4);   // the shuffle sends many entries to other ranges of targets
+    }
+}
+
 // Riding surfels keep their neighbourhoods (SPEC §13.12): reweighting at the
 // positions the kernel was built with reproduces it bit for bit, and after a
 // move every source's weights still sum to 1 with the Gaussian of the new
