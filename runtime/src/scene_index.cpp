@@ -50,24 +50,6 @@ constexpr size_t kPruningSurfels = LookupPruning::kNearest;
 constexpr double kColumnSpacings = 2.0, kNearestStartSpacings = 1.0;
 constexpr int kNearestAttempts = 4;
 
-// A (squared distance, index) pair as one word that orders as the pair
-// does, distance first: the bits of a float >= +0 order as the float (the
-// distances here are sums of squares, never -0 or NaN).  The lookup sorts
-// these words instead of pairs under a two-key comparison (the sorts were
-// ~10 % of the setup's CPU).
-uint64_t distance_key(float d2, uint32_t i) {
-    uint32_t bits;
-    std::memcpy(&bits, &d2, sizeof bits);
-    return (uint64_t(bits) << 32) | i;
-}
-float key_distance(uint64_t key) {
-    const uint32_t bits = uint32_t(key >> 32);
-    float d2;
-    std::memcpy(&d2, &bits, sizeof d2);
-    return d2;
-}
-uint32_t key_index(uint64_t key) { return uint32_t(key); }
-
 V3 unit(const std::array<float, 3>& a) {
     const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
     return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
@@ -437,17 +419,8 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     for (size_t k = 0; k < nx; ++k)
                         X.set(k, &tree.pos[3 * size_t(key_index(found[k]))], key_distance(found[k]));
                     X.close(nx);
-                    // written at every step, kept by advancing the cursor
-                    // (no branch on the outcome)
                     kept.resize(found.size());
-                    size_t n_kept = 0;
-                    for (size_t p = 0; p < found.size(); ++p) {
-                        const uint64_t f = found[p];
-                        kept[n_kept] = f;
-                        n_kept += !LookupPruning::never(X, &tree.pos[3 * size_t(key_index(f))],
-                                                        double(key_distance(f)), p, r);
-                    }
-                    kept.resize(n_kept);
+                    kept.resize(LookupPruning::keep(X, found.data(), found.size(), tree.pos.data(), r, kept.data()));
                     found.swap(kept);
                     if (found.size() > limit || found.empty()) return found.size();
                     if (ball2) *ball2 = R2;

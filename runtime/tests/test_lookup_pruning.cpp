@@ -1,6 +1,8 @@
 // The triangle lookup's pruning test: the SSE2 form (all x at once, no
-// branch per x) answers as the scalar rule does, case for case, including
-// cases near the test's boundary, y's own slot and fewer than kNearest x.
+// branch per x) and, where the CPU has it, the AVX-512 form answer as the
+// scalar rule does, case for case, including cases near the test's
+// boundary, y's own slot and fewer than kNearest x; `keep` keeps what the
+// scalar rule keeps.  (Compiled with -ffp-contract=off, as the lookup is.)
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -46,6 +48,23 @@ float squared_distance(const float* a, const float* b) {
     return d;
 }
 
+// A sphere of radius r (a triangle's) and min_count + (a draw mod
+// count_range) points around it on a slightly bent sheet, as surfels around
+// a triangle.
+std::vector<float> bent_sheet(std::mt19937& rng, int min_count, int count_range, Sphere* sphere) {
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    Sphere& s = *sphere;
+    s = Sphere{{u(rng), u(rng), u(rng)}, 0.02 + 0.2 * std::fabs(double(u(rng)))};
+    const float spread = float(3.0 * s.r) * (1.0f + std::fabs(u(rng)));
+    std::vector<float> pts;
+    const int count = min_count + int(rng() % unsigned(count_range));
+    for (int i = 0; i < count; ++i) {
+        const float a = spread * u(rng), b = spread * u(rng);
+        pts.insert(pts.end(), {s.c[0] + a, s.c[1] + b, s.c[2] + 0.1f * (a * a + b * b) + 0.01f * spread * u(rng)});
+    }
+    return pts;
+}
+
 // Both forms on each case, and how often the rule pruned.
 struct Tally {
     size_t cases = 0, pruned = 0;
@@ -54,12 +73,26 @@ struct Tally {
         const bool scalar = LookupPruning::never_scalar(X, y, cy2, self, r);
         ++cases;
         pruned += scalar;
-        if (LookupPruning::never(X, y, cy2, self, r) == scalar) return ::testing::AssertionSuccess();
-        return ::testing::AssertionFailure() << "the packed form says " << (scalar ? "keep" : "prune");
+        if (LookupPruning::never(X, y, cy2, self, r) != scalar)
+            return ::testing::AssertionFailure() << "the packed form says " << (scalar ? "keep" : "prune");
+#if defined(GAMMA_LOOKUP_PRUNING_AVX512)
+        if (LookupPruning::has_avx512()) {
+            ++avx512_cases;
+            if (LookupPruning::never_avx512(X, y, cy2, self, r) != scalar)
+                return ::testing::AssertionFailure() << "the AVX-512 form says " << (scalar ? "keep" : "prune");
+        }
+#endif
+        return ::testing::AssertionSuccess();
     }
+    size_t avx512_cases = 0;
     // many cases, both outcomes common: the comparison means something
     void expect_both_outcomes() const {
         EXPECT_GT(cases, 50000u);
+#if defined(GAMMA_LOOKUP_PRUNING_AVX512)
+        if (LookupPruning::has_avx512()) {
+            EXPECT_EQ(avx512_cases, cases);
+        }
+#endif
         EXPECT_GT(pruned, cases / 10);
         EXPECT_LT(pruned, cases - cases / 10);
     }
@@ -69,19 +102,10 @@ struct Tally {
 
 TEST(LookupPruning, PackedTestAnswersAsTheScalarRule) {
     std::mt19937 rng(14);
-    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
     Tally tally;
     for (int sphere = 0; sphere < 3000; ++sphere) {
-        // points around a sphere of radius r (a triangle's) on a slightly
-        // bent sheet, as surfels around a triangle
-        Sphere s{{u(rng), u(rng), u(rng)}, 0.02 + 0.2 * std::fabs(double(u(rng)))};
-        const float spread = float(3.0 * s.r) * (1.0f + std::fabs(u(rng)));
-        std::vector<float> pts;
-        const int count = 2 + int(rng() % 60);
-        for (int i = 0; i < count; ++i) {
-            const float a = spread * u(rng), b = spread * u(rng);
-            pts.insert(pts.end(), {s.c[0] + a, s.c[1] + b, s.c[2] + 0.1f * (a * a + b * b) + 0.01f * spread * u(rng)});
-        }
+        Sphere s;
+        std::vector<float> pts = bent_sheet(rng, 2, 60, &s);
         // duplicates and a point at the centre: ties of every kind
         if (sphere % 7 == 0) pts.insert(pts.end(), pts.begin(), pts.begin() + 3);
         if (sphere % 11 == 0) pts.insert(pts.end(), {s.c[0], s.c[1], s.c[2]});
@@ -173,4 +197,35 @@ TEST(LookupPruning, TheSlotGivenAsSelfAndTheSlotsPastTheCountNeverDecide) {
     LookupPruning::Nearest none;
     none.close(0);
     EXPECT_FALSE(LookupPruning::never(none, far, far2, LookupPruning::kNearest, r));
+}
+
+TEST(LookupPruning, KeepKeepsWhatTheScalarRuleKeepsInOrder) {
+    // found lists as the lookup makes them: distance_key words with the x
+    // (the nearest few) first, on sheets of points around spheres
+    std::mt19937 rng(23);
+    size_t found_total = 0, kept_total = 0;
+    for (int sphere = 0; sphere < 2000; ++sphere) {
+        Sphere s;
+        const std::vector<float> pts = bent_sheet(rng, 1, 80, &s);
+        const size_t nx = std::min<size_t>(1 + rng() % LookupPruning::kNearest, pts.size() / 3);
+        std::vector<size_t> order;
+        const LookupPruning::Nearest X = nearest_of(s, pts, nx, &order);
+        // the x first, the rest in a shuffled order
+        std::shuffle(order.begin() + std::ptrdiff_t(nx), order.end(), rng);
+        std::vector<uint64_t> found, want;
+        for (size_t p = 0; p < order.size(); ++p) {
+            const float* y = &pts[3 * order[p]];
+            const float d2 = squared_distance(s.c, y);
+            found.push_back(distance_key(d2, uint32_t(order[p])));
+            if (!LookupPruning::never_scalar(X, y, double(d2), p < nx ? p : LookupPruning::kNearest, s.r))
+                want.push_back(found.back());
+        }
+        std::vector<uint64_t> kept(found.size());
+        kept.resize(LookupPruning::keep(X, found.data(), found.size(), pts.data(), s.r, kept.data()));
+        ASSERT_EQ(kept, want) << "sphere " << sphere;
+        found_total += found.size();
+        kept_total += kept.size();
+    }
+    EXPECT_LT(kept_total, found_total - found_total / 10);   // the rule dropped many
+    EXPECT_GT(kept_total, found_total / 10);
 }
