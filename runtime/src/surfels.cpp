@@ -45,6 +45,8 @@
 #include <queue>
 #include <unordered_map>
 
+#include <emmintrin.h>
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
@@ -142,6 +144,7 @@ struct CellGrid {
     Uninitialised<float> sp;           // positions in sorted order
     std::vector<Cell> cells;
     std::unordered_map<uint64_t, uint32_t> index;  // cell key -> position in `cells`
+    double lo[3], hi[3];                           // the points' bounding box
 
     // f(cell) for each non-empty cell of the 27 around `cl` (itself included),
     // in a fixed order.
@@ -161,36 +164,21 @@ struct CellGrid {
     // by x, as [begin, end) of `cells`.
     std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> rows;
 
-    // f(begin, end) for the points of the cells around `cl` (itself
-    // included), one contiguous run of points per row of three cells.
-    template <class F>
-    void for_each_row_around(const Cell& cl, F&& f) const {
-        for (int dz = -1; dz <= 1; ++dz)
-            for (int dy = -1; dy <= 1; ++dy) {
-                if ((dy < 0 && cl.c[1] == 0) || (dz < 0 && cl.c[2] == 0)) continue;
-                auto it = rows.find(row_key(cl.c[1] + uint64_t(dy), cl.c[2] + uint64_t(dz)));
-                if (it == rows.end()) continue;
-                const uint64_t row = it->first << 21;
-                const uint64_t lo_key = row | (cl.c[0] > 0 ? cl.c[0] - 1 : 0), hi_key = row | (cl.c[0] + 1);
-                const auto first = std::lower_bound(cells.begin() + it->second.first, cells.begin() + it->second.second,
-                                                    lo_key, [](const Cell& c, uint64_t k) { return c.key < k; });
-                auto last = first;
-                while (last != cells.begin() + it->second.second && last->key <= hi_key) ++last;
-                if (last != first) f(first->begin, (last - 1)->end);
-            }
-    }
     static uint64_t row_key(uint64_t y, uint64_t z) { return (z << 21) | y; }
 
-    // for_each_row_around for cells visited in sorted order (rows by x):
-    // the 9 rows around are looked up once per row of cells, and the cells
-    // of each found by a cursor that only moves forward.
-    class RowWindow {
+    // The cells of the 9 rows around a cell's (its own included) with x in
+    // a range, for cells visited in sorted order (rows by x) and ranges
+    // that only move forward within a row: the 9 rows are looked up once
+    // per row of cells, and their cells found by cursors that only move
+    // forward.
+    class RowsAround {
     public:
-        explicit RowWindow(const CellGrid& g) : g_(g) {}
+        explicit RowsAround(const CellGrid& g) : g_(g) {}
+        // f(x, begin, end) for each of those cells with x in [x_lo, x_hi].
         template <class F>
-        void around(const Cell& cl, F&& f) {
+        void cells_in(const Cell& cl, uint32_t x_lo, uint32_t x_hi, F&& f) {
             const uint64_t row = cl.key >> 21;
-            if (row != row_ || cl.c[0] < x_) {
+            if (row != row_ || x_lo <= x_hi_) {  // (a range behind the cursors: looked up again)
                 row_ = row;
                 n_ = 0;
                 for (int dz = -1; dz <= 1; ++dz)
@@ -203,23 +191,19 @@ struct CellGrid {
                         ++n_;
                     }
             }
-            x_ = cl.c[0];
-            const uint64_t lo_x = x_ > 0 ? x_ - 1 : 0, hi_x = uint64_t(x_) + 1;
             for (int r = 0; r < n_; ++r) {
                 uint32_t c = cursor_[r];
-                while (c < end_[r] && (g_.cells[c].key & kXMask) < lo_x) ++c;
+                while (c < end_[r] && g_.cells[c].c[0] < x_lo) ++c;
+                for (; c < end_[r] && g_.cells[c].c[0] <= x_hi; ++c) f(g_.cells[c].c[0], g_.cells[c].begin, g_.cells[c].end);
                 cursor_[r] = c;
-                uint32_t e = c;
-                while (e < end_[r] && (g_.cells[e].key & kXMask) <= hi_x) ++e;
-                if (e != c) f(g_.cells[c].begin, g_.cells[e - 1].end);
             }
+            x_hi_ = x_hi;
         }
 
     private:
-        static constexpr uint64_t kXMask = (uint64_t(1) << 21) - 1;
         const CellGrid& g_;
         uint64_t row_ = UINT64_MAX;
-        uint32_t x_ = 0;
+        uint32_t x_hi_ = 0;
         int n_ = 0;
         uint32_t cursor_[9] = {}, end_[9] = {};
     };
@@ -323,7 +307,8 @@ void radix_sort_upper(Uninitialised<uint64_t>& words, int key_bits) {
 CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_rows = false) {
     const size_t m = pts.size() / 3;
     CellGrid g;
-    double lo[3], hi[3];
+    double* lo = g.lo;
+    double* hi = g.hi;
     point_bounds(pts, lo, hi);
     double cell = radius * (1.0 + 1e-6);
     for (int k = 0; k < 3; ++k) cell = std::max(cell, (hi[k] - lo[k]) / 1.0e6);
@@ -773,6 +758,24 @@ constexpr size_t kPointsPerTask = 2048;
 
 enum : uint8_t { kUndecided = 0, kIn = 1, kOut = 2 };
 
+// The narrow radius of the second pass's try `step` (0, 1, ...).
+inline double narrow_radius(int step, double r_max) { return (kNarrowRadius - step * kDiskRadiusStep) * r_max; }
+
+// A neighbour list entry: the neighbour's sorted position, and this bit if
+// it is also closer than the first narrow radius.
+constexpr uint32_t kNarrowBit = 0x80000000u;
+constexpr uint32_t kPositionBits = ~kNarrowBit;
+
+// For each 4-bit mask, the lanes whose bit is set, first to last (the
+// rest 0): a vector comparison's passing lanes packed by one store.
+const __m128i kSetLanes[16] = {
+    _mm_setr_epi32(0, 0, 0, 0), _mm_setr_epi32(0, 0, 0, 0), _mm_setr_epi32(1, 0, 0, 0), _mm_setr_epi32(0, 1, 0, 0),
+    _mm_setr_epi32(2, 0, 0, 0), _mm_setr_epi32(0, 2, 0, 0), _mm_setr_epi32(1, 2, 0, 0), _mm_setr_epi32(0, 1, 2, 0),
+    _mm_setr_epi32(3, 0, 0, 0), _mm_setr_epi32(0, 3, 0, 0), _mm_setr_epi32(1, 3, 0, 0), _mm_setr_epi32(0, 1, 3, 0),
+    _mm_setr_epi32(2, 3, 0, 0), _mm_setr_epi32(0, 2, 3, 0), _mm_setr_epi32(1, 2, 3, 0), _mm_setr_epi32(0, 1, 2, 3),
+};
+constexpr uint8_t kSetLaneCount[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
+
 // Exactly `keep` of `pts` as two greedy Poisson-disk passes in one fixed
 // random order of the points (random sequential adsorption from a finite
 // pool of candidates): the first keeps each point that no point kept before
@@ -792,6 +795,9 @@ enum : uint8_t { kUndecided = 0, kIn = 1, kOut = 2 };
 // the second pass falls short even at kDiskRadiusMin.
 std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed) {
     const size_t m = pts.size() / 3;
+    // (sorted positions fit under kNarrowBit: 2^31 candidates are far
+    // beyond the memory of any machine this runs on)
+    if (m >= size_t(kNarrowBit)) throw Error("too many surfel candidates");
     const double wide = kWideRadius * r_max;
     SURFEL_TIMING_START;
     const CellGrid grid = sort_into_cells(pts, wide, true);
@@ -807,6 +813,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
             order_key[a] = (uint64_t(philox4x32_10({kSamplingIteration, i, 1, 0}, key)[0]) << 32) | i;
         }
     });
+    SURFEL_TIMEPOINT("order");
     auto earlier = [&](uint32_t a, uint32_t b) { return order_key[a] < order_key[b]; };
     auto dist2 = [&](uint32_t a, uint32_t b) {
         double d2 = 0;
@@ -817,60 +824,133 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
         return d2;
     };
     const double wide2 = wide * wide;
+    const double narrow_first = narrow_radius(0, r_max);
+    const double narrow_first2 = narrow_first * narrow_first;
+    // The float filter below passes every pair the exact test can accept
+    // when its error bound holds: coordinates and squared distances of
+    // normal floats, far from overflow.  Otherwise it passes everything.
+    double extent = 0;
+    for (int k = 0; k < 3; ++k) extent = std::max({extent, std::abs(grid.lo[k]), std::abs(grid.hi[k])});
+    const bool filter_sound = wide2 > 1e-30 && extent < 1e15 && wide2 < 1e30;
+    const float filter_radius2 = filter_sound ? float(wide2 * (1.0 + 1e-5)) : INFINITY;
+    const __m128 accept_all = _mm_castsi128_ps(_mm_set1_epi32(filter_sound ? 0 : -1));
     // Each point's earlier neighbours closer than the wide radius (the same
     // test in double the passes make), per fixed block of cells, then
     // packed.  Only earlier ones: a point's decision waits on those alone;
-    // the list's order does not matter to any decision.
+    // the list's order does not matter to any decision.  A neighbour also
+    // closer than the first narrow radius has kNarrowBit set: the second
+    // pass reads that instead of computing the distance again.
     const std::vector<CellGrid::Cell>& cells = grid.cells;
     const size_t nblocks = (cells.size() + kCellsPerTask - 1) / kCellsPerTask;
     std::vector<std::vector<uint32_t>> block_lists(nblocks);
     Uninitialised<uint64_t> offs(m + 1);   // every point's count is written below
     offs[0] = 0;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
-        // The points of the 27 cells around a cell, side by side (a cell's
-        // few points all scan the same ones).
-        std::vector<double> nx, ny, nz;
-        std::vector<uint64_t> nkey;
-        std::vector<uint32_t> nid, hit;
-        CellGrid::RowWindow rows(grid);
+        // A row's cells go in clusters (consecutive cells at most 2 apart
+        // in x, whose neighbourhoods overlap).  The points of the 9 rows
+        // around a cluster, over its x range widened by one, are copied side
+        // by side in order of x (then of row): the points of the 27 cells
+        // around each of its cells are then one run of them, and each point
+        // is copied about 9 times instead of once per cell around it.
+        struct Run {
+            uint32_t x, begin, end;
+        };
+        std::vector<Run> runs;
+        std::vector<uint32_t> x_start, x_fill;
+        std::vector<float> nx, ny, nz;
+        std::vector<int32_t> nhash;  // order hash, biased for a signed comparison
+        std::vector<uint32_t> nid, maybe, hit;
+        CellGrid::RowsAround rows(grid);
         for (size_t b = br.begin(); b < br.end(); ++b) {
             std::vector<uint32_t>& list = block_lists[b];
             const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
-            for (size_t ci = c_begin; ci < c_end; ++ci) {
-                // written by index into arrays that only grow (no capacity
-                // test per point)
-                size_t count = 0;
-                rows.around(cells[ci], [&](uint32_t begin, uint32_t end) {
-                    if (nid.size() < count + (end - begin)) {
-                        const size_t grown = std::max(2 * nid.size(), count + (end - begin));
-                        nx.resize(grown), ny.resize(grown), nz.resize(grown), nkey.resize(grown), nid.resize(grown);
-                        hit.resize(grown);
-                    }
-                    for (uint32_t j = begin; j < end; ++j, ++count) {
-                        nx[count] = sp[3 * size_t(j)];
-                        ny[count] = sp[3 * size_t(j) + 1];
-                        nz[count] = sp[3 * size_t(j) + 2];
-                        nkey[count] = order_key[j];
-                        nid[count] = j;
-                    }
+            list.reserve(size_t(cells[c_end - 1].end - cells[c_begin].begin) * 6);
+            for (size_t ci = c_begin; ci < c_end;) {
+                const uint64_t row = cells[ci].key >> 21;
+                size_t cj = ci + 1;
+                while (cj < c_end && (cells[cj].key >> 21) == row && cells[cj].c[0] <= cells[cj - 1].c[0] + 2) ++cj;
+                const uint32_t x_lo = cells[ci].c[0] > 0 ? cells[ci].c[0] - 1 : 0, x_hi = cells[cj - 1].c[0] + 1;
+                const size_t span = x_hi - x_lo + 1;
+                runs.clear();
+                x_start.assign(span + 1, 0);
+                rows.cells_in(cells[ci], x_lo, x_hi, [&](uint32_t x, uint32_t begin, uint32_t end) {
+                    runs.push_back({x, begin, end});
+                    x_start[x - x_lo + 1] += end - begin;
                 });
-                for (uint32_t i = cells[ci].begin; i < cells[ci].end; ++i) {
-                    const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
-                    const uint64_t ki = order_key[i];
-                    // Every candidate is written, the cursor advanced only
-                    // for the neighbours: no branch to mispredict.
-                    size_t found = 0;
-                    for (size_t k = 0; k < count; ++k) {
-                        const double dx = px - nx[k], dy = py - ny[k], dz = pz - nz[k];
-                        hit[found] = nid[k];
-                        found += (dx * dx + dy * dy + dz * dz < wide2) & (nkey[k] < ki);
+                for (size_t x = 0; x < span; ++x) x_start[x + 1] += x_start[x];
+                const size_t count = x_start[span];
+                if (nid.size() < count + 4) {
+                    // arrays that only grow (no capacity test per point)
+                    const size_t grown = std::max(2 * nid.size(), count + 4);
+                    nx.resize(grown), ny.resize(grown), nz.resize(grown), nhash.resize(grown), nid.resize(grown);
+                    maybe.resize(grown + 4), hit.resize(grown);
+                }
+                x_fill.assign(x_start.begin(), x_start.end() - 1);
+                for (const Run& run : runs) {
+                    uint32_t k = x_fill[run.x - x_lo];
+                    for (uint32_t j = run.begin; j < run.end; ++j, ++k) {
+                        nx[k] = sp[3 * size_t(j)];
+                        ny[k] = sp[3 * size_t(j) + 1];
+                        nz[k] = sp[3 * size_t(j) + 2];
+                        nhash[k] = int32_t(uint32_t(order_key[j] >> 32) ^ 0x80000000u);
+                        nid[k] = j;
                     }
-                    list.insert(list.end(), hit.begin(), hit.begin() + std::ptrdiff_t(found));
-                    offs[i + 1] = found;
+                    x_fill[run.x - x_lo] = k;
+                }
+                for (size_t k = count; k < count + 4; ++k) {  // read past the last run, never passed
+                    nx[k] = ny[k] = nz[k] = INFINITY;
+                    nhash[k] = INT32_MAX;
+                    nid[k] = 0;
+                }
+                for (; ci < cj; ++ci) {
+                    const uint32_t x = cells[ci].c[0];
+                    const size_t w_begin = x_start[x > x_lo ? x - 1 - x_lo : 0], w_end = x_start[x + 2 - x_lo];
+                    for (uint32_t i = cells[ci].begin; i < cells[ci].end; ++i) {
+                        // Float filter, four at a time: closer than the wide
+                        // radius by a margin larger than its rounding error, and
+                        // not later by the order's hash; the few it passes (the
+                        // neighbours, ties and near misses) then take the exact
+                        // test, in double, on the whole order key.
+                        const __m128 px4 = _mm_set1_ps(sp[3 * size_t(i)]), py4 = _mm_set1_ps(sp[3 * size_t(i) + 1]),
+                                     pz4 = _mm_set1_ps(sp[3 * size_t(i) + 2]);
+                        const __m128 limit = _mm_set1_ps(filter_radius2);
+                        const __m128i hi4 = _mm_set1_epi32(int32_t(uint32_t(order_key[i] >> 32) ^ 0x80000000u));
+                        size_t n_maybe = 0;
+                        for (size_t k = w_begin; k < w_end; k += 4) {
+                            const __m128 dx = _mm_sub_ps(px4, _mm_loadu_ps(&nx[k]));
+                            const __m128 dy = _mm_sub_ps(py4, _mm_loadu_ps(&ny[k]));
+                            const __m128 dz = _mm_sub_ps(pz4, _mm_loadu_ps(&nz[k]));
+                            const __m128 d2 =
+                                _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
+                            const __m128 near = _mm_or_ps(_mm_cmplt_ps(d2, limit), accept_all);
+                            const __m128i later =
+                                _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&nhash[k])), hi4);
+                            const int mask = _mm_movemask_ps(_mm_andnot_ps(_mm_castsi128_ps(later), near)) &
+                                             (w_end - k >= 4 ? 15 : (1 << (w_end - k)) - 1);
+                            _mm_storeu_si128(reinterpret_cast<__m128i*>(&maybe[n_maybe]),
+                                             _mm_add_epi32(_mm_set1_epi32(int32_t(k)), kSetLanes[mask]));
+                            n_maybe += kSetLaneCount[mask];
+                        }
+                        const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+                        const uint64_t ki = order_key[i];
+                        // Every candidate is written, the cursor advanced only
+                        // for the neighbours: no branch to mispredict.
+                        size_t found = 0;
+                        for (size_t c = 0; c < n_maybe; ++c) {
+                            const size_t k = maybe[c];
+                            const double dx = px - nx[k], dy = py - ny[k], dz = pz - nz[k];
+                            const double d2 = dx * dx + dy * dy + dz * dz;
+                            hit[found] = nid[k] | (d2 < narrow_first2 ? kNarrowBit : 0);
+                            found += (d2 < wide2) & (order_key[nid[k]] < ki);
+                        }
+                        list.insert(list.end(), hit.begin(), hit.begin() + std::ptrdiff_t(found));
+                        offs[i + 1] = found;
+                    }
                 }
             }
         }
     });
+    SURFEL_TIMEPOINT("scan");
     for (size_t i = 0; i < m; ++i) offs[i + 1] += offs[i];
     Uninitialised<uint32_t> nbrs(offs[m]);   // the blocks' lists cover it
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
@@ -892,6 +972,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     auto greedy_pass = [&](double radius) {
         const double radius2 = radius * radius;
         const bool every_listed = radius == wide;
+        const bool flagged = radius == narrow_first;
         undecided = select_in_order(
             m, [&](size_t i) { return state[i].load(std::memory_order_relaxed) == kUndecided; });
         size_t left = undecided.size();
@@ -901,9 +982,10 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                     const uint32_t i = undecided[u];
                     uint8_t decision = kIn;
                     for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) {
-                        const uint32_t j = nbrs[a];
+                        const uint32_t j = nbrs[a] & kPositionBits;
                         const uint8_t s = state[j].load(std::memory_order_relaxed);
-                        if (s == kOut || (!every_listed && !(dist2(i, j) < radius2))) continue;
+                        if (s == kOut) continue;
+                        if (flagged ? !(nbrs[a] & kNarrowBit) : !every_listed && !(dist2(i, j) < radius2)) continue;
                         if (s == kIn) {
                             decision = kOut;
                             break;
@@ -919,10 +1001,16 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
             left = still.size();
         }
     };
-    // The points a pass kept, in the order.
-    auto kept_in_order = [&](auto&& kept) {
+    // The `count` earliest in the order of the points a pass kept (all of
+    // them if fewer), in no particular order: sample_surfels orders the
+    // surfels by itself, and which are the earliest is unique (the keys
+    // are).
+    auto earliest_kept = [&](auto&& kept, size_t count) {
         std::vector<uint32_t> out = select_in_order(m, kept);
-        tbb::parallel_sort(out.begin(), out.end(), earlier);
+        if (out.size() > count) {
+            std::nth_element(out.begin(), out.begin() + std::ptrdiff_t(count), out.end(), earlier);
+            out.resize(count);
+        }
         return out;
     };
 
@@ -935,15 +1023,17 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 8192), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i) first_in[i] = state[i].load(std::memory_order_relaxed) == kIn;
     });
-    std::vector<uint32_t> chosen = kept_in_order([&](size_t a) { return first_in[a] != 0; });
-    if (chosen.size() >= keep) {
-        chosen.resize(keep);
-    } else {
+    std::vector<uint32_t> chosen = earliest_kept([&](size_t a) { return first_in[a] != 0; }, keep);
+    if (chosen.size() < keep) {
         const size_t wanted = keep - chosen.size();
         for (int step = 0;; ++step) {
-            const double narrow = (kNarrowRadius - step * kDiskRadiusStep) * r_max;
+            const double narrow = narrow_radius(step, r_max);
             if (narrow < kDiskRadiusMin * r_max) return {};
             const double narrow2 = narrow * narrow;
+            // Whether listed entry e of point i is closer than the narrow radius.
+            auto within_narrow = [&](uint32_t i, uint32_t e) {
+                return step == 0 ? (e & kNarrowBit) != 0 : dist2(i, e & kPositionBits) < narrow2;
+            };
             // The first pass's points are in from the start: a point closer
             // than the narrow radius to one of them (earlier or later) is
             // out.  Earlier ones from the point's own list; a kept point
@@ -953,7 +1043,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                 for (size_t i = r.begin(); i < r.end(); ++i) {
                     bool out = first_in[i] != 0;
                     for (uint64_t a = offs[i]; a < offs[i + 1] && !out; ++a)
-                        out = first_in[nbrs[a]] && dist2(uint32_t(i), nbrs[a]) < narrow2;
+                        out = first_in[nbrs[a] & kPositionBits] && within_narrow(uint32_t(i), nbrs[a]);
                     if (out) state[i].store(kOut, std::memory_order_relaxed);
                     else state[i].store(kUndecided, std::memory_order_relaxed);
                 }
@@ -962,12 +1052,13 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                 for (size_t j = r.begin(); j < r.end(); ++j) {
                     if (!first_in[j]) continue;
                     for (uint64_t a = offs[j]; a < offs[j + 1]; ++a)
-                        if (dist2(uint32_t(j), nbrs[a]) < narrow2) state[nbrs[a]].store(kOut, std::memory_order_relaxed);
+                        if (within_narrow(uint32_t(j), nbrs[a]))
+                            state[nbrs[a] & kPositionBits].store(kOut, std::memory_order_relaxed);
                 }
             });
             greedy_pass(narrow);
             std::vector<uint32_t> second =
-                kept_in_order([&](size_t a) { return state[a].load(std::memory_order_relaxed) == kIn; });
+                earliest_kept([&](size_t a) { return state[a].load(std::memory_order_relaxed) == kIn; }, wanted);
             if (second.size() >= wanted) {
                 chosen.insert(chosen.end(), second.begin(), second.begin() + std::ptrdiff_t(wanted));
                 break;
@@ -975,7 +1066,6 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
         }
     }
     SURFEL_TIMEPOINT("second pass");
-    // In the passes' order: sample_surfels orders the surfels by itself.
     tbb::parallel_for(tbb::blocked_range<size_t>(0, chosen.size(), 8192), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t k = r.begin(); k < r.end(); ++k) chosen[k] = grid.original[chosen[k]];
     });
@@ -1040,13 +1130,19 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
     std::vector<int32_t>& cand_tri = out.triangle;
     const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
     // Each candidate depends only on (seed, i): generated in parallel, in
-    // runs of kCandidateRun: first every candidate's triangle (the fetch of
-    // its corners started at once), then the points, by when the corners
-    // have arrived (a candidate's triangle is a random one: its record was a
-    // cache miss waited for in turn).
-    constexpr size_t kCandidateRun = 512;
+    // runs of kCandidateRun, in stages that each start the fetch of what the
+    // next reads (a candidate's bucket, cumulative areas and triangle are
+    // random places in tables larger than the cache: waited for in turn,
+    // those misses were most of the time):
+    //   1. the draws and the bucket of the target area (its guide entries fetched);
+    //   2. the bucket's first cumulative area fetched;
+    //   3. the triangle (its corners fetched);
+    //   4. the point.
+    constexpr size_t kCandidateRun = 256;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nc, 4096), [&](const tbb::blocked_range<size_t>& range) {
         uint32_t bary[kCandidateRun][2];
+        double target[kCandidateRun];
+        uint32_t bucket[kCandidateRun];
         for (size_t run = range.begin(); run < range.end(); run += kCandidateRun) {
             const size_t run_end = std::min(range.end(), run + kCandidateRun);
             for (size_t i = run; i < run_end; ++i) {
@@ -1054,19 +1150,26 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
                 // 53-bit uniform for the triangle choice (24 bits are too coarse for
                 // very large meshes), 24-bit floats for the barycentrics.
                 double u = (double(r[0] >> 5) * 67108864.0 + double(r[1] >> 6)) * (1.0 / 9007199254740992.0);
-                double target = u * total;
-                size_t g = size_t(std::clamp(target / total * double(n_buckets), 0.0, double(n_buckets - 1)));
-                while (g > 0 && bound(g) > target) --g;                     // bound(g) <= target
-                while (g + 1 < n_buckets && !(bound(g + 1) > target)) ++g;  // target < bound(g + 1)
+                const double t = u * total;
+                size_t g = size_t(std::clamp(t / total * double(n_buckets), 0.0, double(n_buckets - 1)));
+                while (g > 0 && bound(g) > t) --g;                     // bound(g) <= t
+                while (g + 1 < n_buckets && !(bound(g + 1) > t)) ++g;  // t < bound(g + 1)
+                __builtin_prefetch(&guide[g]);
+                target[i - run] = t;
+                bucket[i - run] = uint32_t(g);
+                bary[i - run][0] = r[2];
+                bary[i - run][1] = r[3];
+            }
+            for (size_t i = run; i < run_end; ++i) __builtin_prefetch(cum.data() + guide[bucket[i - run]]);
+            for (size_t i = run; i < run_end; ++i) {
+                const size_t g = bucket[i - run];
                 const double* first = cum.data() + guide[g];
                 const double* last = g + 1 < n_buckets ? cum.data() + guide[g + 1] : cum.data() + m;
-                size_t t = size_t(std::upper_bound(first, last, target) - cum.data());
+                size_t t = size_t(std::upper_bound(first, last, target[i - run]) - cum.data());
                 if (t >= m) t = m - 1;
                 __builtin_prefetch(corners[t].data());
                 __builtin_prefetch(corners[t].data() + 8);   // a record may straddle two lines
                 cand_tri[i] = int32_t(t);
-                bary[i - run][0] = r[2];
-                bary[i - run][1] = r[3];
             }
             for (size_t i = run; i < run_end; ++i) {
                 double r1 = std::sqrt(double(u01(bary[i - run][0]))), r2 = u01(bary[i - run][1]);
@@ -1107,6 +1210,20 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     // mesh), the weighted elimination picks the n.
     std::vector<uint32_t> kept = poisson_disk_sample(cand, n, out.r_max, seed);
     if (kept.size() != n) kept = eliminate_samples(cand, n, out.r_max);
+    // The kept candidates in ascending order, so that their Morton keys
+    // read the candidates' positions in address order (not 100,000 random
+    // reads out of 500,000; the keys' sort below makes the surfels' order
+    // independent of this one).
+    {
+        Uninitialised<uint8_t> is_kept(cand_tri.size());
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, cand_tri.size(), 16384), [&](const tbb::blocked_range<size_t>& r) {
+            std::fill(is_kept.data() + r.begin(), is_kept.data() + r.end(), uint8_t(0));
+        });
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, kept.size(), 16384), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t a = r.begin(); a < r.end(); ++a) is_kept[kept[a]] = 1;
+        });
+        kept = select_in_order(cand_tri.size(), [&](size_t i) { return is_kept[i] != 0; });
+    }
     // Morton order for locality of surfel rows.
     std::vector<std::pair<uint64_t, uint32_t>> order(kept.size());
     double ext = 0;
