@@ -766,6 +766,15 @@ inline double narrow_radius(int step, double r_max) { return (kNarrowRadius - st
 constexpr uint32_t kNarrowBit = 0x80000000u;
 constexpr uint32_t kPositionBits = ~kNarrowBit;
 
+// A point's neighbour list: [begin, end) of the lists' array.
+struct ListSpan {
+    uint32_t begin, end;
+};
+// Entries of the lists' array reserved per point, and the mark of a block
+// whose lists did not fit.
+constexpr size_t kListCapacity = 12;
+constexpr uint64_t kSpilled = UINT64_MAX;
+
 // For each 4-bit mask, the lanes whose bit is set, first to last (the
 // rest 0): a vector comparison's passing lanes packed by one store.
 const __m128i kSetLanes[16] = {
@@ -828,23 +837,32 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     const double narrow_first2 = narrow_first * narrow_first;
     // The float filter below passes every pair the exact test can accept
     // when its error bound holds: coordinates and squared distances of
-    // normal floats, far from overflow.  Otherwise it passes everything.
+    // normal floats, far from overflow.  Otherwise its limit is NaN, which
+    // passes everything (the comparison is "not at or above the limit").
     double extent = 0;
     for (int k = 0; k < 3; ++k) extent = std::max({extent, std::abs(grid.lo[k]), std::abs(grid.hi[k])});
     const bool filter_sound = wide2 > 1e-30 && extent < 1e15 && wide2 < 1e30;
-    const float filter_radius2 = filter_sound ? float(wide2 * (1.0 + 1e-5)) : INFINITY;
-    const __m128 accept_all = _mm_castsi128_ps(_mm_set1_epi32(filter_sound ? 0 : -1));
+    const float filter_radius2 = filter_sound ? float(wide2 * (1.0 + 1e-5)) : NAN;
     // Each point's earlier neighbours closer than the wide radius (the same
-    // test in double the passes make), per fixed block of cells, then
-    // packed.  Only earlier ones: a point's decision waits on those alone;
-    // the list's order does not matter to any decision.  A neighbour also
-    // closer than the first narrow radius has kNarrowBit set: the second
-    // pass reads that instead of computing the distance again.
+    // test in double the passes make), per fixed block of cells.  Only
+    // earlier ones: a point's decision waits on those alone; the list's
+    // order, and where it is stored, do not matter to any decision.  A
+    // neighbour also closer than the first narrow radius has kNarrowBit
+    // set: the second pass reads that instead of computing the distance
+    // again.  A block's lists are made in a scratch array its task reuses,
+    // then copied to the next free place of `nbrs` (fresh memory touched
+    // once; reserved for kListCapacity entries per point, far more than
+    // the ~4.5 a point has on a surface: a mesh with more, e.g. many sheets
+    // closer than the wide radius, has its lists packed again, below).
     const std::vector<CellGrid::Cell>& cells = grid.cells;
     const size_t nblocks = (cells.size() + kCellsPerTask - 1) / kCellsPerTask;
-    std::vector<std::vector<uint32_t>> block_lists(nblocks);
-    Uninitialised<uint64_t> offs(m + 1);   // every point's count is written below
-    offs[0] = 0;
+    Uninitialised<ListSpan> lists(m);   // every point's is written below
+    const size_t capacity = std::min<size_t>(kListCapacity * m, UINT32_MAX);
+    Uninitialised<uint32_t> nbrs(capacity);
+    std::atomic<size_t> nbrs_used{0};
+    std::vector<uint64_t> block_at(nblocks);  // where a block's lists are in `nbrs`, or kSpilled
+    std::vector<std::vector<uint32_t>> spilled(nblocks);
+    std::atomic<bool> any_spilled{false};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
         // A row's cells go in clusters (consecutive cells at most 2 apart
         // in x, whose neighbourhoods overlap).  The points of the 9 rows
@@ -859,12 +877,12 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
         std::vector<uint32_t> x_start, x_fill;
         std::vector<float> nx, ny, nz;
         std::vector<int32_t> nhash;  // order hash, biased for a signed comparison
-        std::vector<uint32_t> nid, maybe, hit;
+        std::vector<uint32_t> nid, maybe;
+        std::vector<uint32_t> list;  // the block's lists; its size is its capacity
         CellGrid::RowsAround rows(grid);
         for (size_t b = br.begin(); b < br.end(); ++b) {
-            std::vector<uint32_t>& list = block_lists[b];
+            size_t used = 0;
             const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
-            list.reserve(size_t(cells[c_end - 1].end - cells[c_begin].begin) * 6);
             for (size_t ci = c_begin; ci < c_end;) {
                 const uint64_t row = cells[ci].key >> 21;
                 size_t cj = ci + 1;
@@ -883,7 +901,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                     // arrays that only grow (no capacity test per point)
                     const size_t grown = std::max(2 * nid.size(), count + 4);
                     nx.resize(grown), ny.resize(grown), nz.resize(grown), nhash.resize(grown), nid.resize(grown);
-                    maybe.resize(grown + 4), hit.resize(grown);
+                    maybe.resize(grown + 4);
                 }
                 x_fill.assign(x_start.begin(), x_start.end() - 1);
                 for (const Run& run : runs) {
@@ -911,6 +929,9 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                         // not later by the order's hash; the few it passes (the
                         // neighbours, ties and near misses) then take the exact
                         // test, in double, on the whole order key.
+                        // (The window is read to a whole vector past its end:
+                        // points of cells two or more away, which are farther
+                        // than the wide radius, or the padding at infinity.)
                         const __m128 px4 = _mm_set1_ps(sp[3 * size_t(i)]), py4 = _mm_set1_ps(sp[3 * size_t(i) + 1]),
                                      pz4 = _mm_set1_ps(sp[3 * size_t(i) + 2]);
                         const __m128 limit = _mm_set1_ps(filter_radius2);
@@ -922,19 +943,20 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                             const __m128 dz = _mm_sub_ps(pz4, _mm_loadu_ps(&nz[k]));
                             const __m128 d2 =
                                 _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
-                            const __m128 near = _mm_or_ps(_mm_cmplt_ps(d2, limit), accept_all);
+                            const __m128 near = _mm_cmpnge_ps(d2, limit);
                             const __m128i later =
                                 _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&nhash[k])), hi4);
-                            const int mask = _mm_movemask_ps(_mm_andnot_ps(_mm_castsi128_ps(later), near)) &
-                                             (w_end - k >= 4 ? 15 : (1 << (w_end - k)) - 1);
+                            const int mask = _mm_movemask_ps(_mm_andnot_ps(_mm_castsi128_ps(later), near));
                             _mm_storeu_si128(reinterpret_cast<__m128i*>(&maybe[n_maybe]),
                                              _mm_add_epi32(_mm_set1_epi32(int32_t(k)), kSetLanes[mask]));
                             n_maybe += kSetLaneCount[mask];
                         }
                         const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
                         const uint64_t ki = order_key[i];
+                        if (list.size() < used + n_maybe) list.resize(std::max(2 * list.size(), used + n_maybe));
                         // Every candidate is written, the cursor advanced only
                         // for the neighbours: no branch to mispredict.
+                        uint32_t* hit = list.data() + used;
                         size_t found = 0;
                         for (size_t c = 0; c < n_maybe; ++c) {
                             const size_t k = maybe[c];
@@ -943,24 +965,49 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                             hit[found] = nid[k] | (d2 < narrow_first2 ? kNarrowBit : 0);
                             found += (d2 < wide2) & (order_key[nid[k]] < ki);
                         }
-                        list.insert(list.end(), hit.begin(), hit.begin() + std::ptrdiff_t(found));
-                        offs[i + 1] = found;
+                        lists[i] = {uint32_t(used), uint32_t(used + found)};  // in the block's, for now
+                        used += found;
                     }
                 }
             }
+            const uint32_t p_begin = cells[c_begin].begin, p_end = cells[c_end - 1].end;
+            const size_t at = nbrs_used.fetch_add(used, std::memory_order_relaxed);
+            if (at + used <= capacity) {
+                std::copy(list.data(), list.data() + used, nbrs.data() + at);
+                for (uint32_t i = p_begin; i < p_end; ++i)
+                    lists[i] = {uint32_t(lists[i].begin + at), uint32_t(lists[i].end + at)};
+                block_at[b] = at;
+            } else {
+                spilled[b].assign(list.data(), list.data() + used);
+                block_at[b] = kSpilled;
+                any_spilled.store(true, std::memory_order_relaxed);
+            }
         }
     });
-    SURFEL_TIMEPOINT("scan");
-    for (size_t i = 0; i < m; ++i) offs[i + 1] += offs[i];
-    Uninitialised<uint32_t> nbrs(offs[m]);   // the blocks' lists cover it
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
-        for (size_t b = br.begin(); b < br.end(); ++b) {
-            const uint32_t first = cells[b * kCellsPerTask].begin;
-            std::copy(block_lists[b].begin(), block_lists[b].end(), nbrs.data() + offs[first]);
-            block_lists[b] = {};
+    if (any_spilled.load()) {
+        // Packed again, every block's lists in block order (a block's last
+        // point's list ends its block's lists).
+        std::vector<uint64_t> packed_at(nblocks + 1, 0);
+        for (size_t b = 0; b < nblocks; ++b) {
+            const size_t c_end = std::min(cells.size(), (b + 1) * kCellsPerTask);
+            packed_at[b + 1] = packed_at[b] + (block_at[b] == kSpilled ? spilled[b].size()
+                                                                       : lists[cells[c_end - 1].end - 1].end - block_at[b]);
         }
-    });
-    block_lists = {};
+        if (packed_at[nblocks] > UINT32_MAX) throw Error("surfel candidates' neighbour lists too long");
+        Uninitialised<uint32_t> packed(packed_at[nblocks]);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
+            for (size_t b = br.begin(); b < br.end(); ++b) {
+                const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
+                const uint64_t from = block_at[b] == kSpilled ? 0 : block_at[b];
+                const uint32_t* list = block_at[b] == kSpilled ? spilled[b].data() : nbrs.data() + from;
+                std::copy(list, list + (packed_at[b + 1] - packed_at[b]), packed.data() + packed_at[b]);
+                for (uint32_t i = cells[c_begin].begin; i < cells[c_end - 1].end; ++i)
+                    lists[i] = {uint32_t(lists[i].begin - from + packed_at[b]), uint32_t(lists[i].end - from + packed_at[b])};
+                spilled[b] = {};
+            }
+        });
+        nbrs.swap(packed);
+    }
     SURFEL_TIMEPOINT("lists");
 
     // One greedy pass at `radius` over the points whose state is kUndecided
@@ -977,22 +1024,48 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
             m, [&](size_t i) { return state[i].load(std::memory_order_relaxed) == kUndecided; });
         size_t left = undecided.size();
         while (left > 0) {
+            // A work item sweeps its points, then sweeps again those still
+            // waiting while that decides any (their lists are in cache: a
+            // point mostly waits on nearby ones, which the item holds); the
+            // rest wait for the next round.
             tbb::parallel_for(tbb::blocked_range<size_t>(0, left, kPointsPerTask), [&](const tbb::blocked_range<size_t>& r) {
-                for (size_t u = r.begin(); u < r.end(); ++u) {
-                    const uint32_t i = undecided[u];
-                    uint8_t decision = kIn;
-                    for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) {
-                        const uint32_t j = nbrs[a] & kPositionBits;
-                        const uint8_t s = state[j].load(std::memory_order_relaxed);
-                        if (s == kOut) continue;
-                        if (flagged ? !(nbrs[a] & kNarrowBit) : !every_listed && !(dist2(i, j) < radius2)) continue;
-                        if (s == kIn) {
-                            decision = kOut;
-                            break;
+                // Whether point i is decided now (and its state stored): out
+                // if one of its listed neighbours within the radius is in,
+                // else in if none is undecided.  The states seen are
+                // gathered as bits over the whole list, without branches
+                // that depend on them.
+                auto decide = [&](uint32_t i) {
+                    uint32_t seen = 0;
+                    const uint32_t a_end = lists[i].end;
+                    if (every_listed) {
+                        for (uint32_t a = lists[i].begin; a < a_end; ++a)
+                            seen |= 1u << state[nbrs[a] & kPositionBits].load(std::memory_order_relaxed);
+                    } else if (flagged) {
+                        for (uint32_t a = lists[i].begin; a < a_end; ++a)
+                            seen |= (nbrs[a] >> 31) << state[nbrs[a] & kPositionBits].load(std::memory_order_relaxed);
+                    } else {
+                        for (uint32_t a = lists[i].begin; a < a_end; ++a) {
+                            const uint32_t j = nbrs[a] & kPositionBits;
+                            seen |= uint32_t(dist2(i, j) < radius2) << state[j].load(std::memory_order_relaxed);
                         }
-                        decision = kUndecided;  // wait for that neighbour
                     }
-                    if (decision != kUndecided) state[i].store(decision, std::memory_order_relaxed);
+                    if (seen & (1u << kIn)) {
+                        state[i].store(kOut, std::memory_order_relaxed);
+                        return true;
+                    }
+                    if (seen & (1u << kUndecided)) return false;  // wait for that neighbour
+                    state[i].store(kIn, std::memory_order_relaxed);
+                    return true;
+                };
+                std::vector<uint32_t> waiting;
+                for (size_t u = r.begin(); u < r.end(); ++u)
+                    if (!decide(undecided[u])) waiting.push_back(undecided[u]);
+                for (size_t before = 0; !waiting.empty() && waiting.size() != before;) {
+                    before = waiting.size();
+                    size_t still = 0;
+                    for (const uint32_t i : waiting)
+                        if (!decide(i)) waiting[still++] = i;
+                    waiting.resize(still);
                 }
             });
             const std::vector<uint32_t> still = select_in_order(
@@ -1042,7 +1115,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
             tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
                 for (size_t i = r.begin(); i < r.end(); ++i) {
                     bool out = first_in[i] != 0;
-                    for (uint64_t a = offs[i]; a < offs[i + 1] && !out; ++a)
+                    for (uint32_t a = lists[i].begin; a < lists[i].end && !out; ++a)
                         out = first_in[nbrs[a] & kPositionBits] && within_narrow(uint32_t(i), nbrs[a]);
                     if (out) state[i].store(kOut, std::memory_order_relaxed);
                     else state[i].store(kUndecided, std::memory_order_relaxed);
@@ -1051,7 +1124,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
             tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
                 for (size_t j = r.begin(); j < r.end(); ++j) {
                     if (!first_in[j]) continue;
-                    for (uint64_t a = offs[j]; a < offs[j + 1]; ++a)
+                    for (uint32_t a = lists[j].begin; a < lists[j].end; ++a)
                         if (within_narrow(uint32_t(j), nbrs[a]))
                             state[nbrs[a] & kPositionBits].store(kOut, std::memory_order_relaxed);
                 }
