@@ -770,9 +770,7 @@ constexpr uint32_t kPositionBits = ~kNarrowBit;
 struct ListSpan {
     uint32_t begin, end;
 };
-// Entries of the lists' array reserved per point, and the mark of a block
-// whose lists did not fit.
-constexpr size_t kListCapacity = 12;
+// The mark of a block whose lists did not fit the entries reserved.
 constexpr uint64_t kSpilled = UINT64_MAX;
 
 // For each 4-bit mask, the lanes whose bit is set, first to last (the
@@ -784,6 +782,8 @@ const __m128i kSetLanes[16] = {
     _mm_setr_epi32(2, 3, 0, 0), _mm_setr_epi32(0, 2, 3, 0), _mm_setr_epi32(1, 2, 3, 0), _mm_setr_epi32(0, 1, 2, 3),
 };
 constexpr uint8_t kSetLaneCount[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
+
+}  // namespace
 
 // Exactly `keep` of `pts` as two greedy Poisson-disk passes in one fixed
 // random order of the points (random sequential adsorption from a finite
@@ -802,7 +802,8 @@ constexpr uint8_t kSetLaneCount[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3,
 // the order are the serial pass stopped at `keep`.  The same at any thread
 // count.  Returns the kept indices (in no particular order), or nothing if
 // the second pass falls short even at kDiskRadiusMin.
-std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed) {
+std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed,
+                                          size_t list_capacity) {
     const size_t m = pts.size() / 3;
     // (sorted positions fit under kNarrowBit: 2^31 candidates are far
     // beyond the memory of any machine this runs on)
@@ -851,13 +852,13 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     // set: the second pass reads that instead of computing the distance
     // again.  A block's lists are made in a scratch array its task reuses,
     // then copied to the next free place of `nbrs` (fresh memory touched
-    // once; reserved for kListCapacity entries per point, far more than
+    // once; reserved for `list_capacity` entries per point, far more than
     // the ~4.5 a point has on a surface: a mesh with more, e.g. many sheets
     // closer than the wide radius, has its lists packed again, below).
     const std::vector<CellGrid::Cell>& cells = grid.cells;
     const size_t nblocks = (cells.size() + kCellsPerTask - 1) / kCellsPerTask;
     Uninitialised<ListSpan> lists(m);   // every point's is written below
-    const size_t capacity = std::min<size_t>(kListCapacity * m, UINT32_MAX);
+    const size_t capacity = std::min<size_t>(list_capacity * m, UINT32_MAX);
     Uninitialised<uint32_t> nbrs(capacity);
     std::atomic<size_t> nbrs_used{0};
     std::vector<uint64_t> block_at(nblocks);  // where a block's lists are in `nbrs`, or kSpilled
@@ -1147,8 +1148,6 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
 #endif
     return chosen;
 }
-
-}  // namespace
 
 SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
     const size_t m = mesh.num_triangles();

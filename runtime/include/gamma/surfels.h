@@ -30,6 +30,14 @@ struct SurfelCandidates {
 };
 SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed);
 
+// The two greedy Poisson-disk passes of sample_surfels on an arbitrary 3D
+// point set (exposed for tests): the indices of exactly `keep` points (in no
+// particular order), or nothing if the passes fall short.  The neighbour
+// lists are stored in `list_capacity` entries reserved per point, packed
+// again when they need more (the same answer either way).
+std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed,
+                                          size_t list_capacity = 12);
+
 // Yuksel 2015 weighted sample elimination (tiled, see surfels.cpp) on an
 // arbitrary 3D point set: what sample_surfels falls back on when the disk
 // passes cannot keep N (exposed for tests).
