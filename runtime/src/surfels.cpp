@@ -104,6 +104,41 @@ inline uint64_t cell_key(uint64_t x, uint64_t y, uint64_t z) {
     return (tile << 3) | ((x & 1) | ((y & 1) << 1) | ((z & 1) << 2));
 }
 
+// philox4x32_10 of four counters at once with SSE2 (the same words: each
+// 32x32-bit product is taken as the 64 bits pmuludq gives), rounds
+// unrolled.  c[w] holds word w of the four counters; the result replaces
+// them.  The scalar function, a loop the compiler keeps, cost ~250
+// instructions a call: half a million calls for the candidates and as many
+// for the disk passes' order.
+inline void philox4x32_10_x4(__m128i c[4], std::array<uint32_t, 2> key) {
+    const __m128i m0 = _mm_set1_epi32(int32_t(0xD2511F53u)), m1 = _mm_set1_epi32(int32_t(0xCD9E8D57u));
+    const __m128i low32 = _mm_set1_epi64x(0xFFFFFFFFll);
+    // The 32-bit halves of a * m per lane, as (low, high) vectors.
+    auto mul_halves = [&](__m128i a, __m128i m, __m128i& lo, __m128i& hi) {
+        const __m128i even = _mm_mul_epu32(a, m);                     // lanes 0, 2 as 64 bits
+        const __m128i odd = _mm_mul_epu32(_mm_srli_epi64(a, 32), m);  // lanes 1, 3
+        lo = _mm_or_si128(_mm_and_si128(even, low32), _mm_slli_epi64(odd, 32));
+        hi = _mm_or_si128(_mm_srli_epi64(even, 32), _mm_andnot_si128(low32, odd));
+    };
+    uint32_t k0 = key[0], k1 = key[1];
+#pragma GCC unroll 10
+    for (int round = 0; round < 10; ++round) {
+        if (round > 0) {
+            k0 += 0x9E3779B9u;
+            k1 += 0xBB67AE85u;
+        }
+        __m128i lo0, hi0, lo1, hi1;
+        mul_halves(c[0], m0, lo0, hi0);
+        mul_halves(c[2], m1, lo1, hi1);
+        const __m128i next0 = _mm_xor_si128(_mm_xor_si128(hi1, c[1]), _mm_set1_epi32(int32_t(k0)));
+        const __m128i next2 = _mm_xor_si128(_mm_xor_si128(hi0, c[3]), _mm_set1_epi32(int32_t(k1)));
+        c[0] = next0;
+        c[1] = lo1;
+        c[2] = next2;
+        c[3] = lo0;
+    }
+}
+
 // A heap array of n trivially copyable values left uninitialised: the
 // parallel loop that fills it is the first to touch its pages (a
 // std::vector would zero them all in one thread first, and the first touch
@@ -265,15 +300,19 @@ std::vector<uint32_t> select_in_order(size_t n, Keep&& keep) {
 // least significant digit first, each pass over fixed blocks of the words
 // (counted, then moved, in parallel), so the result is the serial sort's.
 void radix_sort_upper(Uninitialised<uint64_t>& words, int key_bits) {
-    constexpr int kDigitBits = 11;
-    constexpr size_t kDigits = size_t(1) << kDigitBits;
+    // As few passes as digits of up to 12 bits allow (a pass reads and
+    // moves every word), the digits as even as can be.
+    constexpr int kMaxDigitBits = 12;
+    const int passes = std::max(1, (key_bits + kMaxDigitBits - 1) / kMaxDigitBits);
+    const int digit_bits = (key_bits + passes - 1) / passes;
+    const size_t kDigits = size_t(1) << digit_bits;
     constexpr size_t kWordsPerBlock = 32768;
     const size_t n = words.size();
     const size_t nblocks = (n + kWordsPerBlock - 1) / kWordsPerBlock;
     Uninitialised<uint64_t> moved(n);
     std::vector<size_t> count(nblocks * kDigits);  // block-major
-    for (int shift = 32; shift < 32 + key_bits; shift += kDigitBits) {
-        auto digit = [shift](uint64_t w) { return size_t(w >> shift) & (kDigits - 1); };
+    for (int shift = 32; shift < 32 + key_bits; shift += digit_bits) {
+        auto digit = [shift, kDigits](uint64_t w) { return size_t(w >> shift) & (kDigits - 1); };
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
             for (size_t b = r.begin(); b < r.end(); ++b) {
                 size_t* c = &count[b * kDigits];
@@ -332,7 +371,10 @@ CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_r
         });
         radix_sort_upper(sorted_key, bits);
         tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            // (the points are read in a random order: fetched a few ahead)
+            constexpr size_t kAhead = 16;
             for (size_t a = r.begin(); a < r.end(); ++a) {
+                if (a + kAhead < r.end()) __builtin_prefetch(&pts[3 * size_t(uint32_t(sorted_key[a + kAhead]))]);
                 const uint32_t i = uint32_t(sorted_key[a]);
                 g.original[a] = i;
                 sorted_key[a] >>= 32;
@@ -365,8 +407,9 @@ CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_r
     tbb::parallel_for(tbb::blocked_range<size_t>(0, starts.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t n = r.begin(); n < r.end(); ++n) {
             const uint32_t a = starts[n], b = n + 1 < starts.size() ? starts[n + 1] : uint32_t(m);
-            const uint32_t i = g.original[a];
-            const uint32_t c[3] = {uint32_t(cell_of(i, 0)), uint32_t(cell_of(i, 1)), uint32_t(cell_of(i, 2))};
+            // (from the sorted copy of the point's coordinates, read in order)
+            auto sorted_cell_of = [&](int k) { return uint32_t((double(g.sp[3 * size_t(a) + k]) - lo[k]) / cell); };
+            const uint32_t c[3] = {sorted_cell_of(0), sorted_cell_of(1), sorted_cell_of(2)};
             const uint64_t key = numbered ? (CellGrid::row_key(c[1], c[2]) << 21) | c[0] : sorted_key[a];
             g.cells[n] = {key, a, b, {c[0], c[1], c[2]}};
         }
@@ -818,7 +861,16 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     Uninitialised<uint64_t> order_key(m);
     const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t a = r.begin(); a < r.end(); ++a) {
+        size_t a = r.begin();
+        for (; a + 4 <= r.end(); a += 4) {
+            const __m128i i4 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(&grid.original[a]));
+            __m128i c[4] = {_mm_set1_epi32(int32_t(kSamplingIteration)), i4, _mm_set1_epi32(1), _mm_setzero_si128()};
+            philox4x32_10_x4(c, key);
+            // (hash << 32) | index, four at a time
+            _mm_storeu_si128(reinterpret_cast<__m128i*>(&order_key[a]), _mm_unpacklo_epi32(i4, c[0]));
+            _mm_storeu_si128(reinterpret_cast<__m128i*>(&order_key[a + 2]), _mm_unpackhi_epi32(i4, c[0]));
+        }
+        for (; a < r.end(); ++a) {
             const uint32_t i = grid.original[a];
             order_key[a] = (uint64_t(philox4x32_10({kSamplingIteration, i, 1, 0}, key)[0]) << 32) | i;
         }
@@ -844,6 +896,13 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     for (int k = 0; k < 3; ++k) extent = std::max({extent, std::abs(grid.lo[k]), std::abs(grid.hi[k])});
     const bool filter_sound = wide2 > 1e-30 && extent < 1e15 && wide2 < 1e30;
     const float filter_radius2 = filter_sound ? float(wide2 * (1.0 + 1e-5)) : NAN;
+    // Float squared distances that decide the exact tests by the same
+    // margin: below sure_wide2 is closer than the wide radius; below
+    // sure_narrow2 closer than the first narrow radius, from not_narrow2 up
+    // not.  In between, and on a tie of the order's hash, the exact test
+    // decides.  (Without a sound filter every one takes the exact test.)
+    const float sure_wide2 = filter_sound ? float(wide2 * (1.0 - 1e-5)) : -1.0f;
+    const float sure_narrow2 = float(narrow_first2 * (1.0 - 1e-5)), not_narrow2 = float(narrow_first2 * (1.0 + 1e-5));
     // Each point's earlier neighbours closer than the wide radius (the same
     // test in double the passes make), per fixed block of cells.  Only
     // earlier ones: a point's decision waits on those alone; the list's
@@ -876,7 +935,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
         };
         std::vector<Run> runs;
         std::vector<uint32_t> x_start, x_fill;
-        std::vector<float> nx, ny, nz;
+        std::vector<float> nx, ny, nz, nd2;  // nd2: the last point's float squared distances
         std::vector<int32_t> nhash;  // order hash, biased for a signed comparison
         std::vector<uint32_t> nid, maybe;
         std::vector<uint32_t> list;  // the block's lists; its size is its capacity
@@ -902,7 +961,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                     // arrays that only grow (no capacity test per point)
                     const size_t grown = std::max(2 * nid.size(), count + 4);
                     nx.resize(grown), ny.resize(grown), nz.resize(grown), nhash.resize(grown), nid.resize(grown);
-                    maybe.resize(grown + 4);
+                    maybe.resize(grown + 4), nd2.resize(grown + 4);
                 }
                 x_fill.assign(x_start.begin(), x_start.end() - 1);
                 for (const Run& run : runs) {
@@ -944,6 +1003,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                             const __m128 dz = _mm_sub_ps(pz4, _mm_loadu_ps(&nz[k]));
                             const __m128 d2 =
                                 _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
+                            _mm_storeu_ps(&nd2[k], d2);
                             const __m128 near = _mm_cmpnge_ps(d2, limit);
                             const __m128i later =
                                 _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&nhash[k])), hi4);
@@ -959,8 +1019,19 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                         // for the neighbours: no branch to mispredict.
                         uint32_t* hit = list.data() + used;
                         size_t found = 0;
+                        const int32_t hi = int32_t(uint32_t(ki >> 32) ^ 0x80000000u);
                         for (size_t c = 0; c < n_maybe; ++c) {
                             const size_t k = maybe[c];
+                            const float f2 = nd2[k];
+                            // (bitwise: one branch, nearly always taken)
+                            if ((f2 < sure_wide2) & ((f2 < sure_narrow2) | (f2 >= not_narrow2))) {
+                                // The filter passed only hashes at most hi's: a
+                                // smaller one is earlier, an equal one (the point
+                                // itself, or a tie) is by the whole key.
+                                hit[found] = nid[k] | (f2 < sure_narrow2 ? kNarrowBit : 0);
+                                found += (nhash[k] != hi) | (order_key[nid[k]] < ki);
+                                continue;
+                            }
                             const double dx = px - nx[k], dy = py - ny[k], dz = pz - nz[k];
                             const double d2 = dx * dx + dy * dy + dz * dz;
                             hit[found] = nid[k] | (d2 < narrow_first2 ? kNarrowBit : 0);
@@ -1217,8 +1288,20 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
         uint32_t bucket[kCandidateRun];
         for (size_t run = range.begin(); run < range.end(); run += kCandidateRun) {
             const size_t run_end = std::min(range.end(), run + kCandidateRun);
+            // The draws, four candidates at a time (a few past run_end unused).
+            alignas(16) uint32_t draws[4][kCandidateRun];
+            for (size_t i = run; i < run_end; i += 4) {
+                __m128i c[4] = {_mm_set1_epi32(int32_t(kSamplingIteration)),
+                                _mm_setr_epi32(int32_t(uint32_t(i)), int32_t(uint32_t(i + 1)), int32_t(uint32_t(i + 2)),
+                                               int32_t(uint32_t(i + 3))),
+                                _mm_setr_epi32(int32_t(uint64_t(i) >> 32), int32_t(uint64_t(i + 1) >> 32),
+                                               int32_t(uint64_t(i + 2) >> 32), int32_t(uint64_t(i + 3) >> 32)),
+                                _mm_setzero_si128()};
+                philox4x32_10_x4(c, key);
+                for (int w = 0; w < 4; ++w) _mm_store_si128(reinterpret_cast<__m128i*>(&draws[w][i - run]), c[w]);
+            }
             for (size_t i = run; i < run_end; ++i) {
-                Philox4 r = philox4x32_10({kSamplingIteration, uint32_t(i), uint32_t(uint64_t(i) >> 32), 0}, key);
+                const uint32_t r[4] = {draws[0][i - run], draws[1][i - run], draws[2][i - run], draws[3][i - run]};
                 // 53-bit uniform for the triangle choice (24 bits are too coarse for
                 // very large meshes), 24-bit floats for the barycentrics.
                 double u = (double(r[0] >> 5) * 67108864.0 + double(r[1] >> 6)) * (1.0 / 9007199254740992.0);
