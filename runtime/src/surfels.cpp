@@ -245,18 +245,40 @@ struct CellGrid {
 };
 
 // Bounding box of the points (exact: min and max do not depend on the
-// order they are taken in).
+// order they are taken in, and the float extremes are the double ones).
+// Four points (12 floats, 3 vectors) at a time: lane l of accumulator v
+// sees coordinate (4v + l) mod 3.  A NaN coordinate is passed over, as
+// std::min and std::max would.
 void point_bounds(const std::vector<float>& pts, double lo[3], double hi[3]) {
     struct Box {
-        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     };
+    const size_t n = pts.size() / 3;
     const Box box = tbb::parallel_reduce(
-        tbb::blocked_range<size_t>(0, pts.size() / 3, 16384), Box{},
+        tbb::blocked_range<size_t>(0, n, 16384), Box{},
         [&](const tbb::blocked_range<size_t>& r, Box b) {
-            for (size_t i = r.begin(); i < r.end(); ++i)
+            const float* p = pts.data();
+            size_t i = r.begin();
+            __m128 mn[3], mx[3];
+            for (int v = 0; v < 3; ++v) mn[v] = _mm_set1_ps(INFINITY), mx[v] = _mm_set1_ps(-INFINITY);
+            for (; i + 4 <= r.end(); i += 4)
+                for (int v = 0; v < 3; ++v) {
+                    const __m128 x = _mm_loadu_ps(p + 3 * i + 4 * size_t(v));
+                    mn[v] = _mm_min_ps(x, mn[v]);  // (the second operand when one is NaN)
+                    mx[v] = _mm_max_ps(x, mx[v]);
+                }
+            alignas(16) float lanes_lo[3][4], lanes_hi[3][4];
+            for (int v = 0; v < 3; ++v) _mm_store_ps(lanes_lo[v], mn[v]), _mm_store_ps(lanes_hi[v], mx[v]);
+            for (int v = 0; v < 3; ++v)
+                for (int l = 0; l < 4; ++l) {
+                    const int k = (4 * v + l) % 3;
+                    b.lo[k] = std::min(b.lo[k], lanes_lo[v][l]);
+                    b.hi[k] = std::max(b.hi[k], lanes_hi[v][l]);
+                }
+            for (; i < r.end(); ++i)
                 for (int k = 0; k < 3; ++k) {
-                    b.lo[k] = std::min(b.lo[k], double(pts[3 * i + k]));
-                    b.hi[k] = std::max(b.hi[k], double(pts[3 * i + k]));
+                    b.lo[k] = std::min(b.lo[k], p[3 * i + k]);
+                    b.hi[k] = std::max(b.hi[k], p[3 * i + k]);
                 }
             return b;
         },
@@ -1087,20 +1109,22 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     // lists hold exactly the earlier points closer than the wide radius, so
     // a pass at it needs no distance.
     std::vector<std::atomic<uint8_t>> state(m);
-    std::vector<uint32_t> undecided;
     auto greedy_pass = [&](double radius) {
         const double radius2 = radius * radius;
         const bool every_listed = radius == wide;
         const bool flagged = radius == narrow_first;
-        undecided = select_in_order(
-            m, [&](size_t i) { return state[i].load(std::memory_order_relaxed) == kUndecided; });
-        size_t left = undecided.size();
-        while (left > 0) {
-            // A work item sweeps its points, then sweeps again those still
-            // waiting while that decides any (their lists are in cache: a
-            // point mostly waits on nearby ones, which the item holds); the
-            // rest wait for the next round.
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, left, kPointsPerTask), [&](const tbb::blocked_range<size_t>& r) {
+        // The first round goes over every point (skipping those decided
+        // before the pass), the later ones over the points left waiting.  A
+        // fixed block of them sweeps its points, then sweeps again those
+        // still waiting while that decides any (their lists are in cache: a
+        // point mostly waits on nearby ones, which the block holds); the
+        // rest, each block's in block order, wait for the next round.
+        std::vector<uint32_t> undecided;
+        bool first_round = true;
+        for (size_t left = m; left > 0; first_round = false) {
+            const size_t n_item = (left + kPointsPerTask - 1) / kPointsPerTask;
+            std::vector<std::vector<uint32_t>> waiting_in(n_item);
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, n_item, 1), [&](const tbb::blocked_range<size_t>& r) {
                 // Whether point i is decided now (and its state stored): out
                 // if one of its listed neighbours within the radius is in,
                 // else in if none is undecided.  The states seen are
@@ -1129,21 +1153,26 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
                     state[i].store(kIn, std::memory_order_relaxed);
                     return true;
                 };
-                std::vector<uint32_t> waiting;
-                for (size_t u = r.begin(); u < r.end(); ++u)
-                    if (!decide(undecided[u])) waiting.push_back(undecided[u]);
-                for (size_t before = 0; !waiting.empty() && waiting.size() != before;) {
-                    before = waiting.size();
-                    size_t still = 0;
-                    for (const uint32_t i : waiting)
-                        if (!decide(i)) waiting[still++] = i;
-                    waiting.resize(still);
+                for (size_t item = r.begin(); item < r.end(); ++item) {
+                    std::vector<uint32_t>& waiting = waiting_in[item];
+                    const size_t u_end = std::min(left, (item + 1) * kPointsPerTask);
+                    for (size_t u = item * kPointsPerTask; u < u_end; ++u) {
+                        const uint32_t i = first_round ? uint32_t(u) : undecided[u];
+                        if (first_round && state[i].load(std::memory_order_relaxed) != kUndecided) continue;
+                        if (!decide(i)) waiting.push_back(i);
+                    }
+                    for (size_t before = 0; !waiting.empty() && waiting.size() != before;) {
+                        before = waiting.size();
+                        size_t still = 0;
+                        for (const uint32_t i : waiting)
+                            if (!decide(i)) waiting[still++] = i;
+                        waiting.resize(still);
+                    }
                 }
             });
-            const std::vector<uint32_t> still = select_in_order(
-                left, [&](size_t u) { return state[undecided[u]].load(std::memory_order_relaxed) == kUndecided; });
-            for (size_t u = 0; u < still.size(); ++u) undecided[u] = undecided[still[u]];
-            left = still.size();
+            undecided.clear();
+            for (const std::vector<uint32_t>& waiting : waiting_in) undecided.insert(undecided.end(), waiting.begin(), waiting.end());
+            left = undecided.size();
         }
     };
     // The `count` earliest in the order of the points a pass kept (all of
@@ -1259,7 +1288,8 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
     // (the same answer as a search of the whole table, found in cache).
     const size_t n_buckets = std::max<size_t>(1, m);
     std::vector<uint32_t> guide(n_buckets + 1);
-    auto bound = [&](size_t b) { return double(b) * (total / double(n_buckets)); };
+    const double bucket_area = total / double(n_buckets);
+    auto bound = [&](size_t b) { return double(b) * bucket_area; };
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_buckets + 1, 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t b = r.begin(); b < r.end(); ++b)
             guide[b] = uint32_t(std::upper_bound(cum.data(), cum.data() + m, bound(b)) - cum.data());
