@@ -167,6 +167,18 @@ private:
     size_t n_ = 0;
 };
 
+// The coordinates of points, x y z after one another, wherever they are
+// stored (a vector, or an array the caller has not zeroed).
+struct PointsView {
+    const float* xyz;
+    size_t count;
+    PointsView(const std::vector<float>& v) : xyz(v.data()), count(v.size() / 3) {}
+    PointsView(const float* p, size_t n) : xyz(p), count(n) {}
+    const float& operator[](size_t i) const { return xyz[i]; }
+    size_t size() const { return 3 * count; }
+    const float* data() const { return xyz; }
+};
+
 // Points sorted into cubic cells, ordered by cell_key (each 2x2x2 tile's
 // cells contiguous), with a copy of the positions in that order.
 struct CellGrid {
@@ -249,7 +261,7 @@ struct CellGrid {
 // Four points (12 floats, 3 vectors) at a time: lane l of accumulator v
 // sees coordinate (4v + l) mod 3.  A NaN coordinate is passed over, as
 // std::min and std::max would.
-void point_bounds(const std::vector<float>& pts, double lo[3], double hi[3]) {
+void point_bounds(PointsView pts, double lo[3], double hi[3]) {
     struct Box {
         float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     };
@@ -365,7 +377,7 @@ void radix_sort_upper(Uninitialised<uint64_t>& words, int key_bits) {
 // to another is always in one of the 27 cells around the other's; ordered
 // in tiles (cell_key, `index` filled) or, with `in_rows`, by (z, y, x)
 // (`rows` filled).
-CellGrid sort_into_cells(const std::vector<float>& pts, double radius, bool in_rows = false) {
+CellGrid sort_into_cells(PointsView pts, double radius, bool in_rows = false) {
     const size_t m = pts.size() / 3;
     CellGrid g;
     double* lo = g.lo;
@@ -469,7 +481,9 @@ constexpr size_t kCandidatesPerSurfel = 5;
 
 }  // namespace
 
-std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t keep, double r_max) {
+namespace {
+
+std::vector<uint32_t> eliminate_samples_in(PointsView pts, size_t keep, double r_max) {
     const size_t m = pts.size() / 3;
     std::vector<uint32_t> kept;
     if (keep >= m) {
@@ -807,6 +821,12 @@ std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t ke
     return kept;
 }
 
+}  // namespace
+
+std::vector<uint32_t> eliminate_samples(const std::vector<float>& pts, size_t keep, double r_max) {
+    return eliminate_samples_in(pts, keep, r_max);
+}
+
 namespace {
 
 // The two disk radii, in units of r_max.  On 5N uniform candidates the
@@ -867,8 +887,10 @@ constexpr uint8_t kSetLaneCount[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3,
 // the order are the serial pass stopped at `keep`.  The same at any thread
 // count.  Returns the kept indices (in no particular order), or nothing if
 // the second pass falls short even at kDiskRadiusMin.
-std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed,
-                                          size_t list_capacity) {
+namespace {
+
+std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double r_max, uint64_t seed,
+                                             size_t list_capacity) {
     const size_t m = pts.size() / 3;
     // (sorted positions fit under kNarrowBit: 2^31 candidates are far
     // beyond the memory of any machine this runs on)
@@ -1108,7 +1130,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     // (the others count as out): afterwards every point is in or out.  The
     // lists hold exactly the earlier points closer than the wide radius, so
     // a pass at it needs no distance.
-    std::vector<std::atomic<uint8_t>> state(m);
+    Uninitialised<std::atomic<uint8_t>> state(m);  // every state is stored before the first pass
     auto greedy_pass = [&](double radius) {
         const double radius2 = radius * radius;
         const bool every_listed = radius == wide;
@@ -1193,7 +1215,7 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     });
     greedy_pass(wide);
     SURFEL_TIMEPOINT("first pass");
-    std::vector<uint8_t> first_in(m);
+    Uninitialised<uint8_t> first_in(m);  // filled below
     tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 8192), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i) first_in[i] = state[i].load(std::memory_order_relaxed) == kIn;
     });
@@ -1249,7 +1271,28 @@ std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t 
     return chosen;
 }
 
+// The candidates of surfel_candidates, written to `position` (3 per
+// candidate) and `triangle`; returns the mesh's area.
+double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* position, int32_t* triangle);
+
+}  // namespace
+
+std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed,
+                                          size_t list_capacity) {
+    return poisson_disk_sample_in(pts, keep, r_max, seed, list_capacity);
+}
+
 SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
+    SurfelCandidates out;
+    out.position.resize(3 * kCandidatesPerSurfel * n);
+    out.triangle.resize(kCandidatesPerSurfel * n);
+    out.area = fill_candidates(mesh, n, seed, out.position.data(), out.triangle.data());
+    return out;
+}
+
+namespace {
+
+double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, int32_t* cand_tri) {
     const size_t m = mesh.num_triangles();
     const float* V = mesh.vertices.data();
     const int32_t* T = mesh.triangles.data();
@@ -1295,12 +1338,6 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
             guide[b] = uint32_t(std::upper_bound(cum.data(), cum.data() + m, bound(b)) - cum.data());
     });
     const size_t nc = kCandidatesPerSurfel * n;
-    SurfelCandidates out;
-    out.area = total;
-    out.position.resize(3 * nc);
-    out.triangle.resize(nc);
-    std::vector<float>& cand = out.position;
-    std::vector<int32_t>& cand_tri = out.triangle;
     const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
     // Each candidate depends only on (seed, i): generated in parallel, in
     // runs of kCandidateRun, in stages that each start the fetch of what the
@@ -1366,8 +1403,10 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
             }
         }
     });
-    return out;
+    return total;
 }
+
+}  // namespace
 
 SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     if (n == 0) throw Error("surfel count must be at least 1");
@@ -1386,28 +1425,32 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
         for (int k = 0; k < 3; ++k) tri_normal[3 * t + k] = float(len > 0 ? cr[k] / len : 0.0);
     }
     });
-    const SurfelCandidates candidates = surfel_candidates(mesh, n, seed);
-    const std::vector<float>& cand = candidates.position;
-    const std::vector<int32_t>& cand_tri = candidates.triangle;
+    // The candidates in arrays their parallel loop touches first (vectors
+    // would be zeroed in one thread first: ~8 MB at 100,000 surfels).
+    const size_t nc = kCandidatesPerSurfel * n;
+    Uninitialised<float> cand(3 * nc);
+    Uninitialised<int32_t> cand_tri(nc);
+    const double area = fill_candidates(mesh, n, seed, cand.data(), cand_tri.data());
+    const PointsView cand_points(cand.data(), nc);
     SurfelSet out;
-    out.r_max = std::sqrt(candidates.area / (2.0 * std::sqrt(3.0) * double(n)));
+    out.r_max = std::sqrt(area / (2.0 * std::sqrt(3.0) * double(n)));
     // Should the disk passes fall short (very few surfels on a compact
     // mesh), the weighted elimination picks the n.
-    std::vector<uint32_t> kept = poisson_disk_sample(cand, n, out.r_max, seed);
-    if (kept.size() != n) kept = eliminate_samples(cand, n, out.r_max);
+    std::vector<uint32_t> kept = poisson_disk_sample_in(cand_points, n, out.r_max, seed, kDiskListCapacity);
+    if (kept.size() != n) kept = eliminate_samples_in(cand_points, n, out.r_max);
     // The kept candidates in ascending order, so that their Morton keys
     // read the candidates' positions in address order (not 100,000 random
     // reads out of 500,000; the keys' sort below makes the surfels' order
     // independent of this one).
     {
-        Uninitialised<uint8_t> is_kept(cand_tri.size());
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, cand_tri.size(), 16384), [&](const tbb::blocked_range<size_t>& r) {
+        Uninitialised<uint8_t> is_kept(nc);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, nc, 16384), [&](const tbb::blocked_range<size_t>& r) {
             std::fill(is_kept.data() + r.begin(), is_kept.data() + r.end(), uint8_t(0));
         });
         tbb::parallel_for(tbb::blocked_range<size_t>(0, kept.size(), 16384), [&](const tbb::blocked_range<size_t>& r) {
             for (size_t a = r.begin(); a < r.end(); ++a) is_kept[kept[a]] = 1;
         });
-        kept = select_in_order(cand_tri.size(), [&](size_t i) { return is_kept[i] != 0; });
+        kept = select_in_order(nc, [&](size_t i) { return is_kept[i] != 0; });
     }
     // Morton order for locality of surfel rows.
     std::vector<std::pair<uint64_t, uint32_t>> order(kept.size());
