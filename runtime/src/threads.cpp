@@ -43,9 +43,11 @@ void run_with_threads(int threads, const std::function<void()>& f) {
     const int n = resolve_threads(threads);
     // Called again from inside that body with the same count (a pass whose
     // steps each run_with_threads): the steps share the one arena instead of
-    // each making its own and waiting for the workers to join it.
+    // each making its own and waiting for the workers to join it.  Isolated,
+    // as an arena of its own was: a thread waiting inside f never takes an
+    // outer task (which might, say, lock a mutex this thread holds).
     if (entered_arena_threads == n) {
-        f();
+        tbb::this_task_arena::isolate([&] { f(); });
         return;
     }
     tbb::global_control gc(tbb::global_control::max_allowed_parallelism, size_t(n));

@@ -7,9 +7,11 @@
 #include <chrono>
 #include <mutex>
 #include <set>
+#include <stdexcept>
 #include <thread>
 
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include "gamma/error.h"
 #include "gamma/simulation.h"
@@ -332,6 +334,34 @@ TEST(Threads, ExactlyRequested) {
         EXPECT_EQ(int(ids.size()), n);
         EXPECT_EQ(arrived.load(), n);
     }
+}
+
+// A run_with_threads inside another's body with the same count runs there
+// (one arena, no second one to join), isolated: a thread waiting inside it
+// never runs an outer task; another count gets an arena of its own; the
+// marker of the entered arena is restored after an exception.
+TEST(Threads, NestedCallsShareTheArenaIsolated) {
+    gammart::run_with_threads(2, [&] {
+        EXPECT_EQ(tbb::this_task_arena::max_concurrency(), 2);
+        gammart::run_with_threads(2, [&] { EXPECT_EQ(tbb::this_task_arena::max_concurrency(), 2); });
+        gammart::run_with_threads(1, [&] { EXPECT_EQ(tbb::this_task_arena::max_concurrency(), 1); });
+        // outer tasks that each wait inside a nested call: with isolation no
+        // thread takes a second outer task while it waits, so none finds its
+        // own thread already inside an outer task
+        thread_local int inside_outer = 0;
+        std::atomic<int> nested_outer{0};
+        tbb::parallel_for(0, 64, 1, [&](int) {
+            ++inside_outer;
+            if (inside_outer > 1) ++nested_outer;
+            gammart::run_with_threads(2, [&] { tbb::parallel_for(0, 256, 1, [](int) { std::this_thread::yield(); }); });
+            --inside_outer;
+        });
+        EXPECT_EQ(nested_outer.load(), 0);
+    });
+    EXPECT_THROW(gammart::run_with_threads(2, [] { gammart::run_with_threads(2, [] { throw std::runtime_error("x"); }); }),
+                 std::runtime_error);
+    // after the exception this thread is in no arena: a nested call with the same count makes its own
+    gammart::run_with_threads(2, [&] { EXPECT_EQ(tbb::this_task_arena::max_concurrency(), 2); });
 }
 
 namespace {
