@@ -9,6 +9,7 @@
 #include <memory>
 #include <utility>
 
+#include "gamma/error.h"
 #include "gamma/float_points.h"
 #include "gamma/point_columns.h"
 
@@ -230,68 +231,73 @@ SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, c
 }
 
 namespace {
-// Targets per range of the transposition below (at most 65536: a target's
-// place in its range is held in 16 bits).
-constexpr size_t kTargetsPerRange = 4096;
+// The transposition below cuts the targets into at most kMaxRanges ranges
+// of at least kMinTargetsPerRange (a target's place in its range is held in
+// 16 bits: at most 65536 per range), and the blocks of sources into at most
+// kMaxChunks chunks of consecutive blocks: its table of counts has at most
+// kMaxRanges x kMaxChunks entries whatever the surfel count (per range and
+// per block it grew as n^2: ~1.5 GB at 20M surfels).
+constexpr size_t kMinTargetsPerRange = 4096, kMaxRanges = 1024, kMaxChunks = 256;
 
 // The transposition into gather form, in parallel and the same, entry for
 // entry, as one pass over the sources in ascending order (which leaves every
 // target's list sorted by source): the targets are cut into ranges; each
-// block of sources counts its entries per range; the entries are then moved
-// into their range's stretch of the result, the blocks' parts in block
-// order (so by ascending source); and each range orders its stretch by
-// target, a stable counting sort (the sources stay ascending).  Neither the
-// ranges nor the blocks depend on the thread count.
+// chunk of blocks of sources counts its entries per range; the entries are
+// then moved into their range's stretch of the result, the chunks' parts in
+// chunk order and within a chunk in block order (so by ascending source);
+// and each range orders its stretch by target, a stable counting sort (the
+// sources stay ascending).  Neither the ranges nor the chunks depend on the
+// thread count.
 SplatKernel gather_form(const std::vector<ScatterBlock>& blocks, size_t n) {
     SplatKernel k;
     k.offset.assign(n + 1, 0);
     if (n == 0) return k;
-    const size_t nblocks = blocks.size(), nranges = (n + kTargetsPerRange - 1) / kTargetsPerRange;
-    // at[r * nblocks + b]: block b's entries in range r, then where they go
+    const size_t nblocks = blocks.size();
+    const size_t nranges = std::min((n + kMinTargetsPerRange - 1) / kMinTargetsPerRange, kMaxRanges);
+    const size_t per_range = (n + nranges - 1) / nranges;
+    if (per_range > 65536) throw Error("splat kernel: too many surfels for the transposition");
+    const size_t nchunks = std::max<size_t>(std::min(nblocks, kMaxChunks), 1);
+    const size_t per_chunk = (nblocks + nchunks - 1) / nchunks;
+    // at[c * nranges + r]: chunk c's entries in range r, then where they go
     // (the offsets are 32-bit: so are these)
-    std::vector<uint32_t> at(nranges * nblocks, 0);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 16), [&](const tbb::blocked_range<size_t>& range) {
-        std::vector<uint32_t> count(nranges);
-        for (size_t b = range.begin(); b < range.end(); ++b) {
-            std::fill(count.begin(), count.end(), 0);
-            for (const auto& e : blocks[b].entries) ++count[e.first / kTargetsPerRange];
-            for (size_t r = 0; r < nranges; ++r) at[r * nblocks + b] = count[r];
-        }
+    std::vector<uint32_t> at(nchunks * nranges, 0);
+    tbb::parallel_for(size_t(0), nchunks, [&](size_t c) {
+        uint32_t* count = &at[c * nranges];
+        for (size_t b = c * per_chunk; b < std::min(nblocks, (c + 1) * per_chunk); ++b)
+            for (const auto& e : blocks[b].entries) ++count[e.first / per_range];
     });
     std::vector<size_t> range_at(nranges + 1, 0);
-    tbb::parallel_for(size_t(0), nranges, [&](size_t r) {
-        size_t sum = 0;
-        for (size_t b = 0; b < nblocks; ++b) sum += at[r * nblocks + b];
-        range_at[r + 1] = sum;
-    });
+    for (size_t c = 0; c < nchunks; ++c)
+        for (size_t r = 0; r < nranges; ++r) range_at[r + 1] += at[c * nranges + r];
     for (size_t r = 0; r < nranges; ++r) range_at[r + 1] += range_at[r];
-    tbb::parallel_for(size_t(0), nranges, [&](size_t r) {
-        uint32_t next = uint32_t(range_at[r]);
-        for (size_t b = 0; b < nblocks; ++b) next += std::exchange(at[r * nblocks + b], next);
-    });
+    {
+        std::vector<uint32_t> next(nranges);
+        for (size_t r = 0; r < nranges; ++r) next[r] = uint32_t(range_at[r]);
+        for (size_t c = 0; c < nchunks; ++c)
+            for (size_t r = 0; r < nranges; ++r) next[r] += std::exchange(at[c * nranges + r], next[r]);
+    }
     const size_t total = range_at[nranges];
     k.source.resize(total);
     k.weight.resize(total);
     std::vector<uint16_t> in_range(total);   // each moved entry's target, less its range's first
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 16), [&](const tbb::blocked_range<size_t>& range) {
-        std::vector<uint32_t> next(nranges);
-        for (size_t b = range.begin(); b < range.end(); ++b) {
+    tbb::parallel_for(size_t(0), nchunks, [&](size_t c) {
+        uint32_t* next = &at[c * nranges];
+        for (size_t b = c * per_chunk; b < std::min(nblocks, (c + 1) * per_chunk); ++b) {
             const ScatterBlock& B = blocks[b];
-            for (size_t r = 0; r < nranges; ++r) next[r] = at[r * nblocks + b];
             for (size_t i = 0; i < B.end.size(); ++i) {
                 const uint32_t s = uint32_t(b * kSourcesPerBlock + i);
                 for (uint32_t e = i ? B.end[i - 1] : 0; e < B.end[i]; ++e) {
                     const auto& [j, w] = B.entries[e];
-                    const size_t to = next[j / kTargetsPerRange]++;
+                    const size_t to = next[j / per_range]++;
                     k.source[to] = s;
                     k.weight[to] = w;
-                    in_range[to] = uint16_t(j % kTargetsPerRange);
+                    in_range[to] = uint16_t(j % per_range);
                 }
             }
         }
     });
     tbb::parallel_for(size_t(0), nranges, [&](size_t r) {
-        const size_t first = r * kTargetsPerRange, targets = std::min(n - first, kTargetsPerRange);
+        const size_t first = r * per_range, targets = first < n ? std::min(n - first, per_range) : 0;
         const size_t begin = range_at[r], end = range_at[r + 1];
         std::vector<uint32_t> fill(targets + 1, 0);
         for (size_t e = begin; e < end; ++e) ++fill[size_t(in_range[e]) + 1];
