@@ -587,6 +587,85 @@ TEST(Trace, SurfelLookedUpOnlyWhereNeededSameResults) {
         }
 }
 
+// The same, where the skipped lookups would show: a hit rule that writes
+// (ton type 1 on surface 1, no other rule there but settling), ton types
+// that bounce and flow (the parabolic and flow reflectances read from the
+// surface where no lookup is made), and the mass books.  Run B differs from
+// run A only by one surfel per surface whose zero flow reflectance is -0
+// (the same probabilities): its surfaces are not uniform, so B looks every
+// interaction's surfel up; A skips every lookup no rule needs.  Both must
+// give the same counters, mass books and rows, at 1 and 2 threads.
+TEST(Trace, SkippedLookupsChangeNothingWhereRulesWriteAndTonsBounceAndFlow) {
+    struct Outcome {
+        std::vector<int64_t> counts;
+        std::vector<double> books;
+        std::vector<float> rows;
+        std::vector<std::vector<uint8_t>> uniform;
+    };
+    auto run = [](int threads, bool forced) {
+        Mesh m = gamma_test::icosphere(3);
+        const int W = 5;
+        Config c = base_config(W, 0.5f);
+        c.surfels = 3000;
+        c.threads = threads;
+        c.max_interactions = 6;
+        c.surface_rows[0] = {0.5f, 0.4f, 0.0f, 0, 0};
+        c.surface_rows.push_back({0.15f, 0.6f, 0.0f, 0.5f, 0.25f});
+        c.triangle_surface.resize(m.num_triangles());
+        for (size_t i = 0; i < m.num_triangles(); ++i) c.triangle_surface[i] = int32_t(i % 2);
+        const int t0 = c.add_ton_type(1, 0, 0, {1.0f});
+        const int t1 = c.add_ton_type(0.4f, 0.3f, 0.3f, {0.5f}, 0.3f, 0.05f);
+        c.add_source("sphere", t0, 15000);
+        c.add_source("sphere", t1, 15000);
+        for (int ty : {t0, t1})
+            for (int s : {0, 1}) c.set_transport(GAMMA_EVENT_SETTLE, ty, s, addr(reinterpret_cast<void*>(&k_settle)), true);
+        c.set_transport(GAMMA_EVENT_HIT, t1, 1, addr(reinterpret_cast<void*>(&k_hit)), true);
+        c.add_mass_property({3, 3}, {0, 0});      // column 3 of both surfaces, the tons' carry 0
+        Simulation sim(m, c);
+        std::vector<float> rows = sim.rows();
+        if (forced) {
+            for (int s : {0, 1}) {
+                const std::vector<int32_t> surf = sim.surfel_surfaces();
+                const size_t i = size_t(std::find(surf.begin(), surf.end(), s) - surf.begin());
+                rows[i * size_t(W) + GAMMA_ROW_REFLECTANCE_FLOW] = -0.0f;
+            }
+            sim.set_rows(rows.data());
+        }
+        Outcome out;
+        for (int it = 1; it <= 3; ++it) {
+            out.uniform.push_back(Tracer::uniform_reflectance(sim.scene_index(), sim.state()).uniform);
+            const TraceStats st = sim.trace(it);
+            sim.update(it);
+            out.counts.insert(out.counts.end(), {st.emitted, st.missed, st.escaped, st.settled, st.capped,
+                                                 st.interactions, st.rays, st.flow_steps, st.bounces, st.drips});
+            for (const MassBooks& b : st.mass)
+                out.books.insert(out.books.end(), {b.removed, b.deposited, b.emitted, b.created, b.escaped,
+                                                   b.dropped, b.in_flight});
+        }
+        out.rows = sim.rows();
+        return out;
+    };
+    const Outcome skipping = run(1, false), looking = run(1, true);
+    EXPECT_EQ(skipping.uniform[0], (std::vector<uint8_t>{1, 1}));
+    EXPECT_EQ(looking.uniform[0], (std::vector<uint8_t>{0, 0}));       // every interaction looked up
+    // the rules wrote, and the tons bounced and flowed
+    EXPECT_GT(skipping.counts[8], 0);
+    EXPECT_GT(skipping.counts[7], 0);
+    ASSERT_FALSE(skipping.books.empty());
+    EXPECT_GT(skipping.books[1], 0.0);
+    for (int threads : {1, 2})
+        for (bool forced : {false, true}) {
+            const Outcome o = threads == 1 ? (forced ? looking : skipping) : run(threads, forced);
+            EXPECT_EQ(o.counts, looking.counts) << threads << " threads, forced " << forced;
+            ASSERT_EQ(o.books.size(), looking.books.size());
+            EXPECT_EQ(0, std::memcmp(o.books.data(), looking.books.data(), o.books.size() * sizeof(double)));
+            ASSERT_EQ(o.rows.size(), looking.rows.size());
+            for (size_t k = 0; k < o.rows.size(); ++k)      // == (the forced run's -0 equals 0)
+                ASSERT_TRUE(o.rows[k] == looking.rows[k] || (o.rows[k] != o.rows[k] && looking.rows[k] != looking.rows[k]))
+                    << k << ": " << threads << " threads, forced " << forced;
+        }
+}
+
 // Tracer::uniform_reflectance: a surface is uniform when it has surfels and
 // all of them hold the same reflectance columns, bit for bit (-0 and +0
 // differ); a surface without surfels is not.
