@@ -34,6 +34,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from ..records import Record, record
+
 
 # ---- events ------------------------------------------------------------------------
 
@@ -147,8 +149,8 @@ class Timings:
             return dict(self._seconds)
 
 
-@dataclass
-class WriteQueue:
+@record
+class WriteQueue(Record):
     """One background thread running jobs in order; bounded.  Use as a context
     manager: leaving it waits for every job given so far (also when the loop
     failed), then raises the first job's error if the loop did not fail."""

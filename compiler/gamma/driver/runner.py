@@ -13,7 +13,7 @@ import math
 import re
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import field
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +23,15 @@ from . import budget
 from ..frontend.ast import Pos
 from ..ir.effect import Effect, Length, Source
 from ..frontend.diagnostics import Diagnostic, GammaError
+from ..records import Record, record
 
 
 class RunError(Exception):
     """A one-line, user-facing error (bad mesh, bad option value)."""
 
 
-@dataclass
-class RunOptions:
+@record
+class RunOptions(Record):
     scene: str
     out: str
     assign: list[str] = field(default_factory=list)   # PATTERN=SURFACE or SURFACE
@@ -352,8 +353,8 @@ def _interrupted(session: "Run", sig, done: int, busy: bool):
                          sig.status, busy)
 
 
-@dataclass
-class Run:
+@record
+class Run(Record):
     """One run's state, shared by the loop and its writers.  Writers read it;
     only the loop advances ``sim`` (and only on the loop's thread)."""
 

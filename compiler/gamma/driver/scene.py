@@ -20,7 +20,7 @@ import fnmatch
 import sys
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import field
 from pathlib import Path
 
 import numpy as np
@@ -28,14 +28,15 @@ import numpy as np
 from ..ir.effect import Effect
 from .budget import scene_size_problem
 from ..files import file_problem
+from ..records import Record, record
 
 
 class SceneError(Exception):
     """A one-line, user-facing problem with the scene or its assignment."""
 
 
-@dataclass
-class Scene:
+@record
+class Scene(Record):
     mesh: object                   # gamma._runtime.Mesh (all parts, transformed)
     triangle_surface: np.ndarray   # int32 surface index per triangle
     down: tuple[float, float, float]
@@ -97,8 +98,8 @@ def _load_mesh(rt, path: Path):
         raise SceneError(str(err)) from None
 
 
-@dataclass
-class _Part:
+@record
+class _Part(Record):
     mesh: object
     stem: str
     rules: list[tuple[str, str]]
@@ -193,8 +194,8 @@ def _read_scene_file(rt, path: Path, effect: Effect):
     return parts, down
 
 
-@dataclass
-class _RuleUse:
+@record
+class _RuleUse(Record):
     """Which rules won some triangles, and for the others that matched some,
     the rule that beat them (its index, the name it matched)."""
     won: set = field(default_factory=set)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ..records import Record, record
+
 
 @dataclass(frozen=True)
 class Pos:
@@ -21,14 +23,14 @@ class Pos:
 
 # ---- expressions ------------------------------------------------------------
 
-@dataclass
-class Number:
+@record
+class Number(Record):
     value: float
     pos: Pos
 
 
-@dataclass
-class Ref:
+@record
+class Ref(Record):
     """A dotted name: ``iteration``, ``t.patina``, ``s.reflectance.straight``."""
 
     parts: list[str]
@@ -36,38 +38,38 @@ class Ref:
     part_pos: list[Pos] = field(default_factory=list)
 
 
-@dataclass
-class Unary:
+@record
+class Unary(Record):
     op: str  # '-'
     operand: "Expr"
     pos: Pos
 
 
-@dataclass
-class Binary:
+@record
+class Binary(Record):
     op: str  # '+', '-', '*', '/'
     left: "Expr"
     right: "Expr"
     pos: Pos
 
 
-@dataclass
-class Call:
+@record
+class Call(Record):
     name: str
     args: list["Expr"]
     pos: Pos
 
 
-@dataclass
-class Vector:
+@record
+class Vector(Record):
     """``(a, b, c)``: a point or direction of a source, or a vector value in a rule."""
 
     items: list["Expr"]
     pos: Pos
 
 
-@dataclass
-class Field:
+@record
+class Field(Record):
     """``EXPR.x``: a component of a vector that is not a name (``cross(a, b).x``, ``(a + b).y``);
     ``position.x`` and ``v.x`` are ``Ref``."""
 
@@ -77,24 +79,24 @@ class Field:
     name_pos: Pos
 
 
-@dataclass
-class String:
+@record
+class String(Record):
     """A string literal: only the argument of ``texture("file.png")``."""
 
     value: str
     pos: Pos
 
 
-@dataclass
-class Compare:
+@record
+class Compare(Record):
     op: str  # '<', '<=', '>', '>=', '==', '!='
     left: "Expr"
     right: "Expr"
     pos: Pos
 
 
-@dataclass
-class Logic:
+@record
+class Logic(Record):
     op: str  # 'and', 'or', 'not' (right is None for 'not')
     left: "Expr"
     right: "Expr | None"
@@ -106,16 +108,16 @@ Expr = Number | Ref | Unary | Binary | Call | Vector | Field | Compare | Logic |
 
 # ---- statements and declarations -------------------------------------------
 
-@dataclass
-class Assign:
+@record
+class Assign(Record):
     target: Ref
     op: str  # '=', '+=', '-=', '*='
     value: Expr
     pos: Pos  # of the operator
 
 
-@dataclass
-class Let:
+@record
+class Let(Record):
     """``let name = value``: an immutable local, visible to the end of its block."""
 
     name: str
@@ -123,8 +125,8 @@ class Let:
     pos: Pos
 
 
-@dataclass
-class If:
+@record
+class If(Record):
     cond: Expr
     then: list["Stmt"]
     otherwise: list["Stmt"]
@@ -134,15 +136,15 @@ class If:
 Stmt = Assign | Let | If
 
 
-@dataclass
-class Init:
+@record
+class Init(Record):
     name: str
     value: Expr
     pos: Pos
 
 
-@dataclass
-class TonDecl:
+@record
+class TonDecl(Record):
     name: str
     pos: Pos
     motion: list[Init] = field(default_factory=list)
@@ -153,8 +155,8 @@ class TonDecl:
     repeated: list[tuple[str, Expr]] = field(default_factory=list)  # 2nd 'bounce'/'step'/'drip'
 
 
-@dataclass
-class SurfaceDecl:
+@record
+class SurfaceDecl(Record):
     name: str
     pos: Pos
     reflectance: list[Init] = field(default_factory=list)
@@ -162,15 +164,15 @@ class SurfaceDecl:
     shape: list[Init] = field(default_factory=list)   # property = metres per unit (SPEC §19)
 
 
-@dataclass
-class SourceArg:
+@record
+class SourceArg(Record):
     name: str | None      # None for a positional argument
     value: Expr
     pos: Pos
 
 
-@dataclass
-class SourceDecl:
+@record
+class SourceDecl(Record):
     name: str
     pos: Pos
     kind: str
@@ -186,16 +188,16 @@ class SourceDecl:
     repeated_strength: list[Expr] = field(default_factory=list)
 
 
-@dataclass
-class Param:
+@record
+class Param(Record):
     name: str
     type_name: str        # a declared name, or '*' (every ton type / every surface)
     pos: Pos
     type_pos: Pos
 
 
-@dataclass
-class RuleDecl:
+@record
+class RuleDecl(Record):
     """``on EVENT(t: Ton, s: Surface) { ... }``"""
 
     event: str
@@ -206,8 +208,8 @@ class RuleDecl:
     pos: Pos
 
 
-@dataclass
-class UpdateDecl:
+@record
+class UpdateDecl(Record):
     """``update(s: Surface) { ... }``"""
 
     surface: Param
@@ -215,8 +217,8 @@ class UpdateDecl:
     pos: Pos
 
 
-@dataclass
-class AppearanceDecl:
+@record
+class AppearanceDecl(Record):
     """``appearance(s: Surface) { color = ... }``: how a surface looks."""
 
     surface: Param
@@ -224,8 +226,8 @@ class AppearanceDecl:
     pos: Pos
 
 
-@dataclass
-class ParamDecl:
+@record
+class ParamDecl(Record):
     """``param rate = 0.015``: a constant an importer or the command line may override."""
 
     name: str
@@ -233,8 +235,8 @@ class ParamDecl:
     pos: Pos
 
 
-@dataclass
-class ImportDecl:
+@record
+class ImportDecl(Record):
     """``import "rust.gamma" (rate = 0.03)``"""
 
     path: str
@@ -242,8 +244,8 @@ class ImportDecl:
     args: list[Init]
 
 
-@dataclass
-class AssignDecl:
+@record
+class AssignDecl(Record):
     """``assign "chain*" = Iron``: scene parts matching the pattern are Iron."""
 
     pattern: str
@@ -256,8 +258,8 @@ Decl = (TonDecl | SurfaceDecl | SourceDecl | RuleDecl | UpdateDecl | ParamDecl |
         | AssignDecl | AppearanceDecl)
 
 
-@dataclass
-class Module:
+@record
+class Module(Record):
     path: str
     source: str
     decls: list[Decl]

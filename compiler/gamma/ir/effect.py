@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..frontend.ast import Pos
+from ..records import Record, record
 
 
 # ---- declarations --------------------------------------------------------------------
@@ -47,8 +48,8 @@ class Place:
         return tuple(float(a + f * (b - a)) for f, a, b in zip(self.value, lo, hi))
 
 
-@dataclass
-class TonType:
+@record
+class TonType(Record):
     name: str
     index: int
     motion: tuple[float, float, float]
@@ -60,8 +61,8 @@ class TonType:
     decl: object                   # ast.TonDecl (positions for warnings)
 
 
-@dataclass
-class Surface:
+@record
+class Surface(Record):
     name: str
     index: int
     properties: dict[str, int]     # property -> slot in the surfel row
@@ -71,8 +72,8 @@ class Surface:
     shape: dict[str, tuple[int, float, str]] = field(default_factory=dict)
 
 
-@dataclass
-class Source:
+@record
+class Source(Record):
     name: str
     kind: str                      # the runtime's kind (abi.SOURCE_KINDS)
     ton: int
@@ -106,29 +107,29 @@ class Var:
     text: str = ""                   # as written (t.patina), for messages
 
 
-@dataclass
-class Const:
+@record
+class Const(Record):
     value: float                   # already a float32 value
     pos: Pos
     kind = "float"
 
 
-@dataclass
-class Load:
+@record
+class Load(Record):
     var: Var
     kind: str
     pos: Pos
 
 
-@dataclass
-class Neg:
+@record
+class Neg(Record):
     operand: "Expr"
     kind: str
     pos: Pos
 
 
-@dataclass
-class Arith:
+@record
+class Arith(Record):
     op: str                        # + - * /
     left: "Expr"
     right: "Expr"
@@ -136,8 +137,8 @@ class Arith:
     pos: Pos
 
 
-@dataclass
-class Compare:
+@record
+class Compare(Record):
     op: str
     left: "Expr"
     right: "Expr"
@@ -145,8 +146,8 @@ class Compare:
     kind = "bool"
 
 
-@dataclass
-class Logic:
+@record
+class Logic(Record):
     op: str                        # and, or, not (right None)
     left: "Expr"
     right: "Expr | None"
@@ -154,8 +155,8 @@ class Logic:
     kind = "bool"
 
 
-@dataclass
-class Call:
+@record
+class Call(Record):
     """A built-in function (``ir.builtins``)."""
 
     name: str
@@ -166,8 +167,8 @@ class Call:
     texture: int | None = None     # texture(): index in Effect.textures
 
 
-@dataclass
-class MakeVector:
+@record
+class MakeVector(Record):
     """``(x, y, z)`` in a rule: a vector of three numbers."""
 
     items: list["Expr"]
@@ -175,8 +176,8 @@ class MakeVector:
     kind = "vector"
 
 
-@dataclass
-class Component:
+@record
+class Component(Record):
     """Component ``index`` (0, 1, 2: x, y, z) of a vector expression."""
 
     operand: "Expr"
@@ -188,23 +189,23 @@ class Component:
 Expr = Const | Load | Neg | Arith | Compare | Logic | Call | MakeVector | Component
 
 
-@dataclass
-class Let:
+@record
+class Let(Record):
     name: str
     value: Expr
     pos: Pos
 
 
-@dataclass
-class If:
+@record
+class If(Record):
     cond: Expr
     then: list["Stmt"]
     otherwise: list["Stmt"]
     pos: Pos
 
 
-@dataclass
-class Store:
+@record
+class Store(Record):
     """``target op value``; a NaN or infinite result is not stored and the
     kernel returns ``number`` (1-based, per kernel, in execution order of
     the source) if it is the first such statement."""
@@ -264,8 +265,8 @@ def stores(body: list) -> list[Store]:
     return found
 
 
-@dataclass
-class Kernel:
+@record
+class Kernel(Record):
     """All rule bodies that run for one (event, ton type, surface), in file order."""
 
     event: str                     # an event of abi.EVENTS, 'update' or 'appearance'
@@ -301,8 +302,8 @@ class Kernel:
         return any(st.target.space == "surf" for st in self.statements())
 
 
-@dataclass
-class Effect:
+@record
+class Effect(Record):
     path: str
     source: str
     tons: dict[str, TonType]
