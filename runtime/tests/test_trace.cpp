@@ -8,6 +8,7 @@
 #include <mutex>
 #include <set>
 #include <stdexcept>
+#include <string>
 #include <thread>
 
 #include <tbb/parallel_for.h>
@@ -594,7 +595,8 @@ TEST(Trace, SurfelLookedUpOnlyWhereNeededSameResults) {
 // run A only by one surfel per surface whose zero flow reflectance is -0
 // (the same probabilities): its surfaces are not uniform, so B looks every
 // interaction's surfel up; A skips every lookup no rule needs.  Both must
-// give the same counters, mass books and rows, at 1 and 2 threads.
+// give the same counters, mass books and rows, at 1 and 2 threads, traced
+// whole or (as Ray workers do) in ranges of chunks merged in order.
 TEST(Trace, SkippedLookupsChangeNothingWhereRulesWriteAndTonsBounceAndFlow) {
     struct Outcome {
         std::vector<int64_t> counts;
@@ -602,7 +604,8 @@ TEST(Trace, SkippedLookupsChangeNothingWhereRulesWriteAndTonsBounceAndFlow) {
         std::vector<float> rows;
         std::vector<std::vector<uint8_t>> uniform;
     };
-    auto run = [](int threads, bool forced) {
+    // pieces > 0: each iteration traced in ranges of `pieces` chunks and merged
+    auto run = [](int threads, bool forced, int pieces = 0) {
         Mesh m = gamma_test::icosphere(3);
         const int W = 5;
         Config c = base_config(W, 0.5f);
@@ -634,7 +637,17 @@ TEST(Trace, SkippedLookupsChangeNothingWhereRulesWriteAndTonsBounceAndFlow) {
         Outcome out;
         for (int it = 1; it <= 3; ++it) {
             out.uniform.push_back(Tracer::uniform_reflectance(sim.scene_index(), sim.state()).uniform);
-            const TraceStats st = sim.trace(it);
+            TraceStats st;
+            if (pieces == 0) {
+                st = sim.trace(it);
+            } else {
+                const int64_t n = sim.num_chunks(it);
+                std::vector<ChunkLog> logs;
+                for (int64_t a = 0; a < n; a += pieces)
+                    for (ChunkLog& log : sim.trace_chunks(it, a, std::min<int64_t>(n, a + pieces)))
+                        logs.push_back(std::move(log));
+                st = sim.merge_chunks(it, logs);
+            }
             sim.update(it);
             out.counts.insert(out.counts.end(), {st.emitted, st.missed, st.escaped, st.settled, st.capped,
                                                  st.interactions, st.rays, st.flow_steps, st.bounces, st.drips});
@@ -653,17 +666,25 @@ TEST(Trace, SkippedLookupsChangeNothingWhereRulesWriteAndTonsBounceAndFlow) {
     EXPECT_GT(skipping.counts[7], 0);
     ASSERT_FALSE(skipping.books.empty());
     EXPECT_GT(skipping.books[1], 0.0);
-    for (int threads : {1, 2})
-        for (bool forced : {false, true}) {
-            const Outcome o = threads == 1 ? (forced ? looking : skipping) : run(threads, forced);
-            EXPECT_EQ(o.counts, looking.counts) << threads << " threads, forced " << forced;
-            ASSERT_EQ(o.books.size(), looking.books.size());
-            EXPECT_EQ(0, std::memcmp(o.books.data(), looking.books.data(), o.books.size() * sizeof(double)));
-            ASSERT_EQ(o.rows.size(), looking.rows.size());
-            for (size_t k = 0; k < o.rows.size(); ++k)      // == (the forced run's -0 equals 0)
-                ASSERT_TRUE(o.rows[k] == looking.rows[k] || (o.rows[k] != o.rows[k] && looking.rows[k] != looking.rows[k]))
-                    << k << ": " << threads << " threads, forced " << forced;
-        }
+    struct Variant {
+        int threads;
+        bool forced;
+        int pieces;
+    };
+    for (const Variant v : {Variant{1, false, 0}, Variant{1, true, 0}, Variant{2, false, 0}, Variant{2, true, 0},
+                            Variant{2, false, 3}, Variant{1, false, 1}}) {
+        const Outcome o = v.threads == 1 && v.pieces == 0 ? (v.forced ? looking : skipping)
+                                                          : run(v.threads, v.forced, v.pieces);
+        const std::string which = std::to_string(v.threads) + " threads, forced " + std::to_string(v.forced) +
+                                  ", pieces " + std::to_string(v.pieces);
+        EXPECT_EQ(o.counts, looking.counts) << which;
+        ASSERT_EQ(o.books.size(), looking.books.size());
+        EXPECT_EQ(0, std::memcmp(o.books.data(), looking.books.data(), o.books.size() * sizeof(double))) << which;
+        ASSERT_EQ(o.rows.size(), looking.rows.size());
+        for (size_t k = 0; k < o.rows.size(); ++k)      // == (the forced run's -0 equals 0)
+            ASSERT_TRUE(o.rows[k] == looking.rows[k] || (o.rows[k] != o.rows[k] && looking.rows[k] != looking.rows[k]))
+                << k << ": " << which;
+    }
 }
 
 // Tracer::uniform_reflectance: a surface is uniform when it has surfels and
