@@ -2,6 +2,7 @@
 #include "gamma/point_columns.h"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 #include <numeric>
 
@@ -75,6 +76,7 @@ void PointColumns::build(const float* p, size_t n, double side) {
         y_[k] = p[3 * i + 1];
         z_[k] = p[3 * i + 2];
     }
+    finite_keys_ = std::all_of(key_.begin(), key_.begin() + std::ptrdiff_t(n), [](float w) { return std::isfinite(w); });
 }
 
 }  // namespace gammart

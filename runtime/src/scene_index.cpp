@@ -47,7 +47,10 @@ constexpr size_t kPruningSurfels = LookupPruning::kNearest;
 // The lookup's column index: columns this many surfel spacings wide; the
 // nearest surfel to a sphere's centre searched first within this many
 // spacings, doubled up to kNearestAttempts times (then the kd-tree).
-constexpr double kColumnSpacings = 2.0, kNearestStartSpacings = 1.0;
+// (Columns 4 spacings wide rather than 2: a search meets fewer columns, and
+// their points are scanned four at a time -- ~5 % less time for the whole
+// build at 100k surfels on the bunny, measured alternating in one process.)
+constexpr double kColumnSpacings = 4.0, kNearestStartSpacings = 1.0;
 constexpr int kNearestAttempts = 4;
 
 V3 unit(const std::array<float, 3>& a) {

@@ -77,6 +77,8 @@ private:
     // register); the arrays hold kGroup - 1 entries of padding past the
     // last point, so that a group may read past a column's end.
     static constexpr unsigned kGroup = 4;
+    // Columns of at most this many points are scanned whole (see scan).
+    static constexpr uint32_t kScannedColumn = 16;
 
     // The points a column's scan visits: from lo while k < end and the key
     // is not past c1 (the scalar loop's condition, NaN keys included).
@@ -138,6 +140,16 @@ private:
                 const size_t col = size_t(i) * size_t(nv_) + size_t(j);
                 const uint32_t begin = start_[col], end = start_[col + 1];
                 if (begin == end) continue;
+                // A short column is scanned from its start: its points
+                // below c0 are outside the query's box, so they fail the
+                // metric's test (the same points found, in the same order),
+                // and their scan costs less than a search's chain of
+                // dependent loads.  (Only with every key finite: the keys
+                // are then sorted by `<`, so none before c0 stops the scan.)
+                if (end - begin <= kScannedColumn && finite_keys_) {
+                    visit(begin, end, c1);
+                    continue;
+                }
                 // the first point with key >= c0 (keys: the third
                 // coordinate), by halving without a branch on the
                 // comparisons (a conditional move each)
@@ -166,6 +178,7 @@ private:
     std::vector<float> x_, y_, z_;  // the position
     std::vector<uint32_t> id_;     // the original index
     size_t n_ = 0;
+    bool finite_keys_ = false;
 };
 
 }  // namespace gammart
