@@ -416,9 +416,36 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     // x beats it; the kept ones are sorted below), and the
                     // keys are distinct: selected, not sorted (the sort of
                     // every sphere's surfels was ~4 % of the setup's CPU).
+                    // The nx least, kept sorted while the rest pass by (few
+                    // enter once the first are in), are put first, the rest
+                    // after them in their order: cheaper than nth_element's
+                    // partitions (their order does not matter, as above).
                     const size_t nx = std::min(found.size(), kPruningSurfels);
-                    if (found.size() > nx)
-                        std::nth_element(found.begin(), found.begin() + std::ptrdiff_t(nx), found.end());
+                    if (found.size() > nx) {
+                        uint64_t least[kPruningSurfels];
+                        for (size_t k = 0; k < nx; ++k) {
+                            size_t j = k;
+                            for (; j > 0 && least[j - 1] > found[k]; --j) least[j] = least[j - 1];
+                            least[j] = found[k];
+                        }
+                        for (size_t p = nx; p < found.size(); ++p) {
+                            const uint64_t f = found[p];
+                            if (!(f < least[nx - 1])) continue;
+                            size_t j = nx - 1;
+                            for (; j > 0 && least[j - 1] > f; --j) least[j] = least[j - 1];
+                            least[j] = f;
+                        }
+                        const uint64_t cut = least[nx - 1];
+                        kept.resize(found.size() + 1);   // (+1: the write after the last one past the cut)
+                        std::copy(least, least + nx, kept.begin());
+                        size_t m = nx;
+                        for (const uint64_t f : found) {
+                            kept[m] = f;
+                            m += f > cut;
+                        }
+                        kept.resize(m);
+                        found.swap(kept);
+                    }
                     const double r = std::sqrt(double(L.reach2));
                     LookupPruning::Nearest X;
                     for (size_t k = 0; k < nx; ++k)
