@@ -371,7 +371,10 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     });
     {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
-            std::vector<uint64_t> found, kept;   // distance_key(d2 from the centre, point of the tree)
+            // distance_key(d2 from the centre, point of the tree); their
+            // allocator leaves a resize's room unwritten (each search's
+            // columns ask for room, which std::allocator would clear first)
+            std::vector<uint64_t, HugePageAllocator<uint64_t>> found, kept;
             struct Ordered {
                 uint64_t key;    // distance_key(distance from the centre, surfel index)
                 uint32_t point;  // of the tree

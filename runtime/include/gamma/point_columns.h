@@ -55,8 +55,11 @@ public:
     // within's order.  Every point scanned is written and the end advanced
     // only past the ones inside: no branch on each point's outcome (taken
     // or not at random, those branches cost more than the writes).
-    template <class T, class Make>
-    void append_within(const float q[3], float r2, std::vector<T>& out, Make&& make) const {
+    // (`out`: a std::vector of any allocator; one that leaves a resize's new
+    // elements unwritten saves clearing the room each column asks for.)
+    template <class Vector, class Make>
+    void append_within(const float q[3], float r2, Vector& out, Make&& make) const {
+        using T = typename Vector::value_type;
         size_t n = out.size();
         scan(q, r2, [&](uint32_t lo, uint32_t end, float c1) {
             // room for the column's points and a group's writes past them
