@@ -2,6 +2,8 @@
 #include "gamma/point_columns.h"
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
 #include <numeric>
 
 namespace gammart {
@@ -9,8 +11,11 @@ namespace gammart {
 void PointColumns::build(const float* p, size_t n, double side) {
     start_.clear();
     key_.clear();
-    pos_.clear();
+    x_.clear();
+    y_.clear();
+    z_.clear();
     id_.clear();
+    n_ = n;
     if (n == 0) {
         start_.assign(2, 0);
         nu_ = nv_ = 1;
@@ -58,13 +63,20 @@ void PointColumns::build(const float* p, size_t n, double side) {
                       const float za = p[3 * size_t(a) + w_], zb = p[3 * size_t(b) + w_];
                       return za < zb || (za == zb && a < b);
                   });
-    key_.resize(n);
-    pos_.resize(3 * n);
+    // (the padding: keys past any c1, never visited)
+    key_.assign(n + kGroup - 1, std::numeric_limits<float>::infinity());
+    x_.assign(n + kGroup - 1, 0.0f);
+    y_.assign(n + kGroup - 1, 0.0f);
+    z_.assign(n + kGroup - 1, 0.0f);
+    id_.resize(n + kGroup - 1, 0);
     for (size_t k = 0; k < n; ++k) {
         const size_t i = id_[k];
         key_[k] = p[3 * i + w_];
-        for (int d = 0; d < 3; ++d) pos_[3 * k + size_t(d)] = p[3 * i + size_t(d)];
+        x_[k] = p[3 * i];
+        y_[k] = p[3 * i + 1];
+        z_[k] = p[3 * i + 2];
     }
+    finite_keys_ = std::all_of(key_.begin(), key_.begin() + std::ptrdiff_t(n), [](float w) { return std::isfinite(w); });
 }
 
 }  // namespace gammart

@@ -47,7 +47,10 @@ constexpr size_t kPruningSurfels = LookupPruning::kNearest;
 // The lookup's column index: columns this many surfel spacings wide; the
 // nearest surfel to a sphere's centre searched first within this many
 // spacings, doubled up to kNearestAttempts times (then the kd-tree).
-constexpr double kColumnSpacings = 2.0, kNearestStartSpacings = 1.0;
+// (Columns 4 spacings wide rather than 2: a search meets fewer columns, and
+// their points are scanned four at a time -- ~5 % less time for the whole
+// build at 100k surfels on the bunny, measured alternating in one process.)
+constexpr double kColumnSpacings = 4.0, kNearestStartSpacings = 1.0;
 constexpr int kNearestAttempts = 4;
 
 V3 unit(const std::array<float, 3>& a) {
@@ -368,10 +371,15 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     });
     {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
-            std::vector<uint64_t> found, kept;   // distance_key(d2 from the centre, point of the tree)
-            std::vector<std::pair<uint64_t, uint32_t>> order;
-            std::vector<Candidate> sc;
-            std::vector<uint32_t> si;
+            // distance_key(d2 from the centre, point of the tree); their
+            // allocator leaves a resize's room unwritten (each search's
+            // columns ask for room, which std::allocator would clear first)
+            std::vector<uint64_t, HugePageAllocator<uint64_t>> found, kept;
+            struct Ordered {
+                uint64_t key;    // distance_key(distance from the centre, surfel index)
+                uint32_t point;  // of the tree
+            };
+            std::vector<Ordered> order;
             for (size_t b = r.begin(); b < r.end(); ++b) {
                 LookupBlock& out = blocks[b];
                 // The candidates of sphere L (surface tree): appended to the
@@ -411,9 +419,36 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     // x beats it; the kept ones are sorted below), and the
                     // keys are distinct: selected, not sorted (the sort of
                     // every sphere's surfels was ~4 % of the setup's CPU).
+                    // The nx least, kept sorted while the rest pass by (few
+                    // enter once the first are in), are put first, the rest
+                    // after them in their order: cheaper than nth_element's
+                    // partitions (their order does not matter, as above).
                     const size_t nx = std::min(found.size(), kPruningSurfels);
-                    if (found.size() > nx)
-                        std::nth_element(found.begin(), found.begin() + std::ptrdiff_t(nx), found.end());
+                    if (found.size() > nx) {
+                        uint64_t least[kPruningSurfels];
+                        for (size_t k = 0; k < nx; ++k) {
+                            size_t j = k;
+                            for (; j > 0 && least[j - 1] > found[k]; --j) least[j] = least[j - 1];
+                            least[j] = found[k];
+                        }
+                        for (size_t p = nx; p < found.size(); ++p) {
+                            const uint64_t f = found[p];
+                            if (!(f < least[nx - 1])) continue;
+                            size_t j = nx - 1;
+                            for (; j > 0 && least[j - 1] > f; --j) least[j] = least[j - 1];
+                            least[j] = f;
+                        }
+                        const uint64_t cut = least[nx - 1];
+                        kept.resize(found.size() + 1);   // (+1: the write after the last one past the cut)
+                        std::copy(least, least + nx, kept.begin());
+                        size_t m = nx;
+                        for (const uint64_t f : found) {
+                            kept[m] = f;
+                            m += f > cut;
+                        }
+                        kept.resize(m);
+                        found.swap(kept);
+                    }
                     const double r = std::sqrt(double(L.reach2));
                     LookupPruning::Nearest X;
                     for (size_t k = 0; k < nx; ++k)
@@ -426,23 +461,28 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     if (ball2) *ball2 = R2;
                     L.count = uint32_t(found.size());
                     L.begin = uint32_t(out.cand.size());
-                    // entries sorted by (distance from the centre, index)
-                    sc.clear();
-                    si.clear();
-                    order.clear();
-                    for (const uint64_t f : found) {
-                        const float* pp = &tree.pos[3 * size_t(key_index(f))];
+                    // entries sorted by (distance from the centre, surfel
+                    // index): distinct keys (the indices are), so the order
+                    // is fixed.  They are few (at most `limit`): an insertion
+                    // sort of (key, point) in place beats std::sort over
+                    // pairs and the staging copies it needed.
+                    order.resize(found.size());
+                    for (size_t k = 0; k < found.size(); ++k) {
+                        const uint32_t i = key_index(found[k]);
+                        const float* pp = &tree.pos[3 * size_t(i)];
                         const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
-                        sc.push_back(Candidate{pp[0], pp[1], pp[2], std::sqrt(dx * dx + dy * dy + dz * dz)});
-                        si.push_back(Trees::surfel(tree, key_index(f)));
-                        // (from the centre, surfel index): the indices are distinct, so the
-                        // keys are, and the second member never decides
-                        order.emplace_back(distance_key(sc.back().from_centre, si.back()), uint32_t(order.size()));
+                        const Ordered e{distance_key(std::sqrt(dx * dx + dy * dy + dz * dz), Trees::surfel(tree, i)), i};
+                        size_t j = k;
+                        for (; j > 0 && order[j - 1].key > e.key; --j) order[j] = order[j - 1];
+                        order[j] = e;
                     }
-                    std::sort(order.begin(), order.end());
-                    for (const auto& [key, k] : order) {
-                        out.cand.push_back(sc[k]);
-                        out.ids.push_back(si[k]);
+                    const size_t at = out.cand.size();
+                    out.cand.resize(at + order.size());
+                    out.ids.resize(at + order.size());
+                    for (size_t k = 0; k < order.size(); ++k) {
+                        const float* pp = &tree.pos[3 * size_t(order[k].point)];
+                        out.cand[at + k] = Candidate{pp[0], pp[1], pp[2], key_distance(order[k].key)};
+                        out.ids[at + k] = key_index(order[k].key);
                     }
                     return found.size();
                 };

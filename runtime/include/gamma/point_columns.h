@@ -14,6 +14,10 @@
 #include <cstdint>
 #include <vector>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace gammart {
 
 class PointColumns {
@@ -22,7 +26,7 @@ public:
     // (a little more than the usual query radius works well).  Widened if
     // the box would need too many columns.
     void build(const float* p, size_t n, double side);
-    size_t size() const { return id_.size(); }
+    size_t size() const { return n_; }
 
     // The squared distance from q to point i as nanoflann's L2_Simple_Adaptor
     // measures it (float differences, summed in axis order).
@@ -40,10 +44,10 @@ public:
     template <class F>
     void within(const float q[3], float r2, F&& f) const {
         scan(q, r2, [&](uint32_t lo, uint32_t end, float c1) {
-            for (uint32_t k = lo; k < end && !(key_[k] > c1); ++k) {
-                const float d2 = metric(q, &pos_[3 * size_t(k)]);
-                if (d2 < r2) f(id_[k], d2);
-            }
+            run(q, r2, lo, end, c1, [&](uint32_t k, unsigned, unsigned inside, const float* d2) {
+                for (unsigned i = 0; inside >> i; ++i)
+                    if ((inside >> i) & 1u) f(id_[k + i], d2[i]);
+            });
         });
     }
 
@@ -51,28 +55,82 @@ public:
     // within's order.  Every point scanned is written and the end advanced
     // only past the ones inside: no branch on each point's outcome (taken
     // or not at random, those branches cost more than the writes).
-    template <class T, class Make>
-    void append_within(const float q[3], float r2, std::vector<T>& out, Make&& make) const {
+    // (`out`: a std::vector of any allocator; one that leaves a resize's new
+    // elements unwritten saves clearing the room each column asks for.)
+    template <class Vector, class Make>
+    void append_within(const float q[3], float r2, Vector& out, Make&& make) const {
+        using T = typename Vector::value_type;
         size_t n = out.size();
         scan(q, r2, [&](uint32_t lo, uint32_t end, float c1) {
-            if (out.size() < n + (end - lo)) out.resize(std::max(2 * out.size(), n + (end - lo)));
+            // room for the column's points and a group's writes past them
+            if (out.size() < n + (end - lo) + kGroup) out.resize(std::max(2 * out.size(), n + (end - lo) + kGroup));
             T* o = out.data();
-            for (uint32_t k = lo; k < end && !(key_[k] > c1); ++k) {
-                const float d2 = metric(q, &pos_[3 * size_t(k)]);
-                o[n] = make(id_[k], d2);
-                n += d2 < r2;
-            }
+            run(q, r2, lo, end, c1, [&](uint32_t k, unsigned, unsigned inside, const float* d2) {
+                for (unsigned i = 0; i < kGroup; ++i) {
+                    o[n] = make(id_[k + i], d2[i]);
+                    n += (inside >> i) & 1u;
+                }
+            });
         });
         out.resize(n);
     }
 
 private:
+    // Points are scanned kGroup at a time (the metric of four in one SSE
+    // register); the arrays hold kGroup - 1 entries of padding past the
+    // last point, so that a group may read past a column's end.
+    static constexpr unsigned kGroup = 4;
+    // Columns of at most this many points are scanned whole (see scan).
+    static constexpr uint32_t kScannedColumn = 16;
+
+    // The points a column's scan visits: from lo while k < end and the key
+    // is not past c1 (the scalar loop's condition, NaN keys included).
+    // each(k, lanes, inside, d2) per group of points k .. k + kGroup - 1:
+    // `lanes` has bit i set for the ones visited, `inside` for those of
+    // them with metric < r2, whose distances are d2[i].  The same float
+    // operations as metric(), lane by lane (sums in axis order; the first
+    // term's 0 + d*d is d*d exactly).
+    template <class Each>
+    void run(const float q[3], float r2, uint32_t lo, uint32_t end, float c1, Each&& each) const {
+#if defined(__SSE2__)
+        const __m128 qx = _mm_set1_ps(q[0]), qy = _mm_set1_ps(q[1]), qz = _mm_set1_ps(q[2]);
+        const __m128 vr2 = _mm_set1_ps(r2), vc1 = _mm_set1_ps(c1);
+        for (uint32_t k = lo; k < end; k += kGroup) {
+            const __m128 dx = _mm_sub_ps(qx, _mm_loadu_ps(&x_[k]));
+            const __m128 dy = _mm_sub_ps(qy, _mm_loadu_ps(&y_[k]));
+            const __m128 dz = _mm_sub_ps(qz, _mm_loadu_ps(&z_[k]));
+            const __m128 d2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
+            unsigned lanes = end - k >= kGroup ? (1u << kGroup) - 1 : (1u << (end - k)) - 1;
+            const unsigned past = unsigned(_mm_movemask_ps(_mm_cmpgt_ps(_mm_loadu_ps(&key_[k]), vc1)));
+            if (past) lanes &= (past & (0u - past)) - 1;   // the lanes before the first key past c1
+            const unsigned inside = unsigned(_mm_movemask_ps(_mm_cmplt_ps(d2, vr2))) & lanes;
+            alignas(16) float d[kGroup];
+            _mm_store_ps(d, d2);
+            each(k, lanes, inside, d);
+            if (past) break;
+        }
+#else
+        for (uint32_t k = lo; k < end; k += kGroup) {
+            unsigned lanes = 0, inside = 0;
+            float d[kGroup] = {};
+            for (unsigned i = 0; i < kGroup && k + i < end && !(key_[k + i] > c1); ++i) {
+                const float p[3] = {x_[k + i], y_[k + i], z_[k + i]};
+                d[i] = metric(q, p);
+                lanes |= 1u << i;
+                inside |= unsigned(d[i] < r2) << i;
+            }
+            each(k, lanes, inside, d);
+            if (lanes != (1u << kGroup) - 1) break;
+        }
+#endif
+    }
+
     // visit(lo, end, c1) for each column the query's box meets: lo is its
     // first point with a key at least the box's lower end in w, end the
     // column's end; the caller scans from lo while the key is <= c1.
     template <class Visit>
     void scan(const float q[3], float r2, Visit&& visit) const {
-        if (id_.empty() || !(r2 > 0)) return;
+        if (n_ == 0 || !(r2 > 0)) return;
         // |q_k - p_k| <= sqrt(d2) * (1 + 2e-7) for the float metric: a pad
         // of 1e-5 relative covers it many times over.
         const double reach = std::sqrt(double(r2)) * (1.0 + 1e-5) + 1e-30;
@@ -85,6 +143,16 @@ private:
                 const size_t col = size_t(i) * size_t(nv_) + size_t(j);
                 const uint32_t begin = start_[col], end = start_[col + 1];
                 if (begin == end) continue;
+                // A short column is scanned from its start: its points
+                // below c0 are outside the query's box, so they fail the
+                // metric's test (the same points found, in the same order),
+                // and their scan costs less than a search's chain of
+                // dependent loads.  (Only with every key finite: the keys
+                // are then sorted by `<`, so none before c0 stops the scan.)
+                if (end - begin <= kScannedColumn && finite_keys_) {
+                    visit(begin, end, c1);
+                    continue;
+                }
                 // the first point with key >= c0 (keys: the third
                 // coordinate), by halving without a branch on the
                 // comparisons (a conditional move each)
@@ -108,9 +176,12 @@ private:
     int nu_ = 1, nv_ = 1;
     double lo_u_ = 0, lo_v_ = 0, inv_side_ = 1;
     std::vector<uint32_t> start_;  // per column (u major), then the end
-    std::vector<float> key_;       // sorted: the w coordinate (rounded down to float: exact)
-    std::vector<float> pos_;       // sorted positions
-    std::vector<uint32_t> id_;     // sorted: original index
+    // per point, sorted (each with kGroup - 1 entries of padding after):
+    std::vector<float> key_;       // the w coordinate (rounded down to float: exact)
+    std::vector<float> x_, y_, z_;  // the position
+    std::vector<uint32_t> id_;     // the original index
+    size_t n_ = 0;
+    bool finite_keys_ = false;
 };
 
 }  // namespace gammart
