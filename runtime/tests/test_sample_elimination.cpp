@@ -476,16 +476,19 @@ std::vector<uint32_t> reference_disk_sample(const std::vector<float>& pts, size_
 
 // poisson_disk_sample against the serial rule, at 1 and 2 threads, with the
 // neighbour lists in the space reserved and packed again (1 entry reserved
-// per point: nearly every block's lists spill).
+// per point: nearly every block's lists spill), their filter in its SSE2
+// form and (where the CPU has it) its AVX-512 form.
 void expect_disk_passes_serial(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed, int& steps) {
     const std::vector<uint32_t> expected = sorted(reference_disk_sample(pts, keep, r_max, seed, steps));
     ASSERT_EQ(expected.size(), keep);
     for (int threads : {1, 2})
-        for (size_t capacity : {size_t(12), size_t(1)}) {
-            std::vector<uint32_t> got;
-            run_with_threads(threads, [&] { got = poisson_disk_sample(pts, keep, r_max, seed, capacity); });
-            EXPECT_EQ(sorted(got), expected) << threads << " threads, " << capacity << " entries per point";
-        }
+        for (size_t capacity : {size_t(12), size_t(1)})
+            for (bool avx512 : {true, false}) {
+                std::vector<uint32_t> got;
+                run_with_threads(threads, [&] { got = poisson_disk_sample(pts, keep, r_max, seed, capacity, avx512); });
+                EXPECT_EQ(sorted(got), expected)
+                    << threads << " threads, " << capacity << " entries per point, AVX-512 allowed: " << avx512;
+            }
 }
 
 }  // namespace
