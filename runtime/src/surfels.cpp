@@ -479,6 +479,9 @@ constexpr double kRemoved = -INFINITY;
 
 // Candidates per surfel asked for.
 constexpr size_t kCandidatesPerSurfel = 5;
+// A candidate's triangle is found by a count over this many cumulative
+// areas where its guide bucket holds no more (fill_candidates).
+constexpr size_t kGuideScan = 8;
 
 }  // namespace
 
@@ -1420,7 +1423,8 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
     const size_t m = mesh.num_triangles();
     const float* V = mesh.vertices.data();
     const int32_t* T = mesh.triangles.data();
-    Uninitialised<double> cum(m);
+    // (kGuideScan entries past the last, at infinity: read by the scan below)
+    Uninitialised<double> cum(m + kGuideScan);
     // The corners of each triangle side by side: a candidate falls on a
     // random triangle, and reads one record instead of an index row and
     // three vertex rows at four random places.
@@ -1450,6 +1454,7 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
         total += cum[t];
         cum[t] = total;
     }
+    for (size_t t = m; t < m + kGuideScan; ++t) cum[t] = INFINITY;
     // A guide table over the cumulative areas: the triangle of a target is
     // searched only between the answers for the two bucket bounds around it
     // (the same answer as a search of the whole table, found in cache).
@@ -1506,12 +1511,28 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
                 bary[i - run][0] = r[2];
                 bary[i - run][1] = r[3];
             }
-            for (size_t i = run; i < run_end; ++i) __builtin_prefetch(cum.data() + guide[bucket[i - run]]);
+            for (size_t i = run; i < run_end; ++i) {
+                __builtin_prefetch(cum.data() + guide[bucket[i - run]]);
+                __builtin_prefetch(cum.data() + guide[bucket[i - run]] + kGuideScan - 1);
+            }
             for (size_t i = run; i < run_end; ++i) {
                 const size_t g = bucket[i - run];
                 const double* first = cum.data() + guide[g];
                 const double* last = g + 1 < n_buckets ? cum.data() + guide[g + 1] : cum.data() + m;
-                size_t t = size_t(std::upper_bound(first, last, target[i - run]) - cum.data());
+                // upper_bound's answer: where the bucket holds at most
+                // kGuideScan areas (nearly always), counted without
+                // branches over kGuideScan of them (those past `last` are
+                // above the target: the next bucket's, or the padding);
+                // the binary search's branches were mispredicted about once
+                // a candidate.
+                size_t t;
+                if (last - first <= std::ptrdiff_t(kGuideScan)) {
+                    size_t below = 0;
+                    for (size_t k = 0; k < kGuideScan; ++k) below += !(target[i - run] < first[k]);
+                    t = size_t(first - cum.data()) + below;
+                } else {
+                    t = size_t(std::upper_bound(first, last, target[i - run]) - cum.data());
+                }
                 if (t >= m) t = m - 1;
                 __builtin_prefetch(corners[t].data());
                 __builtin_prefetch(corners[t].data() + 8);   // a record may straddle two lines
