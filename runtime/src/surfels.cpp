@@ -1553,6 +1553,47 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
 
 }  // namespace
 
+namespace {
+
+// Sorts unique (key, index) pairs: put in buckets by the keys' top 16 bits
+// that are ever set (counted, then moved), each bucket then sorted by
+// itself, in parallel.  The sorted order is unique, so it is the one a
+// sort of the whole array gives; the buckets of a surface's Morton keys
+// hold a few dozen pairs each, and a comparison sort of the whole array
+// cost ~3 % of the sampling.  Keys crowded into few buckets (a mesh with a
+// far outlier) take the parallel sort of the whole array.
+void sort_unique_keys(std::vector<std::pair<uint64_t, uint32_t>>& order) {
+    constexpr int kBucketBits = 16;
+    const size_t n = order.size();
+    uint64_t any = 0;
+    for (const auto& o : order) any |= o.first;
+    const int used = any != 0 ? 64 - __builtin_clzll(any) : 1;
+    const int shift = std::max(0, used - kBucketBits);
+    const size_t n_buckets = size_t(1) << std::min(used, kBucketBits);
+    std::vector<uint32_t> at(n_buckets + 1, 0);
+    for (const auto& o : order) ++at[size_t(o.first >> shift) + 1];
+    uint32_t largest = 0;
+    for (size_t b = 0; b < n_buckets; ++b) {
+        largest = std::max(largest, at[b + 1]);
+        at[b + 1] += at[b];
+    }
+    if (largest > n / 8 + 64) {
+        tbb::parallel_sort(order.begin(), order.end());
+        return;
+    }
+    std::vector<std::pair<uint64_t, uint32_t>> sorted(n);
+    for (const auto& o : order) sorted[at[size_t(o.first >> shift)]++] = o;  // at[b]: now the end of bucket b
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_buckets, 2048), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t b = r.begin(); b < r.end(); ++b) {
+            const uint32_t begin = b > 0 ? at[b - 1] : 0;
+            if (at[b] - begin > 1) std::sort(sorted.begin() + begin, sorted.begin() + at[b]);
+        }
+    });
+    order.swap(sorted);
+}
+
+}  // namespace
+
 SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     if (n == 0) throw Error("surfel count must be at least 1");
     const size_t m = mesh.num_triangles();
@@ -1614,7 +1655,7 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     }
     });
     // (key, index) pairs are unique: the order does not depend on kept's.
-    tbb::parallel_sort(order.begin(), order.end());
+    sort_unique_keys(order);
     out.position.resize(3 * order.size());
     out.normal.resize(3 * order.size());
     out.triangle.resize(order.size());
