@@ -211,6 +211,22 @@ struct CellGrid {
     // With cells in rows (sort_into_cells(..., true)): the row (y, z) of cells
     // by x, as [begin, end) of `cells`.
     std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> rows;
+    // The same as a table over the box's (y, z), where it is no larger than
+    // a few entries per point (then `rows` is empty): a row looked up
+    // without hashing, and the table made without a node per row.
+    std::vector<std::pair<uint32_t, uint32_t>> row_table;  // [z * row_dims[0] + y]; empty: (0, 0)
+    uint64_t row_dims[2] = {0, 0};
+
+    // The cells of row (y, z), or null if it has none.
+    const std::pair<uint32_t, uint32_t>* find_row(uint64_t y, uint64_t z) const {
+        if (!row_table.empty()) {
+            if (y >= row_dims[0] || z >= row_dims[1]) return nullptr;
+            const std::pair<uint32_t, uint32_t>& r = row_table[z * row_dims[0] + y];
+            return r.first == r.second ? nullptr : &r;
+        }
+        auto it = rows.find(row_key(y, z));
+        return it == rows.end() ? nullptr : &it->second;
+    }
 
     static uint64_t row_key(uint64_t y, uint64_t z) { return (z << 21) | y; }
 
@@ -232,10 +248,11 @@ struct CellGrid {
                 for (int dz = -1; dz <= 1; ++dz)
                     for (int dy = -1; dy <= 1; ++dy) {
                         if ((dy < 0 && cl.c[1] == 0) || (dz < 0 && cl.c[2] == 0)) continue;
-                        auto it = g_.rows.find(row_key(cl.c[1] + uint64_t(dy), cl.c[2] + uint64_t(dz)));
-                        if (it == g_.rows.end()) continue;
-                        cursor_[n_] = it->second.first;
-                        end_[n_] = it->second.second;
+                        const std::pair<uint32_t, uint32_t>* found =
+                            g_.find_row(cl.c[1] + uint64_t(dy), cl.c[2] + uint64_t(dz));
+                        if (found == nullptr) continue;
+                        cursor_[n_] = found->first;
+                        end_[n_] = found->second;
                         ++n_;
                     }
             }
@@ -449,7 +466,16 @@ CellGrid sort_into_cells(PointsView pts, double radius, bool in_rows = false) {
             g.cells[n] = {key, a, b, {c[0], c[1], c[2]}};
         }
     });
-    if (in_rows) {
+    if (in_rows && m > 0 && dims[1] * dims[2] <= std::max<uint64_t>(65536, 2 * uint64_t(m))) {
+        g.row_dims[0] = dims[1];
+        g.row_dims[1] = dims[2];
+        g.row_table.assign(dims[1] * dims[2], {0, 0});
+        for (size_t c = 0; c < g.cells.size(); ++c) {
+            std::pair<uint32_t, uint32_t>& row = g.row_table[g.cells[c].c[2] * dims[1] + g.cells[c].c[1]];
+            if (c == 0 || (g.cells[c].key >> 21) != (g.cells[c - 1].key >> 21)) row.first = uint32_t(c);
+            row.second = uint32_t(c + 1);
+        }
+    } else if (in_rows) {
         std::pair<uint32_t, uint32_t>* row = nullptr;
         for (size_t c = 0; c < g.cells.size(); ++c) {
             if (c == 0 || (g.cells[c].key >> 21) != (g.cells[c - 1].key >> 21))
