@@ -506,4 +506,12 @@ TEST(SampleElimination, DiskPassesAreTheSerialRule) {
     const SurfelCandidates t = surfel_candidates(teapot, 300, 2);
     expect_disk_passes_serial(t.position, 300, r_max_for(t.area, 300), 2, steps);
     EXPECT_GT(steps, 0);
+    // Two spheres 100 apart in y and z: a table over the cells' (y, z)
+    // would hold far more entries than there are points, so the rows of
+    // cells are found through the hash map instead.
+    const SurfelCandidates one = surfel_candidates(gamma_test::icosphere(3), 150, 7);
+    std::vector<float> two = one.position;
+    for (size_t i = 0; i < one.position.size(); i += 3)
+        two.insert(two.end(), {one.position[i], one.position[i + 1] + 100.0f, one.position[i + 2] + 100.0f});
+    expect_disk_passes_serial(two, 300, r_max_for(2.0 * one.area, 300), 7, steps);
 }
