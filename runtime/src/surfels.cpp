@@ -46,6 +46,7 @@
 #include <unordered_map>
 
 #include <emmintrin.h>
+#include <immintrin.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -210,6 +211,22 @@ struct CellGrid {
     // With cells in rows (sort_into_cells(..., true)): the row (y, z) of cells
     // by x, as [begin, end) of `cells`.
     std::unordered_map<uint64_t, std::pair<uint32_t, uint32_t>> rows;
+    // The same as a table over the box's (y, z), where it is no larger than
+    // a few entries per point (then `rows` is empty): a row looked up
+    // without hashing, and the table made without a node per row.
+    std::vector<std::pair<uint32_t, uint32_t>> row_table;  // [z * row_dims[0] + y]; empty: (0, 0)
+    uint64_t row_dims[2] = {0, 0};
+
+    // The cells of row (y, z), or null if it has none.
+    const std::pair<uint32_t, uint32_t>* find_row(uint64_t y, uint64_t z) const {
+        if (!row_table.empty()) {
+            if (y >= row_dims[0] || z >= row_dims[1]) return nullptr;
+            const std::pair<uint32_t, uint32_t>& r = row_table[z * row_dims[0] + y];
+            return r.first == r.second ? nullptr : &r;
+        }
+        auto it = rows.find(row_key(y, z));
+        return it == rows.end() ? nullptr : &it->second;
+    }
 
     static uint64_t row_key(uint64_t y, uint64_t z) { return (z << 21) | y; }
 
@@ -231,10 +248,11 @@ struct CellGrid {
                 for (int dz = -1; dz <= 1; ++dz)
                     for (int dy = -1; dy <= 1; ++dy) {
                         if ((dy < 0 && cl.c[1] == 0) || (dz < 0 && cl.c[2] == 0)) continue;
-                        auto it = g_.rows.find(row_key(cl.c[1] + uint64_t(dy), cl.c[2] + uint64_t(dz)));
-                        if (it == g_.rows.end()) continue;
-                        cursor_[n_] = it->second.first;
-                        end_[n_] = it->second.second;
+                        const std::pair<uint32_t, uint32_t>* found =
+                            g_.find_row(cl.c[1] + uint64_t(dy), cl.c[2] + uint64_t(dz));
+                        if (found == nullptr) continue;
+                        cursor_[n_] = found->first;
+                        end_[n_] = found->second;
                         ++n_;
                     }
             }
@@ -448,7 +466,16 @@ CellGrid sort_into_cells(PointsView pts, double radius, bool in_rows = false) {
             g.cells[n] = {key, a, b, {c[0], c[1], c[2]}};
         }
     });
-    if (in_rows) {
+    if (in_rows && m > 0 && dims[1] * dims[2] <= std::max<uint64_t>(65536, 2 * uint64_t(m))) {
+        g.row_dims[0] = dims[1];
+        g.row_dims[1] = dims[2];
+        g.row_table.assign(dims[1] * dims[2], {0, 0});
+        for (size_t c = 0; c < g.cells.size(); ++c) {
+            std::pair<uint32_t, uint32_t>& row = g.row_table[g.cells[c].c[2] * dims[1] + g.cells[c].c[1]];
+            if (c == 0 || (g.cells[c].key >> 21) != (g.cells[c - 1].key >> 21)) row.first = uint32_t(c);
+            row.second = uint32_t(c + 1);
+        }
+    } else if (in_rows) {
         std::pair<uint32_t, uint32_t>* row = nullptr;
         for (size_t c = 0; c < g.cells.size(); ++c) {
             if (c == 0 || (g.cells[c].key >> 21) != (g.cells[c - 1].key >> 21))
@@ -478,6 +505,9 @@ constexpr double kRemoved = -INFINITY;
 
 // Candidates per surfel asked for.
 constexpr size_t kCandidatesPerSurfel = 5;
+// A candidate's triangle is found by a count over this many cumulative
+// areas where its guide bucket holds no more (fill_candidates).
+constexpr size_t kGuideScan = 8;
 
 }  // namespace
 
@@ -868,6 +898,170 @@ const __m128i kSetLanes[16] = {
 };
 constexpr uint8_t kSetLaneCount[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4};
 
+// Entries of a window's copy past its last point (at infinity, never
+// passed): a vector's read from the window's last point, and the room a
+// list is given beyond its window.
+constexpr size_t kWindowPad = 16;
+
+// The neighbour lists' test of a point against its window (the points of
+// the 27 cells around its own, copied side by side as x y z, biased order
+// hash and sorted position): its earlier neighbours closer than the wide
+// radius, each with kNarrowBit if also closer than the first narrow radius.
+// A float filter, closer than the wide radius by a margin larger than its
+// rounding error and not later by the order's hash; the float squared
+// distance decides the exact test where it is farther from the radii than
+// that margin (sure_wide2, sure_narrow2, not_narrow2), the exact test in
+// double on the whole order key decides the rest (near misses, hash ties).
+// Two forms with the same lists (up to their order, which no decision
+// reads): SSE2, four points at a time, the passing ones then tested one by
+// one; AVX-512 (chosen at run time where the CPU has it), sixteen at a time,
+// those the float distance decides written at once, only the rest one by
+// one.  (A window is read to a whole vector past its end: points of cells
+// two or more away, farther than the wide radius, or the padding.)
+struct WindowFilter {
+    const float* sp;          // sorted positions
+    const uint64_t* order_key;
+    float filter_radius2, sure_wide2, sure_narrow2, not_narrow2;
+    double wide2, narrow_first2;
+    ListSpan* lists;
+    // the window's copy (refreshed when its arrays grow)
+    const float *nx = nullptr, *ny = nullptr, *nz = nullptr;
+    const int32_t* nhash = nullptr;
+    const uint32_t* nid = nullptr;
+    uint32_t* maybe = nullptr;  // SSE2: the window entries the filter passed
+    float* nd2 = nullptr;       // SSE2: their float squared distances
+
+    void refresh(const std::vector<float>& x, const std::vector<float>& y, const std::vector<float>& z,
+                 const std::vector<int32_t>& h, const std::vector<uint32_t>& id, std::vector<uint32_t>& m,
+                 std::vector<float>& d2) {
+        nx = x.data(), ny = y.data(), nz = z.data(), nhash = h.data(), nid = id.data(), maybe = m.data(), nd2 = d2.data();
+    }
+
+    static int32_t biased_hash(uint64_t key) { return int32_t(uint32_t(key >> 32) ^ 0x80000000u); }
+
+    // Entry k of the window for point i (whose key is ki, at px py pz), which
+    // the filter passed and whose float squared distance is f2: written to
+    // *hit, and whether it is an earlier neighbour (every entry is written,
+    // the caller's cursor advanced only for the neighbours: no branch on
+    // the outcome).
+    uint32_t test_one(size_t k, float f2, double px, double py, double pz, uint64_t ki, uint32_t* hit) const {
+        // (bitwise: one branch, nearly always taken)
+        if ((f2 < sure_wide2) & ((f2 < sure_narrow2) | (f2 >= not_narrow2))) {
+            // The filter passed only hashes at most i's: a smaller one is
+            // earlier, an equal one (the point itself, or a tie) is by the
+            // whole key.
+            *hit = nid[k] | (f2 < sure_narrow2 ? kNarrowBit : 0);
+            return uint32_t((nhash[k] != biased_hash(ki)) | (order_key[nid[k]] < ki));
+        }
+        const double dx = px - nx[k], dy = py - ny[k], dz = pz - nz[k];
+        const double d2 = dx * dx + dy * dy + dz * dz;
+        *hit = nid[k] | (d2 < narrow_first2 ? kNarrowBit : 0);
+        return uint32_t((d2 < wide2) & (order_key[nid[k]] < ki));
+    }
+
+    // The lists of points [i_begin, i_end), whose window is [w_begin,
+    // w_end), written from list[used] on (room for each point's whole
+    // window and kWindowPad more); returns the entries used.
+    size_t cell_lists_sse2(uint32_t i_begin, uint32_t i_end, size_t w_begin, size_t w_end, uint32_t* list,
+                           size_t used) const {
+        const __m128 limit = _mm_set1_ps(filter_radius2);
+        for (uint32_t i = i_begin; i < i_end; ++i) {
+            const __m128 px4 = _mm_set1_ps(sp[3 * size_t(i)]), py4 = _mm_set1_ps(sp[3 * size_t(i) + 1]),
+                         pz4 = _mm_set1_ps(sp[3 * size_t(i) + 2]);
+            const __m128i hi4 = _mm_set1_epi32(biased_hash(order_key[i]));
+            size_t n_maybe = 0;
+            for (size_t k = w_begin; k < w_end; k += 4) {
+                const __m128 dx = _mm_sub_ps(px4, _mm_loadu_ps(&nx[k]));
+                const __m128 dy = _mm_sub_ps(py4, _mm_loadu_ps(&ny[k]));
+                const __m128 dz = _mm_sub_ps(pz4, _mm_loadu_ps(&nz[k]));
+                const __m128 d2 = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
+                _mm_storeu_ps(&nd2[k], d2);
+                const __m128 near = _mm_cmpnge_ps(d2, limit);
+                const __m128i later = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&nhash[k])), hi4);
+                const int mask = _mm_movemask_ps(_mm_andnot_ps(_mm_castsi128_ps(later), near));
+                _mm_storeu_si128(reinterpret_cast<__m128i*>(&maybe[n_maybe]),
+                                 _mm_add_epi32(_mm_set1_epi32(int32_t(k)), kSetLanes[mask]));
+                n_maybe += kSetLaneCount[mask];
+            }
+            const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+            const uint64_t ki = order_key[i];
+            uint32_t* hit = list + used;
+            size_t found = 0;
+            for (size_t c = 0; c < n_maybe; ++c) found += test_one(maybe[c], nd2[maybe[c]], px, py, pz, ki, hit + found);
+            lists[i] = {uint32_t(used), uint32_t(used + found)};  // in the block's, for now
+            used += found;
+        }
+        return used;
+    }
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#define GAMMA_DISK_FILTER_AVX512 1
+    static bool has_avx512() {
+        static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("popcnt") &&
+                                __builtin_cpu_supports("bmi");
+        return has;
+    }
+    // cell_lists_sse2's lists, sixteen window points at a time: the
+    // entries the float distance decides (all but near misses, hash ties
+    // and the point itself, which is never its own neighbour) are packed
+    // into the list by one compress; the rest go through test_one.  The
+    // same float operations as the SSE2 form (no fused multiply-add: this
+    // file is compiled with -ffp-contract=off).
+    [[gnu::target("avx512f,popcnt,bmi")]] size_t cell_lists_avx512(uint32_t i_begin, uint32_t i_end, size_t w_begin,
+                                                                   size_t w_end, uint32_t* list, size_t used) const {
+        const __m512 limit = _mm512_set1_ps(filter_radius2), sure_w = _mm512_set1_ps(sure_wide2),
+                     sure_n = _mm512_set1_ps(sure_narrow2), not_n = _mm512_set1_ps(not_narrow2);
+        const __m512i narrow_bit = _mm512_set1_epi32(int32_t(kNarrowBit));
+        for (uint32_t i = i_begin; i < i_end; ++i) {
+            const float pxf = sp[3 * size_t(i)], pyf = sp[3 * size_t(i) + 1], pzf = sp[3 * size_t(i) + 2];
+            const __m512 px16 = _mm512_set1_ps(pxf), py16 = _mm512_set1_ps(pyf), pz16 = _mm512_set1_ps(pzf);
+            const uint64_t ki = order_key[i];
+            const __m512i hi16 = _mm512_set1_epi32(biased_hash(ki));
+            const __m512i self16 = _mm512_set1_epi32(int32_t(i));
+            uint32_t* hit = list + used;
+            size_t found = 0;
+            for (size_t k = w_begin; k < w_end; k += 16) {
+                const __m512 dx = _mm512_sub_ps(px16, _mm512_loadu_ps(&nx[k]));
+                const __m512 dy = _mm512_sub_ps(py16, _mm512_loadu_ps(&ny[k]));
+                const __m512 dz = _mm512_sub_ps(pz16, _mm512_loadu_ps(&nz[k]));
+                const __m512 d2 =
+                    _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy)), _mm512_mul_ps(dz, dz));
+                const __m512i h = _mm512_loadu_si512(&nhash[k]);
+                const __m512i id = _mm512_loadu_si512(&nid[k]);
+                const __mmask16 passed = _mm512_cmp_ps_mask(d2, limit, _CMP_NGE_UQ) & _mm512_cmple_epi32_mask(h, hi16) &
+                                         _mm512_cmpneq_epi32_mask(id, self16);
+                const __mmask16 narrow = _mm512_cmp_ps_mask(d2, sure_n, _CMP_LT_OQ);
+                const __mmask16 decided = _mm512_cmp_ps_mask(d2, sure_w, _CMP_LT_OQ) &
+                                          (narrow | _mm512_cmp_ps_mask(d2, not_n, _CMP_GE_OQ)) &
+                                          _mm512_cmplt_epi32_mask(h, hi16);
+                const __mmask16 fast = passed & decided;
+                _mm512_storeu_si512(hit + found,
+                                    _mm512_maskz_compress_epi32(fast, _mm512_mask_or_epi32(id, narrow, id, narrow_bit)));
+                found += unsigned(__builtin_popcount(unsigned(fast)));
+                unsigned slow = unsigned(passed & ~decided);
+                if (slow != 0) {
+                    alignas(64) float f2[16];
+                    _mm512_store_ps(f2, d2);
+                    for (; slow != 0; slow &= slow - 1) {
+                        const unsigned lane = unsigned(__builtin_ctz(slow));
+                        found += test_one(k + lane, f2[lane], pxf, pyf, pzf, ki, hit + found);
+                    }
+                }
+            }
+            lists[i] = {uint32_t(used), uint32_t(used + found)};  // in the block's, for now
+            used += found;
+        }
+        return used;
+    }
+#else
+    static bool has_avx512() { return false; }
+    size_t cell_lists_avx512(uint32_t i_begin, uint32_t i_end, size_t w_begin, size_t w_end, uint32_t* list,
+                             size_t used) const {
+        return cell_lists_sse2(i_begin, i_end, w_begin, w_end, list, used);
+    }
+#endif
+};
+
 }  // namespace
 
 // Exactly `keep` of `pts` as two greedy Poisson-disk passes in one fixed
@@ -890,7 +1084,7 @@ constexpr uint8_t kSetLaneCount[16] = {0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3,
 namespace {
 
 std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double r_max, uint64_t seed,
-                                             size_t list_capacity) {
+                                             size_t list_capacity, bool allow_avx512) {
     const size_t m = pts.size() / 3;
     // (sorted positions fit under kNarrowBit: 2^31 candidates are far
     // beyond the memory of any machine this runs on)
@@ -967,6 +1161,7 @@ std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double
     std::vector<uint64_t> block_at(nblocks);  // where a block's lists are in `nbrs`, or kSpilled
     std::vector<std::vector<uint32_t>> spilled(nblocks);
     std::atomic<bool> any_spilled{false};
+    const bool avx512 = allow_avx512 && WindowFilter::has_avx512();
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
         // A row's cells go in clusters (consecutive cells at most 2 apart
         // in x, whose neighbourhoods overlap).  The points of the 9 rows
@@ -984,6 +1179,8 @@ std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double
         std::vector<uint32_t> nid, maybe;
         std::vector<uint32_t> list;  // the block's lists; its size is its capacity
         CellGrid::RowsAround rows(grid);
+        WindowFilter window{sp.data(), order_key.data(), filter_radius2, sure_wide2, sure_narrow2, not_narrow2,
+                            wide2, narrow_first2, lists.data()};
         for (size_t b = br.begin(); b < br.end(); ++b) {
             size_t used = 0;
             const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
@@ -1001,9 +1198,9 @@ std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double
                 });
                 for (size_t x = 0; x < span; ++x) x_start[x + 1] += x_start[x];
                 const size_t count = x_start[span];
-                if (nid.size() < count + 4) {
+                if (nid.size() < count + kWindowPad) {
                     // arrays that only grow (no capacity test per point)
-                    const size_t grown = std::max(2 * nid.size(), count + 4);
+                    const size_t grown = std::max(2 * nid.size(), count + kWindowPad);
                     nx.resize(grown), ny.resize(grown), nz.resize(grown), nhash.resize(grown), nid.resize(grown);
                     maybe.resize(grown + 4), nd2.resize(grown + 4);
                 }
@@ -1019,71 +1216,20 @@ std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double
                     }
                     x_fill[run.x - x_lo] = k;
                 }
-                for (size_t k = count; k < count + 4; ++k) {  // read past the last run, never passed
+                for (size_t k = count; k < count + kWindowPad; ++k) {  // read past the last run, never passed
                     nx[k] = ny[k] = nz[k] = INFINITY;
                     nhash[k] = INT32_MAX;
                     nid[k] = 0;
                 }
+                window.refresh(nx, ny, nz, nhash, nid, maybe, nd2);
                 for (; ci < cj; ++ci) {
                     const uint32_t x = cells[ci].c[0];
                     const size_t w_begin = x_start[x > x_lo ? x - 1 - x_lo : 0], w_end = x_start[x + 2 - x_lo];
-                    for (uint32_t i = cells[ci].begin; i < cells[ci].end; ++i) {
-                        // Float filter, four at a time: closer than the wide
-                        // radius by a margin larger than its rounding error, and
-                        // not later by the order's hash; the few it passes (the
-                        // neighbours, ties and near misses) then take the exact
-                        // test, in double, on the whole order key.
-                        // (The window is read to a whole vector past its end:
-                        // points of cells two or more away, which are farther
-                        // than the wide radius, or the padding at infinity.)
-                        const __m128 px4 = _mm_set1_ps(sp[3 * size_t(i)]), py4 = _mm_set1_ps(sp[3 * size_t(i) + 1]),
-                                     pz4 = _mm_set1_ps(sp[3 * size_t(i) + 2]);
-                        const __m128 limit = _mm_set1_ps(filter_radius2);
-                        const __m128i hi4 = _mm_set1_epi32(int32_t(uint32_t(order_key[i] >> 32) ^ 0x80000000u));
-                        size_t n_maybe = 0;
-                        for (size_t k = w_begin; k < w_end; k += 4) {
-                            const __m128 dx = _mm_sub_ps(px4, _mm_loadu_ps(&nx[k]));
-                            const __m128 dy = _mm_sub_ps(py4, _mm_loadu_ps(&ny[k]));
-                            const __m128 dz = _mm_sub_ps(pz4, _mm_loadu_ps(&nz[k]));
-                            const __m128 d2 =
-                                _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy)), _mm_mul_ps(dz, dz));
-                            _mm_storeu_ps(&nd2[k], d2);
-                            const __m128 near = _mm_cmpnge_ps(d2, limit);
-                            const __m128i later =
-                                _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(&nhash[k])), hi4);
-                            const int mask = _mm_movemask_ps(_mm_andnot_ps(_mm_castsi128_ps(later), near));
-                            _mm_storeu_si128(reinterpret_cast<__m128i*>(&maybe[n_maybe]),
-                                             _mm_add_epi32(_mm_set1_epi32(int32_t(k)), kSetLanes[mask]));
-                            n_maybe += kSetLaneCount[mask];
-                        }
-                        const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
-                        const uint64_t ki = order_key[i];
-                        if (list.size() < used + n_maybe) list.resize(std::max(2 * list.size(), used + n_maybe));
-                        // Every candidate is written, the cursor advanced only
-                        // for the neighbours: no branch to mispredict.
-                        uint32_t* hit = list.data() + used;
-                        size_t found = 0;
-                        const int32_t hi = int32_t(uint32_t(ki >> 32) ^ 0x80000000u);
-                        for (size_t c = 0; c < n_maybe; ++c) {
-                            const size_t k = maybe[c];
-                            const float f2 = nd2[k];
-                            // (bitwise: one branch, nearly always taken)
-                            if ((f2 < sure_wide2) & ((f2 < sure_narrow2) | (f2 >= not_narrow2))) {
-                                // The filter passed only hashes at most hi's: a
-                                // smaller one is earlier, an equal one (the point
-                                // itself, or a tie) is by the whole key.
-                                hit[found] = nid[k] | (f2 < sure_narrow2 ? kNarrowBit : 0);
-                                found += (nhash[k] != hi) | (order_key[nid[k]] < ki);
-                                continue;
-                            }
-                            const double dx = px - nx[k], dy = py - ny[k], dz = pz - nz[k];
-                            const double d2 = dx * dx + dy * dy + dz * dz;
-                            hit[found] = nid[k] | (d2 < narrow_first2 ? kNarrowBit : 0);
-                            found += (d2 < wide2) & (order_key[nid[k]] < ki);
-                        }
-                        lists[i] = {uint32_t(used), uint32_t(used + found)};  // in the block's, for now
-                        used += found;
-                    }
+                    // room for every point's list to take its whole window and a vector more
+                    const size_t room = used + size_t(cells[ci].end - cells[ci].begin) * (w_end - w_begin + kWindowPad);
+                    if (list.size() < room) list.resize(std::max(2 * list.size(), room));
+                    used = avx512 ? window.cell_lists_avx512(cells[ci].begin, cells[ci].end, w_begin, w_end, list.data(), used)
+                                  : window.cell_lists_sse2(cells[ci].begin, cells[ci].end, w_begin, w_end, list.data(), used);
                 }
             }
             const uint32_t p_begin = cells[c_begin].begin, p_end = cells[c_end - 1].end;
@@ -1235,21 +1381,28 @@ std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double
             // out.  Earlier ones from the point's own list; a kept point
             // marks its own listed (earlier) points (stores of one value:
             // the same states at any thread count).
+            // (The whole list read without an early exit, and the kept
+            // points' marks from `chosen`, which holds every one of them
+            // here: no branch on a point's state to mispredict.)
             tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
                 for (size_t i = r.begin(); i < r.end(); ++i) {
-                    bool out = first_in[i] != 0;
-                    for (uint32_t a = lists[i].begin; a < lists[i].end && !out; ++a)
-                        out = first_in[nbrs[a] & kPositionBits] && within_narrow(uint32_t(i), nbrs[a]);
-                    if (out) state[i].store(kOut, std::memory_order_relaxed);
-                    else state[i].store(kUndecided, std::memory_order_relaxed);
+                    uint32_t out = first_in[i];
+                    if (step == 0) {
+                        for (uint32_t a = lists[i].begin; a < lists[i].end; ++a)
+                            out |= uint32_t(first_in[nbrs[a] & kPositionBits]) & (nbrs[a] >> 31);
+                    } else {
+                        for (uint32_t a = lists[i].begin; a < lists[i].end; ++a)
+                            out |= uint32_t(first_in[nbrs[a] & kPositionBits]) &
+                                   uint32_t(within_narrow(uint32_t(i), nbrs[a]));
+                    }
+                    state[i].store(out ? kOut : kUndecided, std::memory_order_relaxed);
                 }
             });
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
-                for (size_t j = r.begin(); j < r.end(); ++j) {
-                    if (!first_in[j]) continue;
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, chosen.size(), 1024), [&](const tbb::blocked_range<size_t>& r) {
+                for (size_t c = r.begin(); c < r.end(); ++c) {
+                    const uint32_t j = chosen[c];
                     for (uint32_t a = lists[j].begin; a < lists[j].end; ++a)
-                        if (within_narrow(uint32_t(j), nbrs[a]))
-                            state[nbrs[a] & kPositionBits].store(kOut, std::memory_order_relaxed);
+                        if (within_narrow(j, nbrs[a])) state[nbrs[a] & kPositionBits].store(kOut, std::memory_order_relaxed);
                 }
             });
             greedy_pass(narrow);
@@ -1278,8 +1431,8 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* positio
 }  // namespace
 
 std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed,
-                                          size_t list_capacity) {
-    return poisson_disk_sample_in(pts, keep, r_max, seed, list_capacity);
+                                          size_t list_capacity, bool allow_avx512) {
+    return poisson_disk_sample_in(pts, keep, r_max, seed, list_capacity, allow_avx512);
 }
 
 SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed) {
@@ -1296,7 +1449,8 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
     const size_t m = mesh.num_triangles();
     const float* V = mesh.vertices.data();
     const int32_t* T = mesh.triangles.data();
-    Uninitialised<double> cum(m);
+    // (kGuideScan entries past the last, at infinity: read by the scan below)
+    Uninitialised<double> cum(m + kGuideScan);
     // The corners of each triangle side by side: a candidate falls on a
     // random triangle, and reads one record instead of an index row and
     // three vertex rows at four random places.
@@ -1326,6 +1480,7 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
         total += cum[t];
         cum[t] = total;
     }
+    for (size_t t = m; t < m + kGuideScan; ++t) cum[t] = INFINITY;
     // A guide table over the cumulative areas: the triangle of a target is
     // searched only between the answers for the two bucket bounds around it
     // (the same answer as a search of the whole table, found in cache).
@@ -1382,12 +1537,28 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
                 bary[i - run][0] = r[2];
                 bary[i - run][1] = r[3];
             }
-            for (size_t i = run; i < run_end; ++i) __builtin_prefetch(cum.data() + guide[bucket[i - run]]);
+            for (size_t i = run; i < run_end; ++i) {
+                __builtin_prefetch(cum.data() + guide[bucket[i - run]]);
+                __builtin_prefetch(cum.data() + guide[bucket[i - run]] + kGuideScan - 1);
+            }
             for (size_t i = run; i < run_end; ++i) {
                 const size_t g = bucket[i - run];
                 const double* first = cum.data() + guide[g];
                 const double* last = g + 1 < n_buckets ? cum.data() + guide[g + 1] : cum.data() + m;
-                size_t t = size_t(std::upper_bound(first, last, target[i - run]) - cum.data());
+                // upper_bound's answer: where the bucket holds at most
+                // kGuideScan areas (nearly always), counted without
+                // branches over kGuideScan of them (those past `last` are
+                // above the target: the next bucket's, or the padding);
+                // the binary search's branches were mispredicted about once
+                // a candidate.
+                size_t t;
+                if (last - first <= std::ptrdiff_t(kGuideScan)) {
+                    size_t below = 0;
+                    for (size_t k = 0; k < kGuideScan; ++k) below += !(target[i - run] < first[k]);
+                    t = size_t(first - cum.data()) + below;
+                } else {
+                    t = size_t(std::upper_bound(first, last, target[i - run]) - cum.data());
+                }
                 if (t >= m) t = m - 1;
                 __builtin_prefetch(corners[t].data());
                 __builtin_prefetch(corners[t].data() + 8);   // a record may straddle two lines
@@ -1404,6 +1575,47 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
         }
     });
     return total;
+}
+
+}  // namespace
+
+namespace {
+
+// Sorts unique (key, index) pairs: put in buckets by the keys' top 16 bits
+// that are ever set (counted, then moved), each bucket then sorted by
+// itself, in parallel.  The sorted order is unique, so it is the one a
+// sort of the whole array gives; the buckets of a surface's Morton keys
+// hold a few dozen pairs each, and a comparison sort of the whole array
+// cost ~3 % of the sampling.  Keys crowded into few buckets (a mesh with a
+// far outlier) take the parallel sort of the whole array.
+void sort_unique_keys(std::vector<std::pair<uint64_t, uint32_t>>& order) {
+    constexpr int kBucketBits = 16;
+    const size_t n = order.size();
+    uint64_t any = 0;
+    for (const auto& o : order) any |= o.first;
+    const int used = any != 0 ? 64 - __builtin_clzll(any) : 1;
+    const int shift = std::max(0, used - kBucketBits);
+    const size_t n_buckets = size_t(1) << std::min(used, kBucketBits);
+    std::vector<uint32_t> at(n_buckets + 1, 0);
+    for (const auto& o : order) ++at[size_t(o.first >> shift) + 1];
+    uint32_t largest = 0;
+    for (size_t b = 0; b < n_buckets; ++b) {
+        largest = std::max(largest, at[b + 1]);
+        at[b + 1] += at[b];
+    }
+    if (largest > n / 8 + 64) {
+        tbb::parallel_sort(order.begin(), order.end());
+        return;
+    }
+    std::vector<std::pair<uint64_t, uint32_t>> sorted(n);
+    for (const auto& o : order) sorted[at[size_t(o.first >> shift)]++] = o;  // at[b]: now the end of bucket b
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_buckets, 2048), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t b = r.begin(); b < r.end(); ++b) {
+            const uint32_t begin = b > 0 ? at[b - 1] : 0;
+            if (at[b] - begin > 1) std::sort(sorted.begin() + begin, sorted.begin() + at[b]);
+        }
+    });
+    order.swap(sorted);
 }
 
 }  // namespace
@@ -1436,7 +1648,7 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     out.r_max = std::sqrt(area / (2.0 * std::sqrt(3.0) * double(n)));
     // Should the disk passes fall short (very few surfels on a compact
     // mesh), the weighted elimination picks the n.
-    std::vector<uint32_t> kept = poisson_disk_sample_in(cand_points, n, out.r_max, seed, kDiskListCapacity);
+    std::vector<uint32_t> kept = poisson_disk_sample_in(cand_points, n, out.r_max, seed, kDiskListCapacity, true);
     if (kept.size() != n) kept = eliminate_samples_in(cand_points, n, out.r_max);
     // The kept candidates in ascending order, so that their Morton keys
     // read the candidates' positions in address order (not 100,000 random
@@ -1469,7 +1681,7 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     }
     });
     // (key, index) pairs are unique: the order does not depend on kept's.
-    tbb::parallel_sort(order.begin(), order.end());
+    sort_unique_keys(order);
     out.position.resize(3 * order.size());
     out.normal.resize(3 * order.size());
     out.triangle.resize(order.size());

@@ -476,16 +476,19 @@ std::vector<uint32_t> reference_disk_sample(const std::vector<float>& pts, size_
 
 // poisson_disk_sample against the serial rule, at 1 and 2 threads, with the
 // neighbour lists in the space reserved and packed again (1 entry reserved
-// per point: nearly every block's lists spill).
+// per point: nearly every block's lists spill), their filter in its SSE2
+// form and (where the CPU has it) its AVX-512 form.
 void expect_disk_passes_serial(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed, int& steps) {
     const std::vector<uint32_t> expected = sorted(reference_disk_sample(pts, keep, r_max, seed, steps));
     ASSERT_EQ(expected.size(), keep);
     for (int threads : {1, 2})
-        for (size_t capacity : {size_t(12), size_t(1)}) {
-            std::vector<uint32_t> got;
-            run_with_threads(threads, [&] { got = poisson_disk_sample(pts, keep, r_max, seed, capacity); });
-            EXPECT_EQ(sorted(got), expected) << threads << " threads, " << capacity << " entries per point";
-        }
+        for (size_t capacity : {size_t(12), size_t(1)})
+            for (bool avx512 : {true, false}) {
+                std::vector<uint32_t> got;
+                run_with_threads(threads, [&] { got = poisson_disk_sample(pts, keep, r_max, seed, capacity, avx512); });
+                EXPECT_EQ(sorted(got), expected)
+                    << threads << " threads, " << capacity << " entries per point, AVX-512 allowed: " << avx512;
+            }
 }
 
 }  // namespace
@@ -503,4 +506,12 @@ TEST(SampleElimination, DiskPassesAreTheSerialRule) {
     const SurfelCandidates t = surfel_candidates(teapot, 300, 2);
     expect_disk_passes_serial(t.position, 300, r_max_for(t.area, 300), 2, steps);
     EXPECT_GT(steps, 0);
+    // Two spheres 100 apart in y and z: a table over the cells' (y, z)
+    // would hold far more entries than there are points, so the rows of
+    // cells are found through the hash map instead.
+    const SurfelCandidates one = surfel_candidates(gamma_test::icosphere(3), 150, 7);
+    std::vector<float> two = one.position;
+    for (size_t i = 0; i < one.position.size(); i += 3)
+        two.insert(two.end(), {one.position[i], one.position[i + 1] + 100.0f, one.position[i + 2] + 100.0f});
+    expect_disk_passes_serial(two, 300, r_max_for(2.0 * one.area, 300), 7, steps);
 }

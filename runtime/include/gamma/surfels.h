@@ -34,10 +34,11 @@ SurfelCandidates surfel_candidates(const Mesh& mesh, size_t n, uint64_t seed);
 // point set (exposed for tests): the indices of exactly `keep` points (in no
 // particular order), or nothing if the passes fall short.  The neighbour
 // lists are stored in `list_capacity` entries reserved per point, packed
-// again when they need more (the same answer either way).
+// again when they need more; their filter takes its AVX-512 form where the
+// CPU has it unless `allow_avx512` is false (the same answer either way).
 constexpr size_t kDiskListCapacity = 12;
 std::vector<uint32_t> poisson_disk_sample(const std::vector<float>& pts, size_t keep, double r_max, uint64_t seed,
-                                          size_t list_capacity = kDiskListCapacity);
+                                          size_t list_capacity = kDiskListCapacity, bool allow_avx512 = true);
 
 // Yuksel 2015 weighted sample elimination (tiled, see surfels.cpp) on an
 // arbitrary 3D point set: what sample_surfels falls back on when the disk
