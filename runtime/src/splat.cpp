@@ -10,6 +10,10 @@
 #include <memory>
 #include <utility>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "gamma/error.h"
 #include "gamma/float_points.h"
 #include "gamma/point_columns.h"
@@ -185,6 +189,27 @@ struct GatherChunk {
 };
 constexpr size_t kPointsPerChunk = 2048;
 
+// How many of ids[0, count) are smaller than id (count a multiple of 4).
+inline size_t rank_among(const uint32_t* ids, size_t count, uint32_t id) {
+#if defined(__SSE2__)
+    // unsigned order by a signed compare of the values with the top bit flipped
+    const __m128i flip = _mm_set1_epi32(int32_t(0x80000000u));
+    const __m128i key = _mm_xor_si128(_mm_set1_epi32(int32_t(id)), flip);
+    __m128i acc = _mm_setzero_si128();
+    for (size_t b = 0; b < count; b += 4) {
+        const __m128i v = _mm_xor_si128(_mm_loadu_si128(reinterpret_cast<const __m128i*>(ids + b)), flip);
+        acc = _mm_sub_epi32(acc, _mm_cmplt_epi32(v, key));  // a lane's mask is -1 where smaller
+    }
+    acc = _mm_add_epi32(acc, _mm_shuffle_epi32(acc, _MM_SHUFFLE(1, 0, 3, 2)));
+    acc = _mm_add_epi32(acc, _mm_shuffle_epi32(acc, _MM_SHUFFLE(2, 3, 0, 1)));
+    return size_t(uint32_t(_mm_cvtsi128_si32(acc)));
+#else
+    size_t rank = 0;
+    for (size_t b = 0; b < count; ++b) rank += ids[b] < id;
+    return rank;
+#endif
+}
+
 struct HoodEntry {
     uint32_t id;
     float d2;
@@ -236,25 +261,27 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
     std::vector<double> sum(n);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
         std::vector<std::pair<uint32_t, float>> found;  // (sorted index, d2)
-        std::vector<HoodEntry> hood;
+        std::vector<HoodEntry> hood, sorted;
+        std::vector<uint32_t> ids;  // the hood's, padded to a multiple of 4
         for (size_t ch = range.begin(); ch < range.end(); ++ch) {
             GatherChunk& G = chunks[ch];
             const size_t points = cols.start[G.end_column] - cols.start[G.first_column];
             G.target.reserve(points);
-            G.source.reserve(points * 20);
-            G.gauss.reserve(points * 20);
+            G.source.resize(points * 16);
+            G.gauss.resize(points * 16);
+            size_t gn = 0;  // entries written
             for (size_t c = G.first_column; c < G.end_column; ++c) {
                 const uint32_t begin = cols.start[c], end = cols.start[c + 1];
                 if (begin == end) continue;
                 // the neighbouring columns' next candidates and ends
-                uint32_t next[9], stop[9];
+                uint32_t next[9], last[9], stop[9];
                 int m = 0;
                 const int ci = int(c / size_t(cols.nv)), cj = int(c % size_t(cols.nv));
                 for (int i = std::max(ci - 1, 0); i <= std::min(ci + 1, cols.nu - 1); ++i)
                     for (int j = std::max(cj - 1, 0); j <= std::min(cj + 1, cols.nv - 1); ++j) {
                         const size_t nc = size_t(i) * size_t(cols.nv) + size_t(j);
                         if (cols.start[nc] == cols.start[nc + 1]) continue;
-                        next[m] = cols.start[nc];
+                        next[m] = last[m] = cols.start[nc];
                         stop[m] = cols.start[nc + 1];
                         ++m;
                     }
@@ -262,65 +289,83 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
                     const float* q = &cols.pos[3 * size_t(t)];
                     const float* nq = &cols.nrm[3 * size_t(t)];
                     const int32_t sq = cols.surf[t];
-                    hood.clear();
+                    size_t nh = 0;
                     if (search && std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) {
                         const double cw = double(q[cols.w]);
                         const float c0 = float(cw - reach), c1 = float(cw + reach);
                         size_t nf = 0;
+                        const float* key = cols.key.data();
+                        const float* pos = cols.pos.data();
                         for (int b = 0; b < m; ++b) {
-                            uint32_t x = next[b];
-                            while (x < stop[b] && cols.key[x] < c0) ++x;
+                            // both ends of the window only move forward (c0 and c1 do)
+                            uint32_t x = next[b], y = last[b];
+                            while (x < stop[b] && key[x] < c0) ++x;
+                            y = std::max(x, y);
+                            while (y < stop[b] && !(key[y] > c1)) ++y;
                             next[b] = x;
-                            uint32_t y = x;
-                            while (y < stop[b] && !(cols.key[y] > c1)) ++y;
+                            last[b] = y;
                             // every candidate written, the end advanced past those within only
                             if (found.size() < nf + (y - x)) found.resize(std::max(2 * found.size(), nf + (y - x)));
                             std::pair<uint32_t, float>* o = found.data();
                             for (; x < y; ++x) {
-                                const float d2 = PointColumns::metric(q, &cols.pos[3 * size_t(x)]);
+                                // PointColumns::metric (the kd-tree's), spelt out
+                                const float* p = pos + 3 * size_t(x);
+                                const float d0 = q[0] - p[0], d1 = q[1] - p[1], dz = q[2] - p[2];
+                                const float d2 = d0 * d0 + d1 * d1 + dz * dz;
                                 o[nf] = {x, d2};
                                 nf += d2 < r2;
                             }
                         }
+                        // every candidate written, the end advanced past those kept only
+                        if (hood.size() < nf + 1) hood.resize(2 * (nf + 1));
                         for (size_t f = 0; f < nf; ++f) {
                             const uint32_t x = found[f].first;
-                            if (x == t || cols.surf[x] != sq) continue;
                             const float* nx = &cols.nrm[3 * size_t(x)];
-                            if (nq[0] * nx[0] + nq[1] * nx[1] + nq[2] * nx[2] < kMinNormalDot) continue;
                             const float* px = &cols.pos[3 * size_t(x)];
                             // off the target's tangent plane, and the target off x's
                             const float off_t = (px[0] - q[0]) * nq[0] + (px[1] - q[1]) * nq[1] + (px[2] - q[2]) * nq[2];
                             const float off_x = (q[0] - px[0]) * nx[0] + (q[1] - px[1]) * nx[1] + (q[2] - px[2]) * nx[2];
-                            const uint32_t in = (std::fabs(off_t) > max_offset ? 0u : 1u) |
-                                                (std::fabs(off_x) > max_offset ? 0u : 2u);
-                            if (in) hood.push_back({cols.id[x], found[f].second, in});
+                            const bool pair = (x != t) & (cols.surf[x] == sq) &
+                                              !(nq[0] * nx[0] + nq[1] * nx[1] + nq[2] * nx[2] < kMinNormalDot);
+                            const uint32_t in = ((std::fabs(off_t) > max_offset ? 0u : 1u) |
+                                                 (std::fabs(off_x) > max_offset ? 0u : 2u)) &
+                                                (0u - uint32_t(pair));
+                            hood[nh] = {cols.id[x], found[f].second, in};
+                            nh += in != 0;
                         }
                     }
                     const uint32_t tid = cols.id[t];
-                    hood.push_back({tid, 0.0f, 3u});  // always in its own neighbourhood
-                    // by neighbour (each once)
-                    for (size_t a = 1; a < hood.size(); ++a) {
-                        const HoodEntry h = hood[a];
-                        size_t b = a;
-                        for (; b > 0 && hood[b - 1].id > h.id; --b) hood[b] = hood[b - 1];
-                        hood[b] = h;
-                    }
+                    if (hood.size() < nh + 1) hood.resize(nh + 1);
+                    hood[nh++] = {tid, 0.0f, 3u};  // always in its own neighbourhood
+                    // by neighbour (each once): each entry placed at its rank
+                    // (a count of smaller ones, no branch on the comparisons)
+                    if (sorted.size() < nh) sorted.resize(hood.size());
+                    const size_t padded = (nh + 3) & ~size_t(3);
+                    if (ids.size() < padded) ids.resize(2 * padded);
+                    for (size_t a = 0; a < nh; ++a) ids[a] = hood[a].id;
+                    for (size_t a = nh; a < padded; ++a) ids[a] = UINT32_MAX;  // never smaller
+                    for (size_t a = 0; a < nh; ++a) sorted[rank_among(ids.data(), padded, ids[a])] = hood[a];
                     double s = 0;
-                    uint32_t gathered = 0;
-                    for (const HoodEntry& h : hood) {
+                    if (G.source.size() < gn + nh) {
+                        G.source.resize(std::max(2 * G.source.size(), gn + nh));
+                        G.gauss.resize(G.source.size());
+                    }
+                    const size_t g0 = gn;
+                    for (size_t a = 0; a < nh; ++a) {
+                        const HoodEntry& h = sorted[a];
                         const double g = std::exp(-double(h.d2) * inv2s2);
-                        if (h.in & 1u) s += g;
-                        if (h.in & 2u) {
-                            G.source.push_back(h.id);
-                            G.gauss.push_back(g);
-                            ++gathered;
-                        }
+                        s += (h.in & 1u) ? g : 0.0;  // (adding 0 to a sum of positive terms: the same sum)
+                        G.source[gn] = h.id;
+                        G.gauss[gn] = g;
+                        gn += h.in >> 1;
                     }
                     sum[tid] = s;
-                    count[tid] = gathered;
+                    count[tid] = uint32_t(gn - g0);
                     G.target.push_back(tid);
                 }
             }
+            G.source.resize(gn);
+            G.gauss.resize(gn);
         }
     });
     for (size_t j = 0; j < n; ++j) {
