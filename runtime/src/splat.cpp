@@ -21,6 +21,10 @@
 namespace gammart {
 
 namespace {
+// Arrays written whole before they are read: not zeroed first (huge_pages.h).
+template <class T>
+using Unzeroed = std::vector<T, HugePageAllocator<T>>;
+
 constexpr float kRadiusInSigmas = 2.0f;
 constexpr float kMinNormalDot = 0.5f;  // cos 60°
 constexpr float kMaxPlaneOffsetInSigmas = 0.5f;  // a neighbour lies on the surfel's tangent plane
@@ -96,10 +100,10 @@ struct SweepColumns {
     int nu = 1, nv = 1;
     double lo_u = 0, lo_v = 0, inv_side = 1;
     std::vector<uint32_t> start;  // per column (u major), then the end
-    std::vector<uint32_t> id;     // sorted: original index
-    std::vector<float> key;       // sorted: the w coordinate (NaN as +inf: never within reach)
-    std::vector<float> pos, nrm;  // sorted positions and normals
-    std::vector<int32_t> surf;    // sorted surfaces
+    Unzeroed<uint32_t> id;        // sorted: original index
+    Unzeroed<float> key;          // sorted: the w coordinate (NaN as +inf: never within reach)
+    Unzeroed<float> pos, nrm;     // sorted positions and normals
+    Unzeroed<int32_t> surf;       // sorted surfaces
 
     int column_of(double x, double lo, int count) const {
         const double t = std::floor((x - lo) * inv_side);
@@ -136,7 +140,7 @@ struct SweepColumns {
         nu = int(std::floor(eu * inv_side)) + 1;
         nv = int(std::floor(ev * inv_side)) + 1;
         const size_t ncol = size_t(nu) * size_t(nv);
-        std::vector<uint32_t> col(n);
+        Unzeroed<uint32_t> col(n);
         start.assign(ncol + 1, 0);
         for (size_t i = 0; i < n; ++i) {
             col[i] = uint32_t(size_t(column_of(double(p[3 * i + u]), lo_u, nu)) * size_t(nv) +
@@ -184,8 +188,9 @@ struct SweepColumns {
 // the source's sum once every sum is known).
 struct GatherChunk {
     size_t first_column = 0, end_column = 0;
-    std::vector<uint32_t> target, source;
-    std::vector<double> gauss;
+    std::vector<uint32_t> target;
+    Unzeroed<uint32_t> source;
+    Unzeroed<double> gauss;
 };
 constexpr size_t kPointsPerChunk = 2048;
 
@@ -257,8 +262,8 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
                 first = c + 1;
             }
     }
-    std::vector<uint32_t> count(n);
-    std::vector<double> sum(n);
+    Unzeroed<uint32_t> count(n);  // each target's gather entries
+    Unzeroed<double> sum(n);      // each source's sum of weights
     tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
         std::vector<std::pair<uint32_t, float>> found;  // (sorted index, d2)
         std::vector<HoodEntry> hood, sorted;
