@@ -373,6 +373,12 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
             G.gauss.resize(gn);
         }
     });
+    // only the order of the targets is needed from here on: the rest of the
+    // columns freed before the kernel's arrays are allocated (a lower peak)
+    Unzeroed<float>().swap(cols.key);
+    Unzeroed<float>().swap(cols.pos);
+    Unzeroed<float>().swap(cols.nrm);
+    Unzeroed<int32_t>().swap(cols.surf);
     for (size_t j = 0; j < n; ++j) {
         if (uint64_t(k.offset[j]) + count[j] > uint64_t(UINT32_MAX)) throw Error("splat kernel: too many entries");
         k.offset[j + 1] = k.offset[j] + count[j];
