@@ -91,6 +91,12 @@ Mesh build(std::vector<float> verts, const int32_t* tris, size_t m, const std::s
     const double min_area = 1e-12 * diag2;
     mesh.triangles.reserve(3 * m);
     mesh.original_triangle.reserve(m);
+    if (uvs) mesh.uvs.reserve(6 * m);
+    if (labels) {
+        mesh.object_id.reserve(m);
+        mesh.group_id.reserve(m);
+        mesh.material_id.reserve(m);
+    }
     for (size_t t = 0; t < m; ++t) {
         const float* a = &verts[3 * size_t(tris[3 * t])];
         const float* b = &verts[3 * size_t(tris[3 * t + 1])];
