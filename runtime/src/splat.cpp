@@ -6,8 +6,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <utility>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "gamma/error.h"
 #include "gamma/float_points.h"
@@ -16,8 +21,11 @@
 namespace gammart {
 
 namespace {
+// Arrays written whole before they are read: not zeroed first (huge_pages.h).
+template <class T>
+using Unzeroed = std::vector<T, HugePageAllocator<T>>;
+
 constexpr float kRadiusInSigmas = 2.0f;
-constexpr double kColumnSpacings = 2.0;  // column width of the build's index, in sigmas
 constexpr float kMinNormalDot = 0.5f;  // cos 60°
 constexpr float kMaxPlaneOffsetInSigmas = 0.5f;  // a neighbour lies on the surfel's tangent plane
 
@@ -26,19 +34,14 @@ using Scatter = std::vector<std::vector<std::pair<uint32_t, float>>>;  // per so
 // The neighbourhood of source s, computed afresh: the surfels the tree finds
 // within kRadiusInSigmas x sigma that pass the surface, normal and plane
 // tests, and s itself, as (target, weight) in ascending target order.
-// `search` is a kd-tree or a PointColumns over the same positions (the same
-// sets, in different orders; only the set matters here).
+// (The local update's form; build_splat_kernel finds the same sets by a
+// sweep over columns.)
 void radius_search(const FloatPointsKdTree& tree, const float* q, float r2,
                    std::vector<std::pair<uint32_t, float>>& found) {
     nanoflann::SearchParams params;
     params.sorted = false;
     tree.radiusSearch(q, r2, found, params);
 }
-void radius_search(const PointColumns& cols, const float* q, float r2,
-                   std::vector<std::pair<uint32_t, float>>& found) {
-    cols.append_within(q, r2, found, [](uint32_t i, float d2) { return std::pair<uint32_t, float>(i, d2); });
-}
-
 template <class Search>
 void fresh_neighbourhood(const Search& search, size_t s, const float* position, const float* normal,
                          const int32_t* surface, float sigma, std::vector<std::pair<uint32_t, float>>& found,
@@ -84,42 +87,319 @@ float kernel_distance2(const float* position, size_t s, size_t j) {
     return d2;
 }
 
-// The neighbourhoods of kSourcesPerBlock consecutive sources, side by side
-// (one allocation per block, not per source): source `first + i`'s entries
-// are entries[i ? end[i - 1] : 0, end[i]).
-constexpr size_t kSourcesPerBlock = 256;
-struct ScatterBlock {
-    std::vector<std::pair<uint32_t, float>> entries;
-    std::vector<uint32_t> end;
+// The build's searches sweep columns: the surfels are binned into square
+// columns over the two widest axes of their box (wider than the search
+// reach, so a neighbour lies in the same column or one of the 8 around it)
+// and sorted by the third coordinate within each; a column's surfels are
+// taken in that order, so the first candidate in each neighbouring column
+// only moves forward (no binary search per query).  The candidates are
+// those whose third coordinate lies within the reach, as PointColumns scans
+// them; the final test is the kd-tree's float metric.
+struct SweepColumns {
+    int u = 0, v = 1, w = 2;  // column axes, sorted axis
+    int nu = 1, nv = 1;
+    double lo_u = 0, lo_v = 0, inv_side = 1;
+    std::vector<uint32_t> start;  // per column (u major), then the end
+    Unzeroed<uint32_t> id;        // sorted: original index
+    Unzeroed<float> key;          // sorted: the w coordinate (NaN as +inf: never within reach)
+    Unzeroed<float> pos, nrm;     // sorted positions and normals
+    Unzeroed<int32_t> surf;       // sorted surfaces
+
+    int column_of(double x, double lo, int count) const {
+        const double t = std::floor((x - lo) * inv_side);
+        if (!(t >= 0)) return 0;  // also NaN
+        return t >= double(count - 1) ? count - 1 : int(t);
+    }
+
+    void build(const float* p, const float* normal, const int32_t* surface, size_t n, double reach) {
+        double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+        bool any = false;
+        for (size_t i = 0; i < n; ++i) {
+            const float* q = p + 3 * i;
+            if (!(std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]))) continue;
+            for (int k = 0; k < 3; ++k) {
+                lo[k] = any ? std::min(lo[k], double(q[k])) : double(q[k]);
+                hi[k] = any ? std::max(hi[k], double(q[k])) : double(q[k]);
+            }
+            any = true;
+        }
+        int axes[3] = {0, 1, 2};
+        std::sort(axes, axes + 3, [&](int a, int b) {
+            return hi[a] - lo[a] > hi[b] - lo[b] || (hi[a] - lo[a] == hi[b] - lo[b] && a < b);
+        });
+        u = axes[0], v = axes[1], w = axes[2];
+        const double eu = hi[u] - lo[u], ev = hi[v] - lo[v];
+        // Wider than the reach by far more than the rounding of the column
+        // numbers; at most about 2 columns per point and 4096 a side.
+        double side = std::max({reach * (1.0 + 1e-4), eu / 4096.0, ev / 4096.0});
+        if (!(side > 0) || !std::isfinite(side)) side = std::max(eu, ev) + 1.0;
+        const double max_columns = 2.0 * double(n) + 64.0;
+        while ((std::floor(eu / side) + 1) * (std::floor(ev / side) + 1) > max_columns) side *= 1.5;
+        lo_u = lo[u], lo_v = lo[v];
+        inv_side = 1.0 / side;
+        nu = int(std::floor(eu * inv_side)) + 1;
+        nv = int(std::floor(ev * inv_side)) + 1;
+        const size_t ncol = size_t(nu) * size_t(nv);
+        Unzeroed<uint32_t> col(n);
+        start.assign(ncol + 1, 0);
+        for (size_t i = 0; i < n; ++i) {
+            col[i] = uint32_t(size_t(column_of(double(p[3 * i + u]), lo_u, nu)) * size_t(nv) +
+                              size_t(column_of(double(p[3 * i + v]), lo_v, nv)));
+            ++start[col[i] + 1];
+        }
+        for (size_t c = 0; c < ncol; ++c) start[c + 1] += start[c];
+        id.resize(n);
+        {
+            std::vector<uint32_t> fill(start.begin(), start.end() - 1);
+            for (size_t i = 0; i < n; ++i) id[fill[col[i]]++] = uint32_t(i);
+        }
+        key.resize(n);
+        pos.resize(3 * n);
+        nrm.resize(3 * n);
+        surf.resize(n);
+        const auto key_of = [&](size_t i) {
+            const float z = p[3 * i + size_t(w)];
+            return std::isnan(z) ? std::numeric_limits<float>::infinity() : z;
+        };
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, ncol, 1024), [&](const tbb::blocked_range<size_t>& range) {
+            for (size_t c = range.begin(); c < range.end(); ++c) {
+                const uint32_t b = start[c], e = start[c + 1];
+                // by the third coordinate, then index (a fixed order)
+                std::sort(id.begin() + std::ptrdiff_t(b), id.begin() + std::ptrdiff_t(e), [&](uint32_t x, uint32_t y) {
+                    const float zx = key_of(x), zy = key_of(y);
+                    return zx < zy || (zx == zy && x < y);
+                });
+                for (uint32_t k = b; k < e; ++k) {
+                    const size_t i = id[k];
+                    key[k] = key_of(i);
+                    for (size_t d = 0; d < 3; ++d) {
+                        pos[3 * k + d] = p[3 * i + d];
+                        nrm[3 * k + d] = normal[3 * i + d];
+                    }
+                    surf[k] = surface[i];
+                }
+            }
+        });
+    }
 };
 
-SplatKernel gather_form(const std::vector<ScatterBlock>& blocks, size_t n);
+// A chunk of consecutive columns' targets, in sweep order, with their
+// gather lists side by side: each entry's source and Gaussian (divided by
+// the source's sum once every sum is known).
+struct GatherChunk {
+    size_t first_column = 0, end_column = 0;
+    std::vector<uint32_t> target;
+    Unzeroed<uint32_t> source;
+    Unzeroed<double> gauss;
+};
+constexpr size_t kPointsPerChunk = 2048;
+
+// How many of ids[0, count) are smaller than id (count a multiple of 4).
+inline size_t rank_among(const uint32_t* ids, size_t count, uint32_t id) {
+#if defined(__SSE2__)
+    // unsigned order by a signed compare of the values with the top bit flipped
+    const __m128i flip = _mm_set1_epi32(int32_t(0x80000000u));
+    const __m128i key = _mm_xor_si128(_mm_set1_epi32(int32_t(id)), flip);
+    __m128i acc = _mm_setzero_si128();
+    for (size_t b = 0; b < count; b += 4) {
+        const __m128i v = _mm_xor_si128(_mm_loadu_si128(reinterpret_cast<const __m128i*>(ids + b)), flip);
+        acc = _mm_sub_epi32(acc, _mm_cmplt_epi32(v, key));  // a lane's mask is -1 where smaller
+    }
+    acc = _mm_add_epi32(acc, _mm_shuffle_epi32(acc, _MM_SHUFFLE(1, 0, 3, 2)));
+    acc = _mm_add_epi32(acc, _mm_shuffle_epi32(acc, _MM_SHUFFLE(2, 3, 0, 1)));
+    return size_t(uint32_t(_mm_cvtsi128_si32(acc)));
+#else
+    size_t rank = 0;
+    for (size_t b = 0; b < count; ++b) rank += ids[b] < id;
+    return rank;
+#endif
+}
+
+struct HoodEntry {
+    uint32_t id;
+    float d2;
+    uint32_t in;  // 1: in the target's own neighbourhood; 2: the target is in its
+};
 }  // namespace
 
+// The neighbour relation before the plane test (within the radius by the
+// float metric, same surface, normals within 60 degrees) is symmetric bit
+// for bit: the metric squares differences that only change sign and sums
+// them in axis order, the dot product's products commute (splat.cpp is
+// built without contraction into fused multiply-adds, so both orders round
+// alike on any target); so is the Gaussian of the distance.  So one pass
+// over target t's candidates gives both t's own neighbourhood (the plane
+// test against t's tangent plane: t's sum of weights, in ascending
+// neighbour order as fresh_neighbourhood sums it) and the sources whose
+// neighbourhood holds t (the test against theirs: t's gather list, in
+// ascending source order), and the kernel needs no transposition: once
+// every sum is known, each entry is its Gaussian over its source's sum.
+// Entries, sums and weights are fresh_neighbourhood's bit for bit.
 SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
                                float sigma) {
     SplatKernel k;
     k.offset.assign(n + 1, 0);
     if (n == 0) return k;
-    // The neighbourhoods' radius searches on a column index (the sets a
-    // kd-tree gives, found in contiguous memory).
-    PointColumns cols;
-    cols.build(position, n, kColumnSpacings * double(sigma));
-    // Scatter lists per source surfel: (target, weight), computed in parallel.
-    std::vector<ScatterBlock> blocks((n + kSourcesPerBlock - 1) / kSourcesPerBlock);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, blocks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
-        std::vector<std::pair<uint32_t, float>> found, out;
-        std::vector<double> w;
-        for (size_t b = range.begin(); b < range.end(); ++b) {
-            ScatterBlock& B = blocks[b];
-            for (size_t s = b * kSourcesPerBlock; s < std::min(n, (b + 1) * kSourcesPerBlock); ++s) {
-                fresh_neighbourhood(cols, s, position, normal, surface, sigma, found, w, out);
-                B.entries.insert(B.entries.end(), out.begin(), out.end());
-                B.end.push_back(uint32_t(B.entries.size()));
+    const float r = kRadiusInSigmas * sigma;
+    const float r2 = r * r;
+    const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
+    const float max_offset = kMaxPlaneOffsetInSigmas * sigma;
+    const bool search = r2 > 0;
+    // |q_k - p_k| <= sqrt(d2) * (1 + 2e-7) for the float metric: a pad of
+    // 1e-5 relative covers it many times over (as PointColumns).
+    const double reach = search ? std::sqrt(double(r2)) * (1.0 + 1e-5) + 1e-30 : 0.0;
+    SweepColumns cols;
+    cols.build(position, normal, surface, n, search ? reach : 1.0);
+    std::vector<GatherChunk> chunks;
+    {
+        const size_t ncol = cols.start.size() - 1;
+        size_t first = 0;
+        for (size_t c = 0; c < ncol; ++c)
+            if (cols.start[c + 1] - cols.start[first] >= kPointsPerChunk || c + 1 == ncol) {
+                chunks.emplace_back();
+                chunks.back().first_column = first;
+                chunks.back().end_column = c + 1;
+                first = c + 1;
             }
+    }
+    Unzeroed<uint32_t> count(n);  // each target's gather entries
+    Unzeroed<double> sum(n);      // each source's sum of weights
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
+        std::vector<std::pair<uint32_t, float>> found;  // (sorted index, d2)
+        std::vector<HoodEntry> hood, sorted;
+        std::vector<uint32_t> ids;  // the hood's, padded to a multiple of 4
+        for (size_t ch = range.begin(); ch < range.end(); ++ch) {
+            GatherChunk& G = chunks[ch];
+            const size_t points = cols.start[G.end_column] - cols.start[G.first_column];
+            G.target.reserve(points);
+            G.source.resize(points * 16);
+            G.gauss.resize(points * 16);
+            size_t gn = 0;  // entries written
+            for (size_t c = G.first_column; c < G.end_column; ++c) {
+                const uint32_t begin = cols.start[c], end = cols.start[c + 1];
+                if (begin == end) continue;
+                // the neighbouring columns' next candidates and ends
+                uint32_t next[9], last[9], stop[9];
+                int m = 0;
+                const int ci = int(c / size_t(cols.nv)), cj = int(c % size_t(cols.nv));
+                for (int i = std::max(ci - 1, 0); i <= std::min(ci + 1, cols.nu - 1); ++i)
+                    for (int j = std::max(cj - 1, 0); j <= std::min(cj + 1, cols.nv - 1); ++j) {
+                        const size_t nc = size_t(i) * size_t(cols.nv) + size_t(j);
+                        if (cols.start[nc] == cols.start[nc + 1]) continue;
+                        next[m] = last[m] = cols.start[nc];
+                        stop[m] = cols.start[nc + 1];
+                        ++m;
+                    }
+                for (uint32_t t = begin; t < end; ++t) {
+                    const float* q = &cols.pos[3 * size_t(t)];
+                    const float* nq = &cols.nrm[3 * size_t(t)];
+                    const int32_t sq = cols.surf[t];
+                    size_t nh = 0;
+                    if (search && std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) {
+                        const double cw = double(q[cols.w]);
+                        const float c0 = float(cw - reach), c1 = float(cw + reach);
+                        size_t nf = 0;
+                        const float* key = cols.key.data();
+                        const float* pos = cols.pos.data();
+                        for (int b = 0; b < m; ++b) {
+                            // both ends of the window only move forward (c0 and c1 do)
+                            uint32_t x = next[b], y = last[b];
+                            while (x < stop[b] && key[x] < c0) ++x;
+                            y = std::max(x, y);
+                            while (y < stop[b] && !(key[y] > c1)) ++y;
+                            next[b] = x;
+                            last[b] = y;
+                            // every candidate written, the end advanced past those within only
+                            if (found.size() < nf + (y - x)) found.resize(std::max(2 * found.size(), nf + (y - x)));
+                            std::pair<uint32_t, float>* o = found.data();
+                            for (; x < y; ++x) {
+                                // PointColumns::metric (the kd-tree's), spelt out
+                                const float* p = pos + 3 * size_t(x);
+                                const float d0 = q[0] - p[0], d1 = q[1] - p[1], dz = q[2] - p[2];
+                                const float d2 = d0 * d0 + d1 * d1 + dz * dz;
+                                o[nf] = {x, d2};
+                                nf += d2 < r2;
+                            }
+                        }
+                        // every candidate written, the end advanced past those kept only
+                        if (hood.size() < nf + 1) hood.resize(2 * (nf + 1));
+                        for (size_t f = 0; f < nf; ++f) {
+                            const uint32_t x = found[f].first;
+                            const float* nx = &cols.nrm[3 * size_t(x)];
+                            const float* px = &cols.pos[3 * size_t(x)];
+                            // off the target's tangent plane, and the target off x's
+                            const float off_t = (px[0] - q[0]) * nq[0] + (px[1] - q[1]) * nq[1] + (px[2] - q[2]) * nq[2];
+                            const float off_x = (q[0] - px[0]) * nx[0] + (q[1] - px[1]) * nx[1] + (q[2] - px[2]) * nx[2];
+                            const bool pair = (x != t) & (cols.surf[x] == sq) &
+                                              !(nq[0] * nx[0] + nq[1] * nx[1] + nq[2] * nx[2] < kMinNormalDot);
+                            const uint32_t in = ((std::fabs(off_t) > max_offset ? 0u : 1u) |
+                                                 (std::fabs(off_x) > max_offset ? 0u : 2u)) &
+                                                (0u - uint32_t(pair));
+                            hood[nh] = {cols.id[x], found[f].second, in};
+                            nh += in != 0;
+                        }
+                    }
+                    const uint32_t tid = cols.id[t];
+                    if (hood.size() < nh + 1) hood.resize(nh + 1);
+                    hood[nh++] = {tid, 0.0f, 3u};  // always in its own neighbourhood
+                    // by neighbour (each once): each entry placed at its rank
+                    // (a count of smaller ones, no branch on the comparisons)
+                    if (sorted.size() < nh) sorted.resize(hood.size());
+                    const size_t padded = (nh + 3) & ~size_t(3);
+                    if (ids.size() < padded) ids.resize(2 * padded);
+                    for (size_t a = 0; a < nh; ++a) ids[a] = hood[a].id;
+                    for (size_t a = nh; a < padded; ++a) ids[a] = UINT32_MAX;  // never smaller
+                    for (size_t a = 0; a < nh; ++a) sorted[rank_among(ids.data(), padded, ids[a])] = hood[a];
+                    double s = 0;
+                    if (G.source.size() < gn + nh) {
+                        G.source.resize(std::max(2 * G.source.size(), gn + nh));
+                        G.gauss.resize(G.source.size());
+                    }
+                    const size_t g0 = gn;
+                    for (size_t a = 0; a < nh; ++a) {
+                        const HoodEntry& h = sorted[a];
+                        const double g = std::exp(-double(h.d2) * inv2s2);
+                        s += (h.in & 1u) ? g : 0.0;  // (adding 0 to a sum of positive terms: the same sum)
+                        G.source[gn] = h.id;
+                        G.gauss[gn] = g;
+                        gn += h.in >> 1;
+                    }
+                    sum[tid] = s;
+                    count[tid] = uint32_t(gn - g0);
+                    G.target.push_back(tid);
+                }
+            }
+            G.source.resize(gn);
+            G.gauss.resize(gn);
         }
     });
-    return gather_form(blocks, n);
+    // only the order of the targets is needed from here on: the rest of the
+    // columns freed before the kernel's arrays are allocated (a lower peak)
+    Unzeroed<float>().swap(cols.key);
+    Unzeroed<float>().swap(cols.pos);
+    Unzeroed<float>().swap(cols.nrm);
+    Unzeroed<int32_t>().swap(cols.surf);
+    for (size_t j = 0; j < n; ++j) {
+        if (uint64_t(k.offset[j]) + count[j] > uint64_t(UINT32_MAX)) throw Error("splat kernel: too many entries");
+        k.offset[j + 1] = k.offset[j] + count[j];
+    }
+    const size_t total = k.offset[n];
+    k.source.resize(total);
+    k.weight.resize(total);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
+        for (size_t ch = range.begin(); ch < range.end(); ++ch) {
+            const GatherChunk& G = chunks[ch];
+            size_t at = 0;
+            for (const uint32_t t : G.target)
+                for (uint32_t e = k.offset[t]; e < k.offset[size_t(t) + 1]; ++e, ++at) {
+                    const uint32_t s = G.source[at];
+                    k.source[e] = s;
+                    k.weight[e] = float(G.gauss[at] / sum[s]);
+                }
+        }
+    });
+    k.mean_neighbours = double(total) / double(n);
+    return k;
 }
 
 SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, const float* normal,
@@ -197,7 +477,7 @@ SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, c
             for (uint32_t i = b; i < e; ++i) kept_weight[i] = float(w[i - b] / sum);
         }
     });
-    // Gather form, sources in ascending order (as gather_form).
+    // Gather form, sources in ascending order (as build_splat_kernel).
     SplatKernel k;
     k.offset.assign(n + 1, 0);
     size_t total = kept_at[n];
@@ -229,94 +509,6 @@ SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, c
     k.mean_neighbours = double(total) / double(n);
     return k;
 }
-
-namespace {
-// The transposition below cuts the targets into at most kMaxRanges ranges
-// of at least kMinTargetsPerRange (a target's place in its range is held in
-// 16 bits: at most 65536 per range), and the blocks of sources into at most
-// kMaxChunks chunks of consecutive blocks: its table of counts has at most
-// kMaxRanges x kMaxChunks entries whatever the surfel count (per range and
-// per block it grew as n^2: ~1.5 GB at 20M surfels).
-constexpr size_t kMinTargetsPerRange = 4096, kMaxRanges = 1024, kMaxChunks = 256;
-
-// The transposition into gather form, in parallel and the same, entry for
-// entry, as one pass over the sources in ascending order (which leaves every
-// target's list sorted by source): the targets are cut into ranges; each
-// chunk of blocks of sources counts its entries per range; the entries are
-// then moved into their range's stretch of the result, the chunks' parts in
-// chunk order and within a chunk in block order (so by ascending source);
-// and each range orders its stretch by target, a stable counting sort (the
-// sources stay ascending).  Neither the ranges nor the chunks depend on the
-// thread count.
-SplatKernel gather_form(const std::vector<ScatterBlock>& blocks, size_t n) {
-    SplatKernel k;
-    k.offset.assign(n + 1, 0);
-    if (n == 0) return k;
-    const size_t nblocks = blocks.size();
-    const size_t nranges = std::min((n + kMinTargetsPerRange - 1) / kMinTargetsPerRange, kMaxRanges);
-    const size_t per_range = (n + nranges - 1) / nranges;
-    if (per_range > 65536) throw Error("splat kernel: too many surfels for the transposition");
-    const size_t nchunks = std::max<size_t>(std::min(nblocks, kMaxChunks), 1);
-    const size_t per_chunk = (nblocks + nchunks - 1) / nchunks;
-    // at[c * nranges + r]: chunk c's entries in range r, then where they go
-    // (the offsets are 32-bit: so are these)
-    std::vector<uint32_t> at(nchunks * nranges, 0);
-    tbb::parallel_for(size_t(0), nchunks, [&](size_t c) {
-        uint32_t* count = &at[c * nranges];
-        for (size_t b = c * per_chunk; b < std::min(nblocks, (c + 1) * per_chunk); ++b)
-            for (const auto& e : blocks[b].entries) ++count[e.first / per_range];
-    });
-    std::vector<size_t> range_at(nranges + 1, 0);
-    for (size_t c = 0; c < nchunks; ++c)
-        for (size_t r = 0; r < nranges; ++r) range_at[r + 1] += at[c * nranges + r];
-    for (size_t r = 0; r < nranges; ++r) range_at[r + 1] += range_at[r];
-    {
-        std::vector<uint32_t> next(nranges);
-        for (size_t r = 0; r < nranges; ++r) next[r] = uint32_t(range_at[r]);
-        for (size_t c = 0; c < nchunks; ++c)
-            for (size_t r = 0; r < nranges; ++r) next[r] += std::exchange(at[c * nranges + r], next[r]);
-    }
-    const size_t total = range_at[nranges];
-    k.source.resize(total);
-    k.weight.resize(total);
-    std::vector<uint16_t> in_range(total);   // each moved entry's target, less its range's first
-    tbb::parallel_for(size_t(0), nchunks, [&](size_t c) {
-        uint32_t* next = &at[c * nranges];
-        for (size_t b = c * per_chunk; b < std::min(nblocks, (c + 1) * per_chunk); ++b) {
-            const ScatterBlock& B = blocks[b];
-            for (size_t i = 0; i < B.end.size(); ++i) {
-                const uint32_t s = uint32_t(b * kSourcesPerBlock + i);
-                for (uint32_t e = i ? B.end[i - 1] : 0; e < B.end[i]; ++e) {
-                    const auto& [j, w] = B.entries[e];
-                    const size_t to = next[j / per_range]++;
-                    k.source[to] = s;
-                    k.weight[to] = w;
-                    in_range[to] = uint16_t(j % per_range);
-                }
-            }
-        }
-    });
-    tbb::parallel_for(size_t(0), nranges, [&](size_t r) {
-        const size_t first = r * per_range, targets = first < n ? std::min(n - first, per_range) : 0;
-        const size_t begin = range_at[r], end = range_at[r + 1];
-        std::vector<uint32_t> fill(targets + 1, 0);
-        for (size_t e = begin; e < end; ++e) ++fill[size_t(in_range[e]) + 1];
-        for (size_t t = 0; t < targets; ++t) {
-            fill[t + 1] += fill[t];
-            k.offset[first + t + 1] = uint32_t(begin + fill[t + 1]);
-        }
-        const std::vector<uint32_t> source(k.source.begin() + std::ptrdiff_t(begin), k.source.begin() + std::ptrdiff_t(end));
-        const std::vector<float> weight(k.weight.begin() + std::ptrdiff_t(begin), k.weight.begin() + std::ptrdiff_t(end));
-        for (size_t e = begin; e < end; ++e) {
-            const size_t to = begin + fill[in_range[e]]++;
-            k.source[to] = source[e - begin];
-            k.weight[to] = weight[e - begin];
-        }
-    });
-    k.mean_neighbours = double(total) / double(n);
-    return k;
-}
-}  // namespace
 
 void reweight_splat_kernel(SplatKernel& k, const float* position, size_t n, float sigma) {
     if (k.offset.size() != n + 1) return;  // no kernel (spreading off): nothing to refresh
