@@ -215,6 +215,11 @@ inline size_t rank_among(const uint32_t* ids, size_t count, uint32_t id) {
 #endif
 }
 
+// Neighbourhoods up to this size are ordered by ranking (four comparisons at
+// a time, no branch; ~h^2/4 steps), larger ones by a sort (h log h): a
+// surface of normal density has ~12, stacked coincident sheets hundreds.
+constexpr size_t kRankedHoodMax = 64;
+
 struct HoodEntry {
     uint32_t id;
     float d2;
@@ -345,11 +350,19 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
                     // by neighbour (each once): each entry placed at its rank
                     // (a count of smaller ones, no branch on the comparisons)
                     if (sorted.size() < nh) sorted.resize(hood.size());
-                    const size_t padded = (nh + 3) & ~size_t(3);
-                    if (ids.size() < padded) ids.resize(2 * padded);
-                    for (size_t a = 0; a < nh; ++a) ids[a] = hood[a].id;
-                    for (size_t a = nh; a < padded; ++a) ids[a] = UINT32_MAX;  // never smaller
-                    for (size_t a = 0; a < nh; ++a) sorted[rank_among(ids.data(), padded, ids[a])] = hood[a];
+                    if (nh <= kRankedHoodMax) {
+                        const size_t padded = (nh + 3) & ~size_t(3);
+                        if (ids.size() < padded) ids.resize(2 * padded);
+                        for (size_t a = 0; a < nh; ++a) ids[a] = hood[a].id;
+                        for (size_t a = nh; a < padded; ++a) ids[a] = UINT32_MAX;  // never smaller
+                        for (size_t a = 0; a < nh; ++a) sorted[rank_among(ids.data(), padded, ids[a])] = hood[a];
+                    } else {
+                        // ranking is quadratic: a crowd (stacked sheets) is sorted (ids are distinct:
+                        // the same order)
+                        std::copy(hood.begin(), hood.begin() + std::ptrdiff_t(nh), sorted.begin());
+                        std::sort(sorted.begin(), sorted.begin() + std::ptrdiff_t(nh),
+                                  [](const HoodEntry& a, const HoodEntry& b) { return a.id < b.id; });
+                    }
                     double s = 0;
                     if (G.source.size() < gn + nh) {
                         G.source.resize(std::max(2 * G.source.size(), gn + nh));
