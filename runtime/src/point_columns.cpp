@@ -43,19 +43,7 @@ void PointColumns::build(const float* p, size_t n, double side) {
     nu_ = int(std::floor(eu * inv_side_)) + 1;
     nv_ = int(std::floor(ev * inv_side_)) + 1;
     const size_t ncol = size_t(nu_) * size_t(nv_);
-    std::vector<uint32_t> col(n);
-    start_.assign(ncol + 1, 0);
-    for (size_t i = 0; i < n; ++i) {
-        col[i] = uint32_t(size_t(column_of(double(p[3 * i + u_]), lo_u_, nu_)) * size_t(nv_) +
-                          size_t(column_of(double(p[3 * i + v_]), lo_v_, nv_)));
-        ++start_[col[i] + 1];
-    }
-    for (size_t c = 0; c < ncol; ++c) start_[c + 1] += start_[c];
-    id_.resize(n);
-    {
-        std::vector<uint32_t> fill(start_.begin(), start_.end() - 1);
-        for (size_t i = 0; i < n; ++i) id_[fill[col[i]]++] = uint32_t(i);
-    }
+    bin_into_columns(p, n, u_, v_, lo_u_, lo_v_, inv_side_, nu_, nv_, start_, id_);
     // within each column: by the third coordinate (then index: a fixed order)
     for (size_t c = 0; c < ncol; ++c)
         std::sort(id_.begin() + std::ptrdiff_t(start_[c]), id_.begin() + std::ptrdiff_t(start_[c + 1]),

@@ -105,11 +105,6 @@ struct SweepColumns {
     Unzeroed<float> pos, nrm;     // sorted positions and normals
     Unzeroed<int32_t> surf;       // sorted surfaces
 
-    int column_of(double x, double lo, int count) const {
-        const double t = std::floor((x - lo) * inv_side);
-        if (!(t >= 0)) return 0;  // also NaN
-        return t >= double(count - 1) ? count - 1 : int(t);
-    }
 
     void build(const float* p, const float* normal, const int32_t* surface, size_t n, double reach) {
         double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
@@ -140,19 +135,7 @@ struct SweepColumns {
         nu = int(std::floor(eu * inv_side)) + 1;
         nv = int(std::floor(ev * inv_side)) + 1;
         const size_t ncol = size_t(nu) * size_t(nv);
-        Unzeroed<uint32_t> col(n);
-        start.assign(ncol + 1, 0);
-        for (size_t i = 0; i < n; ++i) {
-            col[i] = uint32_t(size_t(column_of(double(p[3 * i + u]), lo_u, nu)) * size_t(nv) +
-                              size_t(column_of(double(p[3 * i + v]), lo_v, nv)));
-            ++start[col[i] + 1];
-        }
-        for (size_t c = 0; c < ncol; ++c) start[c + 1] += start[c];
-        id.resize(n);
-        {
-            std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-            for (size_t i = 0; i < n; ++i) id[fill[col[i]]++] = uint32_t(i);
-        }
+        bin_into_columns(p, n, u, v, lo_u, lo_v, inv_side, nu, nv, start, id);
         key.resize(n);
         pos.resize(3 * n);
         nrm.resize(3 * n);

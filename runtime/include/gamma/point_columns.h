@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #if defined(__SSE2__)
@@ -19,6 +20,34 @@
 #endif
 
 namespace gammart {
+
+// The column of coordinate x on an axis of `count` columns from lo, each
+// 1 / inv_side wide: clamped to [0, count) (NaN: 0).
+inline int grid_column(double x, double lo, double inv_side, int count) {
+    const double t = std::floor((x - lo) * inv_side);
+    if (!(t >= 0)) return 0;  // also NaN
+    return t >= double(count - 1) ? count - 1 : int(t);
+}
+
+// Points p[3 i .. 3 i + 2], i < n, binned into the nu x nv columns over axes
+// u and v (column a * nv + b): start holds each column's first place, then
+// the end; id the points column by column, each column in index order.
+template <class Ids>
+void bin_into_columns(const float* p, size_t n, int u, int v, double lo_u, double lo_v, double inv_side, int nu,
+                      int nv, std::vector<uint32_t>& start, Ids& id) {
+    const size_t ncol = size_t(nu) * size_t(nv);
+    std::unique_ptr<uint32_t[]> col(new uint32_t[n]);
+    start.assign(ncol + 1, 0);
+    for (size_t i = 0; i < n; ++i) {
+        col[i] = uint32_t(size_t(grid_column(double(p[3 * i + size_t(u)]), lo_u, inv_side, nu)) * size_t(nv) +
+                          size_t(grid_column(double(p[3 * i + size_t(v)]), lo_v, inv_side, nv)));
+        ++start[col[i] + 1];
+    }
+    for (size_t c = 0; c < ncol; ++c) start[c + 1] += start[c];
+    id.resize(n);
+    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
+    for (size_t i = 0; i < n; ++i) id[fill[col[i]]++] = uint32_t(i);
+}
 
 class PointColumns {
 public:
@@ -166,11 +195,7 @@ private:
             }
     }
 
-    int column_of(double x, double lo, int n) const {
-        const double t = std::floor((x - lo) * inv_side_);
-        if (!(t >= 0)) return 0;  // also NaN
-        return t >= double(n - 1) ? n - 1 : int(t);
-    }
+    int column_of(double x, double lo, int n) const { return grid_column(x, lo, inv_side_, n); }
 
     int u_ = 0, v_ = 1, w_ = 2;  // column axes, sorted axis
     int nu_ = 1, nv_ = 1;
