@@ -192,6 +192,35 @@ def test_a_shared_false_colour_frame_gives_the_bytes_of_drawing_everything(size)
             assert canvas.png(value, shade, title) == want
 
 
+def test_the_scales_percentile_is_numpys_bit_for_bit():
+    """writers.percentile_995 is np.percentile(values, 99.5) to the bit, on
+    sizes where (n - 1) * 0.995 is whole, below and above a half, with ties,
+    zeros of both signs, subnormals and wide ranges."""
+    from gamma.driver.writers import percentile_995
+
+    rng = np.random.default_rng(7)
+    sizes = [1, 2, 3, 7, 100, 101, 199, 200, 201, 401, 1000, 1001, 4097, 100_000]
+    cases = 0
+    for n in sizes:
+        for kind in range(6):
+            if kind == 0:
+                v = rng.random(n, dtype=np.float32)
+            elif kind == 1:
+                v = rng.integers(0, 4, n).astype(np.float32)          # many ties
+            elif kind == 2:
+                v = (rng.standard_normal(n) * 1e30).astype(np.float32)
+            elif kind == 3:
+                v = np.where(rng.random(n) < 0.5, -0.0, 0.0).astype(np.float32)
+            elif kind == 4:
+                v = (rng.random(n) * 1e-40).astype(np.float32)        # subnormals
+            else:
+                v = np.exp(rng.standard_normal(n) * 10).astype(np.float32)
+            mine, numpys = percentile_995(v.copy()), float(np.percentile(v, 99.5))
+            assert np.float64(mine).tobytes() == np.float64(numpys).tobytes() or mine == numpys == 0.0, (n, kind)
+            cases += 1
+    assert cases == len(sizes) * 6
+
+
 def test_unique_rows_is_numpys_unique_over_rows():
     from gamma.driver.scene import unique_rows
 

@@ -39,10 +39,6 @@ from __future__ import annotations
 import atexit
 import os
 import threading
-from concurrent.futures import Future
-from pathlib import Path
-
-from . import background
 
 #: Extensions the runtime's own readers parse (no OpenMesh, no global state).
 SUFFIXES = (".obj", ".ply")
@@ -52,15 +48,50 @@ _pending: dict[str, "_Read"] = {}
 _handed: list["_Read"] = []      # reads whose mesh ``take`` handed out, their samples not yet
 
 
+class _Outcome:
+    """The outcome of one call on a daemon thread of its own: ``result()``
+    and ``exception()`` wait for it, as a ``concurrent.futures.Future``'s do
+    (not used here: ``gamma.launch`` starts a read before the command line
+    is parsed, and that module's import, through ``logging``, cost ~10 ms
+    before the read could start)."""
+
+    def __init__(self, fn=None, *args, name: str = "gamma-prefetch") -> None:
+        self._done = threading.Event()
+        self._value = self._error = None
+        if fn is not None:
+            threading.Thread(target=self._call, args=(fn, *args), name=name, daemon=True).start()
+
+    def _call(self, fn, *args) -> None:
+        try:
+            self.set_result(fn(*args))
+        except BaseException as err:  # noqa: BLE001 - raised by result()
+            self._error = err
+            self._done.set()
+
+    def set_result(self, value) -> None:
+        self._value = value
+        self._done.set()
+
+    def exception(self):
+        self._done.wait()
+        return self._error
+
+    def result(self):
+        self._done.wait()
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+
 class _Read:
-    """One file read ahead: ``mesh``, a Future of the Mesh (or None), and
-    once it is set, ``sampled``, a Future of its SurfelSample or
+    """One file read ahead: ``mesh``, an _Outcome of the Mesh (or None), and
+    once it is set, ``sampled``, an _Outcome of its SurfelSample or
     SetupSnapshot (None: none)."""
 
     def __init__(self, path: str, read_mesh_ahead, surfels: int | None, seed: int, threads: int):
         self.path = path
         self.signature = None
-        self.sampled: Future | None = None
+        self.sampled: _Outcome | None = None
         if surfels is not None and not worth_sampling(surfels, seed, threads):
             surfels = None
         # The cache's folder found here, on the main thread, which imports gamma.files
@@ -68,8 +99,8 @@ class _Read:
         from ..files import cache_dir
 
         folder = cache_dir() if surfels is not None else None
-        self.mesh = background.start(self._work, read_mesh_ahead, surfels, seed, threads,
-                                     str(folder) if folder is not None else "", name="gamma-mesh-read")
+        self.mesh = _Outcome(self._work, read_mesh_ahead, surfels, seed, threads,
+                             str(folder) if folder is not None else "", name="gamma-mesh-read")
 
     def _work(self, read_mesh_ahead, surfels, seed, threads, folder):
         # The read, the setup cache's file named, read, checked and prepared: one
@@ -85,12 +116,11 @@ class _Read:
             return None
         self.signature = signature
         if snapshot is not None:
-            self.sampled = Future()
-            self.sampled.set_running_or_notify_cancel()
+            self.sampled = _Outcome()
             self.sampled.set_result(snapshot)
         elif surfels is not None:
             # Sampling takes longer: on a thread of its own, so the mesh is handed out before it ends.
-            self.sampled = background.start(_sample, mesh, surfels, seed, threads, name="gamma-surfel-sample")
+            self.sampled = _Outcome(_sample, mesh, surfels, seed, threads, name="gamma-surfel-sample")
         return mesh
 
 
@@ -149,6 +179,8 @@ def _signature(path: str):
 
 
 def _key(path) -> str:
+    from pathlib import Path
+
     return str(Path(path))
 
 
@@ -171,7 +203,7 @@ def start(path: str, surfels: int | None = None, seed: int = 1, threads: int = 0
     """Begin reading the mesh file ``path`` (if it is one read ahead), then
     sample ``surfels`` surfels on it with ``seed`` (None: do not sample) on
     ``threads`` threads (0: all cores)."""
-    if Path(path).suffix.lower() not in SUFFIXES:
+    if os.path.splitext(os.fspath(path))[1].lower() not in SUFFIXES:
         return
     try:
         # imported here, on the main thread, which imports it anyway (for the run)

@@ -6,8 +6,7 @@ so per 100,000 surfels), and parts of it leave a core idle; the main thread
 only waits.  ``prepare_outputs`` starts a daemon thread that imports, during
 that wait, what the writers would otherwise import on the loop's thread or
 after the last iteration: Pillow's drawing and FreeType, its image plugins
-only for a run whose appearance sequence Pillow saves (a GIF), numpy's masked
-arrays (which ``np.percentile`` pulls in).  Pillow's plugins are left out
+only for a run whose appearance sequence Pillow saves (a GIF).  Pillow's plugins are left out
 otherwise: its PNGs are encoded in the runtime now, and the plugins cost
 ~20 ms of CPU, which a rerun (its setup read from the cache) would spend
 beside the loop's first trace.  It only warms caches:
@@ -34,7 +33,6 @@ def prepare_outputs(pictures: bool, sequence: bool, picture_height: int) -> thre
 def _warm(pictures: bool, sequence: bool, picture_height: int) -> None:
     try:
         if pictures:
-            import numpy.ma  # noqa: F401  (np.percentile -> np.unique -> np.ma.is_masked)
             from PIL import Image, ImageDraw, ImageFont  # noqa: F401
 
             ImageFont.load_default(size=max(11, picture_height // 40)).getbbox("0")
