@@ -357,6 +357,9 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     const Trees& T = *trees_;
     const size_t m = lookup_tri_.size();
     constexpr size_t kBlock = 512;  // triangles per work item (the layout depends on neither it nor the thread count)
+    // Entries per triangle the blocks make room for: the bunny's lookup keeps
+    // ~14 (a block that needs more grows as a vector does).
+    constexpr size_t kReservedPerTriangle = 16;
     const size_t nblocks = (m + kBlock - 1) / kBlock;
     std::vector<LookupBlock> blocks(nblocks);
     lookup_ball2_.assign(m, 0.0f);
@@ -382,6 +385,11 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
             std::vector<Ordered> order;
             for (size_t b = r.begin(); b < r.end(); ++b) {
                 LookupBlock& out = blocks[b];
+                // Room for the block's entries up front: grown from empty, its
+                // vectors were copied ~13 times each into fresh memory (~2,500
+                // page faults of a 100,000-surfel bunny's lookup).
+                out.cand.reserve(kBlock * kReservedPerTriangle);
+                out.ids.reserve(kBlock * kReservedPerTriangle);
                 // The candidates of sphere L (surface tree): appended to the
                 // block, L.begin block-relative; false if more than `limit`.
                 // ball2: the squared radius searched (where L got entries).
@@ -476,13 +484,12 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                         for (; j > 0 && order[j - 1].key > e.key; --j) order[j] = order[j - 1];
                         order[j] = e;
                     }
-                    const size_t at = out.cand.size();
-                    out.cand.resize(at + order.size());
-                    out.ids.resize(at + order.size());
+                    // appended, not resized and then overwritten (a resize
+                    // writes every new entry twice)
                     for (size_t k = 0; k < order.size(); ++k) {
                         const float* pp = &tree.pos[3 * size_t(order[k].point)];
-                        out.cand[at + k] = Candidate{pp[0], pp[1], pp[2], key_distance(order[k].key)};
-                        out.ids[at + k] = key_index(order[k].key);
+                        out.cand.push_back(Candidate{pp[0], pp[1], pp[2], key_distance(order[k].key)});
+                        out.ids.push_back(key_index(order[k].key));
                     }
                     return found.size();
                 };
