@@ -170,7 +170,7 @@ def _false_colour_reference(value, shade, vmin, vmax, label, title) -> bytes:
     return out.getvalue()
 
 
-@pytest.mark.parametrize("size", [(64, 90), (200, 200)])
+@pytest.mark.parametrize("size", [(64, 90), (200, 200), (12, 30), (512, 512)])
 def test_a_shared_false_colour_frame_gives_the_bytes_of_drawing_everything(size):
     """The run draws the colour bar once and only the picture per iteration:
     the files are byte for byte those of drawing each picture whole, also with
@@ -186,7 +186,7 @@ def test_a_shared_false_colour_frame_gives_the_bytes_of_drawing_everything(size)
             value[rng.random((h, w)) < 0.5] = np.nan
             value[1, 2], value[2, 1] = np.inf, -np.inf
             shade = np.where(np.isnan(value), np.nan, 0.25 + 0.75 * rng.random((h, w))).astype(np.float32)
-            title = f"patina, iteration {it + 1}"
+            title = f"patina, iteration {it + 1}" if it < 2 else "a longer title over the colour bar: Wg,|^ 1099"
             with np.errstate(over="ignore", invalid="ignore"):
                 want = _false_colour_reference(value, shade, vmin, vmax, "patina", title)
             assert canvas.png(value, shade, title) == want
