@@ -29,19 +29,16 @@ void PointColumns::build(const float* p, size_t n, double side) {
             hi[k] = std::max(hi[k], double(p[3 * i + k]));
         }
     // Columns over the two widest axes; binary searches along the narrowest.
-    int axes[3] = {0, 1, 2};
-    std::sort(axes, axes + 3, [&](int a, int b) { return hi[a] - lo[a] > hi[b] - lo[b] || (hi[a] - lo[a] == hi[b] - lo[b] && a < b); });
-    u_ = axes[0], v_ = axes[1], w_ = axes[2];
-    const double eu = hi[u_] - lo[u_], ev = hi[v_] - lo[v_];
-    // At most about 2 columns per point and 4096 a side.
+    int axes[3];
+    axes_by_extent(lo, hi, axes);
+    const double eu = hi[axes[0]] - lo[axes[0]], ev = hi[axes[1]] - lo[axes[1]];
+    // At most about 2 columns per point (column_layout) and 4096 a side.
     if (!(side > 0) || !std::isfinite(side)) side = std::max(eu, ev) + 1.0;
-    const double max_columns = 2.0 * double(n) + 64.0;
     side = std::max({side, eu / 4096.0, ev / 4096.0});
-    while ((std::floor(eu / side) + 1) * (std::floor(ev / side) + 1) > max_columns) side *= 1.5;
-    lo_u_ = lo[u_], lo_v_ = lo[v_];
-    inv_side_ = 1.0 / side;
-    nu_ = int(std::floor(eu * inv_side_)) + 1;
-    nv_ = int(std::floor(ev * inv_side_)) + 1;
+    const ColumnLayout g = column_layout(lo, hi, axes, side, n);
+    u_ = g.u, v_ = g.v, w_ = g.w;
+    lo_u_ = g.lo_u, lo_v_ = g.lo_v, inv_side_ = g.inv_side;
+    nu_ = g.nu, nv_ = g.nv;
     const size_t ncol = size_t(nu_) * size_t(nv_);
     bin_into_columns(p, n, u_, v_, lo_u_, lo_v_, inv_side_, nu_, nv_, start_, id_);
     // within each column: by the third coordinate (then index: a fixed order)

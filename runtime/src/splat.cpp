@@ -118,22 +118,18 @@ struct SweepColumns {
             }
             any = true;
         }
-        int axes[3] = {0, 1, 2};
-        std::sort(axes, axes + 3, [&](int a, int b) {
-            return hi[a] - lo[a] > hi[b] - lo[b] || (hi[a] - lo[a] == hi[b] - lo[b] && a < b);
-        });
-        u = axes[0], v = axes[1], w = axes[2];
-        const double eu = hi[u] - lo[u], ev = hi[v] - lo[v];
+        int axes[3];
+        axes_by_extent(lo, hi, axes);
+        const double eu = hi[axes[0]] - lo[axes[0]], ev = hi[axes[1]] - lo[axes[1]];
         // Wider than the reach by far more than the rounding of the column
-        // numbers; at most about 2 columns per point and 4096 a side.
+        // numbers; at most about 2 columns per point (column_layout) and 4096
+        // a side.
         double side = std::max({reach * (1.0 + 1e-4), eu / 4096.0, ev / 4096.0});
         if (!(side > 0) || !std::isfinite(side)) side = std::max(eu, ev) + 1.0;
-        const double max_columns = 2.0 * double(n) + 64.0;
-        while ((std::floor(eu / side) + 1) * (std::floor(ev / side) + 1) > max_columns) side *= 1.5;
-        lo_u = lo[u], lo_v = lo[v];
-        inv_side = 1.0 / side;
-        nu = int(std::floor(eu * inv_side)) + 1;
-        nv = int(std::floor(ev * inv_side)) + 1;
+        const ColumnLayout g = column_layout(lo, hi, axes, side, n);
+        u = g.u, v = g.v, w = g.w;
+        lo_u = g.lo_u, lo_v = g.lo_v, inv_side = g.inv_side;
+        nu = g.nu, nv = g.nv;
         const size_t ncol = size_t(nu) * size_t(nv);
         bin_into_columns(p, n, u, v, lo_u, lo_v, inv_side, nu, nv, start, id);
         key.resize(n);

@@ -29,6 +29,40 @@ inline int grid_column(double x, double lo, double inv_side, int count) {
     return t >= double(count - 1) ? count - 1 : int(t);
 }
 
+// A column grid over a box lo..hi (per axis): square columns over its two
+// widest axes u and v (ties: the lower axis first), points sorted along the
+// third, w; nu x nv columns from (lo_u, lo_v), each 1 / inv_side wide.
+struct ColumnLayout {
+    int u = 0, v = 1, w = 2;
+    double lo_u = 0, lo_v = 0, inv_side = 1;
+    int nu = 1, nv = 1;
+};
+
+// The box's axes by extent, widest first (ties: the lower axis first).
+inline void axes_by_extent(const double lo[3], const double hi[3], int axes[3]) {
+    axes[0] = 0, axes[1] = 1, axes[2] = 2;
+    std::sort(axes, axes + 3, [&](int a, int b) {
+        return hi[a] - lo[a] > hi[b] - lo[b] || (hi[a] - lo[a] == hi[b] - lo[b] && a < b);
+    });
+}
+
+// The layout over lo..hi (axes: axes_by_extent's) of columns `side` wide
+// (each caller clamps it to the box first), widened by half again while
+// there would be more than about 2 columns per point (n points).
+inline ColumnLayout column_layout(const double lo[3], const double hi[3], const int axes[3], double side,
+                                  size_t n) {
+    ColumnLayout g;
+    g.u = axes[0], g.v = axes[1], g.w = axes[2];
+    const double eu = hi[g.u] - lo[g.u], ev = hi[g.v] - lo[g.v];
+    const double max_columns = 2.0 * double(n) + 64.0;
+    while ((std::floor(eu / side) + 1) * (std::floor(ev / side) + 1) > max_columns) side *= 1.5;
+    g.lo_u = lo[g.u], g.lo_v = lo[g.v];
+    g.inv_side = 1.0 / side;
+    g.nu = int(std::floor(eu * g.inv_side)) + 1;
+    g.nv = int(std::floor(ev * g.inv_side)) + 1;
+    return g;
+}
+
 // Points p[3 i .. 3 i + 2], i < n, binned into the nu x nv columns over axes
 // u and v (column a * nv + b): start holds each column's first place, then
 // the end; id the points column by column, each column in index order.
