@@ -94,3 +94,46 @@ def test_a_run_started_by_gammac_gives_the_outputs_of_one_started_by_the_cli(tmp
         outputs[name] = _outputs(out)
     assert outputs["gammac"] and any(k.startswith("maps/") for k in outputs["gammac"])
     assert outputs["gammac"] == outputs["cli"] == outputs["abbreviated"]
+
+
+def test_the_defaults_read_ahead_are_the_command_lines():
+    from gamma import cli
+    from gamma.launch import _READ_OPTIONS
+
+    args = cli._parser().parse_args(["run", "e.gamma", "--scene", "m.obj", "--out", "o"])
+    assert {name: getattr(args, name.removeprefix("--")) for name in ("--surfels", "--seed", "--threads")} == \
+        {name: default for name, default in _READ_OPTIONS.items() if name != "--scene"}
+
+
+@pytest.mark.parametrize("argv, status", [(["run", "e.gamma", "--scene", "m.obj"], 2),   # no --out
+                                          (["--version"], 0), (["run", "--help"], 0)])
+def test_argparse_exits_are_returned_so_that_gammac_leaves_without_waiting(argv, status, capsys):
+    """cli.main returns argparse's exit status instead of raising SystemExit:
+    cli.entry then leaves through os._exit (cli._leave), not through the
+    interpreter's exit, which waits for a read launch.py started ahead."""
+    from gamma import cli
+
+    assert cli.main(argv) == status
+
+
+# A read whose file changed after it was read is dropped by take(); the
+# interpreter's exit still waits for its sampling (else nanobind reports the
+# runtime's objects as leaked).
+DROPPED = textwrap.dedent("""
+    import os, shutil, sys
+    from gamma.driver import prefetch
+    path = sys.argv[1]
+    shutil.copy(sys.argv[2], path)
+    prefetch.start(path, 20000, 1, 1)
+    prefetch._pending[path].mesh.result()
+    os.utime(path, ns=(1, 1))
+    assert prefetch.take(path) is None
+    sys.exit(0)
+""")
+
+
+def test_a_dropped_read_is_waited_for_at_exit(tmp_path):
+    r = subprocess.run([sys.executable, "-c", DROPPED, str(tmp_path / "bunny.obj"), str(BUNNY)],
+                       capture_output=True, text=True, timeout=300, env=dict(os.environ, GAMMA_CACHE_DIR="off"))
+    assert r.returncode == 0, r.stderr
+    assert "leaked" not in r.stderr

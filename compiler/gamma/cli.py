@@ -560,7 +560,17 @@ def _sweep(args) -> int:
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(_join_negative_vectors(list(sys.argv[1:] if argv is None else argv)))
+    try:
+        args = _parser().parse_args(_join_negative_vectors(list(sys.argv[1:] if argv is None else argv)))
+    except SystemExit as done:
+        # a usage error, --help or --version (argparse has printed what it had to): returned,
+        # so that entry leaves through _leave, not an interpreter exit that would wait for
+        # a mesh launch.py started reading ahead
+        code = done.code
+        if code is None or isinstance(code, int):
+            return code or 0
+        print(code, file=sys.stderr)
+        return EXIT_INPUT
     if args.command == "run":
         from .driver import prefetch
 
@@ -712,7 +722,12 @@ def entry() -> None:
     # (~30-50 ms of numpy's import) and woke beside the tracer.  Set before
     # numpy is imported; a user's own setting is kept.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    _leave(main())
+    try:
+        status = main()
+    except KeyboardInterrupt:       # before main's own handler (its imports, the command line)
+        print("gammac: interrupted", file=sys.stderr)
+        status = 130
+    _leave(status)
 
 
 if __name__ == "__main__":

@@ -73,14 +73,20 @@ def main() -> None:
 
     # before numpy's import (cli.entry says why)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    options = read_options(sys.argv[1:])
-    if options is not None:
-        try:
-            from .driver import prefetch
+    try:
+        options = read_options(sys.argv[1:])
+        if options is not None:
+            try:
+                from .driver import prefetch
 
-            prefetch.start(*options)
-        except Exception:  # noqa: BLE001 - only a head start: cli.main starts (or reports) it again
-            pass
-    from .cli import entry
-
+                prefetch.start(*options)
+            except Exception:  # noqa: BLE001 - only a head start: cli.main starts (or reports) it again
+                pass
+        from .cli import entry
+    except KeyboardInterrupt:
+        # ^C before cli.entry's handler: reported as it would, without the interpreter's
+        # exit, which would wait for the read started here
+        sys.stderr.write("gammac: interrupted\n")
+        sys.stderr.flush()
+        os._exit(130)
     entry()

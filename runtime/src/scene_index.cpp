@@ -388,8 +388,9 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                 // Room for the block's entries up front: grown from empty, its
                 // vectors were copied ~13 times each into fresh memory (~2,500
                 // page faults of a 100,000-surfel bunny's lookup).
-                out.cand.reserve(kBlock * kReservedPerTriangle);
-                out.ids.reserve(kBlock * kReservedPerTriangle);
+                const size_t block_triangles = std::min(m, (b + 1) * kBlock) - b * kBlock;
+                out.cand.reserve(block_triangles * kReservedPerTriangle);
+                out.ids.reserve(block_triangles * kReservedPerTriangle);
                 // The candidates of sphere L (surface tree): appended to the
                 // block, L.begin block-relative; false if more than `limit`.
                 // ball2: the squared radius searched (where L got entries).

@@ -44,6 +44,8 @@ import threading
 SUFFIXES = (".obj", ".ply")
 
 _lock = threading.Lock()
+_running: set = set()            # the _Outcomes whose call has not returned (under _running_lock:
+_running_lock = threading.Lock()  # start() makes a _Read, and its first _Outcome, holding _lock)
 _pending: dict[str, "_Read"] = {}
 _handed: list["_Read"] = []      # reads whose mesh ``take`` handed out, their samples not yet
 
@@ -59,6 +61,8 @@ class _Outcome:
         self._done = threading.Event()
         self._value = self._error = None
         if fn is not None:
+            with _running_lock:
+                _running.add(self)      # waited for at exit, even once nobody holds it (_forget)
             threading.Thread(target=self._call, args=(fn, *args), name=name, daemon=True).start()
 
     def _call(self, fn, *args) -> None:
@@ -67,6 +71,9 @@ class _Outcome:
         except BaseException as err:  # noqa: BLE001 - raised by result()
             self._error = err
             self._done.set()
+        finally:
+            with _running_lock:
+                _running.discard(self)
 
     def set_result(self, value) -> None:
         self._value = value
@@ -136,6 +143,13 @@ def _forget() -> None:
         read.mesh.exception()
         if read.sampled is not None:
             read.sampled.exception()
+    # and the calls of reads dropped before (a file changed since it was read)
+    while True:
+        with _running_lock:
+            running = next(iter(_running), None)
+        if running is None:
+            break
+        running.exception()
 
 
 #: Surfel counts up to which the rest of the setup is made ahead too (above,

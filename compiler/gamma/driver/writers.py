@@ -221,7 +221,7 @@ def percentile_995(finite: np.ndarray) -> float:
     (n - 1) * 0.995 found by a partition, and numpy's ``_lerp`` of them in
     float32, the weight a weak Python float), without ``np.percentile``:
     that imports numpy's masked arrays (~15 ms of CPU, through ``np.unique``)
-    in every run with pictures.  tests/test_writers.py compares the two."""
+    in every run with pictures.  tests/test_outputs.py compares the two."""
     n = finite.size
     at = (n - 1) * (99.5 / 100)
     lo = int(np.floor(at))
