@@ -216,7 +216,8 @@ class FalseColourCanvas:
         covers only: its glyphs land on whole pixels (the corner is whole), so
         the bytes are those of writing it on the whole canvas (one ~3 ms
         picture copied through Pillow three times, five times after a run's
-        loop, where a user waits)."""
+        loop, where a user waits).  (``textbbox`` of a bitmap font, Pillow
+        without FreeType, needs Pillow 9.2: pyproject.toml asks for it.)"""
         from PIL import Image, ImageDraw
 
         h, w = self.height, self.width

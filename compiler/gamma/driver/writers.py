@@ -221,7 +221,9 @@ def percentile_995(finite: np.ndarray) -> float:
     (n - 1) * 0.995 found by a partition, and numpy's ``_lerp`` of them in
     float32, the weight a weak Python float), without ``np.percentile``:
     that imports numpy's masked arrays (~15 ms of CPU, through ``np.unique``)
-    in every run with pictures.  tests/test_outputs.py compares the two."""
+    in every run with pictures.  tests/test_outputs.py compares the two (the
+    same bits as numpy 2.4.1 and later, whose weak-``q`` arithmetic this is;
+    earlier numpy rounded the float32 case otherwise)."""
     n = finite.size
     at = (n - 1) * (99.5 / 100)
     lo = int(np.floor(at))
