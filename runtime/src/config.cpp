@@ -6,18 +6,9 @@
 
 #include "gamma/error.h"
 #include "gamma/threads.h"
+#include "gamma/vec.h"
 
 namespace gammart {
-
-namespace {
-bool finite3(const std::array<float, 3>& a) {
-    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
-}
-bool nonzero3(const std::array<float, 3>& a) {
-    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
-    return std::isfinite(l) && l > 0;
-}
-}  // namespace
 
 std::vector<int32_t> validate_config(const Config& c, const Mesh& mesh) {
     auto fail = [](const std::string& m) { throw Error(m); };

@@ -22,18 +22,6 @@ namespace gammart {
 
 namespace {
 
-bool finite3(const std::array<float, 3>& a) {
-    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
-}
-bool nonzero3(const std::array<float, 3>& a) {
-    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
-    return std::isfinite(l) && l > 0;
-}
-V3 unit(const std::array<float, 3>& a) {
-    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
-    return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
-}
-
 // Pinhole camera, vertical field of view fov_deg, row 0 = top.  dir(px, py)
 // is the ray through image position (px, py) in pixels ((x + 0.5, y + 0.5) =
 // the centre of pixel (x, y)).

@@ -53,11 +53,6 @@ constexpr size_t kPruningSurfels = LookupPruning::kNearest;
 constexpr double kColumnSpacings = 4.0, kNearestStartSpacings = 1.0;
 constexpr int kNearestAttempts = 4;
 
-V3 unit(const std::array<float, 3>& a) {
-    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
-    return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
-}
-
 }  // namespace
 
 struct SceneIndex::Trees {

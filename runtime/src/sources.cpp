@@ -19,20 +19,6 @@ namespace {
 
 V3 to_v3(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
 
-bool finite3(const std::array<float, 3>& a) {
-    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
-}
-
-V3 unit(const std::array<float, 3>& a) {
-    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
-    return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
-}
-
-bool nonzero3(const std::array<float, 3>& a) {
-    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
-    return std::isfinite(l) && l > 0;
-}
-
 V3 emit_dir(const SourceRt& s, PhiloxStream& rng) {
     switch (s.emission) {
         case Emission::Parallel: return s.dir;

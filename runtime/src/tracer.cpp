@@ -684,20 +684,6 @@ RaycastStats raw_raycast(const SceneIndex& index, const SceneFrame& frame, int64
     return st;
 }
 
-namespace {
-bool finite3(const std::array<float, 3>& a) {
-    return std::isfinite(a[0]) && std::isfinite(a[1]) && std::isfinite(a[2]);
-}
-bool nonzero3(const std::array<float, 3>& a) {
-    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
-    return std::isfinite(l) && l > 0;
-}
-V3 unit(const std::array<float, 3>& a) {
-    const double l = std::sqrt(double(a[0]) * a[0] + double(a[1]) * a[1] + double(a[2]) * a[2]);
-    return {float(a[0] / l), float(a[1] / l), float(a[2] / l)};
-}
-}  // namespace
-
 void parabola_landing(std::array<float, 3> p0a, std::array<float, 3> da, float D, std::array<float, 3> downa,
                       float floor_height, std::array<float, 3>& traced, std::array<float, 3>& analytic) {
     if (!finite3(p0a) || !nonzero3(da) || !nonzero3(downa) || !std::isfinite(floor_height))

@@ -56,22 +56,27 @@ def mesh_ply_bytes(vertex_columns: dict[str, np.ndarray], triangles: np.ndarray,
     return ("\n".join(header) + "\n").encode("ascii") + table.tobytes() + faces.tobytes()
 
 
-def read_mesh_ply(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Read back a PLY written by ``mesh_ply_bytes``: (vertex columns, triangles)."""
-    data = Path(path).read_bytes()
-    names, n, m, end = [], 0, 0, 0
+def _ply_header(data: bytes) -> tuple[list[str], dict[str, int], int]:
+    """The header of a PLY this module wrote: the float properties' names,
+    each element's count, and where the body starts."""
+    names, counts, end = [], {}, 0
     while True:
         nl = data.index(b"\n", end)
         parts = data[end:nl].decode("ascii").split()
         end = nl + 1
         if parts == ["end_header"]:
-            break
-        if parts[:2] == ["element", "vertex"]:
-            n = int(parts[2])
-        elif parts[:2] == ["element", "face"]:
-            m = int(parts[2])
+            return names, counts, end
+        if parts[:1] == ["element"]:
+            counts[parts[1]] = int(parts[2])
         elif parts[:2] == ["property", "float"]:
             names.append(parts[2])
+
+
+def read_mesh_ply(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Read back a PLY written by ``mesh_ply_bytes``: (vertex columns, triangles)."""
+    data = Path(path).read_bytes()
+    names, counts, end = _ply_header(data)
+    n, m = counts.get("vertex", 0), counts.get("face", 0)
     size = n * len(names) * 4
     table = np.frombuffer(data[end:end + size], dtype="<f4").reshape(n, len(names))
     faces = np.frombuffer(data[end + size:], dtype=[("n", "u1"), ("v", "<i4", (3,))], count=m)
@@ -81,17 +86,8 @@ def read_mesh_ply(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
 def read_ply(path: Path) -> dict[str, np.ndarray]:
     """Read back a PLY written by ``ply_parts`` (tests and tools)."""
     data = Path(path).read_bytes()
-    names, n, end = [], 0, 0
-    while True:
-        nl = data.index(b"\n", end)
-        parts = data[end:nl].decode("ascii").split()
-        end = nl + 1
-        if parts == ["end_header"]:
-            break
-        if parts[:2] == ["element", "vertex"]:
-            n = int(parts[2])
-        elif parts[:2] == ["property", "float"]:
-            names.append(parts[2])
+    names, counts, end = _ply_header(data)
+    n = counts.get("vertex", 0)
     table = np.frombuffer(data[end:], dtype="<f4").reshape(n, len(names))
     return {name: table[:, j].copy() for j, name in enumerate(names)}
 
