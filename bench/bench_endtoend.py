@@ -28,6 +28,20 @@ cache, the setup made), the same run again (effect, kernels and setup from
 the caches: backends/effect_cache.py, driver/setup_cache.py), and the effect
 edited (a constant changed, the look-development loop: checked and compiled
 again, the setup from the setup cache).
+
+A second table gives the floor of the two kinds that make the setup: what any
+such run must spend outside its loop however its work were arranged on the
+cores, measured in the same bench run in fresh processes: the import of the
+libraries the run needs (a first run: numpy, Pillow, lark, llvmlite with its
+native target, the runtime; a new mesh: numpy, Pillow, the runtime), the
+mesh read and setup's CPU (at 1 thread, the least CPU it takes), and the
+pictures after the loop (the run's own).  With the imports and the setup
+packed perfectly on the cores, the time before the first trace is at least
+max((imports + setup CPU) / cores, setup wall at ``--threads``, imports).
+The floor leaves out everything else a run does: its own modules, the
+parse, check and compile, the caches written for the next run, page faults
+beyond the setup's own, the process's exit.  It is a lower bound for this
+architecture (Python with these libraries, this setup), not a target.
 """
 
 from __future__ import annotations
@@ -82,7 +96,56 @@ def one_run(args, out: Path, cache: Path, effect: Path = ROOT / "examples" / "pa
     return run
 
 
+#: The libraries each kind of run imports, as Python statements (gamma.launch sets
+#: OPENBLAS_NUM_THREADS=1 before numpy's import; the floor's processes do too).
+FLOOR_IMPORTS = {
+    "first run (nothing cached)": "import numpy, PIL.Image, lark, llvmlite.binding as llvm, gamma._runtime; "
+                                  "llvm.initialize_native_target(); llvm.initialize_native_asmprinter()",
+    "effect cached, setup made": "import numpy, PIL.Image, gamma._runtime",
+}
+
+
+def setup_cpu(surfels: int, threads: int) -> dict:
+    """The mesh read and the setup of the bench's run in this process
+    (called in a child): wall and process CPU seconds."""
+    from gamma.backends.jit import JitKernels
+    from gamma.driver.runner import RunOptions, build_config, runtime_module
+    from gamma.frontend.checker import load
+
+    rt = runtime_module()
+    effect = load(str(ROOT / "examples" / "patina.gamma"))
+    kernels = JitKernels(effect, cache=None)
+    t0, c0 = time.perf_counter(), time.process_time()
+    mesh = rt.Mesh.load(str(SCENE))
+    opts = RunOptions(scene=str(SCENE), out="", surfels=surfels, tons=1000, threads=threads)
+    sim = rt.Simulation(mesh, build_config(rt, effect, kernels, opts, mesh.bounds, (0.0, -1.0, 0.0)))
+    return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0, "surfels": sim.num_surfels}
+
+
+def floor_parts(args) -> dict:
+    """The floor's parts, each the least of three fresh processes."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    parts = {}
+    for kind, statement in FLOOR_IMPORTS.items():
+        walls = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-c", statement], check=True, env=env)
+            walls.append(time.perf_counter() - t0)
+        parts[kind] = min(walls)
+    for threads in sorted({1, args.threads}):
+        runs = [json.loads(subprocess.run([sys.executable, __file__, "--setup-cpu", f"{args.surfels},{threads}"],
+                                          check=True, capture_output=True, text=True, env=env).stdout)
+                for _ in range(3)]
+        parts[f"setup {threads}"] = {"wall": min(r["wall"] for r in runs), "cpu": min(r["cpu"] for r in runs)}
+    return parts
+
+
 def main() -> None:
+    if len(sys.argv) == 3 and sys.argv[1] == "--setup-cpu":
+        surfels, threads = map(int, sys.argv[2].split(","))
+        print(json.dumps(setup_cpu(surfels, threads)))
+        return
     ap = argparse.ArgumentParser()
     ap.add_argument("--iterations", type=int, default=5)
     ap.add_argument("--tons", type=int, default=1_000_000)
@@ -167,6 +230,31 @@ def main() -> None:
             f"outputs' busy time is on any thread, overlapping the loop behind it; " + "; ".join(notes)
             + f"; {cpu_name()}, {os.cpu_count()} cores, load average {load_before:.1f} → {load_average():.1f}")
     report("end-to-end gammac run (patina, bunny)", info, header, rows, args.record)
+
+    parts = floor_parts(args)
+    cores = min(os.cpu_count() or 1, args.threads)
+    setup_1, setup_t = parts["setup 1"], parts[f"setup {args.threads}"]
+    header = ("| run | imports s | mesh + setup CPU s (1 thread) | setup wall s "
+              f"({args.threads} threads) | after the loop s | floor outside the loop s | floor ratio "
+              "(own trace + update; quietest) | measured outside the loop s | above the floor s |\n"
+              "|---|---|---|---|---|---|---|---|---|")
+    rows = []
+    for kind in FLOOR_IMPORTS:
+        runs = kinds[kind]
+        median = sorted(runs, key=lambda r: r["wall"] / r["trace_update"])[len(runs) // 2]
+        before = max((parts[kind] + setup_1["cpu"]) / cores, setup_t["wall"], parts[kind])
+        floor = before + median["finish"]
+        outside = median["wall"] - median["trace_update"]
+        rows.append(f"| {kind} | {parts[kind]:.3f} | {setup_1['cpu']:.3f} | {setup_t['wall']:.3f} | "
+                    f"{median['finish']:.3f} | {floor:.3f} | {1 + floor / median['trace_update']:.2f}× "
+                    f"({1 + floor / quietest:.2f}×) | {outside:.3f} | {outside - floor:.3f} |")
+    info = ("the floor of a run that makes its setup: what it must spend outside its loop however its work "
+            "were arranged on the cores (fresh processes, least of 3 each): the libraries' import (interpreter "
+            f"start included), the mesh read and setup's CPU at 1 thread, packed with the imports on {cores} "
+            f"cores (the setup's wall at {args.threads} threads bounds it too), then the median run's own "
+            "time after the loop; everything else the run does (its own modules, parse, check, compile, "
+            "the caches written for the next run, further page faults, exit) is above the floor")
+    report("end-to-end floor (patina, bunny)", info, header, rows, args.record)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@
 #include <fstream>
 #include <mutex>
 #include <sstream>
+#include <stdexcept>
 #include <string_view>
 #include <unordered_map>
 
@@ -243,18 +244,24 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
     };
     int32_t cur_object = -1, cur_group = -1, cur_material = -1;
     // Positive indices may refer to vertices defined later; they are checked
-    // once the file is read.  (line, written index) of every face corner.
-    struct Pending { size_t line; int64_t written; };
-    std::vector<Pending> corner_src;
+    // once the file is read.  Only a corner whose index was not yet in range
+    // when its face was read (a forward reference, or 0) can be out of range
+    // then: the line and the written index of those corners alone are kept,
+    // for the message (per corner, they were 8 MB of the bunny's load).
+    struct Pending { size_t line; int64_t written; bool forward; };
+    struct Forward { size_t corner; size_t line; int64_t written; };
+    std::vector<Forward> vertex_forward, vt_forward;
     std::vector<int64_t> face;
     std::vector<Pending> face_src;
-    // Texture coordinates: `vt` values (2 per entry) and, per triangle corner,
-    // the 0-based vt index (checked at the end like vertex indices).
+    // Texture coordinates: `vt` values (2 per entry) and, while every corner
+    // so far names one, per triangle corner the 0-based vt index (checked at
+    // the end like vertex indices).
     std::vector<float> texcoords;
     std::vector<int64_t> tri_vt, face_vt;
-    std::vector<Pending> vt_src, face_vt_src;
+    std::vector<Pending> face_vt_src;
     bool all_corners_have_vt = true;
     const std::string_view all(text);
+    size_t corners_hint = 0;   // 3 per line starting "f ", for tri_vt's room
     {
         // Room for what lines starting "v " and "f " add (triangles: 3
         // corners a face), reserved once rather than grown by doubling: each
@@ -272,9 +279,7 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
         }
         verts.reserve(3 * v);
         tris.reserve(3 * f);
-        corner_src.reserve(3 * f);
-        tri_vt.reserve(3 * f);
-        vt_src.reserve(3 * f);
+        corners_hint = 3 * f;
         labels.object.reserve(f);
         labels.group.reserve(f);
         labels.material.reserve(f);
@@ -348,7 +353,7 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
                 if (tpart.empty()) {
                     all_corners_have_vt = false;
                     face_vt.push_back(0);
-                    face_vt_src.push_back({line_no, 0});
+                    face_vt_src.push_back({line_no, 0, false});
                 } else {
                     long long tidx = 0;
                     if (!read_whole_integer(tpart, tidx)) throw unreadable();
@@ -359,7 +364,7 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
                                     std::to_string(tidx) + " out of range (" + std::to_string(nt) +
                                     " texture coordinates)");
                     face_vt.push_back(tz);
-                    face_vt_src.push_back({line_no, tidx});
+                    face_vt_src.push_back({line_no, tidx, tz < 0 || tz >= nt});
                 }
                 const std::string_view first = tok.substr(0, tok.find('/'));
                 long long idx = 0;
@@ -375,17 +380,26 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
                     zero_based = idx - 1;  // 0 -> -1, reported below
                 }
                 face.push_back(zero_based);
-                face_src.push_back({line_no, idx});
+                face_src.push_back({line_no, idx, zero_based < 0 || zero_based >= nv});
             }
             if (face.size() < 3)
                 throw Error(where + "face on line " + std::to_string(line_no) + " has fewer than 3 vertices");
+            if (!all_corners_have_vt && !tri_vt.empty()) {
+                tri_vt = {};             // no UVs: their indices are never checked
+                vt_forward = {};
+            }
             for (size_t k = 1; k + 1 < face.size(); ++k) {
                 const size_t corner[3] = {0, k, k + 1};
                 for (size_t c : corner) {
+                    if (face_src[c].forward)
+                        vertex_forward.push_back({tris.size(), face_src[c].line, face_src[c].written});
+                    if (all_corners_have_vt) {
+                        if (tri_vt.empty()) tri_vt.reserve(corners_hint);
+                        if (face_vt_src[c].forward)
+                            vt_forward.push_back({tri_vt.size(), face_vt_src[c].line, face_vt_src[c].written});
+                        tri_vt.push_back(face_vt[c]);
+                    }
                     tris.push_back(int32_t(std::min<int64_t>(face[c], INT32_MAX)));
-                    corner_src.push_back(face_src[c]);
-                    tri_vt.push_back(face_vt[c]);
-                    vt_src.push_back(face_vt_src[c]);
                 }
                 labels.object.push_back(cur_object);
                 labels.group.push_back(cur_group);
@@ -400,22 +414,32 @@ Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
         }
         // Everything else (vn, s, mtllib, l, p, ...) is ignored.
     }
+    // The record of corner i among the forward ones (every corner out of range has one).
+    auto forward_of = [](const std::vector<Forward>& forward, size_t i) -> const Forward& {
+        const auto it = std::lower_bound(forward.begin(), forward.end(), i,
+                                         [](const Forward& f, size_t corner) { return f.corner < corner; });
+        if (it == forward.end() || it->corner != i) throw std::logic_error("parse_obj: no record of a corner");
+        return *it;
+    };
     const int64_t nv = int64_t(verts.size() / 3);
     for (size_t i = 0; i < tris.size(); ++i)
-        if (tris[i] < 0 || tris[i] >= nv)
-            throw Error(where + "face on line " + std::to_string(corner_src[i].line) + " has vertex index " +
-                        std::to_string(corner_src[i].written) + " out of range (" + std::to_string(nv) +
-                        " vertices)");
+        if (tris[i] < 0 || tris[i] >= nv) {
+            const Forward& f = forward_of(vertex_forward, i);
+            throw Error(where + "face on line " + std::to_string(f.line) + " has vertex index " +
+                        std::to_string(f.written) + " out of range (" + std::to_string(nv) + " vertices)");
+        }
     // UVs only if every corner of every face names a texture coordinate.
     std::vector<float> uvs;
     if (all_corners_have_vt && !tris.empty()) {
         const int64_t nt = int64_t(texcoords.size() / 2);
         uvs.resize(2 * tri_vt.size());
         for (size_t i = 0; i < tri_vt.size(); ++i) {
-            if (tri_vt[i] < 0 || tri_vt[i] >= nt)
-                throw Error(where + "face on line " + std::to_string(vt_src[i].line) + " has texture index " +
-                            std::to_string(vt_src[i].written) + " out of range (" + std::to_string(nt) +
+            if (tri_vt[i] < 0 || tri_vt[i] >= nt) {
+                const Forward& f = forward_of(vt_forward, i);
+                throw Error(where + "face on line " + std::to_string(f.line) + " has texture index " +
+                            std::to_string(f.written) + " out of range (" + std::to_string(nt) +
                             " texture coordinates)");
+            }
             uvs[2 * i] = texcoords[2 * size_t(tri_vt[i])];
             uvs[2 * i + 1] = texcoords[2 * size_t(tri_vt[i]) + 1];
         }

@@ -165,6 +165,35 @@ TEST(Mesh, ObjIndexOutOfRange) {
     EXPECT_NE(msg.find("line 4"), std::string::npos) << msg;
 }
 
+// Only corners whose index was not yet in range when their face was read are
+// recorded for the out-of-range message (mesh.cpp, parse_obj): faces before
+// their vertices still load, and the message names the first bad corner in
+// the file's order, with its line and its index as written, also inside a fan.
+TEST(Mesh, ObjForwardReferencesAndTheFirstBadCornersLine) {
+    Mesh m = Mesh::parse_obj("f 1 2 3 4\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf -4 -2 -1\n", "fwd.obj");
+    EXPECT_EQ(m.triangles, (std::vector<int32_t>{0, 1, 2, 0, 2, 3, 0, 2, 3}));
+    const std::string four = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
+    // the fifth corner of a pentagon's fan (its third triangle), after a good face
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::parse_obj(four + "f 1 2 3\nf 1 2 3 4 9\nf 1 2 12\n", "p.obj"); }),
+              "mesh 'p.obj': face on line 6 has vertex index 9 out of range (4 vertices)");
+    // the fan's first corner, shared by every triangle of the face; a forward
+    // reference that comes into range later is not an error
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::parse_obj("f 5 1 2 3\n" + four + "f 0 1 2\n", "p.obj"); }),
+              "mesh 'p.obj': face on line 1 has vertex index 5 out of range (4 vertices)");
+    EXPECT_EQ(gamma_test::expect_error([&] { Mesh::parse_obj("f 5 1 2\n" + four + "v 0 0 1\nf 1 2 0\n", "p.obj"); }),
+              "mesh 'p.obj': face on line 7 has vertex index 0 out of range (5 vertices)");
+    // texture indices alike: forward ones resolved at the end, the first bad one named
+    m = Mesh::parse_obj(four + "f 1/2 2/1 3/2\nvt 0 0\nvt 1 1\n", "uv.obj");
+    EXPECT_EQ(m.uvs, (std::vector<float>{1, 1, 0, 0, 1, 1}));
+    EXPECT_EQ(gamma_test::expect_error([&] {
+                  Mesh::parse_obj(four + "vt 0 0\nf 1/1 2/1 3/1 4/3\nf 1/4 2/1 3/1\nvt 1 1\n", "uv.obj"); }),
+              "mesh 'uv.obj': face on line 6 has texture index 3 out of range (2 texture coordinates)");
+    // a face without texture indices after some with bad ones: no UVs, so no error
+    m = Mesh::parse_obj(four + "vt 0 0\nf 1/7 2/1 3/1\nf 1 3 4\n", "uv.obj");
+    EXPECT_FALSE(m.has_uvs());
+    EXPECT_EQ(m.triangles, (std::vector<int32_t>{0, 1, 2, 0, 2, 3}));
+}
+
 // The reader takes plain decimal numbers without copying the line (mesh.cpp,
 // read_double / read_whole_integer); what strtod and strtoll accept besides
 // (a leading '+', hex, out of range, text after a number) reads as it did.
