@@ -224,9 +224,9 @@ def kernels_for(effect):
 
     kernels = JitKernels(effect)
     if unsaved is not None and unsaved[0] is effect:
-        future = background.start(_keep, unsaved[1:], kernels.ir_text, sorted(kernels.address),
-                                  kernels.llvm_version, name="gamma-effect-cache")
-        _writes.add(future)
+        outcome = background.start(_keep, unsaved[1:], kernels.ir_text, sorted(kernels.address),
+                                   kernels.llvm_version, name="gamma-effect-cache")
+        _writes.add(outcome)
     return kernels
 
 

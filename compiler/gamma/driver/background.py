@@ -1,70 +1,119 @@
-"""One call on a thread of its own, its outcome a ``concurrent.futures.Future``.
+"""One call on a thread of its own, its outcome an ``Outcome``.
 
 What ``gammac run`` does beside its main thread (the mesh read and the
 surfels sampled while it starts up, the false-colour view's rays cast while
-the scale is worked out, a long runtime call watched for signals) is one call
-each, started at once.  ``concurrent.futures.ThreadPoolExecutor`` would do,
-but its threads are not daemons: the interpreter's exit would wait for a
+the scale is worked out, the cache files written for the next run) is one
+call each, started at once.  ``concurrent.futures.ThreadPoolExecutor`` would
+do, but its threads are not daemons: the interpreter's exit would wait for a
 sampling nobody needs any more (an effect with an error), and ``cli._leave``
-could not skip the interpreter's teardown.  Here the thread is a daemon; the
-``Future`` is the library's (``result``, ``exception``, ``done``, timeouts).
+could not skip the interpreter's teardown.  Here the thread is a daemon, and
+its ``Outcome`` offers what gammac uses of a ``concurrent.futures.Future``
+(``result``, ``exception``, ``done``, timeouts) without importing that
+module: ``gamma.launch`` starts the mesh read (prefetch.py) before anything
+else, and ``concurrent.futures``, through ``logging``, cost ~10 ms first.
 
 A daemon thread still inside the runtime when the interpreter finalizes
 cannot come back (it would need the GIL) and leaves its objects behind
 (nanobind then reports them as leaked at exit), so the calls still running
 at exit are waited for (``atexit``: only in a process that ends through the
 interpreter's own exit; ``os._exit``, which ``gammac`` uses, ends them at
-once).
+once), also those whose ``Outcome`` nobody holds any more.
 """
 
 from __future__ import annotations
 
 import atexit
 import threading
-from concurrent.futures import Future, wait
-from typing import Callable
 
-_running: set[Future] = set()
+TYPE_CHECKING = False   # (typing's import is ~3 ms the read ahead would wait for)
+if TYPE_CHECKING:
+    from typing import Callable, Iterable
+
+_running: set["Outcome"] = set()
 _lock = threading.Lock()
 
 
-def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Future:
+class TimedOut(Exception):
+    """``Outcome.result`` or ``exception`` waited ``timeout`` seconds in vain."""
+
+
+class Outcome:
+    """The outcome of one call (``start``), or one set at once
+    (``Outcome.of``): ``result()`` returns its value or raises its error,
+    ``exception()`` returns the error (None if it returned); both wait for
+    the call, at most ``timeout`` seconds if given (then ``TimedOut``)."""
+
+    def __init__(self) -> None:
+        self._done = threading.Event()
+        self._value = None
+        self._error: BaseException | None = None
+
+    @classmethod
+    def of(cls, value) -> "Outcome":
+        outcome = cls()
+        outcome._settle(value, None)
+        return outcome
+
+    def _settle(self, value, error: BaseException | None) -> None:
+        self._value, self._error = value, error
+        self._done.set()
+
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def exception(self, timeout: float | None = None) -> BaseException | None:
+        if not self._done.wait(timeout):
+            raise TimedOut(f"no outcome after {timeout} s")
+        return self._error
+
+    def result(self, timeout: float | None = None):
+        error = self.exception(timeout)
+        if error is not None:
+            raise error
+        return self._value
+
+
+def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Outcome:
     """``fn(*args, **kwargs)`` on a new daemon thread, started now."""
-    future: Future = Future()
-    future.set_running_or_notify_cancel()
+    outcome = Outcome()
     with _lock:
-        _running.add(future)
+        _running.add(outcome)
 
     def work() -> None:
+        value, error = None, None
         try:
             value = fn(*args, **kwargs)
-        except BaseException as err:  # noqa: BLE001 - the Future raises it in result()
-            future.set_exception(err)
-        else:
-            future.set_result(value)
-        finally:
-            with _lock:
-                _running.discard(future)
+        except BaseException as err:  # noqa: BLE001 - raised by result()
+            error = err
+        with _lock:
+            _running.discard(outcome)
+        outcome._settle(value, error)
 
     threading.Thread(target=work, name=name, daemon=True).start()
-    return future
+    return outcome
+
+
+def wait(outcomes: Iterable[Outcome]) -> None:
+    """Wait for every one of ``outcomes`` (raising none of their errors)."""
+    for outcome in outcomes:
+        outcome.exception()
 
 
 class Pending:
     """Calls that must end before the process does (a cache file being
-    written): ``add`` each one's Future, and ``wait`` before leaving."""
+    written): ``add`` each one's Outcome, and ``wait`` before leaving."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._futures: list[Future] = []
+        self._outcomes: list[Outcome] = []
 
-    def add(self, future: Future) -> None:
+    def add(self, outcome: Outcome) -> None:
         with self._lock:
-            self._futures.append(future)
+            self._outcomes.append(outcome)
 
     def wait(self) -> None:
         with self._lock:
-            pending, self._futures = self._futures, []
+            pending, self._outcomes = self._outcomes, []
         wait(pending)
 
 

@@ -40,65 +40,25 @@ import atexit
 import os
 import threading
 
+from . import background
+
 #: Extensions the runtime's own readers parse (no OpenMesh, no global state).
 SUFFIXES = (".obj", ".ply")
 
 _lock = threading.Lock()
-_running: set = set()            # the _Outcomes whose call has not returned (under _running_lock:
-_running_lock = threading.Lock()  # start() makes a _Read, and its first _Outcome, holding _lock)
 _pending: dict[str, "_Read"] = {}
 _handed: list["_Read"] = []      # reads whose mesh ``take`` handed out, their samples not yet
 
 
-class _Outcome:
-    """The outcome of one call on a daemon thread of its own: ``result()``
-    and ``exception()`` wait for it, as a ``concurrent.futures.Future``'s do
-    (not used here: ``gamma.launch`` starts a read before the command line
-    is parsed, and that module's import, through ``logging``, cost ~10 ms
-    before the read could start)."""
-
-    def __init__(self, fn=None, *args, name: str = "gamma-prefetch") -> None:
-        self._done = threading.Event()
-        self._value = self._error = None
-        if fn is not None:
-            with _running_lock:
-                _running.add(self)      # waited for at exit, even once nobody holds it (_forget)
-            threading.Thread(target=self._call, args=(fn, *args), name=name, daemon=True).start()
-
-    def _call(self, fn, *args) -> None:
-        try:
-            self.set_result(fn(*args))
-        except BaseException as err:  # noqa: BLE001 - raised by result()
-            self._error = err
-            self._done.set()
-        finally:
-            with _running_lock:
-                _running.discard(self)
-
-    def set_result(self, value) -> None:
-        self._value = value
-        self._done.set()
-
-    def exception(self):
-        self._done.wait()
-        return self._error
-
-    def result(self):
-        self._done.wait()
-        if self._error is not None:
-            raise self._error
-        return self._value
-
-
 class _Read:
-    """One file read ahead: ``mesh``, an _Outcome of the Mesh (or None), and
-    once it is set, ``sampled``, an _Outcome of its SurfelSample or
+    """One file read ahead: ``mesh``, a ``background.Outcome`` of the Mesh (or
+    None), and once it is set, ``sampled``, an Outcome of its SurfelSample or
     SetupSnapshot (None: none)."""
 
     def __init__(self, path: str, read_mesh_ahead, surfels: int | None, seed: int, threads: int):
         self.path = path
         self.signature = None
-        self.sampled: _Outcome | None = None
+        self.sampled: background.Outcome | None = None
         if surfels is not None and not worth_sampling(surfels, seed, threads):
             surfels = None
         # The cache's folder found here, on the main thread, which imports gamma.files
@@ -106,8 +66,8 @@ class _Read:
         from ..files import cache_dir
 
         folder = cache_dir() if surfels is not None else None
-        self.mesh = _Outcome(self._work, read_mesh_ahead, surfels, seed, threads,
-                             str(folder) if folder is not None else "", name="gamma-mesh-read")
+        self.mesh = background.start(self._work, read_mesh_ahead, surfels, seed, threads,
+                                     str(folder) if folder is not None else "", name="gamma-mesh-read")
 
     def _work(self, read_mesh_ahead, surfels, seed, threads, folder):
         # The read, the setup cache's file named, read, checked and prepared: one
@@ -123,11 +83,10 @@ class _Read:
             return None
         self.signature = signature
         if snapshot is not None:
-            self.sampled = _Outcome()
-            self.sampled.set_result(snapshot)
+            self.sampled = background.Outcome.of(snapshot)
         elif surfels is not None:
             # Sampling takes longer: on a thread of its own, so the mesh is handed out before it ends.
-            self.sampled = _Outcome(_sample, mesh, surfels, seed, threads, name="gamma-surfel-sample")
+            self.sampled = background.start(_sample, mesh, surfels, seed, threads, name="gamma-surfel-sample")
         return mesh
 
 
@@ -143,13 +102,8 @@ def _forget() -> None:
         read.mesh.exception()
         if read.sampled is not None:
             read.sampled.exception()
-    # and the calls of reads dropped before (a file changed since it was read)
-    while True:
-        with _running_lock:
-            running = next(iter(_running), None)
-        if running is None:
-            break
-        running.exception()
+    # (the calls of reads dropped before, a file changed since it was read, are
+    # waited for by background's own handler, which runs after this one)
 
 
 #: Surfel counts up to which the rest of the setup is made ahead too (above,

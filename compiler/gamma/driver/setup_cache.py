@@ -105,12 +105,12 @@ def store(sim, mesh, surfels: int, seed: int, behind: bool = False) -> None:
         if path is None or sim.setup_snapshot_bytes > min(limit_bytes() // 2, STORE_MAX_BYTES):
             return
         if behind:
-            future = background.start(_take_and_write, sim, path, name="gamma-setup-cache")
+            outcome = background.start(_take_and_write, sim, path, name="gamma-setup-cache")
         else:
-            future = background.start(_write, path, sim.setup_snapshot(), name="gamma-setup-cache")
+            outcome = background.start(_write, path, sim.setup_snapshot(), name="gamma-setup-cache")
     except Exception:  # noqa: BLE001 - see above
         return
-    _writes.add(future)
+    _writes.add(outcome)
 
 
 def _take_and_write(sim, path: Path) -> None:
@@ -158,9 +158,9 @@ def body_of(data: bytes, mark: bytes) -> memoryview | None:
 STALE_TEMPORARY_SECONDS = 3600
 
 
-def keep_behind(future) -> None:
+def keep_behind(outcome) -> None:
     """A cache write started elsewhere (view_cache.py) that ``wait`` waits for too."""
-    _writes.add(future)
+    _writes.add(outcome)
 
 
 #: A setup's false-colour views (view_cache.py: ``view-STEM-KEY.bin``, STEM

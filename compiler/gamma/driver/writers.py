@@ -114,7 +114,7 @@ class FalseColourWriter(Writer):
         # until then; the last iteration's and any the writer has not reached are worked
         # out once the loop is done)
         self.ranges: list = []
-        self.casting = None             # the view's rays being cast (a Future), if they are
+        self.casting = None             # the view's rays being cast (a background.Outcome), if they are
 
     def on_setup_done(self, event) -> None:
         # a resumed run: the earlier iterations' values, from their maps
@@ -138,7 +138,7 @@ class FalseColourWriter(Writer):
     VIEW_PIXELS = 1 << 20
 
     def _cast(self, run, keep: bool = False):
-        """The view's rays cast on a thread of their own (a Future), or None for
+        """The view's rays cast on a thread of their own (an Outcome), or None for
         a picture too large to keep them.  ``keep``: the geometry never
         changes, so the view is read from the cache of views if it holds it
         (view_cache.py), and kept there once cast if not."""
@@ -179,10 +179,8 @@ class FalseColourWriter(Writer):
             # one frame (colour bar, ticks) for every picture of the run
             canvas = FalseColourCanvas(width, height, vmin, vmax, shown)
         except BaseException:
-            from concurrent.futures import wait
-
             if casting is not None:
-                wait([casting])         # the simulation must outlive the rays it casts
+                casting.exception()     # waited for: the simulation must outlive the rays it casts
             raise
         view = None
         if casting is not None:
@@ -317,8 +315,6 @@ def write_sequence(frames: list, folder: Path) -> None:
     GIF is made here (Pillow holds the GIL for it): the three took their sum
     one after the other, after the loop.  All three are written, or have
     failed, when this returns; the first error (GIF, MP4, strip) is raised."""
-    from concurrent.futures import wait
-
     from . import background
 
     others = [background.start(write_mp4, frames, folder / "sequence.mp4", name="gamma-mp4"),
@@ -328,7 +324,7 @@ def write_sequence(frames: list, folder: Path) -> None:
         frames[0].save(buffer, format="GIF", save_all=True, append_images=frames[1:], duration=400, loop=0)
         atomic_write(folder / "sequence.gif", buffer.getvalue())
     finally:
-        wait(others)
+        background.wait(others)
     for made in others:
         made.result()
 

@@ -1,0 +1,79 @@
+"""gamma.driver.background: one call on a daemon thread, its Outcome (value,
+error, waits with a timeout), and the calls still running waited for at the
+interpreter's exit; importing it (and the read-ahead that uses it) imports
+neither concurrent.futures nor logging."""
+
+import subprocess
+import sys
+import textwrap
+import threading
+
+import pytest
+
+from gamma.driver import background
+
+
+def test_an_outcome_gives_the_calls_value_or_raises_its_error():
+    assert background.start(lambda a, b=0: a + b, 2, b=3).result() == 5
+    failing = background.start(lambda: 1 / 0)
+    assert isinstance(failing.exception(), ZeroDivisionError)
+    with pytest.raises(ZeroDivisionError):
+        failing.result()
+    ready = background.Outcome.of("now")
+    assert ready.done() and ready.result() == "now" and ready.exception() is None
+
+
+def test_waits_end_with_the_call_or_time_out_before_it():
+    release = threading.Event()
+    outcome = background.start(release.wait, name="gamma-test")
+    assert not outcome.done()
+    with pytest.raises(background.TimedOut):
+        outcome.result(timeout=0.05)
+    with pytest.raises(background.TimedOut):
+        outcome.exception(timeout=0)
+    release.set()
+    assert outcome.result(timeout=30) is True and outcome.done()
+
+
+def test_wait_and_pending_wait_for_every_call_without_raising_their_errors():
+    gate = threading.Event()
+    finished = []
+
+    def late(k):
+        gate.wait()
+        finished.append(k)
+        if k == 1:
+            raise ValueError("a failed write")
+
+    pending = background.Pending()
+    outcomes = [background.start(late, k) for k in range(3)]
+    for outcome in outcomes:
+        pending.add(outcome)
+    threading.Timer(0.05, gate.set).start()
+    pending.wait()
+    assert sorted(finished) == [0, 1, 2] and all(o.done() for o in outcomes)
+    background.wait(outcomes)                        # done: returns at once
+    assert isinstance(outcomes[1].exception(), ValueError)
+
+
+# A call nobody holds any more is still waited for when the interpreter exits
+# through its own exit (its effect printed after the main thread ended).
+UNHELD = textwrap.dedent("""
+    import time
+    from gamma.driver import background
+    background.start(lambda: (time.sleep(0.3), print("finished", flush=True)))
+""")
+
+
+def test_the_interpreters_exit_waits_for_calls_nobody_holds():
+    r = subprocess.run([sys.executable, "-c", UNHELD], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "finished"
+
+
+def test_the_read_ahead_imports_neither_concurrent_futures_nor_logging():
+    probe = ("import sys; from gamma.driver import background, prefetch; "
+             "print(sorted(m for m in ('concurrent.futures', 'logging', 'typing') if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
