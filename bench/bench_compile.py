@@ -25,7 +25,6 @@ from pathlib import Path
 
 from report import report
 
-ROOT = Path(__file__).resolve().parent.parent
 
 MEASURE = """
 import json, time

@@ -55,10 +55,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from report import cpu_name, load_average, report
+from report import ROOT, SCENE, cpu_name, load_average, report
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 GAMMAC = Path(sys.executable).parent / "gammac"
 
 

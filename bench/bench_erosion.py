@@ -25,16 +25,13 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from pathlib import Path
 
-from report import cpu_name, load_average, report
+from report import ROOT, SCENE, cpu_name, load_average, report
 
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
 from gamma.driver.runner import RunOptions, build_config, runtime_module
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
 
 def iteration(sim, it: int) -> dict:

@@ -14,7 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from report import cpu_name, report
+from report import LOOK_EFFECT, SCENE, cpu_name, report
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check
 from gamma.driver.export import pieces
@@ -24,17 +24,6 @@ from gamma.driver.runner import RunOptions, build_config, runtime_module
 from gamma.driver.writers import ExportWriter
 from gamma.driver.scene import load_scene
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
-EFFECT = """
-ton Weather { motion straight = 1.0  carry patina = 1.0 }
-surface Copper { reflectance straight = 0.5  property patina = 0.0 }
-source air = environment(sphere) emits Weather count 1000000
-on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina }
-appearance(s: Copper) {
-    color = mix(rgb(0.55, 0.35, 0.2), rgb(0.27, 0.58, 0.5), smoothstep(0, 0.5, s.patina))
-}
-"""
 
 
 def main() -> None:
@@ -43,7 +32,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     rt = runtime_module()
-    effect = check(parse(EFFECT, "bench.gamma"))
+    effect = check(parse(LOOK_EFFECT, "bench.gamma"))
     kernels = JitKernels(effect)
     scene = load_scene(rt, str(SCENE), effect, [])
     opts = RunOptions(scene=str(SCENE), out="", threads=args.threads, surfels=100_000)

@@ -23,10 +23,9 @@ import argparse
 import os
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
-from report import cpu_name, load_average, report
+from report import ROOT, SCENE, cpu_name, load_average, report
 
 from gamma.backends.jit import JitKernels
 from gamma.driver import cluster, distributed
@@ -34,8 +33,6 @@ from gamma.driver.runner import RunOptions, build_config, runtime_module
 from gamma.driver.scene import load_scene
 from gamma.frontend.checker import load
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
 
 def main() -> None:

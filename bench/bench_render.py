@@ -9,26 +9,14 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
-from bench_tracer import SCENE
-from report import cpu_name, report
+from report import LOOK_EFFECT, ROOT, SCENE, cpu_name, report
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check
 from gamma.frontend.parser import parse
 from gamma.driver.camera import auto_camera, sun_direction
 from gamma.driver.runner import RunOptions, build_config, runtime_module
 
-ROOT = Path(__file__).resolve().parent.parent
-EFFECT = """
-ton Weather { motion straight = 1.0  carry patina = 1.0 }
-surface Copper { reflectance straight = 0.5  property patina = 0.0 }
-source air = environment(sphere) emits Weather count 1000000
-on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina }
-appearance(s: Copper) {
-    color = mix(rgb(0.55, 0.35, 0.2), rgb(0.27, 0.58, 0.5), smoothstep(0, 0.5, s.patina))
-}
-"""
 
 
 def main() -> None:
@@ -37,7 +25,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     rt = runtime_module()
-    effect = check(parse(EFFECT, "bench.gamma"))
+    effect = check(parse(LOOK_EFFECT, "bench.gamma"))
     kernels = JitKernels(effect)
     mesh = rt.Mesh.load(str(SCENE))
     cfg = build_config(rt, effect, kernels, RunOptions(scene="", out="", threads=2), mesh.bounds,

@@ -27,14 +27,10 @@ import os
 import resource
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 
-from report import cpu_name, load_average, report
+from report import ROOT, SCENE, cpu_name, load_average, report
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
 
 def subdivide(vertices, triangles):

@@ -22,13 +22,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from report import cpu_name, report
+from report import ROOT, cpu_name, report
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
 from gamma.driver.runner import RunOptions, build_config, runtime_module
 from gamma.driver.scene import load_scene
 
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def main() -> None:

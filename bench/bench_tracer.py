@@ -31,14 +31,12 @@ import os
 import tempfile
 from pathlib import Path
 
-from report import cpu_name, load_average, report
+from report import SCENE, cpu_name, load_average, report
 
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
 from gamma.driver.runner import RunOptions, build_config, runtime_module
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
 # One effect per motion mode: patina's rules, the gamma-tons moving one way.
 # Bounce and flow distances are in the bunny's units (about 0.2 across).

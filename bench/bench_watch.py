@@ -17,13 +17,11 @@ import threading
 import time
 from pathlib import Path
 
-from report import cpu_name, report
+from report import ROOT, SCENE, cpu_name, report
 from gamma.driver.runner import RunOptions
 from gamma.viewer.server import ViewerState
 from gamma.viewer.watch import Watcher
 
-ROOT = Path(__file__).resolve().parent.parent
-SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
 
 def after_save(folder: Path, preview: float, threads: int) -> tuple[float, float]:

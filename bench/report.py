@@ -9,6 +9,21 @@ import platform
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
+#: The repository, and the mesh most benchmarks run on.
+ROOT = Path(__file__).resolve().parent.parent
+SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
+
+#: examples/patina.gamma with an appearance block (the render and export
+#: benchmarks draw the look, not a false-colour property).
+LOOK_EFFECT = """
+ton Weather { motion straight = 1.0  carry patina = 1.0 }
+surface Copper { reflectance straight = 0.5  property patina = 0.0 }
+source air = environment(sphere) emits Weather count 1000000
+on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina }
+appearance(s: Copper) {
+    color = mix(rgb(0.55, 0.35, 0.2), rgb(0.27, 0.58, 0.5), smoothstep(0, 0.5, s.patina))
+}
+"""
 
 # As gammac does (cli.entry): numpy's OpenBLAS without its thread pool, whose
 # threads woke beside the tracer in the benchmarks' own processes (each bench
