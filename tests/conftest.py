@@ -12,6 +12,25 @@ ROOT = Path(__file__).resolve().parent.parent
 os.environ.setdefault("GAMMA_CACHE_DIR", __import__("tempfile").mkdtemp(prefix="gamma-test-cache-"))
 
 
+#: Patina and grime on copper from two sources, with random() in both kinds of rule:
+#: the determinism and Ray tests' effect.
+GRIMY_COPPER = """
+ton Weather { motion straight = 1.0  carry patina = 1.0, grime = 0.0 }
+surface Copper { reflectance straight = 0.5  property patina = 0.0, grime = 0.5 }
+source air = environment(sphere) emits Weather count 30000
+source drip = point(0, 1, 0) emits Weather count 10000
+on hit(t: Weather, s: Copper) {
+    t.grime += 0.1 * s.grime * random()
+    s.grime -= 0.01 * s.grime
+}
+on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina + 0.01 * t.grime }
+update(s: Copper) {
+    s.reflectance.straight = clamp(0.5 + s.patina, 0, 1)
+    s.grime = max(s.grime, 0) + 0.001 * random()
+}
+"""
+
+
 def run_gammac(*args, cwd=None, timeout=600):
     """Run the CLI as a user would; returns the CompletedProcess."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")

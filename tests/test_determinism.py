@@ -2,29 +2,14 @@
 
 import pytest
 
-from conftest import run_gammac
+from conftest import GRIMY_COPPER, run_gammac
 
-EFFECT = """
-ton Weather { motion straight = 1.0  carry patina = 1.0, grime = 0.0 }
-surface Copper { reflectance straight = 0.5  property patina = 0.0, grime = 0.5 }
-source air = environment(sphere) emits Weather count 30000
-source drip = point(0, 1, 0) emits Weather count 10000
-on hit(t: Weather, s: Copper) {
-    t.grime += 0.1 * s.grime * random()
-    s.grime -= 0.01 * s.grime
-}
-on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina + 0.01 * t.grime }
-update(s: Copper) {
-    s.reflectance.straight = clamp(0.5 + s.patina, 0, 1)
-    s.grime = max(s.grime, 0) + 0.001 * random()
-}
-"""
 
 
 @pytest.mark.parametrize("scene", ["bumpy_obj", "box_obj"])
 def test_maps_are_bit_identical_at_one_and_two_threads(tmp_path, scene, request):
     mesh = request.getfixturevalue(scene)
-    (tmp_path / "e.gamma").write_text(EFFECT)
+    (tmp_path / "e.gamma").write_text(GRIMY_COPPER)
     maps = {}
     for threads in (1, 2):
         out = tmp_path / f"t{threads}"
@@ -37,7 +22,7 @@ def test_maps_are_bit_identical_at_one_and_two_threads(tmp_path, scene, request)
 
 
 def test_another_seed_gives_another_map(tmp_path, bumpy_obj):
-    (tmp_path / "e.gamma").write_text(EFFECT)
+    (tmp_path / "e.gamma").write_text(GRIMY_COPPER)
     out = {}
     for seed in (1, 2):
         r = run_gammac("run", tmp_path / "e.gamma", "--scene", bumpy_obj, "--surfels", 5000,

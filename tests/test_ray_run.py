@@ -5,24 +5,11 @@ also when a worker is killed mid-task and Ray retries it."""
 import json
 from pathlib import Path
 
+from conftest import GRIMY_COPPER
 from gamma import cli
 from gamma.driver import distributed
 
-EFFECT = """
-ton Weather { motion straight = 1.0  carry patina = 1.0, grime = 0.0 }
-surface Copper { reflectance straight = 0.5  property patina = 0.0, grime = 0.5 }
-source air = environment(sphere) emits Weather count 5000
-source drip = point(0, 1, 0) emits Weather count 2500
-on hit(t: Weather, s: Copper) {
-    t.grime += 0.1 * s.grime * random()
-    s.grime -= 0.01 * s.grime
-}
-on settle(t: Weather, s: Copper) { s.patina += 0.05 * t.patina + 0.01 * t.grime }
-update(s: Copper) {
-    s.reflectance.straight = clamp(0.5 + s.patina, 0, 1)
-    s.grime = max(s.grime, 0) + 0.001 * random()
-}
-"""
+EFFECT = GRIMY_COPPER.replace("count 30000", "count 5000").replace("count 10000", "count 2500")
 # Flow and parabolic flights, a source strength (weighted deposits), the
 # splat, mass books of water and grime, and appearance renders.
 FLOWING = """
@@ -120,7 +107,7 @@ def test_a_local_run_resumed_on_ray_equals_a_whole_local_run(ray_local, tmp_path
     assert outputs(part) == outputs(whole)
 
 
-MANY_CHUNKS = EFFECT.replace("count 5000", "count 30000").replace("count 2500", "count 10000")
+MANY_CHUNKS = GRIMY_COPPER
 
 
 def test_a_pass_of_many_chunks_holds_a_bounded_number_of_chunk_logs(ray_local, tmp_path, bumpy_obj, monkeypatch):

@@ -18,34 +18,17 @@
 
 #include "gamma/setup_cache.h"
 #include "gamma/simulation.h"
+#include "setup_helpers.h"
 
 using namespace gammart;
 namespace fs = std::filesystem;
 
 namespace {
 
-extern "C" int32_t cache_deposit(float*, const float*, float* delta, const GammaContext*) {
-    delta[3] = 1.0f;
-    return 0;
-}
-
 const std::string kBunny = std::string(GAMMA_SCENES_DIR) + "/stanford-bunny.obj";
 
 Config bunny_config(size_t surfels, uint64_t seed) {
-    Config c;
-    c.surfels = int64_t(surfels);
-    c.seed = seed;
-    c.threads = 2;
-    c.row_width = 4;
-    c.surface_rows = {{0, 0, 0, 0}};
-    const int t = c.add_ton_type(0, 0, 0, {}, 1.0f, 0.1f);
-    Source s;
-    s.kind = "sphere";
-    s.ton_type = t;
-    s.count = 20000;
-    c.add_source(s);
-    c.set_transport(GAMMA_EVENT_SETTLE, t, 0, uint64_t(reinterpret_cast<uintptr_t>(&cache_deposit)), true);
-    return c;
+    return gamma_test::deposit_config(int64_t(surfels), seed, 2, 1, {GAMMA_EVENT_SETTLE});
 }
 
 // A folder of its own, removed at the end.
@@ -125,18 +108,10 @@ TEST(SetupCache, TheReadAheadGivesTheMeshAndTheCachedSetupPreparedAndTheSameSetu
 
     Simulation restored(*ahead.mesh, c, nullptr, ahead.setup.get());
     EXPECT_EQ(restored.from_snapshot(), Simulation::FromSnapshot::Setup);
-    EXPECT_EQ(restored.surfels().position, fresh.surfels().position);
-    EXPECT_EQ(restored.surfels().triangle, fresh.surfels().triangle);
-    EXPECT_EQ(restored.state().splat.weight, fresh.state().splat.weight);
-    EXPECT_TRUE(restored.scene_index().same_lookup(fresh.scene_index()));
+    gamma_test::expect_same_setup(fresh, restored);
     EXPECT_EQ(restored.corner_normals(), fresh.corner_normals());
     EXPECT_EQ(restored.setup_snapshot(), fresh.setup_snapshot());
-    for (int it = 1; it <= 2; ++it) {
-        EXPECT_EQ(fresh.trace(it).interactions, restored.trace(it).interactions);
-        fresh.update(it);
-        restored.update(it);
-    }
-    EXPECT_EQ(restored.rows(), fresh.rows());
+    gamma_test::expect_same_iterations(fresh, restored);
 
     // the same snapshot as load_cached_setup's, which setup_cache.load uses
     const std::unique_ptr<SetupSnapshot> loaded = load_cached_setup(folder.path.string(), direct, 3000, 5);

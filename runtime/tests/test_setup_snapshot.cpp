@@ -11,35 +11,17 @@
 #include "gamma/simulation.h"
 #include "gamma/surfel_state.h"
 #include "helpers.h"
+#include "setup_helpers.h"
 
 using namespace gammart;
 using gamma_test::expect_error;
+using gamma_test::expect_same_iterations;
+using gamma_test::expect_same_setup;
 
 namespace {
 
-// Deposits 1 in row column 3 at every hit (spread by the splat kernel).
-extern "C" int32_t snapshot_deposit(float*, const float*, float* delta, const GammaContext*) {
-    delta[3] = 1.0f;
-    return 0;
-}
-
 Config bunny_config(int threads, int surfaces = 2) {
-    Config c;
-    c.surfels = 6000;
-    c.seed = 11;
-    c.threads = threads;
-    c.row_width = 4;
-    c.surface_rows.assign(size_t(surfaces), {0, 0, 0, 0});
-    const int t = c.add_ton_type(0, 0, 0, {}, 1.0f, 0.1f);
-    Source s;
-    s.kind = "sphere";
-    s.ton_type = t;
-    s.count = 20000;
-    c.add_source(s);
-    for (int surface = 0; surface < surfaces; ++surface)
-        for (int event : {GAMMA_EVENT_HIT, GAMMA_EVENT_SETTLE})
-            c.set_transport(event, t, surface, uint64_t(reinterpret_cast<uintptr_t>(&snapshot_deposit)), true);
-    return c;
+    return gamma_test::deposit_config(6000, 11, threads, surfaces, {GAMMA_EVENT_HIT, GAMMA_EVENT_SETTLE});
 }
 
 // The bunny, its triangles bound to two surfaces (by the side of x = mean).
@@ -54,20 +36,6 @@ struct Bunny {
             binding.push_back(mesh.vertices[3 * size_t(mesh.triangles[3 * t])] > mean ? 1 : 0);
     }
 };
-
-void expect_same_setup(const Simulation& a, const Simulation& b) {
-    EXPECT_EQ(a.surfels().position, b.surfels().position);
-    EXPECT_EQ(a.surfels().normal, b.surfels().normal);
-    EXPECT_EQ(a.surfels().triangle, b.surfels().triangle);
-    EXPECT_EQ(a.surfels().r_max, b.surfels().r_max);
-    EXPECT_EQ(a.surfel_surfaces(), b.surfel_surfaces());
-    EXPECT_EQ(a.state().splat.offset, b.state().splat.offset);
-    EXPECT_EQ(a.state().splat.source, b.state().splat.source);
-    EXPECT_EQ(a.state().splat.weight, b.state().splat.weight);
-    EXPECT_EQ(a.state().splat.mean_neighbours, b.state().splat.mean_neighbours);
-    EXPECT_TRUE(a.scene_index().same_lookup(b.scene_index()));
-    EXPECT_EQ(a.scene_index().lookup_candidates(), b.scene_index().lookup_candidates());
-}
 
 }  // namespace
 
@@ -99,14 +67,7 @@ TEST(SetupSnapshot, ASetupFromItsSnapshotIsTheSameSetupAndTracesTheSameRows) {
         expect_same_setup(fresh, restored);
         // the restored setup's own snapshot is the same bytes
         EXPECT_EQ(restored.setup_snapshot(), bytes);
-        for (int it = 1; it <= 2; ++it) {
-            const TraceStats a = fresh.trace(it), b = restored.trace(it);
-            EXPECT_EQ(a.interactions, b.interactions);
-            EXPECT_EQ(a.emitted, b.emitted);
-            fresh.update(it);
-            restored.update(it);
-        }
-        EXPECT_EQ(fresh.rows(), restored.rows());
+        expect_same_iterations(fresh, restored);
         double deposited = 0;
         for (size_t i = 0; i < fresh.num_surfels(); ++i) deposited += fresh.rows()[4 * i + 3];
         EXPECT_GT(deposited, 1000.0);   // the rows compared hold the deposits
@@ -134,12 +95,7 @@ TEST(SetupSnapshot, ASetupMadeAheadForOneSurfaceIsTheSimulationsOwnOrGivesOnlyIt
         expect_same_setup(fresh, taken);
         EXPECT_EQ(taken.corner_normals(), fresh.corner_normals());
         EXPECT_EQ(taken.setup_snapshot(), fresh.setup_snapshot());
-        for (int it = 1; it <= 2; ++it) {
-            EXPECT_EQ(fresh.trace(it).interactions, taken.trace(it).interactions);
-            fresh.update(it);
-            taken.update(it);
-        }
-        EXPECT_EQ(fresh.rows(), taken.rows());
+        expect_same_iterations(fresh, taken);
         // two surfaces: only the surfels are taken, the rest built for that binding
         Config two = bunny_config(threads);
         two.triangle_surface = bunny.binding;
