@@ -26,13 +26,15 @@ def test_an_outcome_gives_the_calls_value_or_raises_its_error():
 def test_waits_end_with_the_call_or_time_out_before_it():
     release = threading.Event()
     outcome = background.start(release.wait, name="gamma-test")
-    assert not outcome.done()
-    with pytest.raises(background.TimedOut):
-        outcome.result(timeout=0.05)
-    with pytest.raises(background.TimedOut):
-        outcome.exception(timeout=0)
-    release.set()
-    assert outcome.result(timeout=30) is True and outcome.done()
+    try:
+        assert not outcome.done() and not outcome.wait(0.01)
+        with pytest.raises(background.TimedOut):
+            outcome.result(timeout=0.05)
+        with pytest.raises(background.TimedOut):
+            outcome.exception(timeout=0)
+    finally:
+        release.set()
+    assert outcome.result(timeout=30) is True and outcome.done() and outcome.wait(0)
 
 
 def test_wait_and_pending_wait_for_every_call_without_raising_their_errors():
@@ -57,18 +59,38 @@ def test_wait_and_pending_wait_for_every_call_without_raising_their_errors():
 
 
 # A call nobody holds any more is still waited for when the interpreter exits
-# through its own exit (its effect printed after the main thread ended).
+# through its own exit (its effect printed after the main thread ended), and so
+# is a call it starts meanwhile.
 UNHELD = textwrap.dedent("""
     import time
     from gamma.driver import background
-    background.start(lambda: (time.sleep(0.3), print("finished", flush=True)))
+    def second():
+        time.sleep(0.3)
+        print("second", flush=True)
+    def first():
+        time.sleep(0.3)
+        print("first", flush=True)
+        background.start(second)
+    background.start(first)
 """)
 
 
 def test_the_interpreters_exit_waits_for_calls_nobody_holds():
     r = subprocess.run([sys.executable, "-c", UNHELD], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
-    assert r.stdout.strip() == "finished"
+    assert r.stdout.split() == ["first", "second"]
+
+
+def test_a_thread_that_cannot_start_leaves_no_call_to_wait_for(monkeypatch):
+    def refused(self):
+        raise RuntimeError("can't create new thread at interpreter shutdown")
+
+    before = set(background._running)
+    monkeypatch.setattr(threading.Thread, "start", refused)
+    with pytest.raises(RuntimeError):
+        background.start(print)
+    # (an outcome left in the running set was waited for at exit for ever)
+    assert set(background._running) <= before
 
 
 def test_the_read_ahead_imports_neither_concurrent_futures_nor_logging():

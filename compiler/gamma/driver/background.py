@@ -38,10 +38,11 @@ class TimedOut(Exception):
 
 
 class Outcome:
-    """The outcome of one call (``start``), or one set at once
-    (``Outcome.of``): ``result()`` returns its value or raises its error,
-    ``exception()`` returns the error (None if it returned); both wait for
-    the call, at most ``timeout`` seconds if given (then ``TimedOut``)."""
+    """The outcome of one call (``start``; ``settle`` for a call made
+    elsewhere), or one set at once (``Outcome.of``): ``result()`` returns
+    its value or raises its error, ``exception()`` returns the error (None
+    if it returned); both wait for the call, at most ``timeout`` seconds if
+    given (then ``TimedOut``); ``wait`` waits without raising."""
 
     def __init__(self) -> None:
         self._done = threading.Event()
@@ -51,15 +52,20 @@ class Outcome:
     @classmethod
     def of(cls, value) -> "Outcome":
         outcome = cls()
-        outcome._settle(value, None)
+        outcome.settle(value, None)
         return outcome
 
-    def _settle(self, value, error: BaseException | None) -> None:
+    def settle(self, value, error: BaseException | None) -> None:
+        """The call returned ``value`` or raised ``error`` (once)."""
         self._value, self._error = value, error
         self._done.set()
 
     def done(self) -> bool:
         return self._done.is_set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Whether the call ended within ``timeout`` seconds (None: waits until it does)."""
+        return self._done.wait(timeout)
 
     def exception(self, timeout: float | None = None) -> BaseException | None:
         if not self._done.wait(timeout):
@@ -85,11 +91,19 @@ def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Outc
             value = fn(*args, **kwargs)
         except BaseException as err:  # noqa: BLE001 - raised by result()
             error = err
+        outcome.settle(value, error)
         with _lock:
             _running.discard(outcome)
-        outcome._settle(value, error)
 
-    threading.Thread(target=work, name=name, daemon=True).start()
+    try:
+        threading.Thread(target=work, name=name, daemon=True).start()
+    except BaseException as err:
+        # (Python 3.12 refuses new threads while the interpreter exits): no call
+        # runs, so none is waited for
+        outcome.settle(None, err)
+        with _lock:
+            _running.discard(outcome)
+        raise
     return outcome
 
 
@@ -119,6 +133,10 @@ class Pending:
 
 @atexit.register
 def _wait_for_running() -> None:
-    with _lock:
-        running = list(_running)
-    wait(running)
+    # until none is left: a call may start another while it is waited for
+    while True:
+        with _lock:
+            running = next(iter(_running), None)
+        if running is None:
+            return
+        running.wait()

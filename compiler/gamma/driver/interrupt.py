@@ -8,13 +8,19 @@ a helper thread (the runtime releases the GIL) while the main thread waits
 in short steps and raises ``Interrupted`` as soon as a signal came.  The
 call then still runs: whoever catches ``Interrupted`` must not touch the
 simulation again and ends the process with ``os._exit`` once its files are
-written (the CLI does).
+written (the CLI does).  One helper thread makes a run's calls one after
+another (a new thread per call cost ~1 ms each to start on the two busy
+cores, twice per iteration, on the loop's critical path); a call abandoned
+while running keeps it, and the next call gets a thread of its own.
 """
 
 from __future__ import annotations
 
+import queue
 import signal
 import threading
+
+from .background import Outcome
 
 SIGNAL_NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
 
@@ -42,6 +48,7 @@ class Interruptions:
         self.signum: int | None = None
         self.busy = False              # a call was abandoned while running
         self._previous: dict = {}
+        self._jobs: queue.SimpleQueue | None = None   # the helper thread's, once started
 
     def __enter__(self) -> "Interruptions":
         if threading.current_thread() is threading.main_thread():
@@ -53,6 +60,9 @@ class Interruptions:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
         self._previous.clear()
+        if self._jobs is not None:
+            self._jobs.put(None)        # the helper ends once its call (if abandoned) returns
+            self._jobs = None
 
     def _record(self, signum, frame) -> None:
         if self.signum is None:
@@ -67,22 +77,34 @@ class Interruptions:
         self.check()
         if not self._previous:
             return fn(*args, **kwargs)
-        outcome: dict = {}
-
-        def work():
-            try:
-                outcome["value"] = fn(*args, **kwargs)
-            except BaseException as err:  # noqa: BLE001 - re-raised on the main thread
-                outcome["error"] = err
-
-        worker = threading.Thread(target=work, name="gamma-runtime-call", daemon=True)
-        worker.start()
-        while worker.is_alive():
-            worker.join(self.STEP)
-            if self.signum is not None and worker.is_alive():
+        if self._jobs is None:
+            self._jobs = queue.SimpleQueue()
+            threading.Thread(target=_make_calls, args=(self._jobs,), name="gamma-runtime-call",
+                             daemon=True).start()
+        outcome = Outcome()
+        self._jobs.put((outcome, fn, args, kwargs))
+        while not outcome.wait(self.STEP):
+            if self.signum is not None:
                 self.busy = True
+                self._jobs.put(None)    # abandoned: its thread ends after the call, the next call
+                self._jobs = None       # gets a new one
                 raise Interrupted(self.signum)
-        if "error" in outcome:
-            raise outcome["error"]
+        value = outcome.result()
         self.check()
-        return outcome.get("value")
+        return value
+
+
+def _make_calls(jobs: queue.SimpleQueue) -> None:
+    """The helper thread: the calls of ``jobs`` in order, until a None."""
+    while True:
+        job = jobs.get()
+        if job is None:
+            return
+        outcome, fn, args, kwargs = job
+        value, error = None, None
+        try:
+            value = fn(*args, **kwargs)
+        except BaseException as err:  # noqa: BLE001 - re-raised on the main thread
+            error = err
+        del job, fn, args, kwargs       # held no longer than the call
+        outcome.settle(value, error)

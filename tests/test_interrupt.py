@@ -1,0 +1,42 @@
+"""gamma.driver.interrupt: Interruptions.call makes a run's calls on one helper
+thread, in order, with their values and errors; a signal abandons the call
+that is running (Interrupted, ``busy``) and a later call gets a new thread.
+(tests/test_run_faults.py signals whole ``gammac run`` processes.)"""
+
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from gamma.driver.interrupt import Interrupted, Interruptions
+
+
+def test_calls_run_in_order_on_one_helper_thread_with_their_values_and_errors():
+    with Interruptions() as stop:
+        threads = [stop.call(lambda: threading.get_ident()) for _ in range(5)]
+        assert len(set(threads)) == 1 and threads[0] != threading.get_ident()
+        assert stop.call(lambda a, b=1: a * b, 6, b=7) == 42
+        with pytest.raises(ZeroDivisionError):
+            stop.call(lambda: 1 / 0)
+        assert stop.call(threading.get_ident) == threads[0]     # an error does not end the helper
+    assert not stop.busy
+
+
+def test_a_signal_abandons_the_running_call_and_the_next_call_gets_a_new_thread():
+    release = threading.Event()
+    with Interruptions() as stop:
+        first = stop.call(threading.get_ident)
+        threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT)).start()
+        started = time.perf_counter()
+        with pytest.raises(Interrupted) as raised:
+            stop.call(release.wait)
+        assert time.perf_counter() - started < 5 and raised.value.status == 130
+        assert stop.busy
+        stop.signum = None                # (a caller that carries on after an interruption)
+        second = stop.call(threading.get_ident)
+        assert second != first
+        release.set()
+    # the handlers are put back: SIGINT raises KeyboardInterrupt again
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
