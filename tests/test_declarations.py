@@ -18,7 +18,7 @@ from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check, load
 from gamma.frontend.parser import parse
 from gamma.ir import effect as ir
-from gamma.ir.builtins import BUILTINS, CONTEXT_VALUES, FUNCTIONS, runtime_source_kinds, spec_table
+from gamma.ir.builtins import BUILTINS, CONTEXT_VALUES, runtime_source_kinds, spec_table
 from test_kernels import HEADER, TRANSPORT, GammaContext, ptr
 
 SPEC = (ROOT / "language" / "SPEC.md").read_text(encoding="utf-8")

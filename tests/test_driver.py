@@ -9,7 +9,7 @@ import pytest
 
 from conftest import ROOT
 from gamma import abi
-from gamma.driver import (CallbackWriter, IterationTraced, IterationUpdated, RunError, RunFinished,
+from gamma.driver import (CallbackWriter, IterationUpdated, RunError, RunFinished,
                           RunOptions, SetupDone, Writer, run)
 from gamma.driver.events import WriteQueue
 from gamma.driver.outputs import read_ply

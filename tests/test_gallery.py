@@ -8,7 +8,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from conftest import ROOT
 from gamma.driver.outputs import read_ply

@@ -86,6 +86,21 @@ def ptr(a):
     return a.ctypes.data_as(FLOAT_P)
 
 
+def assert_hit_and_update_agree(hit_fn, upd_fn, hit_k, upd_k, ton, surf, ctx, ictx, text) -> None:
+    """The compiled hit and update kernels (``hit_fn``, ``upd_fn``) and the
+    interpreter's (``hit_k``, ``upd_k``) on the same gamma-ton and surfel rows
+    and contexts: the same rows written bit for bit, the same status."""
+    ton_c, delta_c = ton.copy(), np.zeros_like(surf)
+    bad_c = hit_fn(ptr(ton_c), ptr(surf), ptr(delta_c), ctypes.byref(ctx))
+    ton_i, delta_i = ton.copy(), np.zeros_like(surf)
+    bad_i = run_kernel(hit_k, ton_i, surf.copy(), delta_i, ictx)
+    assert same(ton_c, ton_i) and same(delta_c, delta_i) and bad_c == bad_i, (text, ton, surf)
+    surf_c, surf_i = surf.copy(), surf.copy()
+    bad_c = upd_fn(ptr(surf_c), ctypes.byref(ctx))
+    bad_i = run_kernel(upd_k, None, surf_i, None, ictx)
+    assert same(surf_c, surf_i) and bad_c == bad_i, (text, surf)
+
+
 @pytest.mark.parametrize("seed", range(40))
 def test_compiled_matches_interpreter(seed):
     rng = random.Random(seed)

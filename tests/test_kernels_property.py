@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check
 from gamma.ir.builtins import FUNCTIONS
-from gamma.backends.interp import Context, run_kernel
+from gamma.backends.interp import Context
 from gamma.frontend.parser import parse
-from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, ptr, same, set_key
+from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, assert_hit_and_update_agree, set_key
 
 READS = ["t.a", "t.b", "s.p", "s.q", "s.reflectance.straight", "iteration", "interactions",
          "height", "position.y", "normal.x", "direction.z"]
@@ -104,12 +104,4 @@ def test_random_bodies_agree(hit, upd, seed):
         set_key(ctx, key)
         ictx = Context(iteration=it, interactions=n, height=vec[9], position=vec[0:3],
                        normal=vec[3:6], direction=vec[6:9], random_key=key)
-        ton_c, delta_c = ton.copy(), np.zeros_like(surf)
-        bad_c = hit_fn(ptr(ton_c), ptr(surf), ptr(delta_c), ctypes.byref(ctx))
-        ton_i, delta_i = ton.copy(), np.zeros_like(surf)
-        bad_i = run_kernel(hit_k, ton_i, surf.copy(), delta_i, ictx)
-        assert same(ton_c, ton_i) and same(delta_c, delta_i) and bad_c == bad_i, (text, ton, surf)
-        surf_c, surf_i = surf.copy(), surf.copy()
-        bad_c = upd_fn(ptr(surf_c), ctypes.byref(ctx))
-        bad_i = run_kernel(upd_k, None, surf_i, None, ictx)
-        assert same(surf_c, surf_i) and bad_c == bad_i, (text, surf)
+        assert_hit_and_update_agree(hit_fn, upd_fn, hit_k, upd_k, ton, surf, ctx, ictx, text)

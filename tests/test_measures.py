@@ -159,7 +159,7 @@ def test_a_gamma_ton_reads_the_accessibility_of_the_side_it_came_from(box_obj):
     that falls into the box lands on the inner side, which the walls shelter."""
     effect = gamma.compile(source=SIDES, name="sides.gamma")
     result = gamma.run(effect, box_obj, iterations=1, surfels=1500, threads=2)
-    n, p = result.surfel_normals, result.surfel_positions
+    n = result.surfel_normals
     floor = n[:, 1] < -0.99
     assert np.all(result.properties["front"][floor] == 1.0)
     shelter = result.properties["shelter"]

@@ -100,8 +100,6 @@ def test_non_finite_results_are_reported_once_and_kept_out_of_the_maps(tmp_path,
 def test_appearance_renders_sequence_and_false_colour(tmp_path):
     """An effect with an appearance block: textured pictures per iteration,
     an animated GIF, a strip, and the false colour beside them."""
-    from meshes import write_obj
-
     verts = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1], [0, 1, 0]], float)
     faces = [(0, 2, 1), (0, 3, 2), (0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4)]
     lines = [f"v {x} {y} {z}" for x, y, z in verts] + ["vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1", "vt 0.5 0.5"]

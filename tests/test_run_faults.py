@@ -5,7 +5,6 @@ temporary files are cleaned, one run per folder, a closed pipe does not stop
 a run, NaN from an appearance program is reported with its position."""
 
 import json
-import os
 import signal
 import subprocess
 import sys

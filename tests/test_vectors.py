@@ -21,7 +21,7 @@ from gamma.frontend.checker import check
 from gamma.frontend.diagnostics import GammaError
 from gamma.frontend.parser import parse
 from gamma.ir.builtins import ref_cross, ref_dot, ref_length, ref_normalize
-from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, ptr, same, set_key
+from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, assert_hit_and_update_agree, ptr, same, set_key
 
 f32 = np.float32
 SPECIAL = [0.0, -0.0, 1.0, -1.0, 0.5, 1e-42, 3.4e38, float("inf"), float("-inf"), float("nan"), 123.25]
@@ -115,15 +115,7 @@ def test_random_vector_bodies_agree_bit_for_bit(seed):
     for _ in range(60):
         ctx, ictx, pick = contexts(nrng)
         ton, surf = pick(2), pick(effect.row_width)
-        ton_c, delta_c = ton.copy(), np.zeros_like(surf)
-        bad_c = hit_fn(ptr(ton_c), ptr(surf), ptr(delta_c), ctypes.byref(ctx))
-        ton_i, delta_i = ton.copy(), np.zeros_like(surf)
-        bad_i = run_kernel(hit_k, ton_i, surf.copy(), delta_i, ictx)
-        assert same(ton_c, ton_i) and same(delta_c, delta_i) and bad_c == bad_i, (text, ton, surf)
-        surf_c, surf_i = surf.copy(), surf.copy()
-        bad_c = upd_fn(ptr(surf_c), ctypes.byref(ctx))
-        bad_i = run_kernel(upd_k, None, surf_i, None, ictx)
-        assert same(surf_c, surf_i) and bad_c == bad_i, (text, surf)
+        assert_hit_and_update_agree(hit_fn, upd_fn, hit_k, upd_k, ton, surf, ctx, ictx, text)
 
 
 @pytest.mark.parametrize("builtin", ["dot", "cross", "length", "normalize", "component", "literal",

@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from conftest import ROOT
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 playwright_api = pytest.importorskip("playwright.sync_api")

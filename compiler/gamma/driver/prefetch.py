@@ -186,7 +186,7 @@ def start(path: str, surfels: int | None = None, seed: int = 1, threads: int = 0
         _pending[_key(path)] = _Read(path, read_mesh_ahead, surfels, seed, threads)
 
 
-def take(path: Path | str):
+def take(path: "os.PathLike | str"):
     """The mesh read ahead from ``path`` (waiting for it), or None: then read
     the file as usual.  Each read is handed out once."""
     with _lock:

@@ -245,7 +245,7 @@ class _Checker:
         if len(e.args) != n:
             self.error(e.pos, f"relative() takes {n} argument{'s' if n > 1 else ''} for {what}")
             return None
-        values = [self.constant(a, f"an argument of relative()") for a in e.args]
+        values = [self.constant(a, "an argument of relative()") for a in e.args]
         return None if None in values else tuple(values)
 
     def length(self, e: A.Expr, what: str) -> Length | None:
