@@ -7,6 +7,7 @@ import os
 import signal
 import threading
 import time
+import weakref
 
 import pytest
 
@@ -40,3 +41,22 @@ def test_a_signal_abandons_the_running_call_and_the_next_call_gets_a_new_thread(
         assert second != first
         release.set()
     assert signal.getsignal(signal.SIGINT) is before      # the handlers are put back
+
+
+class _Value:
+    """A call's value (one a weak reference can follow)."""
+
+
+def test_the_helper_holds_no_value_between_calls_and_has_ended_after_the_run():
+    # A daemon thread still running when the interpreter finalizes leaves what
+    # its frames hold behind: the helper held the last call's value (a
+    # false-colour view, which nanobind then reported as leaked in CI) while it
+    # waited for the next call, and the exit did not wait for it.
+    with Interruptions() as stop:
+        helper = stop.call(threading.current_thread)
+        value = weakref.ref(stop.call(_Value))
+        deadline = time.monotonic() + 5
+        while value() is not None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert value() is None and helper.is_alive()
+    assert not helper.is_alive()

@@ -12,12 +12,15 @@ its ``Outcome`` offers what gammac uses of a ``concurrent.futures.Future``
 module: ``gamma.launch`` starts the mesh read (prefetch.py) before anything
 else, and ``concurrent.futures``, through ``logging``, cost ~10 ms first.
 
-A daemon thread still inside the runtime when the interpreter finalizes
-cannot come back (it would need the GIL) and leaves its objects behind
-(nanobind then reports them as leaked at exit), so the calls still running
-at exit are waited for (``atexit``: only in a process that ends through the
-interpreter's own exit; ``os._exit``, which ``gammac`` uses, ends them at
-once), also those whose ``Outcome`` nobody holds any more.
+A daemon thread still running when the interpreter finalizes cannot come
+back (it would need the GIL) and leaves whatever its frames hold behind
+(nanobind then reports the runtime's objects among them as leaked at exit),
+so the threads of calls are joined at exit (``atexit``: only in a process
+that ends through the interpreter's own exit; ``os._exit``, which
+``gammac`` uses, ends them at once), also those whose ``Outcome`` nobody
+holds any more.  Joined, not their outcomes waited for: a thread whose
+outcome is settled still held the call's value until its frames ended, and
+an exit in between left it behind (a false-colour view, seen once in CI).
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ TYPE_CHECKING = False   # (typing's import is ~3 ms the read ahead would wait fo
 if TYPE_CHECKING:
     from typing import Callable, Iterable
 
-_running: set["Outcome"] = set()
+_running: set[threading.Thread] = set()   # started by start(), maybe ended since
 _lock = threading.Lock()
 
 
@@ -81,29 +84,35 @@ class Outcome:
 
 def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Outcome:
     """``fn(*args, **kwargs)`` on a new daemon thread, started now."""
+    global _running
     outcome = Outcome()
-    with _lock:
-        _running.add(outcome)
+    call = [fn, args, kwargs]           # emptied by the thread: once settled, it holds none of them
 
     def work() -> None:
+        fn, args, kwargs = call
+        call.clear()
         value, error = None, None
         try:
             value = fn(*args, **kwargs)
         except BaseException as err:  # noqa: BLE001 - raised by result()
             error = err
+        del fn, args, kwargs
         outcome.settle(value, error)
-        with _lock:
-            _running.discard(outcome)
 
+    thread = threading.Thread(target=work, name=name, daemon=True)
     try:
-        threading.Thread(target=work, name=name, daemon=True).start()
+        thread.start()
     except BaseException as err:
         # (Python 3.12 refuses new threads while the interpreter exits): no call
-        # runs, so none is waited for
+        # runs, so none is joined
         outcome.settle(None, err)
-        with _lock:
-            _running.discard(outcome)
         raise
+    # added once started (one not started yet is not alive either, and would be
+    # dropped below): whoever starts it is the main thread or a call's thread,
+    # still running, so the exit cannot miss it
+    with _lock:
+        _running = {t for t in _running if t.is_alive()}
+        _running.add(thread)
     return outcome
 
 
@@ -132,11 +141,12 @@ class Pending:
 
 
 @atexit.register
-def _wait_for_running() -> None:
-    # until none is left: a call may start another while it is waited for
+def _join_running() -> None:
+    # until none is left: a call may start another while it is joined
     while True:
         with _lock:
-            running = next(iter(_running), None)
+            running = next((t for t in _running if t.is_alive() and t is not threading.current_thread()),
+                           None)
         if running is None:
             return
-        running.wait()
+        running.join()

@@ -49,6 +49,7 @@ class Interruptions:
         self.busy = False              # a call was abandoned while running
         self._previous: dict = {}
         self._jobs: queue.SimpleQueue | None = None   # the helper thread's, once started
+        self._helper: threading.Thread | None = None
 
     def __enter__(self) -> "Interruptions":
         if threading.current_thread() is threading.main_thread():
@@ -62,7 +63,10 @@ class Interruptions:
         self._previous.clear()
         if self._jobs is not None:
             self._jobs.put(None)        # the helper ends once its call (if abandoned) returns
-            self._jobs = None
+            # an idle helper is joined: a daemon thread still running when the interpreter
+            # finalizes leaves what its frames hold behind (nanobind reports it leaked)
+            self._helper.join()
+            self._jobs = self._helper = None
 
     def _record(self, signum, frame) -> None:
         if self.signum is None:
@@ -79,15 +83,16 @@ class Interruptions:
             return fn(*args, **kwargs)
         if self._jobs is None:
             self._jobs = queue.SimpleQueue()
-            threading.Thread(target=_make_calls, args=(self._jobs,), name="gamma-runtime-call",
-                             daemon=True).start()
+            self._helper = threading.Thread(target=_make_calls, args=(self._jobs,),
+                                            name="gamma-runtime-call", daemon=True)
+            self._helper.start()
         outcome = Outcome()
         self._jobs.put((outcome, fn, args, kwargs))
         while not outcome.wait(self.STEP):
             if self.signum is not None:
                 self.busy = True
                 self._jobs.put(None)    # abandoned: its thread ends after the call, the next call
-                self._jobs = None       # gets a new one
+                self._jobs = self._helper = None    # gets a new one
                 raise Interrupted(self.signum)
         value = outcome.result()
         self.check()
@@ -108,3 +113,4 @@ def _make_calls(jobs: queue.SimpleQueue) -> None:
             error = err
         del job, fn, args, kwargs       # held no longer than the call
         outcome.settle(value, error)
+        del outcome, value, error       # nor its value while the next is awaited
