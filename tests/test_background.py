@@ -81,21 +81,24 @@ def test_the_interpreters_exit_waits_for_calls_nobody_holds():
     assert r.stdout.split() == ["first", "second"]
 
 
-# A call's thread that is not over yet when the main thread ends (here: it
-# sleeps once its outcome is settled, its value still in its frames) is joined
-# at exit, so that its value is freed before the interpreter finalizes; a
-# daemon thread still running then would hold it for ever (nanobind reported a
-# false-colour view as leaked in CI when the exit only waited for outcomes).
+# A call's thread that is not over yet when the main thread ends (here: once
+# its outcome is settled, its value still in its frames, it goes on only when
+# the exit began) is joined at exit, so that its value is freed before the
+# interpreter finalizes; a daemon thread still running then would hold it for
+# ever (nanobind reported a false-colour view as leaked in CI when the exit
+# only waited for outcomes).
 SETTLED_NOT_ENDED = textwrap.dedent("""
-    import os, time
+    import atexit, os, threading
     from gamma.driver import background
+    exiting = threading.Event()
+    atexit.register(exiting.set)        # (runs before background's handler, registered earlier)
     class Value:
         def __del__(self, write=os.write):
             write(1, b"freed\\n")
     settle = background.Outcome.settle
     def settle_then_linger(self, value, error):
         settle(self, value, error)
-        time.sleep(0.3)
+        exiting.wait(30)
     background.Outcome.settle = settle_then_linger
     background.start(Value).result()
     print("main done", flush=True)

@@ -60,3 +60,25 @@ def test_the_helper_holds_no_value_between_calls_and_has_ended_after_the_run():
             time.sleep(0.01)
         assert value() is None and helper.is_alive()
     assert not helper.is_alive()
+
+
+def test_an_error_a_signal_handler_raises_abandons_the_call_and_the_exit_does_not_wait_for_it():
+    # (SIGALRM's handler, a test's timeout): leaving the context joins only an idle helper
+    release = threading.Event()
+
+    def alarm(signum, frame):
+        raise TimeoutError("alarm")
+
+    previous = signal.signal(signal.SIGALRM, alarm)
+    try:
+        started = time.perf_counter()
+        with Interruptions() as stop:
+            signal.setitimer(signal.ITIMER_REAL, 0.1)
+            with pytest.raises(TimeoutError):
+                stop.call(release.wait, 30)
+            assert stop.busy
+        assert time.perf_counter() - started < 20
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        release.set()

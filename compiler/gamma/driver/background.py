@@ -108,8 +108,10 @@ def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Outc
         outcome.settle(None, err)
         raise
     # added once started (one not started yet is not alive either, and would be
-    # dropped below): whoever starts it is the main thread or a call's thread,
-    # still running, so the exit cannot miss it
+    # dropped below), before whoever started it goes on: the main thread, or a
+    # thread that is joined before the exit (a call's, the Interruptions helper
+    # unless its call was abandoned, the WriteQueue's writer), so the exit cannot
+    # miss it
     with _lock:
         _running = {t for t in _running if t.is_alive()}
         _running.add(thread)

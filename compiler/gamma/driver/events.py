@@ -189,6 +189,7 @@ class WriteQueue(Record):
                     job(*args, **kwargs)
                 except BaseException as err:  # noqa: BLE001 - re-raised on the loop's thread
                     self._error = err
+            del item, job, args, kwargs   # (a picture's view, say) not held while the next is awaited
 
     def _raise(self) -> None:
         if self._error is not None and not self._raised:

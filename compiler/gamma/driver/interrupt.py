@@ -11,7 +11,10 @@ simulation again and ends the process with ``os._exit`` once its files are
 written (the CLI does).  One helper thread makes a run's calls one after
 another (a new thread per call cost ~1 ms each to start on the two busy
 cores, twice per iteration, on the loop's critical path); a call abandoned
-while running keeps it, and the next call gets a thread of its own.
+while running (a signal, or an error another signal's handler raised) keeps
+it, and the next call gets a thread of its own.  Leaving the context joins
+the idle helper: a daemon thread still waiting for calls when the
+interpreter finalizes would hold its frames' objects for ever.
 """
 
 from __future__ import annotations
@@ -62,9 +65,10 @@ class Interruptions:
             signal.signal(sig, handler)
         self._previous.clear()
         if self._jobs is not None:
-            self._jobs.put(None)        # the helper ends once its call (if abandoned) returns
-            # an idle helper is joined: a daemon thread still running when the interpreter
-            # finalizes leaves what its frames hold behind (nanobind reports it leaked)
+            # the helper is idle (a call left running was abandoned: ``call``) and joined: a
+            # daemon thread still running when the interpreter finalizes leaves what its
+            # frames hold behind (nanobind reports it leaked)
+            self._jobs.put(None)
             self._helper.join()
             self._jobs = self._helper = None
 
@@ -88,12 +92,19 @@ class Interruptions:
             self._helper.start()
         outcome = Outcome()
         self._jobs.put((outcome, fn, args, kwargs))
-        while not outcome.wait(self.STEP):
-            if self.signum is not None:
+        try:
+            while not outcome.wait(self.STEP):
+                if self.signum is not None:
+                    raise Interrupted(self.signum)
+        except BaseException:
+            # Interrupted, or what another signal's handler raised while waiting
+            # (SIGALRM's, a test's timeout): the call is abandoned, its thread
+            # ends after it, the next call gets a new one
+            if not outcome.done():
                 self.busy = True
-                self._jobs.put(None)    # abandoned: its thread ends after the call, the next call
-                self._jobs = self._helper = None    # gets a new one
-                raise Interrupted(self.signum)
+                self._jobs.put(None)
+                self._jobs = self._helper = None
+            raise
         value = outcome.result()
         self.check()
         return value
