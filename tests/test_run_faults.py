@@ -5,9 +5,12 @@ temporary files are cleaned, one run per folder, a closed pipe does not stop
 a run, NaN from an appearance program is reported with its position."""
 
 import json
+import os
 import signal
 import subprocess
 import sys
+import textwrap
+import threading
 import time
 
 import pytest
@@ -94,6 +97,84 @@ def test_signal_stops_promptly_with_a_consistent_folder(tmp_path, sig, status):
     for name in maps(out):                       # complete maps only
         assert len(read_ply(out / "maps" / name)["x"]) == s["surfels"]
     assert not list(out.rglob(".*"))           # no temporary file, no lock, nothing set aside
+
+
+def test_a_signal_during_the_setup_keeps_the_earlier_results_and_the_setup_ends_on_its_own(tmp_path,
+                                                                                          monkeypatch):
+    # (it was a traceback: Interrupted escaped from the setup, the folder's lock left behind)
+    from gamma.driver import runner
+    from gamma.driver.runner import RunInterrupted, RunOptions, run
+    from gamma.frontend.checker import load
+
+    out = tmp_path / "o"
+    assert run_gammac("run", *args(out, 1)).returncode == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    started, release = threading.Event(), threading.Event()
+    setup = runner._simulation
+
+    def long_setup(*a, **k):
+        started.set()
+        release.wait(60)
+        return setup(*a, **k)
+
+    def signal_once_started():
+        if started.wait(60):
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(runner, "_simulation", long_setup)
+    threading.Thread(target=signal_once_started, daemon=True).start()
+    opts = RunOptions(scene=str(BUNNY), out=str(out), surfels=500, tons=3000, iterations=1,
+                      width=16, height=16, progress=False)
+    try:
+        with pytest.raises(RunInterrupted) as raised:
+            run(load(str(PATINA)), opts)
+        stop = raised.value
+        assert stop.status == 130 and "before the first iteration" in str(stop)
+        assert stop.abandoned_call            # the setup still runs (gammac leaves with os._exit)
+    finally:
+        release.set()
+    assert stop.abandoned.wait(60) and not stop.abandoned_call
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+
+
+# gamma.run interrupted while it traces, in a script that then ends through the
+# interpreter's exit: the trace is cancelled and waited for, so that nothing
+# runs on when the interpreter finalizes (before: the abandoned trace came back
+# into a finalizing interpreter, "terminate called without an active
+# exception" and SIGABRT, or nanobind's report of a leaked Simulation).
+TRACE_INTERRUPTED = textwrap.dedent("""
+    import os, signal, sys, threading, time
+    import gamma
+    from gamma.driver import runner
+    from gamma.driver.runner import RunInterrupted
+    second_trace = threading.Event()
+    trace = runner.Run.trace
+    def trace_and_tell(self, it):
+        if it == 2:
+            second_trace.set()
+        return trace(self, it)
+    runner.Run.trace = trace_and_tell
+    def signal_in_the_second_trace():
+        if second_trace.wait(120):
+            time.sleep(0.05)
+            os.kill(os.getpid(), signal.SIGINT)
+    threading.Thread(target=signal_in_the_second_trace, daemon=True).start()
+    effect = gamma.compile(sys.argv[1])
+    started = time.perf_counter()
+    try:
+        gamma.run(effect, sys.argv[2], iterations=50, surfels=3000, tons=4_000_000, threads=2)
+    except RunInterrupted as stop:
+        print("interrupted", stop.abandoned_call, stop.abandoned is None, flush=True)
+""")
+
+
+def test_a_script_whose_run_was_interrupted_while_tracing_ends_cleanly():
+    r = subprocess.run([sys.executable, "-c", TRACE_INTERRUPTED, str(PATINA), str(BUNNY)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["interrupted", "False", "True"]
+    assert "leaked" not in r.stderr and "terminate" not in r.stderr
 
 
 def test_failed_rerun_keeps_the_earlier_results(tmp_path):

@@ -84,7 +84,6 @@ class Outcome:
 
 def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Outcome:
     """``fn(*args, **kwargs)`` on a new daemon thread, started now."""
-    global _running
     outcome = Outcome()
     call = [fn, args, kwargs]           # emptied by the thread: once settled, it holds none of them
 
@@ -108,14 +107,20 @@ def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Outc
         outcome.settle(None, err)
         raise
     # added once started (one not started yet is not alive either, and would be
-    # dropped below), before whoever started it goes on: the main thread, or a
-    # thread that is joined before the exit (a call's, the Interruptions helper
-    # unless its call was abandoned, the WriteQueue's writer), so the exit cannot
-    # miss it
+    # dropped), before whoever started it goes on: the main thread, or a thread
+    # that is joined before the exit (a call's, the Interruptions helper, the
+    # WriteQueue's writer), so the exit cannot miss it
+    join_at_exit(thread)
+    return outcome
+
+
+def join_at_exit(thread: threading.Thread) -> None:
+    """Have the interpreter's exit join ``thread`` (started) too: the calls'
+    threads, and the Interruptions helper of a call it abandoned."""
+    global _running
     with _lock:
         _running = {t for t in _running if t.is_alive()}
         _running.add(thread)
-    return outcome
 
 
 def wait(outcomes: Iterable[Outcome]) -> None:

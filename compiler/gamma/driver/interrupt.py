@@ -12,8 +12,11 @@ written (the CLI does).  One helper thread makes a run's calls one after
 another (a new thread per call cost ~1 ms each to start on the two busy
 cores, twice per iteration, on the loop's critical path); a call abandoned
 while running (a signal, or an error another signal's handler raised) keeps
-it, and the next call gets a thread of its own.  Leaving the context joins
-the idle helper: a daemon thread still waiting for calls when the
+it, and the next call gets a thread of its own; ``abandoned`` is its
+outcome, and the interpreter's exit joins its thread (one that came back
+from the runtime while the interpreter finalized aborted the process:
+"terminate called without an active exception").  Leaving the context
+joins the idle helper: a daemon thread still waiting for calls when the
 interpreter finalizes would hold its frames' objects for ever.
 """
 
@@ -23,6 +26,7 @@ import queue
 import signal
 import threading
 
+from . import background
 from .background import Outcome
 
 SIGNAL_NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
@@ -50,6 +54,7 @@ class Interruptions:
     def __init__(self):
         self.signum: int | None = None
         self.busy = False              # a call was abandoned while running
+        self.abandoned: Outcome | None = None   # the outcome of the last call abandoned
         self._previous: dict = {}
         self._jobs: queue.SimpleQueue | None = None   # the helper thread's, once started
         self._helper: threading.Thread | None = None
@@ -101,8 +106,11 @@ class Interruptions:
             # (SIGALRM's, a test's timeout): the call is abandoned, its thread
             # ends after it, the next call gets a new one
             if not outcome.done():
-                self.busy = True
+                self.busy, self.abandoned = True, outcome
                 self._jobs.put(None)
+                # (joined at the interpreter's exit: a thread that comes back from the
+                # runtime while the interpreter finalizes aborts the process)
+                background.join_at_exit(self._helper)
                 self._jobs = self._helper = None
             raise
         value = outcome.result()

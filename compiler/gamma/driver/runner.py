@@ -267,7 +267,15 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
 
     SIGINT and SIGTERM stop the run within a fraction of a second
     (``interrupt.py``): the iterations completed so far stay written, with
-    ``"completed": false``, and ``RunInterrupted`` is raised.  A run that fails
+    ``"completed": false`` (before the first: the earlier run's files stay),
+    and ``RunInterrupted`` is raised.  A tracing pass that was running is
+    cancelled, and it or an update that was running is waited for (they end
+    within a fraction of a second), as is a reused simulation's
+    reconfiguration: the simulations a caller holds are left alone when
+    ``run`` raises.  The set-up or compile that was running (seconds for
+    millions of surfels) is not: it ends on its own thread
+    (``RunInterrupted.abandoned_call``), and the interpreter's exit waits for
+    it.  A run that fails
     puts the earlier run's files back (``folder.py``).  ``scene`` (a
     ``scene.Scene``) replaces ``opts.scene``; ``standard=False`` leaves the
     standard outputs out (the Python API, the viewer).  ``reuse``: the
@@ -280,15 +288,25 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
     from .writers import standard_writers
 
     with Interruptions() as stop:
-        session = start(effect, opts, stop, scene, reuse, warm_outputs=standard)
+        try:
+            session = start(effect, opts, stop, scene, reuse, warm_outputs=standard)
+        except Interrupted as sig:
+            # before the earlier run's files were set aside (start's runtime calls all are)
+            if reuse is not None:
+                _wait_for_abandoned(stop)       # (the caller's simulation, being reconfigured)
+            raise RunInterrupted(f"interrupted by {sig.name} before the first iteration; "
+                                 "the earlier results are kept", sig.status, stop.abandoned) from None
         subscribers = (standard_writers(session) if standard else []) + list(writers)
         done = session.first_iteration - 1
+        tracing = False
         try:
             with session.behind:   # leaving it waits for the writers' queued jobs
                 publish(subscribers, SetupDone(session))
                 loop_started = time.perf_counter()
                 for it in range(session.first_iteration, opts.iterations + 1):
+                    tracing = True
                     traced = stop.call(session.trace, it)
+                    tracing = False
                     publish(subscribers, IterationTraced(session, it, traced))
                     rows, props, record = stop.call(session.update, it, traced)
                     publish(subscribers, IterationUpdated(session, it, rows, props, record))
@@ -301,7 +319,11 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
                 publish(subscribers, RunFinished(session, session.summary))
             folder.drop(session.out)
         except Interrupted as sig:
-            _interrupted(session, sig, done, stop.busy)     # raises RunInterrupted
+            if stop.abandoned is not None:
+                if tracing:
+                    session.sim.cancel()   # it stops before its next chunk of 1,024 gamma-tons
+                _wait_for_abandoned(stop)
+            _interrupted(session, sig, done, stop.abandoned)     # raises RunInterrupted
         except BaseException as err:
             if not opts.resume:
                 folder.restore(session.out)      # the earlier run's files come back
@@ -319,16 +341,34 @@ def _direct(fn, *args, **kwargs):
     return fn(*args, **kwargs)
 
 
-class RunInterrupted(Exception):
-    """The run stopped at a signal; its folder holds ``done`` complete iterations."""
+#: How long an interrupted run waits for the runtime call it abandoned (a
+#: cancelled trace, an update) before it leaves it running.
+ABANDONED_CALL_WAIT = 10.0
 
-    def __init__(self, message: str, status: int, abandoned_call: bool):
+
+def _wait_for_abandoned(stop) -> None:
+    if stop.abandoned is not None and stop.abandoned.wait(ABANDONED_CALL_WAIT):
+        stop.abandoned = None
+
+
+class RunInterrupted(Exception):
+    """The run stopped at a signal; its folder holds its complete iterations
+    (or the earlier run's files).  ``abandoned``: the outcome of a runtime call
+    that still runs on another thread (the set-up), or None."""
+
+    def __init__(self, message: str, status: int, abandoned=None):
         super().__init__(message)
         self.status = status
-        self.abandoned_call = abandoned_call   # a runtime call still runs: exit with os._exit
+        self.abandoned = abandoned
+
+    @property
+    def abandoned_call(self) -> bool:
+        """A runtime call still runs: gammac leaves with ``os._exit`` instead of
+        the interpreter's exit, which would wait for it."""
+        return self.abandoned is not None and not self.abandoned.done()
 
 
-def _interrupted(session: "Run", sig, done: int, busy: bool):
+def _interrupted(session: "Run", sig, done: int, abandoned):
     """Finish the folder of an interrupted run: complete iterations only (the
     queued writes are done: leaving ``behind`` waited for them), summary.json
     with ``"completed": false``; keep the earlier run's files if none is."""
@@ -350,7 +390,7 @@ def _interrupted(session: "Run", sig, done: int, busy: bool):
         kept = (f"'{out}' holds iterations 1 to {done} of {session.opts.iterations} "
                 f"(summary.json: \"completed\": false); add --resume to continue")
     raise RunInterrupted(f"interrupted by {sig.name} during iteration {done + 1}; {kept}",
-                         sig.status, busy)
+                         sig.status, abandoned)
 
 
 @record
