@@ -177,6 +177,74 @@ def test_a_script_whose_run_was_interrupted_while_tracing_ends_cleanly():
     assert "leaked" not in r.stderr and "terminate" not in r.stderr
 
 
+def test_an_update_that_ends_after_the_signal_leaves_nothing_of_its_iteration_in_the_summary(tmp_path,
+                                                                                            monkeypatch):
+    # the update is waited for (the simulations are left alone): its value
+    # ranges and non-finite counts go with its iteration
+    from gamma.driver import runner
+    from gamma.driver.runner import RunInterrupted, RunOptions, run
+    from gamma.frontend.checker import load
+
+    def opts(out, iterations):
+        return RunOptions(scene=str(BUNNY), out=str(out), surfels=500, tons=3000, iterations=iterations,
+                          width=16, height=16, progress=False)
+
+    effect = load(str(PATINA))
+    run(effect, opts(tmp_path / "one", 1))
+    update = runner.Run.update
+
+    def signalled_update(self, it, traced):
+        if it == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.2)                     # noticed while this update runs
+        return update(self, it, traced)
+
+    monkeypatch.setattr(runner.Run, "update", signalled_update)
+    with pytest.raises(RunInterrupted) as raised:
+        run(effect, opts(tmp_path / "two", 3))
+    assert "during iteration 2" in str(raised.value) and not raised.value.abandoned_call
+    one, two = summary(tmp_path / "one"), summary(tmp_path / "two")
+    assert len(two["iterations"]) == 1 and two["completed"] is False
+    assert two["ranges"] == one["ranges"] and two["nonfinite"] == one["nonfinite"]
+
+
+def test_a_cancel_no_trace_took_can_be_withdrawn():
+    import gamma
+
+    result = gamma.run(gamma.compile(PATINA), BUNNY, iterations=1, surfels=500, tons=2000)
+    sim = result.session.sim
+    sim.cancel()
+    sim.clear_cancel()
+    sim.trace(2)                                 # runs whole
+    sim.cancel()
+    with pytest.raises(ValueError, match="cancelled"):
+        sim.trace(3)
+    sim.trace(3)                                 # one cancel stops one trace
+
+
+def test_a_signal_while_gammac_watch_computes_a_result_stops_it_without_a_traceback(tmp_path):
+    # (it was RunInterrupted's traceback, exit 1, naming the viewer's scratch folder)
+    cmd = [sys.executable, "-m", "gamma.cli", "watch", str(PATINA), "--scene", str(BUNNY), "--surfels", "4000",
+           "--tons", "2000000", "--iterations", "3", "--port", "0", "--threads", "2"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    log = []
+    try:
+        for line in proc.stderr:                 # the preview's result: the final run starts now
+            log.append(line)
+            if "preview result" in line:
+                time.sleep(0.3)
+                proc.send_signal(signal.SIGINT)
+                break
+        log.extend(proc.stderr)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = "".join(log)
+    assert proc.returncode == 130, err
+    assert "preview result" in err and err.rstrip().endswith("gammac: interrupted") and "Traceback" not in err
+
+
 def test_failed_rerun_keeps_the_earlier_results(tmp_path):
     from gamma.driver.events import CallbackWriter, IterationUpdated
     from gamma.driver.runner import RunOptions, run

@@ -134,7 +134,7 @@ BINDING = {
                    "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
                    "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
-                   "num_prepared_points", "bake_prepared", "cancel", "surfel_measures", "from_snapshot",
+                   "num_prepared_points", "bake_prepared", "cancel", "clear_cancel", "surfel_measures", "from_snapshot",
                    "setup_snapshot", "setup_snapshot_bytes", "setup_made_ahead", "false_colour_view",
                    "write_setup_snapshot"),
 }

@@ -446,7 +446,7 @@ def _fmt(args) -> int:
 
 def _watch(args) -> int:
     """The effect's errors are shown in the page (and on stderr), not fatal."""
-    from .driver.runner import RunError
+    from .driver.runner import RunError, RunInterrupted
     from .frontend.checker import UsageError
     from .viewer.watch import watch
 
@@ -461,6 +461,8 @@ def _watch(args) -> int:
         return watch(args.file, overrides, _run_options(args), args.port, args.preview)
     except RunError as err:
         raise _Fail(str(err)) from None
+    except RunInterrupted as stop:       # ^C while a result is computed (its folder is a scratch one)
+        return _leave_interrupted(stop, "gammac: interrupted")
 
 
 def _saved(args) -> int:
@@ -645,16 +647,7 @@ def main(argv=None) -> int:
         except RunError as err:
             raise _Fail(str(err)) from None
         except RunInterrupted as stop:
-            print(f"\ngammac: {stop}", file=sys.stderr)
-            if stop.abandoned_call:
-                # a runtime call still runs on another thread: leave without
-                # the interpreter's shutdown (which would wait for it)
-                sys.stdout.flush()
-                sys.stderr.flush()
-                import os
-
-                os._exit(stop.status)
-            return stop.status
+            return _leave_interrupted(stop, f"\ngammac: {stop}")
         finally:
             if isinstance(sys.stdout, _PipeTolerant) and not sys.stdout.closed_pipe:
                 sys.stdout = streams[0]
@@ -681,6 +674,20 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("gammac: interrupted", file=sys.stderr)
         return 130
+
+
+def _leave_interrupted(stop, message: str) -> int:
+    """Say ``message`` and return the status of the signal that stopped a run
+    (``RunInterrupted``), or leave at once with it if a runtime call still
+    runs on another thread: the interpreter's exit would wait for it."""
+    print(message, file=sys.stderr)
+    if stop.abandoned_call:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        import os
+
+        os._exit(stop.status)
+    return stop.status
 
 
 def _leave(status: int) -> None:

@@ -693,6 +693,9 @@ NB_MODULE(_runtime, m) {
         .def("cancel", &gammart::Simulation::cancel,
              "Stop the trace running now (or the next) before its next chunk: it raises ValueError "
              "('cancelled: ...') and leaves the rows as they were.  Callable from any thread.")
+        .def("clear_cancel", &gammart::Simulation::clear_cancel,
+             "Withdraw a cancel() no trace took (it came after the trace's last chunk), so that the next "
+             "trace runs.")
         .def("reconfigure", &gammart::Simulation::reconfigure, "config"_a,
              "Take another effect's config for the next run, keeping surfels, scene index and splat kernel "
              "(same surfel count, seed and surface binding, shape never changed; else an error, nothing "

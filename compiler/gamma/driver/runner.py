@@ -293,21 +293,28 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
         except Interrupted as sig:
             # before the earlier run's files were set aside (start's runtime calls all are)
             if reuse is not None:
-                _wait_for_abandoned(stop)       # (the caller's simulation, being reconfigured)
+                # the call may be the reconfiguration of the caller's simulation (or the
+                # compile, or a setup after a refused one): waited for, 10 s at most
+                _wait_for_abandoned(stop)
             raise RunInterrupted(f"interrupted by {sig.name} before the first iteration; "
                                  "the earlier results are kept", sig.status, stop.abandoned) from None
         subscribers = (standard_writers(session) if standard else []) + list(writers)
         done = session.first_iteration - 1
-        tracing = False
+        books = None        # (iteration, what its update adds to the summary besides its record)
+        ray_trace_abandoned = False
         try:
             with session.behind:   # leaving it waits for the writers' queued jobs
                 publish(subscribers, SetupDone(session))
                 loop_started = time.perf_counter()
                 for it in range(session.first_iteration, opts.iterations + 1):
-                    tracing = True
-                    traced = stop.call(session.trace, it)
-                    tracing = False
+                    try:
+                        traced = stop.call(session.trace, it)
+                    except BaseException:
+                        _cancel_abandoned_trace(session, stop)  # now, not after the writer's queue
+                        ray_trace_abandoned = stop.abandoned is not None and session.tracer is not None
+                        raise
                     publish(subscribers, IterationTraced(session, it, traced))
+                    books = it, session.books()
                     rows, props, record = stop.call(session.update, it, traced)
                     publish(subscribers, IterationUpdated(session, it, rows, props, record))
                     done = it
@@ -319,10 +326,10 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
                 publish(subscribers, RunFinished(session, session.summary))
             folder.drop(session.out)
         except Interrupted as sig:
-            if stop.abandoned is not None:
-                if tracing:
-                    session.sim.cancel()   # it stops before its next chunk of 1,024 gamma-tons
+            if not ray_trace_abandoned:     # (Ray's workers cannot be cancelled: not waited for)
                 _wait_for_abandoned(stop)
+            if books is not None and books[0] == done + 1:
+                session.restore_books(books[1])     # an update that ended after the signal
             _interrupted(session, sig, done, stop.abandoned)     # raises RunInterrupted
         except BaseException as err:
             if not opts.resume:
@@ -349,6 +356,17 @@ ABANDONED_CALL_WAIT = 10.0
 def _wait_for_abandoned(stop) -> None:
     if stop.abandoned is not None and stop.abandoned.wait(ABANDONED_CALL_WAIT):
         stop.abandoned = None
+
+
+def _cancel_abandoned_trace(session: "Run", stop) -> None:
+    """A trace abandoned (a signal) stops before its next chunk of 1,024
+    gamma-tons; one that ended meanwhile leaves no cancel for the next."""
+    abandoned = stop.abandoned
+    if abandoned is None or abandoned.done() or session.tracer is not None:
+        return
+    session.sim.cancel()
+    if abandoned.wait(ABANDONED_CALL_WAIT) and abandoned.exception() is None:
+        session.sim.clear_cancel()      # it had passed its last chunk
 
 
 class RunInterrupted(Exception):
@@ -428,6 +446,23 @@ class Run(Record):
         if self.tracer is not None:
             return self.tracer.trace(it)
         return self.sim.trace(it)
+
+    def books(self) -> tuple:
+        """A copy of what ``update`` adds to the summary besides its record (the
+        value ranges, the non-finite counts): put back (``restore_books``) when
+        an interrupted run drops the iteration whose update ended after the signal."""
+        ranges = self.summary.get("ranges")
+        return (None if ranges is None else {name: list(bounds) for name, bounds in ranges.items()},
+                [dict(entry) for entry in self.nonfinite.entries])
+
+    def restore_books(self, books: tuple) -> None:
+        ranges, entries = books
+        if ranges is None:
+            self.summary.pop("ranges", None)
+        else:
+            self.summary["ranges"] = ranges
+        self.nonfinite.entries[:] = entries     # (summary["nonfinite"] is this list)
+        self.nonfinite.by_key = {(entry["where"], entry["rule"]): entry for entry in entries}
 
     def update(self, it: int, traced: dict) -> tuple[np.ndarray, dict, dict]:
         """Run the update rules; (rows, property columns, summary record)."""

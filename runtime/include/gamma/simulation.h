@@ -98,6 +98,8 @@ public:
     // chunk of gamma-tons: it throws gammart::Error ("cancelled: ...") and
     // leaves the rows as they were.  Safe from any thread.
     void cancel() { cancel_.store(true); }
+    // Withdraws a cancel no trace took (it came after the trace's last chunk).
+    void clear_cancel() { cancel_.store(false); }
     UpdateStats update(int iteration);
     // The shape step (after update): nothing happens unless some surface's
     // shape follows a property (Config::shape_rates).
