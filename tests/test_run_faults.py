@@ -55,6 +55,7 @@ def test_resume_is_bit_identical_to_an_uninterrupted_run(tmp_path):
     s, w = summary(part), summary(whole)
     assert s["completed"] is True and s["resumed_at"] == 3
     assert [i["settled"] for i in s["iterations"]] == [i["settled"] for i in w["iterations"]]
+    assert s["ranges"] == w["ranges"]                  # over all four
 
 
 def test_resume_refuses_another_run(tmp_path):
@@ -180,32 +181,42 @@ def test_a_script_whose_run_was_interrupted_while_tracing_ends_cleanly():
 def test_an_update_that_ends_after_the_signal_leaves_nothing_of_its_iteration_in_the_summary(tmp_path,
                                                                                             monkeypatch):
     # the update is waited for (the simulations are left alone): its value
-    # ranges and non-finite counts go with its iteration
+    # ranges and non-finite counts go with its iteration, in a fresh run and in
+    # a resumed one (which carries the earlier iterations' ranges)
     from gamma.driver import runner
     from gamma.driver.runner import RunInterrupted, RunOptions, run
     from gamma.frontend.checker import load
 
-    def opts(out, iterations):
-        return RunOptions(scene=str(BUNNY), out=str(out), surfels=500, tons=3000, iterations=iterations,
-                          width=16, height=16, progress=False)
+    (tmp_path / "nan.gamma").write_text(
+        "ton T { motion straight = 0.5 carry a = 1 }\nsurface S { property p = 0, q = 0 }\n"
+        "source s = environment(sphere) emits T count 3000\n"
+        "on settle(t: T, s: S) {\n    s.p += t.a\n    s.q += t.a / (s.p - s.p)\n}\n")
+    effect = load(str(tmp_path / "nan.gamma"))
 
-    effect = load(str(PATINA))
-    run(effect, opts(tmp_path / "one", 1))
-    update = runner.Run.update
+    def opts(out, iterations, resume=False):
+        return RunOptions(scene=str(BUNNY), out=str(tmp_path / out), surfels=500, iterations=iterations,
+                          width=16, height=16, progress=False, resume=resume)
+
+    for name, iterations in (("one", 1), ("two", 2)):
+        run(effect, opts(name, iterations))
+    update, signal_in = runner.Run.update, []
 
     def signalled_update(self, it, traced):
-        if it == 2:
+        if it in signal_in:
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.2)                     # noticed while this update runs
         return update(self, it, traced)
 
     monkeypatch.setattr(runner.Run, "update", signalled_update)
-    with pytest.raises(RunInterrupted) as raised:
-        run(effect, opts(tmp_path / "two", 3))
-    assert "during iteration 2" in str(raised.value) and not raised.value.abandoned_call
-    one, two = summary(tmp_path / "one"), summary(tmp_path / "two")
-    assert len(two["iterations"]) == 1 and two["completed"] is False
-    assert two["ranges"] == one["ranges"] and two["nonfinite"] == one["nonfinite"]
+    for iterations, resume, dropped, like in ((3, False, 2, "one"), (4, True, 3, "two")):
+        signal_in[:] = [dropped]
+        with pytest.raises(RunInterrupted) as raised:
+            run(effect, opts("cut", iterations, resume))
+        assert f"during iteration {dropped}" in str(raised.value) and not raised.value.abandoned_call
+        cut, reference = summary(tmp_path / "cut"), summary(tmp_path / like)
+        assert len(cut["iterations"]) == dropped - 1 and cut["completed"] is False
+        assert cut["nonfinite"][0]["count"] > 0
+        assert cut["ranges"] == reference["ranges"] and cut["nonfinite"] == reference["nonfinite"]
 
 
 def test_a_cancel_no_trace_took_can_be_withdrawn():
@@ -242,7 +253,9 @@ def test_a_signal_while_gammac_watch_computes_a_result_stops_it_without_a_traceb
             proc.kill()
     err = "".join(log)
     assert proc.returncode == 130, err
-    assert "preview result" in err and err.rstrip().endswith("gammac: interrupted") and "Traceback" not in err
+    # (by SIGINT: said only where the run is stopped, not by the handler of a ^C between runs)
+    assert "preview result" in err and err.rstrip().endswith("gammac: interrupted by SIGINT")
+    assert "Traceback" not in err
 
 
 def test_failed_rerun_keeps_the_earlier_results(tmp_path):

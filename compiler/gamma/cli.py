@@ -462,7 +462,7 @@ def _watch(args) -> int:
     except RunError as err:
         raise _Fail(str(err)) from None
     except RunInterrupted as stop:       # ^C while a result is computed (its folder is a scratch one)
-        return _leave_interrupted(stop, "gammac: interrupted")
+        return _leave_interrupted(stop, f"gammac: interrupted by {stop.signal_name}")
 
 
 def _saved(args) -> int:

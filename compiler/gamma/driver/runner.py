@@ -301,7 +301,7 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
         subscribers = (standard_writers(session) if standard else []) + list(writers)
         done = session.first_iteration - 1
         books = None        # (iteration, what its update adds to the summary besides its record)
-        ray_trace_abandoned = False
+        trace_abandoned = False
         try:
             with session.behind:   # leaving it waits for the writers' queued jobs
                 publish(subscribers, SetupDone(session))
@@ -310,8 +310,8 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
                     try:
                         traced = stop.call(session.trace, it)
                     except BaseException:
+                        trace_abandoned = stop.abandoned is not None
                         _cancel_abandoned_trace(session, stop)  # now, not after the writer's queue
-                        ray_trace_abandoned = stop.abandoned is not None and session.tracer is not None
                         raise
                     publish(subscribers, IterationTraced(session, it, traced))
                     books = it, session.books()
@@ -326,11 +326,12 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
                 publish(subscribers, RunFinished(session, session.summary))
             folder.drop(session.out)
         except Interrupted as sig:
-            if not ray_trace_abandoned:     # (Ray's workers cannot be cancelled: not waited for)
+            if not trace_abandoned:         # (a trace was waited for above)
                 _wait_for_abandoned(stop)
-            if books is not None and books[0] == done + 1:
-                session.restore_books(books[1])     # an update that ended after the signal
-            _interrupted(session, sig, done, stop.abandoned)     # raises RunInterrupted
+            # the books before an update of the iteration dropped (it ended after the signal,
+            # or still runs)
+            dropped = books[1] if books is not None and books[0] == done + 1 else None
+            _interrupted(session, sig, done, stop.abandoned, dropped)     # raises RunInterrupted
         except BaseException as err:
             if not opts.resume:
                 folder.restore(session.out)      # the earlier run's files come back
@@ -360,13 +361,15 @@ def _wait_for_abandoned(stop) -> None:
 
 def _cancel_abandoned_trace(session: "Run", stop) -> None:
     """A trace abandoned (a signal) stops before its next chunk of 1,024
-    gamma-tons; one that ended meanwhile leaves no cancel for the next."""
-    abandoned = stop.abandoned
-    if abandoned is None or abandoned.done() or session.tracer is not None:
+    gamma-tons, and is waited for (once: 10 s at most); a trace that did not
+    take the cancel (it had passed its last chunk, or failed) leaves none for
+    the next.  Ray's workers cannot be cancelled: not waited for."""
+    if stop.abandoned is None or session.tracer is not None:
         return
     session.sim.cancel()
-    if abandoned.wait(ABANDONED_CALL_WAIT) and abandoned.exception() is None:
-        session.sim.clear_cancel()      # it had passed its last chunk
+    if stop.abandoned.wait(ABANDONED_CALL_WAIT):
+        session.sim.clear_cancel()      # (after a trace that took it: nothing to withdraw)
+        stop.abandoned = None
 
 
 class RunInterrupted(Exception):
@@ -380,23 +383,40 @@ class RunInterrupted(Exception):
         self.abandoned = abandoned
 
     @property
+    def signal_name(self) -> str:
+        from .interrupt import SIGNAL_NAMES
+
+        number = self.status - 128
+        return next((name for sig, name in SIGNAL_NAMES.items() if sig == number), f"signal {number}")
+
+    @property
     def abandoned_call(self) -> bool:
         """A runtime call still runs: gammac leaves with ``os._exit`` instead of
         the interpreter's exit, which would wait for it."""
         return self.abandoned is not None and not self.abandoned.done()
 
 
-def _interrupted(session: "Run", sig, done: int, abandoned):
+def _interrupted(session: "Run", sig, done: int, abandoned, dropped_books):
     """Finish the folder of an interrupted run: complete iterations only (the
     queued writes are done: leaving ``behind`` waited for them), summary.json
-    with ``"completed": false``; keep the earlier run's files if none is."""
+    with ``"completed": false``; keep the earlier run's files if none is.
+    ``dropped_books``: ``Run.books`` before the update of the iteration
+    dropped, or None if none started."""
     from . import folder
     from ..files import atomic_write
 
-    summary = session.summary
+    # a copy, and nothing in it shared with an update that still runs (it appends to
+    # the session's summary, and changes its ranges and non-finite counts)
+    summary = dict(session.summary)
     summary["completed"] = False
     summary["interrupted"] = sig.name
-    del summary["iterations"][done:]
+    summary["iterations"] = summary["iterations"][:done]
+    if dropped_books is not None:
+        ranges, summary["nonfinite"] = dropped_books
+        if ranges is None:
+            summary.pop("ranges", None)
+        else:
+            summary["ranges"] = ranges
     out = session.out
     if done == 0 and not session.opts.resume:
         folder.restore(out)
@@ -449,20 +469,12 @@ class Run(Record):
 
     def books(self) -> tuple:
         """A copy of what ``update`` adds to the summary besides its record (the
-        value ranges, the non-finite counts): put back (``restore_books``) when
-        an interrupted run drops the iteration whose update ended after the signal."""
+        value ranges, the non-finite counts): what an interrupted run writes
+        when it drops the iteration whose update ended after the signal (or
+        still runs)."""
         ranges = self.summary.get("ranges")
         return (None if ranges is None else {name: list(bounds) for name, bounds in ranges.items()},
                 [dict(entry) for entry in self.nonfinite.entries])
-
-    def restore_books(self, books: tuple) -> None:
-        ranges, entries = books
-        if ranges is None:
-            self.summary.pop("ranges", None)
-        else:
-            self.summary["ranges"] = ranges
-        self.nonfinite.entries[:] = entries     # (summary["nonfinite"] is this list)
-        self.nonfinite.by_key = {(entry["where"], entry["rule"]): entry for entry in entries}
 
     def update(self, it: int, traced: dict) -> tuple[np.ndarray, dict, dict]:
         """Run the update rules; (rows, property columns, summary record)."""
@@ -732,6 +744,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     if earlier is not None:
         summary["iterations"] = earlier["iterations"][:first - 1]
         summary["resumed_at"] = first
+        if earlier.get("ranges") is not None:     # over the whole run, the earlier iterations too
+            summary["ranges"] = {name: list(bounds) for name, bounds in earlier["ranges"].items()}
         for entry in earlier.get("nonfinite", []):
             report.by_key[(entry["where"], entry["rule"])] = entry
             report.entries.append(entry)

@@ -300,5 +300,6 @@ def watch(path: str, overrides: dict, opts: RunOptions, port: int = 8000, previe
         state.close()
         server.shutdown()
         server.server_close()
+        watcher.scratch.cleanup()       # (gammac may leave with os._exit after ^C)
     return 0
 
