@@ -149,6 +149,7 @@ TRACE_INTERRUPTED = textwrap.dedent("""
     import gamma
     from gamma.driver import runner
     from gamma.driver.runner import RunInterrupted
+    assert gamma.RunInterrupted is RunInterrupted
     second_trace = threading.Event()
     trace = runner.Run.trace
     def trace_and_tell(self, it):

@@ -48,10 +48,10 @@ def __getattr__(name: str):
     if name == "UsageError":
         from .frontend.checker import UsageError
         return UsageError
-    if name == "RunError":
-        from .driver.runner import RunError
-        return RunError
+    if name in ("RunError", "RunInterrupted"):
+        from .driver import runner
+        return getattr(runner, name)
     raise AttributeError(f"module 'gamma' has no attribute '{name}'")
 
 
-__all__ = ["compile", "run", "Result", "GammaError", "UsageError", "RunError", "__version__"]
+__all__ = ["compile", "run", "Result", "GammaError", "UsageError", "RunError", "RunInterrupted", "__version__"]

@@ -55,7 +55,12 @@ def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, u
     ``progress(iteration, iterations, record)`` is called after every
     iteration.  With ``out`` the standard outputs (maps, renders, summary,
     ``export=True`` for glTF) are written there as by ``gammac run``; the
-    other keyword options are those of ``gamma.driver.RunOptions``."""
+    other keyword options are those of ``gamma.driver.RunOptions``.
+    SIGINT or SIGTERM (from the main thread) stop it within a fraction of a
+    second with ``gamma.RunInterrupted`` (its ``status``: 130 or 143): a
+    tracing pass or update that was running is cancelled or waited for; a
+    surfel set-up that was running ends on its own thread
+    (``abandoned_call``), and the interpreter's exit waits for it."""
     import tempfile
 
     from .driver.events import CallbackWriter, IterationUpdated, SetupDone
