@@ -101,6 +101,43 @@ def every_builtin_body() -> str:
     return "\n".join(lines + ["s.p = s.p * random() + s.q"])
 
 
+# A run that ends (through the interpreter's exit) while its entry is still
+# being kept: the C compiler is held until the main thread has left, so the
+# exit begins with the compile's working folder in use.  A TemporaryDirectory's
+# finalizer, run at exit before background's handler joins the thread, took
+# that folder away, and no entry was kept (a rerun compiled again: seen in CI).
+EXIT_WHILE_KEEPING = """
+import os, subprocess, sys, threading, time
+from pathlib import Path
+from gamma.backends import effect_cache
+compiling = threading.Event()
+compile_library = subprocess.run
+def held_compile(*args, **kwargs):
+    compiling.set()
+    time.sleep(0.5)
+    return compile_library(*args, **kwargs)
+subprocess.run = held_compile
+effect = effect_cache.check(sys.argv[1], Path(sys.argv[1]).read_text(), {})
+effect_cache.kernels_for(effect)
+assert compiling.wait(120)
+"""
+
+
+def test_an_entry_being_kept_when_the_interpreter_exits_is_kept_whole(tmp_path):
+    effect = tmp_path / "e.gamma"
+    effect.write_text("ton T { motion straight = 1 carry a = 1 }\n"
+                      "surface S { property p = 0 }\n"
+                      "source s = environment(sphere) emits T count 10\n"
+                      "on settle(t: T, s: S) { s.p += 0.5 * t.a }\n")
+    cache = tmp_path / "cache"
+    r = subprocess.run([sys.executable, "-c", EXIT_WHILE_KEEPING, str(effect)], capture_output=True, text=True,
+                       timeout=300, env=dict(os.environ, GAMMA_CACHE_DIR=str(cache)), cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    kept = entries(cache)                             # the entry and its shared object
+    assert len(kept) == 2 and kept[0].endswith(".so") and kept[1].endswith(".bin"), kept
+    assert not list(cache.glob(".effect-*"))         # and no working folder left
+
+
 def test_the_shared_object_computes_what_the_jit_computes(tmp_path, monkeypatch):
     monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)

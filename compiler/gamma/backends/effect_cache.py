@@ -251,13 +251,19 @@ def _keep(unsaved: tuple, ir_text: str, symbols: list[str], llvm_version: tuple)
 
         code = position_independent_object(ir_text)
         folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(prefix=".effect-", dir=folder) as work:
+        # not a TemporaryDirectory: its finalizer runs at the interpreter's exit, before
+        # background's handler joins this thread, and took the folder from under the
+        # compiler (no entry kept when the run ended first: seen in CI)
+        work = tempfile.mkdtemp(prefix=".effect-", dir=folder)
+        try:
             objfile, library = Path(work) / "kernels.o", Path(work) / "kernels.so"
             objfile.write_bytes(code)
             subprocess.run([compiler, "-shared", "-o", str(library), str(objfile), "-lm"], check=True,
                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                            stderr=subprocess.DEVNULL, timeout=120)
             shared = library.read_bytes()
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
         digest = hashlib.sha256(shared).hexdigest()
         # An older library of this key goes (its entry is replaced next).  Another process
         # keeping the same key at the same time may remove ours in turn: its entry then
