@@ -206,9 +206,18 @@ def test_appearance_matches_interpreter(tmp_path, seed):
     for name in ("a.png", "b.png"):
         Image.new("RGB", (2, 2)).save(tmp_path / name)
     rng = random.Random(seed)
-    body = "\n  ".join(f"color = {random_color(rng)}" if rng.random() < 0.7 else
-                       f"if s.p < {rng.uniform(-1, 1):.2f} {{ color = {random_color(rng)} }}"
-                       for _ in range(rng.randint(1, 3)))
+
+    def output():
+        """An assignment to one of the look's outputs (SPEC §8a); the numbers
+        may read the outputs assigned so far."""
+        name = rng.choice(["color", "color", "roughness", "metallic", "displacement", "occlusion"])
+        if name == "color":
+            return f"color = {random_color(rng)}"
+        return f"{name} = {random_expr(rng, ['s.p', 'uv.u', 'roughness', 'metallic', 'displacement'])}"
+
+    body = "\n  ".join(output() if rng.random() < 0.7 else
+                       f"if s.p < {rng.uniform(-1, 1):.2f} {{ {output()} }}"
+                       for _ in range(rng.randint(1, 4)))
     path = tmp_path / "look.gamma"
     path.write_text(HEADER + f"appearance(s: S) {{\n  {body}\n}}\n")
     from gamma.frontend.checker import load
@@ -226,7 +235,8 @@ def test_appearance_matches_interpreter(tmp_path, seed):
                            normal=(ctypes.c_float * 3)(*vec[4:7]), uv=(ctypes.c_float * 2)(*vec[7:9]))
         ictx = Context(height=vec[0], position=vec[1:4], normal=vec[4:7])
         ictx.uv = vec[7:9]
-        rgb = np.zeros(3, np.float32)
-        bad_c = fn(ptr(surf), ptr(textures), ptr(rgb), ctypes.byref(ctx))
-        want, bad_i = run_appearance(kernel, surf.copy(), textures, ictx)
-        assert same(rgb, want) and bad_c == bad_i, (body, rgb, want)
+        start = data.random(abi.APPEARANCE_WIDTH).astype(np.float32)    # the material's look there
+        look = start.copy()
+        bad_c = fn(ptr(surf), ptr(textures), ptr(look), ctypes.byref(ctx))
+        want, bad_i = run_appearance(kernel, surf.copy(), textures, ictx, look=start)
+        assert same(look, want) and bad_c == bad_i, (body, look, want)

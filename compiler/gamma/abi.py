@@ -20,7 +20,7 @@ import sys
 
 #: Bumped whenever anything below changes; ``driver.runner.runtime_module``
 #: refuses a runtime built for another version.
-ABI_VERSION = 6
+ABI_VERSION = 7
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -76,14 +76,43 @@ TRANSPORT_SIGNATURE = (
      ("const GammaContext*", "ctx")),
 )
 UPDATE_SIGNATURE = ("int32_t", (("float*", "surf"), ("const GammaContext*", "ctx")))
-#: Appearance kernels turn a point's (interpolated) surfel row into a colour.
+#: What an appearance block sets at a point (SPEC §8a): the outputs in the
+#: order of the kernel's ``look`` array, each (name, floats, kind), and the
+#: value each starts as where the scene's material says nothing (the colour
+#: always starts as the scene's base colour).  ``roughness``, ``metallic`` and
+#: ``occlusion`` are clamped to [0, 1] by the runtime, like the colour;
+#: ``displacement`` is a distance in scene units along the normal.
+APPEARANCE_OUTPUTS = (
+    ("color", 3, "color"),
+    ("roughness", 1, "float"),
+    ("metallic", 1, "float"),
+    ("displacement", 1, "float"),
+    ("occlusion", 1, "float"),
+)
+APPEARANCE_DEFAULTS = {"roughness": 0.8, "metallic": 0.0, "displacement": 0.0, "occlusion": 1.0}
+
+
+def appearance_offsets() -> dict[str, int]:
+    """Float offset of every appearance output in the ``look`` array."""
+    offsets, at = {}, 0
+    for name, count, _ in APPEARANCE_OUTPUTS:
+        offsets[name] = at
+        at += count
+    return offsets
+
+
+APPEARANCE_WIDTH = sum(count for _, count, _ in APPEARANCE_OUTPUTS)
+
+#: Appearance kernels turn a point's (interpolated) surfel row into its look.
 #: ``textures`` holds 3 floats (r, g, b in [0, 1]) per texture of the effect
 #: (``Effect.textures`` order), sampled by the renderer at ``ctx.uv``, then 3
-#: more: the scene's own base colour there (``base_color()``, SPEC §8a); the
-#: kernel writes ``rgb`` (3 floats).  Return value as for the other kernels.
+#: more: the scene's own base colour there (``base_color()``, SPEC §8a).
+#: ``look`` (``APPEARANCE_WIDTH`` floats) holds the outputs' starting values
+#: when the kernel is called (the scene's material there) and the kernel
+#: assigns them in place.  Return value as for the other kernels.
 APPEARANCE_SIGNATURE = (
     "int32_t",
-    (("const float*", "surf"), ("const float*", "textures"), ("float*", "rgb"),
+    (("const float*", "surf"), ("const float*", "textures"), ("float*", "look"),
      ("const GammaContext*", "ctx")),
 )
 
@@ -173,6 +202,11 @@ def c_header() -> str:
     for name, value in EVENTS.items():
         lines.append(f"#define GAMMA_EVENT_{name.upper()} {value}")
     lines.append(f"#define GAMMA_EVENT_COUNT {len(EVENTS)}")
+    for name, offset in appearance_offsets().items():
+        lines.append(f"#define GAMMA_LOOK_{name.upper()} {offset}")
+    lines.append(f"#define GAMMA_LOOK_WIDTH {APPEARANCE_WIDTH}")
+    for name, value in APPEARANCE_DEFAULTS.items():
+        lines.append(f"#define GAMMA_LOOK_DEFAULT_{name.upper()} {value!r}f")
     lines.append("typedef struct GammaContext {")
     for name, ctype, count in CONTEXT_FIELDS:
         lines.append(f"    {ctype} {name}{f'[{count}]' if count > 1 else ''};")

@@ -152,8 +152,8 @@ class Result:
         if mesh.has_uvs:
             uvs[tris.reshape(-1)] = np.asarray(mesh.triangle_uvs(), np.float32).reshape(-1, 2)
         sim = self.session.sim
-        rows, rgb = sim.bake_points(verts, normals, owner, uvs, max(1, self.iterations), self.session.threads)
-        return np.asarray(rows), np.asarray(rgb), owner
+        rows, look = sim.bake_points(verts, normals, owner, uvs, max(1, self.iterations), self.session.threads)
+        return np.asarray(rows), np.asarray(look)[:, :3], owner
 
     def vertex_properties(self) -> dict:
         """Each property at every vertex of the scene's mesh (the surfels'

@@ -48,6 +48,27 @@ def _bounded_int(text: str) -> int:
     return value
 
 
+def _bake_size(text: str) -> int:
+    """A texture side in pixels, within budget.LIMITS["--bake-size"]."""
+    from .driver.budget import LIMITS
+
+    value = _bounded_int(text)
+    low, high = LIMITS["--bake-size"]
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a texture size from {low} to {high:,} pixels")
+    return value
+
+
+def _texel_density(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not (value > 0 and value < 1e9):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a positive number of texels per scene unit")
+    return value
+
+
 def _vector3(text: str) -> tuple[float, float, float]:
     import math
 
@@ -221,7 +242,7 @@ def _parser() -> argparse.ArgumentParser:
     which = x.add_mutually_exclusive_group()
     which.add_argument("--iteration", type=_bounded_int, help="iteration to export (default: the last saved)")
     which.add_argument("--all", action="store_true", help="every saved iteration")
-    x.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
+    _bake_options(x)
     x.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
     x.add_argument("--quiet", action="store_true", help="no progress bar")
     w = sub.add_parser("watch", help="run an effect again on every save and show it in the browser")
@@ -238,9 +259,19 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     _simulation_options(r)
     r.add_argument("--out", required=True, help="output folder")
     _picture_options(r)
-    r.add_argument("--export", action="store_true",
-                   help="write DIR/export/OBJECT/iter_NNNN.glb and .obj with baked textures")
-    r.add_argument("--bake-size", type=_bounded_int, default=1024, help="baked texture size in pixels")
+    r.add_argument("--export", nargs="?", const="last", choices=("last", "all"),
+                   help="write the texture sets and DIR/export/SCENE_NNNN.glb of the last iteration "
+                        "(--export all: of every iteration) once the run is complete")
+    _bake_options(r)
+
+
+def _bake_options(r: argparse.ArgumentParser) -> None:
+    size = r.add_mutually_exclusive_group()
+    size.add_argument("--bake-size", type=_bake_size, default=1024,
+                      help="baked texture width and height in pixels (default 1024)")
+    size.add_argument("--texel-density", type=_texel_density, metavar="TEXELS",
+                      help="texels per scene unit instead of --bake-size: each object's textures get "
+                           "the size that gives it")
 
 
 def _simulation_options(r: argparse.ArgumentParser) -> None:
@@ -366,7 +397,8 @@ def _run_options(args):
                       show=getattr(args, "show", None), width=size, height=size,
                       progress=not getattr(args, "quiet", False),
                       samples=getattr(args, "samples", 4), ao_samples=getattr(args, "ao_samples", 8),
-                      export=getattr(args, "export", False), bake_size=getattr(args, "bake_size", 1024),
+                      export=getattr(args, "export", None) or False, bake_size=getattr(args, "bake_size", 1024),
+                      texel_density=getattr(args, "texel_density", None),
                       resume=getattr(args, "resume", False), started=_STARTED,
                       ray=getattr(args, "ray", False), ray_address=getattr(args, "ray_address", None),
                       shading=getattr(args, "shading", "smooth"), crease=getattr(args, "crease", 60.0))
@@ -489,7 +521,8 @@ def _saved(args) -> int:
                 iterations = sorted(int(p.stem[5:]) for p in Path(args.dir, "maps").glob("iter_[0-9][0-9][0-9][0-9].ply"))
             elif args.iteration is not None:
                 iterations = [args.iteration]
-            done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=not args.quiet)
+            done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=not args.quiet,
+                                texel_density=args.texel_density)
             print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
                   f"{', '.join(map(str, done))} to {args.dir}/export", file=sys.stderr)
     except RunError as err:

@@ -14,7 +14,7 @@ namespace gammart {
 
 void bake_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
                  const int32_t* triangles, const float* uvs, int iteration, int threads, float* rows_out,
-                 float* rgb_out) {
+                 float* look_out) {
     const int W = rs.state.width;
     const std::vector<int32_t>& tri_surface = rs.index.tri_surface();
     for (size_t i = 0; i < k; ++i)
@@ -29,8 +29,8 @@ void bake_points(const RenderScene& rs, size_t k, const float* positions, const 
                 float* row = rows_out + i * size_t(W);
                 // The row as the surface holds it, whether or not it has an appearance.
                 interpolate_row(rs, tri_surface[tri], positions + 3 * i, row);
-                albedo_of_row(rs, tri, positions + 3 * i, normals + 3 * i, none, uvs + 2 * i, iteration,
-                              mix64(kRenderKey ^ uint64_t(i)), row, tex.data(), rgb_out + 3 * i);
+                look_of_row(rs, tri, positions + 3 * i, normals + 3 * i, none, uvs + 2 * i, iteration,
+                              mix64(kRenderKey ^ uint64_t(i)), row, tex.data(), look_out + size_t(GAMMA_LOOK_WIDTH) * i);
             }
         });
     });
@@ -62,7 +62,7 @@ BakePoints BakePoints::prepare(const RenderScene& rs, size_t k, const float* pos
 }
 
 void bake_prepared(const RenderScene& rs, const BakePoints& points, int iteration, int threads, float* rows_out,
-                   float* rgb_out) {
+                   float* look_out) {
     constexpr size_t K = kSmoothingNeighbours;
     const int W = rs.state.width;
     const float* rows = rs.state.rows.data();
@@ -80,9 +80,9 @@ void bake_prepared(const RenderScene& rs, const BakePoints& points, int iteratio
                         acc += points.weight[K * i + j] * rows[size_t(points.neighbour[K * i + j]) * size_t(W) + size_t(c)];
                     row[c] = float(acc);
                 }
-                albedo_of_row(rs, uint32_t(points.triangles[i]), &points.positions[3 * i], &points.normals[3 * i], none,
+                look_of_row(rs, uint32_t(points.triangles[i]), &points.positions[3 * i], &points.normals[3 * i], none,
                               &points.uvs[2 * i], iteration, mix64(kRenderKey ^ uint64_t(i)), row, tex.data(),
-                              rgb_out + 3 * i);
+                              look_out + size_t(GAMMA_LOOK_WIDTH) * i);
             }
         });
     });

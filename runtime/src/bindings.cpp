@@ -345,7 +345,7 @@ NB_MODULE(_runtime, m) {
         .def("set_transport", &gammart::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
              "writes_surface"_a)
         .def("set_update", &gammart::Config::set_update, "surface"_a, "address"_a)
-        .def("set_appearance", &gammart::Config::set_appearance, "surface"_a, "address"_a)
+        .def("set_appearance", &gammart::Config::set_appearance, "surface"_a, "address"_a, "displaces"_a = false)
         .def("add_shape_rate", &gammart::Config::add_shape_rate, "surface"_a, "column"_a, "metres_per_unit"_a,
              "The surface's shape follows row column `column` (SPEC §19).")
         .def("add_mass_property", &gammart::Config::add_mass_property, "columns"_a, "carry"_a,
@@ -888,13 +888,20 @@ NB_MODULE(_runtime, m) {
                  gammart::BaseColours b;
                  I32 tm = as_i32(triangle_material), tx = as_i32(textures);
                  F32 f = as_f32(factors);
-                 if (tm.ndim() != 1 || tx.ndim() != 1 || f.ndim() != 2 || f.shape(1) != 3 || f.shape(0) != tx.shape(0))
-                     throw Error("set_base_colours: triangle_material int32[m], factors float32[k, 3], "
-                                 "textures int32[k] are needed");
+                 // factors: r, g, b[, roughness, metallic]; textures: base colour[, metallic-roughness]
+                 const size_t fw = f.ndim() == 2 ? f.shape(1) : 0, tw = tx.ndim() == 2 ? tx.shape(1) : 1;
+                 if (tm.ndim() != 1 || tx.ndim() < 1 || tx.ndim() > 2 || (fw != 3 && fw != 5) ||
+                     f.shape(0) != tx.shape(0) || (tw != 1 && tw != 2))
+                     throw Error("set_base_colours: triangle_material int32[m], factors float32[k, 3 or 5], "
+                                 "textures int32[k] or int32[k, 2] are needed");
                  b.triangle_material.assign(tm.data(), tm.data() + tm.shape(0));
-                 b.texture.assign(tx.data(), tx.data() + tx.shape(0));
-                 for (size_t k = 0; k < f.shape(0); ++k)
-                     b.factor.push_back({f.data()[3 * k], f.data()[3 * k + 1], f.data()[3 * k + 2]});
+                 for (size_t k = 0; k < f.shape(0); ++k) {
+                     const float* row = f.data() + fw * k;
+                     b.factor.push_back({row[0], row[1], row[2]});
+                     if (fw == 5) b.rough_metal.push_back({row[3], row[4]});
+                     b.texture.push_back(tx.data()[tw * k]);
+                     if (tw == 2) b.rough_metal_texture.push_back(tx.data()[tw * k + 1]);
+                 }
                  size_t i = 0;
                  for (nb::handle item : images) {
                      F32 a = as_f32(item);
@@ -910,8 +917,9 @@ NB_MODULE(_runtime, m) {
                  s.set_base_colours(std::move(b));
              },
              "triangle_material"_a, "factors"_a, "textures"_a, "images"_a,
-             "The scene's own base colours: a material per triangle (-1: none), an RGB factor and an image "
-             "index (-1: none) per material, images float32[H, W, 3] (row 0 = top).")
+             "The scene's own materials: a material per triangle (-1: none); per material an RGB factor "
+             "(then roughness and metallic factors) and an image index (-1: none) of the base colour (then "
+             "of the metallic-roughness texture); images float32[H, W, 3] (row 0 = top).")
         .def("corner_normals",
              [](const gammart::Simulation& s) {
                  std::vector<float> c = s.corner_normals();
@@ -930,16 +938,18 @@ NB_MODULE(_runtime, m) {
                      n.shape(0) != k || n.shape(1) != 3 || uv.ndim() != 2 || uv.shape(0) != k || uv.shape(1) != 2)
                      throw Error("bake_points: positions (k,3), normals (k,3), triangles (k,) and uvs (k,2) expected");
                  const size_t W = size_t(s.row_width());
-                 std::vector<float> rows(k * W), rgb(k * 3);
+                 std::vector<float> rows(k * W), look(k * GAMMA_LOOK_WIDTH);
                  {
                      nb::gil_scoped_release nogil;
                      s.bake_points(k, p.data(), n.data(), t.data(), uv.data(), iteration, threads, rows.data(),
-                                   rgb.data());
+                                   look.data());
                  }
-                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}), to_numpy(std::move(rgb), {k, 3}));
+                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}),
+                                       to_numpy(std::move(look), {k, size_t(GAMMA_LOOK_WIDTH)}));
              },
              "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "iteration"_a, "threads"_a,
-             "At surface points: (smoothed rows float32[k, W], appearance colours float32[k, 3]).")
+             "At surface points: (smoothed rows float32[k, W], looks float32[k, L]: colour, roughness, "
+             "metallic, displacement, occlusion as abi.APPEARANCE_OUTPUTS).")
         .def("prepare_points",
              [](gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,
                 nb::handle uvs, int threads) {
@@ -958,14 +968,15 @@ NB_MODULE(_runtime, m) {
         .def("bake_prepared",
              [](const gammart::Simulation& s, int iteration, int threads) {
                  const size_t k = s.num_prepared_points(), W = size_t(s.row_width());
-                 std::vector<float> rows(k * W), rgb(k * 3);
+                 std::vector<float> rows(k * W), look(k * GAMMA_LOOK_WIDTH);
                  {
                      nb::gil_scoped_release nogil;
-                     s.bake_prepared(iteration, threads, rows.data(), rgb.data());
+                     s.bake_prepared(iteration, threads, rows.data(), look.data());
                  }
-                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}), to_numpy(std::move(rgb), {k, 3}));
+                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}),
+                                       to_numpy(std::move(look), {k, size_t(GAMMA_LOOK_WIDTH)}));
              },
-             "iteration"_a, "threads"_a, "bake_points() of the prepared points: (rows float32[k, W], colours float32[k, 3]).")
+             "iteration"_a, "threads"_a, "bake_points() of the prepared points: (rows float32[k, W], looks float32[k, L]).")
         .def("render_appearance",
              [](gammart::Simulation& s, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads, int samples,

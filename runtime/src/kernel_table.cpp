@@ -43,12 +43,14 @@ KernelTable KernelTable::from_config(const Config& c) {
         k.update[size_t(u.surface)] = reinterpret_cast<GammaUpdateKernel>(static_cast<uintptr_t>(u.address));
     }
     k.appearance.assign(size_t(nsurf), nullptr);
+    k.displaces.assign(size_t(nsurf), 0);
     for (const AppearanceEntry& a : c.appearances) {
         if (a.surface < 0 || a.surface >= nsurf)
             fail("config: appearance surface index " + std::to_string(a.surface) + " out of range (" +
                  std::to_string(nsurf) + " surfaces)");
         k.appearance[size_t(a.surface)] =
             reinterpret_cast<GammaAppearanceKernel>(static_cast<uintptr_t>(a.address));
+        k.displaces[size_t(a.surface)] = a.displaces && a.address != 0;
     }
     return k;
 }

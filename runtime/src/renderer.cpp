@@ -108,43 +108,101 @@ void interpolate_row(const RenderScene& rs, int surface, const float p[3], float
     }
 }
 
-int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
-                  const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]) {
+int32_t look_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
+                const float uv[2], int iteration, uint64_t random_key, float* row, float* tex,
+                float out_look[GAMMA_LOOK_WIDTH]) {
     const int surface = rs.index.tri_surface()[triangle];
     if (rs.kernels.appearance[size_t(surface)]) interpolate_row(rs, surface, p, row);
-    return albedo_of_row(rs, triangle, p, n, dir, uv, iteration, random_key, row, tex, out_rgb);
+    return look_of_row(rs, triangle, p, n, dir, uv, iteration, random_key, row, tex, out_look);
 }
 
-int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
-                      const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
-                      float* tex, float out_rgb[3]) {
+int32_t look_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
+                    const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
+                    float* tex, float out_look[GAMMA_LOOK_WIDTH]) {
     const int surface = rs.index.tri_surface()[triangle];
     GammaAppearanceKernel fn = rs.kernels.appearance[size_t(surface)];
     const size_t T = rs.textures.size();
     rs.base.at(triangle, uv, tex + 3 * T);      // base_color() reads the slot after the effect's textures
-    if (!fn) {
-        for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(tex[3 * T + size_t(c)]);
-        return 0;
+    rs.base.start_look(triangle, uv, out_look);
+    int32_t bad = 0;
+    if (fn) {
+        GammaContext ctx;
+        smoothed_measures(rs, surface, p, n, &ctx.accessibility, &ctx.curvature);
+        for (int c = 0; c < 3; ++c) {
+            ctx.position[c] = p[c];
+            ctx.normal[c] = n[c];
+            ctx.direction[c] = dir[c];
+        }
+        ctx.height = dot(V3{p[0], p[1], p[2]}, rs.frame.up) - rs.frame.min_up;
+        ctx.iteration = iteration;
+        ctx.interactions = 0;
+        set_random_key(ctx, random_key);
+        ctx.uv[0] = uv[0];
+        ctx.uv[1] = uv[1];
+        ctx.up[0] = rs.frame.up.x; ctx.up[1] = rs.frame.up.y; ctx.up[2] = rs.frame.up.z;
+        for (size_t ti = 0; ti < T; ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
+        bad = fn(row, tex, out_look, &ctx);
     }
-    GammaContext ctx;
-    smoothed_measures(rs, surface, p, n, &ctx.accessibility, &ctx.curvature);
-    for (int c = 0; c < 3; ++c) {
-        ctx.position[c] = p[c];
-        ctx.normal[c] = n[c];
-        ctx.direction[c] = dir[c];
-    }
-    ctx.height = dot(V3{p[0], p[1], p[2]}, rs.frame.up) - rs.frame.min_up;
-    ctx.iteration = iteration;
-    ctx.interactions = 0;
-    set_random_key(ctx, random_key);
-    ctx.uv[0] = uv[0];
-    ctx.uv[1] = uv[1];
-    ctx.up[0] = rs.frame.up.x; ctx.up[1] = rs.frame.up.y; ctx.up[2] = rs.frame.up.z;
-    for (size_t ti = 0; ti < T; ++ti) sample_texture(rs.textures[ti], uv[0], uv[1], tex + 3 * ti);
-    float rgb[3] = {0, 0, 0};
-    const int32_t bad = fn(row, tex, rgb, &ctx);
-    for (int c = 0; c < 3; ++c) out_rgb[c] = clamp01(rgb[c]);
+    // Colour, roughness, metallic and occlusion are fractions; the
+    // displacement is a length (the kernel never stores a non-finite one).
+    for (int c = 0; c < GAMMA_LOOK_WIDTH; ++c)
+        if (c != GAMMA_LOOK_DISPLACEMENT) out_look[c] = clamp01(out_look[c]);
     return bad;
+}
+
+Radiance shade_look(const float look[GAMMA_LOOK_WIDTH], V3 n, V3 to_eye, V3 up, V3 sun, float sun_visible,
+                    float sky) {
+    const float metallic = look[GAMMA_LOOK_METALLIC];
+    // Perceptual roughness squared; kept above 0.045 so a mirror's sun
+    // highlight stays a few pixels wide instead of a sub-pixel spike.
+    const float r = std::max(look[GAMMA_LOOK_ROUGHNESS], 0.045f);
+    const float alpha = r * r, a2 = alpha * alpha;
+    const float nv = std::max(dot(n, to_eye), 1e-4f);
+    float base[3], f0[3];
+    for (int c = 0; c < 3; ++c) {
+        base[c] = std::pow(look[GAMMA_LOOK_COLOR + c], kDisplayGamma);
+        f0[c] = 0.04f + metallic * (base[c] - 0.04f);
+    }
+    // Karis' fit of the split-sum environment BRDF (scale a, bias b of F0).
+    const float c0[4] = {-1.0f, -0.0275f, -0.572f, 0.022f}, c1[4] = {1.0f, 0.0425f, 1.04f, -0.04f};
+    float q[4];
+    for (int k = 0; k < 4; ++k) q[k] = r * c0[k] + c1[k];
+    const float a004 = std::min(q[0] * q[0], std::exp2(-9.28f * nv)) * q[0] + q[1];
+    const float env_a = a004 * -1.04f + q[2], env_b = a004 * 1.04f + q[3];
+    // The sky seen in the mirror direction: brighter above than below, less
+    // so the rougher the surface (the reflection averages the whole sky).
+    const V3 refl = n * (2.0f * dot(n, to_eye)) - to_eye;
+    const float smooth = 1.0f - r;
+    const float sky_spec = sky * (1.0f + smooth * (0.8f * (0.5f + 0.5f * dot(refl, up)) - 0.4f));
+    const float ambient = sky * look[GAMMA_LOOK_OCCLUSION];
+    float spec_sun = 0.0f, nl = 0.0f;
+    V3 h{0, 0, 0};
+    if (sun_visible > 0.0f) {
+        nl = dot(n, sun);
+        if (nl > 0.0f) {
+            h = normalize(sun + to_eye);
+            const float nh = std::max(dot(n, h), 0.0f);
+            const float d = nh * nh * (a2 - 1.0f) + 1.0f;
+            const float D = a2 / (3.14159265f * d * d);
+            const float vis = 0.5f / (nl * std::sqrt(nv * nv * (1.0f - a2) + a2) +
+                                      nv * std::sqrt(nl * nl * (1.0f - a2) + a2));
+            // Radiance units of the renderer: a white Lambert surface under
+            // light E shows E, so the BRDF is scaled by pi.
+            spec_sun = 3.14159265f * D * vis * kSunIntensity * nl * sun_visible;
+        } else {
+            nl = 0.0f;
+        }
+    }
+    const float vh = dot(to_eye, h);
+    const float fresnel = std::pow(1.0f - std::min(std::max(vh, 0.0f), 1.0f), 5.0f);
+    Radiance out;
+    for (int c = 0; c < 3; ++c) {
+        const float diffuse = base[c] * (1.0f - metallic) * (ambient + kSunIntensity * nl * sun_visible);
+        const float f_sun = f0[c] + (1.0f - f0[c]) * fresnel;
+        const float specular = spec_sun * f_sun + sky_spec * look[GAMMA_LOOK_OCCLUSION] * (f0[c] * env_a + env_b);
+        out.c[c] = diffuse + specular;
+    }
+    return out;
 }
 
 namespace {
@@ -446,6 +504,7 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
     const float inv_gamma = 1.0f / kDisplayGamma;
     const float eps = rs.frame.eps;
     const V3 up = rs.frame.up;
+    const float bump_step = std::max(rs.index.sigma(), eps * 16.0f);
     const int S = P.samples, A = P.ao_samples;
     int grid = 1;  // strata per axis: the smallest g with g*g >= S
     while (grid * grid < S) ++grid;
@@ -494,26 +553,42 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
                         // Shading normal for the sun's cosine; occlusion rays use the geometric one.
                         const V3 ns = shading_normal(rs.corner_normals, prim, rh.hit.u, rh.hit.v, n);
                         const int surface = tri_surface[prim];
-                        // Albedo.
-                        float albedo[3];
-                        {
-                            float uv[2] = {0.0f, 0.0f};
-                            if (has_uvs) {
-                                const float bu = rh.hit.u, bv = rh.hit.v, bw = 1.0f - bu - bv;
-                                const float* c3 = uvs + 6 * size_t(prim);
-                                uv[0] = bw * c3[0] + bu * c3[2] + bv * c3[4];
-                                uv[1] = bw * c3[1] + bu * c3[3] + bv * c3[5];
-                            }
-                            const float q[3] = {p.x, p.y, p.z}, nn[3] = {n.x, n.y, n.z};
-                            const float dd[3] = {dir.x, dir.y, dir.z};
-                            if (rs.kernels.appearance[size_t(surface)]) ++calls;
-                            if (int32_t bad = albedo_at(rs, prim, q, nn, dd, uv, P.iteration,
-                                                        mix64(mix64(kRenderKey ^ pix) ^ uint64_t(s)),
-                                                        row.data(), tex.data(), albedo))
-                                count_nonfinite(bad_local, kAppearanceEvent, 0, surface, bad);
+                        float uv[2] = {0.0f, 0.0f};
+                        if (has_uvs) {
+                            const float bu = rh.hit.u, bv = rh.hit.v, bw = 1.0f - bu - bv;
+                            const float* c3 = uvs + 6 * size_t(prim);
+                            uv[0] = bw * c3[0] + bu * c3[2] + bv * c3[4];
+                            uv[1] = bw * c3[1] + bu * c3[3] + bv * c3[5];
                         }
-                        // Lighting: sky ambient x (1 - occluded fraction) + sun.
-                        float light = ambient;
+                        const float q[3] = {p.x, p.y, p.z}, nn[3] = {n.x, n.y, n.z};
+                        const float dd[3] = {dir.x, dir.y, dir.z};
+                        const uint64_t key = mix64(mix64(kRenderKey ^ pix) ^ uint64_t(s));
+                        float look[GAMMA_LOOK_WIDTH];
+                        if (rs.kernels.appearance[size_t(surface)]) ++calls;
+                        if (int32_t bad = look_at(rs, prim, q, nn, dd, uv, P.iteration, key, row.data(), tex.data(),
+                                                  look))
+                            count_nonfinite(bad_local, kAppearanceEvent, 0, surface, bad);
+                        V3 shade_n = ns;
+                        if (rs.kernels.displaces[size_t(surface)]) {
+                            // The displacement's slope bends the shading normal: its change
+                            // over a surfel spacing along two directions in the surface.
+                            V3 t, b;
+                            onb(n, t, b);
+                            const float step = bump_step;
+                            float slope[2];
+                            for (int axis = 0; axis < 2; ++axis) {
+                                const V3 moved = p + (axis == 0 ? t : b) * step;
+                                const float mq[3] = {moved.x, moved.y, moved.z};
+                                float other[GAMMA_LOOK_WIDTH];
+                                look_at(rs, prim, mq, nn, dd, uv, P.iteration, key, row.data(), tex.data(), other);
+                                calls += 1;
+                                slope[axis] = (other[GAMMA_LOOK_DISPLACEMENT] - look[GAMMA_LOOK_DISPLACEMENT]) / step;
+                            }
+                            const V3 bent = normalize(ns - t * slope[0] - b * slope[1]);
+                            if (dot(bent, bent) > 0.0f) shade_n = bent;
+                        }
+                        // Lighting: sky x (1 - occluded fraction), a sun with shadows.
+                        float sky = ambient;
                         if (A > 0) {
                             int open = 0;
                             const V3 o = p + n * eps;
@@ -522,18 +597,16 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
                                 if (!I.occluded(o, cosine_hemisphere(n, u1, u2), eps, ao_len)) ++open;
                             }
                             rays += A;
-                            light = ambient * (float(open) / float(A));
+                            sky = ambient * (float(open) / float(A));
                         }
-                        if (sun_on) {
-                            const float cs = dot(ns, sun);
-                            if (cs > 0 && dot(n, sun) > 0) {
-                                ++rays;
-                                if (!I.occluded(p + n * eps, sun, eps, std::numeric_limits<float>::infinity()))
-                                    light += kSunIntensity * cs;
-                            }
+                        float sun_visible = 0.0f;
+                        if (sun_on && dot(shade_n, sun) > 0 && dot(n, sun) > 0) {
+                            ++rays;
+                            if (!I.occluded(p + n * eps, sun, eps, std::numeric_limits<float>::infinity()))
+                                sun_visible = 1.0f;
                         }
-                        const float enc = std::pow(light, inv_gamma);  // pow(1, x) == 1 exactly
-                        for (int c = 0; c < 3; ++c) acc[c] += clamp01(albedo[c] * enc);
+                        const Radiance L = shade_look(look, shade_n, dir * -1.0f, up, sun, sun_visible, sky);
+                        for (int c = 0; c < 3; ++c) acc[c] += std::pow(clamp01(L.c[c]), inv_gamma);
                     }
                     float* o = out + 4 * size_t(pix);
                     for (int c = 0; c < 3; ++c) o[c] = float(acc[c] / double(S));

@@ -258,11 +258,19 @@ void Simulation::set_base_colours(BaseColours base) {
     if (base.texture.size() != base.factor.size()) fail("one texture index per material is needed");
     for (int32_t m : base.triangle_material)
         if (m < -1 || m >= int32_t(base.factor.size())) fail("material " + std::to_string(m) + " out of range");
-    for (int32_t t : base.texture)
-        if (t < -1 || t >= int32_t(base.images.size())) fail("texture " + std::to_string(t) + " out of range");
+    if (!base.rough_metal.empty() && base.rough_metal.size() != base.factor.size())
+        fail("one roughness and metallic per material is needed");
+    if (!base.rough_metal_texture.empty() && base.rough_metal_texture.size() != base.factor.size())
+        fail("one metallic-roughness texture index per material is needed");
+    for (const std::vector<int32_t>* list : {&base.texture, &base.rough_metal_texture})
+        for (int32_t t : *list)
+            if (t < -1 || t >= int32_t(base.images.size())) fail("texture " + std::to_string(t) + " out of range");
     for (const auto& f : base.factor)
         for (float x : f)
             if (!std::isfinite(x)) fail("a factor is not finite");
+    for (const auto& f : base.rough_metal)
+        for (float x : f)
+            if (!(x >= 0.0f && x <= 1.0f)) fail("a roughness or metallic factor is outside [0, 1]");
     validate_textures(base.images);
     const std::vector<int32_t>& tri_surface = index_->tri_surface();
     constexpr int32_t kUnset = -2;
@@ -281,9 +289,9 @@ void Simulation::prepare_points(size_t k, const float* positions, const float* n
     prepared_ = BakePoints::prepare(render_scene(), k, positions, normals, triangles, uvs, threads);
 }
 
-void Simulation::bake_prepared(int iteration, int threads, float* rows_out, float* rgb_out) const {
+void Simulation::bake_prepared(int iteration, int threads, float* rows_out, float* look_out) const {
     if (prepared_.size() == 0) throw Error("bake_prepared: no points prepared (or the shape changed since)");
-    gammart::bake_prepared(render_scene(), prepared_, iteration, threads, rows_out, rgb_out);
+    gammart::bake_prepared(render_scene(), prepared_, iteration, threads, rows_out, look_out);
 }
 
 void Simulation::update_corner_normals() {
@@ -389,16 +397,16 @@ void Simulation::interpolate_row(int surface, const float p[3], float* out) cons
 
 float Simulation::smoothing_sigma() const { return index_->sigma(); }
 
-int32_t Simulation::albedo_at(uint32_t triangle, const float p[3], const float n[3], const float dir[3],
-                              const float uv[2], int iteration, uint64_t random_key, float* row, float* tex,
-                              float out_rgb[3]) const {
-    return gammart::albedo_at(render_scene(), triangle, p, n, dir, uv, iteration, random_key, row, tex, out_rgb);
+int32_t Simulation::look_at(uint32_t triangle, const float p[3], const float n[3], const float dir[3],
+                            const float uv[2], int iteration, uint64_t random_key, float* row, float* tex,
+                            float out_look[GAMMA_LOOK_WIDTH]) const {
+    return gammart::look_at(render_scene(), triangle, p, n, dir, uv, iteration, random_key, row, tex, out_look);
 }
 
 void Simulation::bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
-                             const float* uvs, int iteration, int threads, float* rows_out, float* rgb_out) const {
+                             const float* uvs, int iteration, int threads, float* rows_out, float* look_out) const {
     gammart::bake_points(render_scene(), k, positions, normals, triangles, uvs, iteration, threads, rows_out,
-                         rgb_out);
+                         look_out);
 }
 
 void Simulation::set_textures(std::vector<Texture> textures) {

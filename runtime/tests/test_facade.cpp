@@ -84,17 +84,19 @@ TEST(Facade, BakerGivesTheSmoothedRowAndNeutralAlbedo) {
     sim.set_rows(rows.data());
     const float pos[6] = {0.3f, 0.4f, 0, 0.7f, 0.2f, 0}, nrm[6] = {0, 0, 1, 0, 0, 1}, uv[4] = {0, 0, 0, 0};
     const int32_t tri[2] = {0, 1};
-    float out_rows[8], rgb[6];
-    sim.bake_points(2, pos, nrm, tri, uv, 1, 2, out_rows, rgb);
+    float out_rows[8], look[2 * GAMMA_LOOK_WIDTH];
+    sim.bake_points(2, pos, nrm, tri, uv, 1, 2, out_rows, look);
     for (int k = 0; k < 2; ++k) {
         float ref[4];
         sim.interpolate_row(0, pos + 3 * k, ref);
         for (int col = 0; col < 4; ++col) EXPECT_EQ(out_rows[4 * k + col], ref[col]);
         EXPECT_NEAR(out_rows[4 * k + 3], pos[3 * k], 0.05f);  // smoothing of x is about x
-        for (int col = 0; col < 3; ++col) EXPECT_EQ(rgb[3 * k + col], kNeutralAlbedo);
+        for (int col = 0; col < 3; ++col) EXPECT_EQ(look[GAMMA_LOOK_WIDTH * k + col], kNeutralAlbedo);
+        EXPECT_EQ(look[GAMMA_LOOK_WIDTH * k + GAMMA_LOOK_ROUGHNESS], GAMMA_LOOK_DEFAULT_ROUGHNESS);
+        EXPECT_EQ(look[GAMMA_LOOK_WIDTH * k + GAMMA_LOOK_OCCLUSION], 1.0f);
     }
     const int32_t bad[1] = {2};
-    EXPECT_NE(expect_error([&] { sim.bake_points(1, pos, nrm, bad, uv, 1, 1, out_rows, rgb); })
+    EXPECT_NE(expect_error([&] { sim.bake_points(1, pos, nrm, bad, uv, 1, 1, out_rows, look); })
                   .find("triangle 2 out of range"),
               std::string::npos);
 }

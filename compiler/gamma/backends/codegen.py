@@ -45,13 +45,13 @@ class _KernelBuilder:
         fnty = TRANSPORT_FNTY if transport else APPEARANCE_FNTY if appearance else UPDATE_FNTY
         fn = ir.Function(module, fnty, kernel.symbol)
         fn.linkage = "external"
-        self.ton = self.delta = self.textures = self.rgb = None
+        self.ton = self.delta = self.textures = self.look = None
         if transport:
             self.ton, self.surf, self.delta, self.ctx = fn.args
             names = ("ton", "surf", "surf_delta", "ctx")
         elif appearance:
-            self.surf, self.textures, self.rgb, self.ctx = fn.args
-            names = ("surf", "textures", "rgb", "ctx")
+            self.surf, self.textures, self.look, self.ctx = fn.args
+            names = ("surf", "textures", "look", "ctx")
         else:
             self.surf, self.ctx = fn.args
             names = ("surf", "ctx")
@@ -64,9 +64,6 @@ class _KernelBuilder:
         self.first_bad = self.b.alloca(I32, name="first_bad")  # see abi.TRANSPORT_SIGNATURE
         self.b.store(ir.Constant(I32, 0), self.first_bad)
         self.random_key = None
-        if appearance:   # `color` starts as the scene's base colour (SPEC §8a)
-            for c, value in enumerate(self.texture(kernel.base_slot)):
-                self.b.store(value, self.slot_ptr(self.rgb, c))
 
     def _intrinsic(self, name: str, arity: int = 2):
         return self.module.declare_intrinsic(name, [F32], ir.FunctionType(F32, [F32] * arity))
@@ -84,8 +81,10 @@ class _KernelBuilder:
     def load(self, var: I.Var, lets: dict):
         if var.space == "let":
             return lets[var.name]
-        if var.space == "color":
-            return tuple(self.b.load(self.slot_ptr(self.rgb, c), typ=F32) for c in range(3))
+        if var.space == "look":
+            if var.name == "color":
+                return tuple(self.b.load(self.slot_ptr(self.look, var.slot + c), typ=F32) for c in range(3))
+            return self.b.load(self.slot_ptr(self.look, var.slot), typ=F32)
         if var.space == "ctx":
             index = _CONTEXT_INDEX[var.name]
             _, ctype, count = abi.CONTEXT_FIELDS[index]
@@ -230,9 +229,10 @@ class _KernelBuilder:
         var = st.target
         value = self.expr(st.value, lets)
         b = self.b
-        if var.space == "color":
-            for c in range(3):
-                self.store_finite(value[c], self.slot_ptr(self.rgb, c), st.number)
+        if var.space == "look":   # the look array holds the outputs' starting values (abi)
+            values = value if isinstance(value, tuple) else (value,)
+            for c, v in enumerate(values):
+                self.store_finite(v, self.slot_ptr(self.look, var.slot + c), st.number)
             return
         if var.space == "surf" and self.delta is not None:
             ptr = self.slot_ptr(self.delta, var.slot)  # transport: accumulate a delta

@@ -71,11 +71,11 @@ class _Call:
     """One kernel call: the caller's arrays, addressed by name, and the
     bookkeeping a call needs (statement count, random() sites, first bad)."""
 
-    def __init__(self, kernel: Kernel, ton, surf, delta, ctx: Context, textures=None, rgb=None):
+    def __init__(self, kernel: Kernel, ton, surf, delta, ctx: Context, textures=None, look=None):
         self.kernel, self.ton, self.surf, self.delta, self.ctx = kernel, ton, surf, delta, ctx
         self.row, self.carry = _row_layout(kernel), _ton_layout(kernel)
         self.transport = kernel.ton is not None
-        self.textures, self.rgb = textures, rgb
+        self.textures, self.look = textures, look
         self.first_bad = 0
         self.statement = 0        # statements are numbered in source order, not run order
         self.sites: dict[int, int] = {}
@@ -100,8 +100,10 @@ class _Call:
     def read(self, var: I.Var, lets: dict):
         if var.space == "let":
             return lets[var.name]
-        if var.space == "color":
-            return tuple(f32(c) for c in self.rgb)
+        if var.space == "look":
+            if var.name == "color":
+                return tuple(f32(self.look[var.slot + c]) for c in range(3))
+            return f32(self.look[var.slot])
         if var.space == "ctx":
             value = getattr(self.ctx, var.name)
             if not np.ndim(value):
@@ -153,10 +155,11 @@ class _Call:
                 self.store(st, self.eval(st.value, lets), numbers[id(st)])
 
     def store(self, st: I.Store, value, number: int) -> None:
-        if st.target.space == "color":
-            for c in range(3):
-                if np.isfinite(value[c]):
-                    self.rgb[c] = value[c]
+        if st.target.space == "look":
+            values = value if isinstance(value, tuple) else (value,)
+            for c, v in enumerate(values):
+                if np.isfinite(v):
+                    self.look[st.target.slot + c] = v
                 elif not self.first_bad:
                     self.first_bad = number
             return
@@ -214,11 +217,11 @@ def _number(kernel: Kernel) -> tuple[dict, dict]:
     return numbers, sites
 
 
-def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context, *, textures=None, rgb=None) -> int:
+def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context, *, textures=None, look=None) -> int:
     """Run in place, like the compiled kernel: ``ton`` and ``delta`` (transport)
     or ``surf`` (update) are float32 arrays that get modified.  Returns 0 or the
     number of the first statement whose result was NaN or infinite."""
-    call = _Call(kernel, ton, surf, delta, ctx, textures, rgb)
+    call = _Call(kernel, ton, surf, delta, ctx, textures, look)
     numbers, call.sites = _number(kernel)
     with np.errstate(all="ignore"):
         for body in kernel.bodies:
@@ -226,14 +229,32 @@ def run_kernel(kernel: Kernel, ton, surf, delta, ctx: Context, *, textures=None,
     return call.first_bad
 
 
-def run_appearance(kernel: Kernel, surf, textures, ctx: Context):
-    """The colour an appearance kernel gives: (rgb float32[3], first non-finite statement).
-    ``textures``: 3 floats per texture of the effect, then 3 for the scene's
-    base colour (SPEC §8a), which ``color`` starts as."""
+def start_look(base_colour, roughness: float | None = None, metallic: float | None = None) -> np.ndarray:
+    """The look array an appearance kernel starts from (abi.APPEARANCE_OUTPUTS):
+    the scene's base colour and material there, the other outputs' defaults."""
+    look = np.zeros(abi.APPEARANCE_WIDTH, np.float32)
+    at = abi.appearance_offsets()
+    look[0:3] = np.asarray(base_colour, np.float32)[:3]
+    for name, value in abi.APPEARANCE_DEFAULTS.items():
+        look[at[name]] = value
+    if roughness is not None:
+        look[at["roughness"]] = roughness
+    if metallic is not None:
+        look[at["metallic"]] = metallic
+    return look
+
+
+def run_appearance(kernel: Kernel, surf, textures, ctx: Context, look=None):
+    """What an appearance kernel gives: (look float32[abi.APPEARANCE_WIDTH]:
+    colour, roughness, ..., as assigned and unclamped; first non-finite
+    statement).  ``textures``: 3 floats per texture of the effect, then 3 for
+    the scene's base colour (SPEC §8a).  ``look``: the outputs' starting
+    values, as the runtime passes them (default: ``start_look`` of that base
+    colour)."""
     textures = np.asarray(textures, np.float32).reshape(-1)
     base = 3 * kernel.base_slot
     if len(textures) != base + 3:
         raise ValueError(f"run_appearance: {len(textures)} texture values, not {base + 3}")
-    rgb = textures[base:base + 3].copy()
-    bad = run_kernel(kernel, None, surf, None, ctx, textures=textures, rgb=rgb)
-    return rgb.copy(), bad
+    look = start_look(textures[base:base + 3]) if look is None else np.array(look, np.float32)
+    bad = run_kernel(kernel, None, surf, None, ctx, textures=textures, look=look)
+    return look.copy(), bad

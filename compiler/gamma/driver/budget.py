@@ -24,7 +24,7 @@ MAX_DISTANCE_IN_DIAGONALS = 1000.0
 LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
           "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
           "--size": (16, 8192), "--seed": (0, 2**63 - 1), "--samples": (1, 64), "--ao": (0, 256),
-          "--bake-size": (8, 8192)}
+          "--bake-size": (8, 16384)}   # export.MAX_BAKE_SIZE; the memory a bake needs is checked too
 
 #: Memory of a run, calibrated on `gammac run` (peak resident size): a fixed
 #: part (Python, LLVM, Embree), per surfel (surfel arrays, k-d trees, the

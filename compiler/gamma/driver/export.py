@@ -1,22 +1,26 @@
-"""Baking and export: the weathered scene as files artists open elsewhere.
+"""Baking and export: the weathered scene as texture sets and files that
+artists open elsewhere (SPEC §16.3, "export").
 
-- ``bake``: for a mesh with texture coordinates, every texel of a square
-  texture is mapped back to its point on the surface (triangles rasterised
-  in UV space), where the runtime gives the smoothed surfel row and the
-  appearance colour (``Simulation.bake_points``, the renderer's own code).
-  Empty texels next to filled ones are filled from their neighbours a few
-  times over ("seam bleeding"), so mip-mapping shows no dark seams.
-- ``write_glb``: glTF 2.0 binary with positions, normals, texture
-  coordinates, one float attribute per surface property (``_PROPERTYNAME``,
-  the glTF convention for application-specific attributes) and the
-  appearance colour: as the material's base-colour texture when baked, else
-  per vertex (``COLOR_0``) — never both, since viewers multiply them.
-
-Every object of the scene (``pieces``: OBJ object, else group, else mesh
-file) is exported on its own.  Objects without texture coordinates get a
-cell atlas (``cell_atlas``: two triangles per square cell); it only places
-texels: texture() lookups in appearance blocks still see the mesh's own
-coordinates (none: (0, 0)), as in the renders.
+- ``pieces``: the scene split into its objects (OBJ object, else group,
+  else mesh file; the regions of each surface after a shape change).
+- ``layout``: one object welded for export.  With the mesh's own texture
+  coordinates, a vertex per distinct (position, uv, shading normal); without
+  them, charts that keep neighbouring triangles together (``atlas.py``,
+  xatlas), welded inside each chart.  Normals are the renders' shading
+  normals (``--shading``/``--crease``), so Blender shows what ``gammac
+  render`` draws.
+- ``bake_texture_set``: every texel of the layout mapped back to its point
+  on the surface, where the runtime gives the smoothed surfel row and the
+  appearance block's look (``Simulation.bake_points``, the renderer's own
+  code): base colour, occlusion-roughness-metallic, displacement (height),
+  the tangent-space normal map derived from it (combined with the asset's
+  own normal map) and every property.  Empty texels around the charts are
+  filled from the same chart (dilation), so filtering and mip-maps never
+  mix two charts.
+- ``write_glb``: glTF 2.0 binary of all objects: per object a node and a
+  mesh named after it, a primitive and a material per surface (named after
+  the surface), metallic-roughness, normal and occlusion textures, and one
+  float attribute per property (``_NAME``).
 """
 
 from __future__ import annotations
@@ -24,11 +28,16 @@ from __future__ import annotations
 import io
 import json
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 BLEED_PASSES = 8
+#: Texels baked per call of the runtime (its rows are W floats each).
+BAKE_CHUNK = 1 << 20
+#: The texture set's images: file suffix -> what it holds (SPEC §16.3).
+CHANNELS = {"BaseColor": "base colour, sRGB", "ORM": "occlusion (R), roughness (G), metallic (B)",
+            "Normal": "tangent-space normal map (OpenGL: +Y up)", "Height": "displacement, 16-bit"}
 
 
 @dataclass
@@ -40,75 +49,73 @@ class Piece:
     vertices: np.ndarray         # float32 (n, 3), this object's only
     faces: np.ndarray            # (m, 3) indices into vertices
     own_uvs: np.ndarray | None   # the mesh's texture coordinates (m, 3, 2), for texture() lookups
-    layout: np.ndarray           # (m, 3, 2) where each triangle lies in the baked textures
 
 
-def pieces(scene, size: int = 1024) -> list[Piece]:
-    """The scene split into its objects, each with a texture layout: the mesh's
-    own coordinates, else a cell atlas for a ``size``² texture."""
+def pieces(scene) -> list[Piece]:
+    """The scene split into its objects (``scene.object_names``)."""
     mesh = scene.mesh
     verts = np.asarray(mesh.vertices(), np.float32)
     tris = np.asarray(mesh.triangles(), np.int64)
     uvs = np.asarray(mesh.triangle_uvs(), np.float32) if mesh.has_uvs else None
+    has_uv = getattr(scene, "triangle_has_uv", None)
     out = []
     for k, name in enumerate(scene.object_names):
         ids = np.flatnonzero(scene.triangle_object == k)
         if not len(ids):
             continue
         used, faces = np.unique(tris[ids], return_inverse=True)
-        faces = faces.reshape(-1, 3)
-        has_uv = getattr(scene, "triangle_has_uv", None)
         own = uvs[ids] if uvs is not None and (has_uv is None or has_uv[ids].all()) else None
-        layout = own if own is not None else cell_atlas(len(faces), size)
-        out.append(Piece(name, ids, verts[used], faces, own, layout))
+        out.append(Piece(name, ids, verts[used], faces.reshape(-1, 3), own))
     return out
 
 
-def cell_atlas(triangles: int, size: int) -> np.ndarray:
-    """Texture coordinates per triangle corner (m, 3, 2): two triangles per
-    square cell of a grid over the texture (one in each half, a texel of
-    gutter around each), every triangle the same shape in the texture.
+@dataclass
+class Layout:
+    """One object welded for export."""
 
-    A chart atlas (xatlas) keeps neighbours together but takes minutes on a
-    100k-triangle mesh; the weathering varies on the scale of the surfels,
-    which are about as many as the triangles, so a few texels per triangle
-    hold what there is to see.  Cells are whole texels wide, so a texel
-    never straddles two cells."""
-    cells = max(1, (triangles + 1) // 2)
-    grid = int(np.ceil(np.sqrt(cells)))
-    width = size // grid if size >= grid else size / grid   # texels per cell side
-    if width < 4:
-        import sys
+    piece: Piece
+    positions: np.ndarray        # float32 (k, 3)
+    normals: np.ndarray          # float32 (k, 3) unit shading normals
+    uvs: np.ndarray              # float32 (k, 2) in the baked textures (v up)
+    faces: np.ndarray            # int64 (m, 3), the piece's triangle order
+    chart: np.ndarray | None     # int32 (m,) chart per triangle (atlas), None for the mesh's own uvs
+    size: int                    # the textures' width and height
 
-        print(f"gammac: warning: a {size}² texture gives each of the {triangles:,} triangles of an "
-              f"object without texture coordinates under 2 texels; try --bake-size {grid * 4}",
-              file=sys.stderr)
-    k = np.arange(triangles)
-    cell = k // 2
-    x0 = (cell % grid) * width
-    y0 = (cell // grid) * width
-    first = (k % 2 == 0)                               # the upper-left half, else the lower-right
-    # corners in texel units inside the cell (y down): a texel of gutter at the
-    # cell's sides, half a texel on each side of the diagonal
-    pad = 1.0 if width >= 4 else 0.0
-    gap = 0.5 if width >= 2 else 0.0                   # too small a texture: a cell's texel to its first
-    far, near = width - pad, pad + gap
-    a = np.where(first[:, None], [pad, pad], [far, far])
-    b = np.where(first[:, None], [width - near, pad], [near, far])
-    c = np.where(first[:, None], [pad, width - near], [far, near])
-    corners = np.stack([a, b, c], axis=1) + np.stack([x0, y0], axis=1)[:, None, :]
-    u = corners[..., 0] / size
-    v = 1.0 - corners[..., 1] / size                   # texture v runs up
-    return np.stack([u, v], axis=-1).astype(np.float32)
+    @property
+    def corner_uvs(self) -> np.ndarray:
+        return self.uvs[self.faces]
 
 
-def weld(piece: Piece):
-    """One glTF vertex per distinct (vertex, uv) pair: returns
-    (vertex index per new vertex, uv per new vertex, triangles)."""
-    uvs = np.asarray(piece.layout, np.float32).reshape(-1, 2)
-    corners = np.column_stack([piece.faces.reshape(-1).astype(np.float64), uvs.astype(np.float64)])
-    keys, inverse = np.unique(corners, axis=0, return_inverse=True)
-    return keys[:, 0].astype(np.int64), keys[:, 1:].astype(np.float32), inverse.reshape(-1, 3)
+def weld(vertex: np.ndarray, uvs: np.ndarray, normals: np.ndarray):
+    """One vertex per distinct (vertex, uv, normal) of the corners: (vertex
+    per new vertex, uv per new vertex, normal per new vertex, triangles)."""
+    keys = np.column_stack([vertex.reshape(-1, 1).astype(np.float64),
+                            uvs.reshape(-1, 2).astype(np.float64), normals.reshape(-1, 3).astype(np.float64)])
+    unique, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return (unique[:, 0].astype(np.int64), unique[:, 1:3].astype(np.float32),
+            normals.reshape(-1, 3)[first].astype(np.float32), inverse.reshape(-1, 3))
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    corner = vertices.astype(np.float64)[faces]
+    n = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return (n / np.where(length > 0, length, 1)).astype(np.float32)
+
+
+def layout(piece: Piece, corner_normals: np.ndarray | None, size: int) -> Layout:
+    """``piece`` welded for a ``size``² texture set.  ``corner_normals``: the
+    renders' shading normals of the scene's triangles (m, 3, 3), None: flat."""
+    corners = (corner_normals[piece.triangles].astype(np.float32) if corner_normals is not None
+               else np.repeat(face_normals(piece.vertices, piece.faces)[:, None, :], 3, axis=1))
+    if piece.own_uvs is not None:
+        source, uvs, normals, faces = weld(piece.faces, piece.own_uvs, corners)
+        return Layout(piece, piece.vertices[source], normals, uvs, faces, None, size)
+    from .atlas import chart_atlas
+
+    atlas = chart_atlas(piece.vertices, piece.faces, size, corner_normals=corners)
+    return Layout(piece, piece.vertices[atlas.source], atlas.normals, atlas.uvs, atlas.faces,
+                  atlas.chart, size)
 
 
 def vertex_normals(positions: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -121,23 +128,16 @@ def vertex_normals(positions: np.ndarray, tris: np.ndarray) -> np.ndarray:
     return (normals / np.where(length > 0, length, 1)).astype(np.float32)
 
 
-def vertex_data(sim, piece: Piece, iteration: int, threads: int):
-    """Welded vertices: positions, normals, uvs, triangles, rows, colours and
-    the scene triangle each vertex was evaluated on."""
-    source, uvs, tris = weld(piece)
-    positions = piece.vertices[source]
-    normals = vertex_normals(positions.astype(np.float64), tris)
-    local = np.zeros(len(positions), np.int64)         # a triangle each vertex belongs to
-    local[tris.reshape(-1)] = np.repeat(np.arange(len(tris)), 3)
-    owner = piece.triangles[local].astype(np.int32)
-    if piece.own_uvs is not None:                      # texture() sees the mesh's coordinates
-        corner = np.zeros((len(positions), 2), np.float32)
-        corner[tris.reshape(-1)] = piece.own_uvs.reshape(-1, 2)
-        lookup = corner
-    else:
-        lookup = np.zeros((len(positions), 2), np.float32)
-    rows, rgb = sim.bake_points(positions, normals, owner, lookup, iteration, threads)
-    return positions, normals, uvs, tris.astype(np.uint32), rows, rgb, owner
+def vertex_looks(sim, lay: Layout, iteration: int, threads: int):
+    """At the layout's vertices: (rows, looks, scene triangle per vertex)."""
+    local = np.zeros(len(lay.positions), np.int64)     # a triangle each vertex belongs to
+    local[lay.faces.reshape(-1)] = np.repeat(np.arange(len(lay.faces)), 3)
+    owner = lay.piece.triangles[local].astype(np.int32)
+    lookup = np.zeros((len(lay.positions), 2), np.float32)
+    if lay.piece.own_uvs is not None:                  # texture() sees the mesh's coordinates
+        lookup[lay.faces.reshape(-1)] = lay.piece.own_uvs.reshape(-1, 2)
+    rows, look = sim.bake_points(lay.positions, lay.normals, owner, lookup, iteration, threads)
+    return np.asarray(rows), np.asarray(look), owner
 
 
 def rasterise_uv(corner_uvs: np.ndarray, size: int, chunk: int = 1 << 22):
@@ -187,6 +187,7 @@ def rasterise_uv(corner_uvs: np.ndarray, size: int, chunk: int = 1 << 22):
     return texels, np.concatenate(tri_idx)[first_hit], np.concatenate(bary)[first_hit]
 
 
+
 def bleed(image: np.ndarray, filled: np.ndarray, passes: int = BLEED_PASSES) -> np.ndarray:
     """Fill empty texels from the mean of their filled 4-neighbours, ``passes`` rings deep."""
     image, filled = image.copy(), filled.copy()
@@ -205,32 +206,134 @@ def bleed(image: np.ndarray, filled: np.ndarray, passes: int = BLEED_PASSES) -> 
     return image
 
 
-def bake(sim, piece: Piece, size: int, iteration: int, threads: int):
-    """Colour float32[size, size, 3] (seams bled), and for the covered texels:
-    their flat indices, their scene triangles and their smoothed rows (k, W)."""
-    texels, tris, bary = rasterise_uv(piece.layout, size)
-    corner = piece.vertices.astype(np.float64)[piece.faces[tris]]      # (k, 3, 3)
-    positions = np.einsum("kc,kcd->kd", bary, corner).astype(np.float32)
-    face = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
-    normals = (face / np.linalg.norm(face, axis=1, keepdims=True)).astype(np.float32)
-    if piece.own_uvs is not None:
-        lookup = np.einsum("kc,kcd->kd", bary, np.asarray(piece.own_uvs, np.float64)[tris])
-    else:
-        lookup = np.zeros((len(tris), 2))
-    scene_tris = piece.triangles[tris].astype(np.int32)
-    rows, rgb = sim.bake_points(positions, normals, scene_tris, lookup.astype(np.float32),
-                                iteration, threads)
-    return texture_from_texels(rgb, texels, size), texels, scene_tris, rows
+@dataclass
+class TextureSet:
+    """One object's baked images (row 0 = the top of the image), float32."""
+
+    size: int
+    base_color: np.ndarray           # (s, s, 3) display values
+    orm: np.ndarray                  # (s, s, 3) occlusion, roughness, metallic
+    normal: np.ndarray               # (s, s, 3) unit tangent-space normals
+    height: np.ndarray               # (s, s) displacement, scene units
+    properties: dict = field(default_factory=dict)   # name -> (s, s)
 
 
-def texture_from_texels(values: np.ndarray, texels: np.ndarray, size: int) -> np.ndarray:
-    """A (size, size, C) image with ``values`` at ``texels`` and bled seams."""
-    values = np.asarray(values, np.float32)
-    values = values.reshape(len(texels), -1) if len(texels) else values.reshape(0, max(1, values.shape[-1] if values.ndim > 1 else 1))
+def surface_frames(lay: Layout) -> tuple[np.ndarray, np.ndarray]:
+    """Per triangle the surface's change per unit of u and of v (m, 3) each."""
+    p = lay.positions.astype(np.float64)[lay.faces]
+    t = lay.corner_uvs.astype(np.float64)
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    d1, d2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    det = np.where(np.abs(det) > 1e-20, det, 1e-20)
+    pu = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) / det[:, None]
+    pv = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) / det[:, None]
+    return pu, pv
+
+
+def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map=None) -> TextureSet:
+    """The layout's texture set.  ``columns_of(rows, scene_triangles)`` gives
+    the property columns of smoothed rows; ``normal_map(lookup_uvs,
+    scene_triangles)``, when given, the asset's own tangent-space normals
+    there ((k, 3), or None where it has none)."""
+    size = lay.size
+    texels, tris, bary = rasterise_uv(lay.corner_uvs, size)
+    n_texels = len(texels)
+    look = np.zeros((n_texels, 7), np.float32)
+    normals = np.zeros((n_texels, 3), np.float32)
+    columns: dict = {}
+    piece = lay.piece
+    for first in range(0, n_texels, BAKE_CHUNK):
+        part = slice(first, first + BAKE_CHUNK)
+        b, t = bary[part], tris[part]
+        positions = np.einsum("kc,kcd->kd", b, lay.positions.astype(np.float64)[lay.faces[t]]).astype(np.float32)
+        n = np.einsum("kc,kcd->kd", b, lay.normals.astype(np.float64)[lay.faces[t]])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        normals[part] = n
+        if piece.own_uvs is not None:
+            lookup = np.einsum("kc,kcd->kd", b, piece.own_uvs.astype(np.float64)[t]).astype(np.float32)
+        else:
+            lookup = np.zeros((len(t), 2), np.float32)
+        scene_tris = piece.triangles[t].astype(np.int32)
+        rows, looks = sim.bake_points(positions, normals[part], scene_tris, lookup, iteration, threads)
+        look[part] = looks
+        for name, column in columns_of(np.asarray(rows), scene_tris).items():
+            columns.setdefault(name, np.zeros(n_texels, np.float32))[part] = column
+        if normal_map is not None:
+            own = normal_map(lookup, scene_tris)
+            if own is not None:
+                normals[part] = np.nan_to_num(own)   # replaced below by the tangent-space form
+    charts = None
+    if lay.chart is not None:
+        charts = np.full(size * size, -1, np.int32)
+        charts[texels] = lay.chart[tris]
+        charts = charts.reshape(size, size)
+
+    def image(values):
+        return fill(values, texels, size, charts)
+
+    height = image(look[:, 5])[..., 0]
+    tangent = tangent_normals(lay, height, texels, tris, normals if normal_map is not None else None)
+    return TextureSet(size, image(look[:, 0:3]), image(look[:, [6, 3, 4]]), image(tangent),
+                      height, {name: image(column)[..., 0] for name, column in columns.items()})
+
+
+def fill(values: np.ndarray, texels: np.ndarray, size: int, charts: np.ndarray | None) -> np.ndarray:
+    """A (size, size, C) image with ``values`` at ``texels``, its gutters
+    filled from the same chart (``charts``: chart per texel, -1 empty; None:
+    from any neighbour)."""
+    values = np.asarray(values, np.float32).reshape(len(texels), -1)
     image = np.zeros((size * size, values.shape[1]), np.float32)
+    image[texels] = values
+    image = image.reshape(size, size, -1)
+    if charts is not None:
+        from .atlas import dilate
+
+        return dilate(image, charts, BLEED_PASSES)
     covered = np.zeros(size * size, bool)
-    image[texels], covered[texels] = values, True
-    return bleed(image.reshape(size, size, -1), covered.reshape(size, size))
+    covered[texels] = True
+    return bleed(image, covered.reshape(size, size))
+
+
+def tangent_normals(lay: Layout, height: np.ndarray, texels, tris, own_normals) -> np.ndarray:
+    """Unit tangent-space normals (k, 3) at the covered texels: the surface
+    bent by the slope of the displacement, over the asset's own normal map
+    (``own_normals``, tangent space, or None: flat).  The tangent follows +u,
+    the bitangent +v (the image's up), as glTF and Blender read them."""
+    size = lay.size
+    k = len(texels)
+    flat = np.zeros((k, 3), np.float32)
+    flat[:, 2] = 1.0
+    base = flat if own_normals is None else own_normals
+    if not np.any(height):
+        return base
+    # slope per texel (rows run down the image, v up), then per unit of u and v
+    dy, dx = np.gradient(height.astype(np.float64))
+    i, j = texels // size, texels % size
+    dh_du, dh_dv = dx[i, j] * size, -dy[i, j] * size
+    pu, pv = surface_frames(lay)
+    pu, pv = pu[tris], pv[tris]
+    # the surface gradient g (in the plane of pu, pv) with g.pu = dh/du and g.pv = dh/dv
+    a11, a12, a22 = (pu * pu).sum(1), (pu * pv).sum(1), (pv * pv).sum(1)
+    det = a11 * a22 - a12 * a12
+    det = np.where(np.abs(det) > 1e-30, det, np.inf)
+    cu = (a22 * dh_du - a12 * dh_dv) / det
+    cv = (a11 * dh_dv - a12 * dh_du) / det
+    g = pu * cu[:, None] + pv * cv[:, None]
+    # the tangent frame: T along +u, B along +v, N = T x B's side of the surface
+    normal = np.cross(pu, pv)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-30)
+    tangent = pu / np.maximum(np.linalg.norm(pu, axis=1, keepdims=True), 1e-30)
+    bitangent = np.cross(normal, tangent)
+    bent = np.column_stack([-(g * tangent).sum(1), -(g * bitangent).sum(1), np.ones(k)])
+    bent /= np.linalg.norm(bent, axis=1, keepdims=True)
+    if own_normals is None:
+        return bent.astype(np.float32)
+    # reoriented normal mapping (Barré-Brisebois and Hill): the slope's bend on top of the asset's detail
+    t = base.astype(np.float64) + np.array([0.0, 0.0, 1.0])
+    u = bent * np.array([-1.0, -1.0, 1.0])
+    r = t * (t * u).sum(1, keepdims=True) / t[:, 2:3] - u
+    return (r / np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-30)).astype(np.float32)
 
 
 def png8(rgb: np.ndarray) -> bytes:
@@ -258,20 +361,54 @@ def png16(values: np.ndarray, span: tuple[float, float] | None = None) -> tuple[
     return out.getvalue(), low, high
 
 
-def write_glb(positions, normals, uvs, triangles, colours, attributes: dict,
-              texture_png: bytes | None = None, extras: dict | None = None, name: str = "gamma") -> bytes:
-    """glTF 2.0 binary (.glb) of one triangle mesh, its node and mesh named
-    ``name``.  The appearance colour goes in the base-colour texture when there
-    is one, else per vertex (``COLOR_0``): never both, since a viewer multiplies
-    the two."""
+
+
+def png_normal(normals: np.ndarray) -> bytes:
+    """Unit normals (h, w, 3) as an 8-bit normal map ((n + 1) / 2)."""
+    return png8((np.asarray(normals, np.float32) + 1.0) * 0.5)
+
+
+def png16_grey(values: np.ndarray, low: float, high: float) -> bytes:
+    return png16(values, (low, high))[0]
+
+
+def _glb(doc: dict, binary: bytes) -> bytes:
+    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    total = 12 + 8 + len(text) + 8 + len(binary)
+    return (struct.pack("<III", 0x46546C67, 2, total) + struct.pack("<II", len(text), 0x4E4F534A) + text
+            + struct.pack("<II", len(binary), 0x004E4942) + binary)
+
+
+@dataclass
+class ExportPart:
+    """One object as the glTF (and OBJ, USD) writers take it."""
+
+    name: str
+    positions: np.ndarray            # float32 (k, 3)
+    normals: np.ndarray              # float32 (k, 3)
+    uvs: np.ndarray                  # float32 (k, 2), v up
+    triangles: np.ndarray            # uint32 (m, 3)
+    primitives: list                 # (material name, triangle numbers) per surface
+    attributes: dict                 # property -> float32 (k,)
+    images: dict                     # "BaseColor", "ORM", "Normal" -> (image name, PNG bytes)
+
+
+def write_glb(parts: list[ExportPart], scene_name: str, extras: dict | None = None) -> bytes:
+    """glTF 2.0 binary of the exported objects: a node and a mesh per
+    object, a primitive per surface with its material (base colour,
+    metallic-roughness, normal and occlusion textures), every property as a
+    float vertex attribute ``_NAME``."""
     from .. import __version__
 
     chunks, views, accessors = [], [], []
+    images, textures, materials, meshes, nodes = [], [], [], [], []
+    size = [0]
 
     def add(data: bytes, target: int | None = None) -> int:
-        offset = sum(len(c) for c in chunks)
+        view = {"buffer": 0, "byteOffset": size[0], "byteLength": len(data)}
         chunks.append(data + b"\0" * (-len(data) % 4))
-        view = {"buffer": 0, "byteOffset": offset, "byteLength": len(data)}
+        size[0] += len(chunks[-1])
         if target is not None:
             view["target"] = target
         views.append(view)
@@ -280,64 +417,245 @@ def write_glb(positions, normals, uvs, triangles, colours, attributes: dict,
     def accessor(array: np.ndarray, kind: str, component: int, target: int, bounds=False) -> int:
         view = add(np.ascontiguousarray(array).tobytes(), target)
         acc = {"bufferView": view, "componentType": component, "count": int(len(array)), "type": kind}
-        if bounds:
-            acc["min"] = [float(v) for v in array.min(axis=0)]
-            acc["max"] = [float(v) for v in array.max(axis=0)]
+        if bounds and len(array):
+            acc["min"] = [float(v) for v in np.atleast_1d(array.min(axis=0))]
+            acc["max"] = [float(v) for v in np.atleast_1d(array.max(axis=0))]
         accessors.append(acc)
         return len(accessors) - 1
 
     FLOAT, UINT = 5126, 5125
     ARRAY, ELEMENTS = 34962, 34963
-    attrs = {"POSITION": accessor(positions.astype(np.float32), "VEC3", FLOAT, ARRAY, bounds=True),
-             "NORMAL": accessor(normals.astype(np.float32), "VEC3", FLOAT, ARRAY)}
-    if texture_png is None:
-        attrs["COLOR_0"] = accessor(np.clip(colours, 0, 1).astype(np.float32), "VEC3", FLOAT, ARRAY)
-    if uvs is not None:
-        # glTF's v runs downward from the top of the image
-        flipped = np.column_stack([uvs[:, 0], 1.0 - uvs[:, 1]]).astype(np.float32)
-        attrs["TEXCOORD_0"] = accessor(flipped, "VEC2", FLOAT, ARRAY)
-    for attribute, values in attributes.items():
-        attrs["_" + attribute.upper()] = accessor(values.astype(np.float32).reshape(-1, 1), "SCALAR",
-                                             FLOAT, ARRAY, bounds=True)
-    indices = accessor(triangles.astype(np.uint32).reshape(-1), "SCALAR", UINT, ELEMENTS)
-    material = {"name": "weathered", "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 0.8}}
+    for part in parts:
+        attrs = {"POSITION": accessor(part.positions.astype(np.float32), "VEC3", FLOAT, ARRAY, bounds=True),
+                 "NORMAL": accessor(part.normals.astype(np.float32), "VEC3", FLOAT, ARRAY),
+                 # glTF's v runs downward from the top of the image
+                 "TEXCOORD_0": accessor(np.column_stack([part.uvs[:, 0], 1.0 - part.uvs[:, 1]]).astype(np.float32),
+                                        "VEC2", FLOAT, ARRAY)}
+        for name, values in part.attributes.items():
+            attrs["_" + name.upper()] = accessor(values.astype(np.float32).reshape(-1, 1), "SCALAR", FLOAT,
+                                                 ARRAY, bounds=True)
+        texture_of = {}
+        for channel, (name, png) in part.images.items():
+            images.append({"name": name, "bufferView": add(png), "mimeType": "image/png"})
+            textures.append({"sampler": 0, "source": len(images) - 1, "name": name})
+            texture_of[channel] = len(textures) - 1
+        primitives = []
+        for material, faces in part.primitives:
+            pbr = {"metallicFactor": 1.0, "roughnessFactor": 1.0}
+            entry = {"name": material, "pbrMetallicRoughness": pbr}
+            if "BaseColor" in texture_of:
+                pbr["baseColorTexture"] = {"index": texture_of["BaseColor"]}
+            if "ORM" in texture_of:
+                pbr["metallicRoughnessTexture"] = {"index": texture_of["ORM"]}
+                entry["occlusionTexture"] = {"index": texture_of["ORM"]}
+            if "Normal" in texture_of:
+                entry["normalTexture"] = {"index": texture_of["Normal"]}
+            materials.append(entry)
+            indices = accessor(part.triangles[faces].astype(np.uint32).reshape(-1), "SCALAR", UINT, ELEMENTS)
+            primitives.append({"attributes": attrs, "indices": indices, "material": len(materials) - 1})
+        meshes.append({"name": part.name, "primitives": primitives})
+        nodes.append({"name": part.name, "mesh": len(meshes) - 1})
     doc = {"asset": {"version": "2.0", "generator": f"gamma {__version__}"}, "scene": 0,
-           "scenes": [{"name": name, "nodes": [0]}], "nodes": [{"name": name, "mesh": 0}],
-           "meshes": [{"name": name, "primitives": [{"attributes": attrs, "indices": indices, "material": 0}]}],
-           "materials": [material], "accessors": accessors}
-    if texture_png is not None:
-        doc["images"] = [{"bufferView": add(texture_png), "mimeType": "image/png"}]
-        doc["samplers"] = [{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]
-        doc["textures"] = [{"sampler": 0, "source": 0}]
-        material["pbrMetallicRoughness"]["baseColorTexture"] = {"index": 0}
+           "scenes": [{"name": scene_name, "nodes": list(range(len(nodes)))}], "nodes": nodes,
+           "meshes": meshes, "materials": materials, "accessors": accessors}
+    if images:
+        doc["images"], doc["textures"] = images, textures
+        doc["samplers"] = [{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}]
     if extras:
         doc["extras"] = extras
     doc["bufferViews"] = views
     binary = b"".join(chunks)
     doc["buffers"] = [{"byteLength": len(binary)}]
-    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
-    text += b" " * (-len(text) % 4)
-    total = 12 + 8 + len(text) + 8 + len(binary)
-    return (struct.pack("<III", 0x46546C67, 2, total) + struct.pack("<II", len(text), 0x4E4F534A) + text
-            + struct.pack("<II", len(binary), 0x004E4942) + binary)
+    return _glb(doc, binary)
 
 
-def write_obj(positions, normals, uvs, triangles, material_name: str | None) -> bytes:
-    """Wavefront OBJ of the welded mesh (indices shared by v, vt and vn).
-    Lines are formatted by one %-operation per block (not one per line)."""
+def write_obj(part: ExportPart, mtl_file: str) -> bytes:
+    """Wavefront OBJ of one exported object (indices shared by v, vt and vn:
+    its welded vertices), a ``usemtl`` per surface.  Lines are formatted by
+    one %-operation per block (not one per line)."""
 
     def block(template: str, rows: np.ndarray) -> str:
         rows = np.asarray(rows)
         return (template * len(rows)) % tuple(rows.reshape(-1).tolist()) if len(rows) else ""
 
-    head = "# exported by gamma\n"
-    if material_name:
-        head += f"mtllib {material_name}.mtl\nusemtl {material_name}\n"
-    corners = np.asarray(triangles, np.int64) + 1
-    text = [head, block("v %.7g %.7g %.7g\n", positions), block("vn %.7g %.7g %.7g\n", normals)]
-    if uvs is not None:
-        text.append(block("vt %.7g %.7g\n", uvs))
-        text.append(block("f %d/%d/%d %d/%d/%d %d/%d/%d\n", np.repeat(corners, 3, axis=1)))
-    else:
-        text.append(block("f %d//%d %d//%d %d//%d\n", np.repeat(corners, 2, axis=1)))
-    return "".join(text).encode("ascii")
+    text = [f"# exported by gamma\nmtllib {mtl_file}\no {part.name}\n",
+            block("v %.7g %.7g %.7g\n", part.positions), block("vn %.7g %.7g %.7g\n", part.normals),
+            block("vt %.7g %.7g\n", part.uvs)]
+    corners = np.asarray(part.triangles, np.int64) + 1
+    for material, faces in part.primitives:
+        text.append(f"usemtl {material}\n")
+        text.append(block("f %d/%d/%d %d/%d/%d %d/%d/%d\n", np.repeat(corners[faces], 3, axis=1)))
+    return "".join(text).encode("utf-8")
+
+
+def write_mtl(part: ExportPart, files: dict) -> bytes:
+    """The OBJ's materials: the base colour map and the normal map (``norm``,
+    which Blender's OBJ importer reads); roughness and metallic are in the
+    glTF's ORM texture."""
+    text = ["# exported by gamma\n"]
+    for material, _ in part.primitives:
+        text.append(f"newmtl {material}\nKd 1 1 1\n")
+        if "BaseColor" in files:
+            text.append(f"map_Kd {files['BaseColor']}\n")
+        if "Normal" in files:
+            text.append(f"norm {files['Normal']}\n")
+    return "".join(text).encode("utf-8")
+
+
+def safe_name(name: str) -> str:
+    """A part's name as a file name."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "object"
+
+
+def texel_size(piece: Piece, lay_uvs: np.ndarray, density: float) -> int:
+    """The texture size that gives ``density`` texels per scene unit on the
+    piece, given its corner uvs (m, 3, 2): sqrt(surface area / uv area)."""
+    p = piece.vertices.astype(np.float64)[piece.faces]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
+    t = lay_uvs.astype(np.float64)
+    uv_area = 0.5 * np.abs((t[:, 1, 0] - t[:, 0, 0]) * (t[:, 2, 1] - t[:, 0, 1])
+                           - (t[:, 2, 0] - t[:, 0, 0]) * (t[:, 1, 1] - t[:, 0, 1])).sum()
+    side = density * np.sqrt(area / max(uv_area, 1e-12))
+    return int(min(max(4 * np.ceil(side / 4), 16), MAX_BAKE_SIZE))
+
+
+#: The largest texture side baked (--bake-size, or what --texel-density asks for).
+MAX_BAKE_SIZE = 16384
+#: Bytes a bake holds per texel at its peak (the texel's point, normal,
+#: look, rows and the images being made), besides W floats of its row.
+BYTES_PER_TEXEL = 160
+
+
+def bake_memory(size: int, row_width: int, properties: int) -> int:
+    """An estimate of the peak memory of baking one ``size``² texture set."""
+    texels = size * size
+    return texels * (BYTES_PER_TEXEL + 12 * properties) + min(texels, BAKE_CHUNK) * 4 * row_width
+
+
+def available_memory() -> int | None:
+    try:
+        with open("/proc/meminfo", encoding="ascii") as info:
+            for line in info:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def memory_problem(size: int, row_width: int, properties: int) -> str | None:
+    """Why a ``size``² bake cannot be made here (its estimated peak memory
+    is more than this machine has available), or None."""
+    need, have = bake_memory(size, row_width, properties), available_memory()
+    if have is None or need <= 0.8 * have:
+        return None
+    return (f"a {size:,}² texture set needs about {need / 2**30:.1f} GiB while baking and "
+            f"{have / 2**30:.1f} GiB is available; choose a smaller --bake-size or --texel-density")
+
+
+class Exporter:
+    """Writes a run's export (SPEC §16.3) for one iteration at a time from
+    the simulation's current state: ``export/SCENE_NNNN.glb`` and per object
+    ``export/OBJECT/`` with its texture set, OBJ + MTL and a sidecar JSON.
+    ``ranges``: property -> (low, high) over the whole run, which every
+    16-bit property map spans."""
+
+    def __init__(self, run, bake_size: int | None, texel_density: float | None, ranges: dict):
+        from pathlib import Path
+
+        self.run, self.ranges = run, {k: tuple(v) for k, v in ranges.items()}
+        self.bake_size, self.texel_density = bake_size or 1024, texel_density
+        self.scene_name = safe_name(Path(run.opts.scene).stem)
+        self.layouts = None
+
+    def _layouts(self) -> list[Layout]:
+        run = self.run
+        if self.layouts is None or run.shapes:       # a changing shape is laid out again
+            scene = run.export_scene()
+            self.triangle_surface = np.asarray(scene.triangle_surface)
+            corner = np.asarray(run.sim.corner_normals())
+            self.layouts = []
+            properties = len({n for s in run.effect.surfaces.values() for n in s.properties})
+            for piece in pieces(scene):
+                size = self.bake_size
+                lay = layout(piece, corner, size)
+                if self.texel_density:
+                    size = texel_size(piece, lay.corner_uvs, self.texel_density)
+                    if size != lay.size:
+                        lay = layout(piece, corner, size)
+                problem = memory_problem(lay.size, run.effect.row_width, properties)
+                if problem:
+                    from .runner import RunError
+
+                    raise RunError(f"cannot export '{piece.name}': {problem}")
+                self.layouts.append(lay)
+        return self.layouts
+
+    def write(self, iteration: int) -> None:
+        from ..files import atomic_write
+        from .runner import property_columns
+
+        run = self.run
+        effect, sim = run.effect, run.sim
+        names = list(effect.surfaces)
+        surface_parts: dict = {}
+        layouts = self._layouts()
+        for lay in layouts:
+            for s in np.unique(self.triangle_surface[lay.piece.triangles]):
+                surface_parts.setdefault(int(s), []).append(lay.piece.name)
+        out = run.out / "export"
+        parts, stem = [], f"{iteration:04d}"
+        for lay in layouts:
+            piece = lay.piece
+            surfaces = self.triangle_surface[piece.triangles]
+
+            def columns_of(rows, scene_tris):
+                return property_columns(effect, rows, self.triangle_surface[scene_tris])
+
+            rows, _, owner = vertex_looks(sim, lay, iteration, run.threads)
+            attributes = property_columns(effect, rows, self.triangle_surface[owner])
+            ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of)
+            part_name = safe_name(piece.name)
+            folder = out / part_name
+            files, sidecar = {}, {"iteration": iteration, "object": piece.name, "size": lay.size,
+                                  "images": {}, "properties": {}}
+
+            def image(channel: str, data: bytes, **about) -> None:
+                file = f"{part_name}_{channel}_{stem}.png"
+                atomic_write(folder / file, data)
+                files[channel] = file
+                sidecar["images"][channel] = {"file": file, "holds": CHANNELS.get(channel, channel), **about}
+
+            base, orm, normal = png8(ts.base_color), png8(ts.orm), png_normal(ts.normal)
+            image("BaseColor", base, colour_space="sRGB")
+            image("ORM", orm, colour_space="linear")
+            image("Normal", normal, colour_space="linear")
+            reach = float(np.max(np.abs(ts.height))) if ts.height.size else 0.0
+            image("Height", png16_grey(ts.height, -reach, reach), min=-reach, max=reach,
+                  unit="scene units along the normal (0 is mid-grey)")
+            for prop, values in ts.properties.items():
+                low, high = self.ranges.get(prop, (float(np.min(values)), float(np.max(values))))
+                file = f"{part_name}_{prop}_{stem}.png"
+                atomic_write(folder / file, png16_grey(values, low, high))
+                sidecar["properties"][prop] = {"file": file, "min": low, "max": high,
+                                               "scale": "0..65535 spans min..max over the whole run"}
+            primitives = []
+            for s in np.unique(surfaces):
+                surface = names[int(s)]
+                material = surface if len(surface_parts[int(s)]) == 1 else f"{surface}_{part_name}"
+                primitives.append((material, np.flatnonzero(surfaces == s)))
+            part = ExportPart(piece.name, lay.positions, lay.normals, lay.uvs, lay.faces.astype(np.uint32),
+                              primitives, attributes,
+                              {"BaseColor": (f"{part_name}_BaseColor_{stem}", base),
+                               "ORM": (f"{part_name}_ORM_{stem}", orm),
+                               "Normal": (f"{part_name}_Normal_{stem}", normal)})
+            parts.append(part)
+            atomic_write(folder / f"{part_name}_{stem}.obj", write_obj(part, f"{part_name}_{stem}.mtl"))
+            atomic_write(folder / f"{part_name}_{stem}.mtl", write_mtl(part, files))
+            atomic_write(folder / f"{part_name}_{stem}.json",
+                         (json.dumps(sidecar, indent=1) + "\n").encode("utf-8"))
+        extras = {"gamma": {"iteration": iteration, "effect": str(effect.path),
+                            "properties": {p: {"min": lo, "max": hi} for p, (lo, hi) in self.ranges.items()}}}
+        atomic_write(out / f"{self.scene_name}_{stem}.glb", write_glb(parts, self.scene_name, extras))

@@ -22,6 +22,21 @@ GLTF_SUFFIXES = (".gltf", ".glb")
 
 
 @dataclass
+class Material:
+    """A glTF part's material as the renders and exports use it: base colour
+    (factor times texture), roughness and metallic (factors times the
+    metallic-roughness texture's green and blue), and its normal map."""
+
+    name: str | None
+    base_factor: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    base_colour: np.ndarray | None = None      # float32 (h, w, 3) display values
+    roughness: float = 1.0                     # glTF's defaults
+    metallic: float = 1.0
+    rough_metal: np.ndarray | None = None      # float32 (h, w, 3): roughness in G, metallic in B
+    normal_map: np.ndarray | None = None       # float32 (h, w, 3): tangent-space normals as stored
+
+
+@dataclass
 class GltfPart:
     node: str
     mesh: str
@@ -29,9 +44,7 @@ class GltfPart:
     vertices: np.ndarray               # float32 (n, 3), world space
     faces: np.ndarray                  # int32 (m, 3)
     uvs: np.ndarray | None             # float32 (m, 3, 2), OBJ convention (v up), or None
-    base_colour: np.ndarray | None     # float32 (h, w, 3) display values, or None
-    base_factor: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    has_material: bool = False
+    look: Material | None = None       # None: the part has no material
 
 
 def is_gltf(path: str | Path) -> bool:
@@ -68,40 +81,51 @@ def _parts(path: Path, scene, trimesh) -> list[GltfPart]:
         uvs = np.asarray(uv, np.float32)[faces] if uv is not None and len(uv) == len(verts) else None
         material = getattr(visual, "material", None)
         try:
-            image, factor = _base_colour(material)
+            look = _material(material) if material is not None else None
         except GltfError as err:
             raise GltfError(f"glTF '{path}', node '{node}': {err}") from None
         parts.append(GltfPart(str(node), str(geometry_name), getattr(material, "name", None),
-                              world.astype(np.float32), faces.astype(np.int32), uvs, image, factor,
-                              material is not None))
+                              world.astype(np.float32), faces.astype(np.int32), uvs, look))
     if not parts:
         raise GltfError(f"glTF '{path}' has no triangle mesh")
     return parts
 
 
-def _base_colour(material):
-    """(texture as float32 [h, w, 3] or None, RGB factor) of a glTF material."""
-    if material is None:
-        return None, (1.0, 1.0, 1.0)
-    image = getattr(material, "baseColorTexture", None)
-    if image is None:
-        image = getattr(material, "image", None)      # trimesh's SimpleMaterial
+def _material(material) -> Material:
+    """A trimesh material (PBRMaterial, or SimpleMaterial for old files) as a Material."""
     factor = getattr(material, "baseColorFactor", None)
     rgb = (1.0, 1.0, 1.0)
     if factor is not None:
         f = np.asarray(factor, float).reshape(-1)
         scale = 255.0 if f.dtype.kind in "iu" or f.max() > 1.0 else 1.0
         rgb = tuple(float(c) / scale for c in f[:3])
-    if image is not None:
-        width, height = image.size
-        if width * height > MAX_TEXTURE_PIXELS:
-            raise GltfError(f"a base-colour texture of {width} x {height} pixels is larger than "
-                            f"{MAX_TEXTURE_SIDE} x {MAX_TEXTURE_SIDE}")
-        try:
-            image = np.asarray(image.convert("RGB"), np.float32) / 255.0
-        except (OSError, ValueError) as err:
-            raise GltfError(f"a base-colour texture cannot be decoded ({err})") from None
-    return image, rgb
+    image = getattr(material, "baseColorTexture", None)
+    if image is None:
+        image = getattr(material, "image", None)      # trimesh's SimpleMaterial
+    look = Material(getattr(material, "name", None), rgb, _image(image, "base-colour"))
+    for name in ("roughness", "metallic"):
+        value = getattr(material, f"{name}Factor", None)
+        if value is not None:
+            if not (np.isfinite(value) and 0.0 <= float(value) <= 1.0):
+                raise GltfError(f"its {name}Factor {value} is outside [0, 1]")
+            setattr(look, name, float(value))
+    look.rough_metal = _image(getattr(material, "metallicRoughnessTexture", None), "metallic-roughness")
+    look.normal_map = _image(getattr(material, "normalTexture", None), "normal")
+    return look
+
+
+def _image(image, what: str) -> np.ndarray | None:
+    """A material's PIL image as float32 (h, w, 3) in [0, 1], checked for size."""
+    if image is None:
+        return None
+    width, height = image.size
+    if width * height > MAX_TEXTURE_PIXELS:
+        raise GltfError(f"a {what} texture of {width} x {height} pixels is larger than "
+                        f"{MAX_TEXTURE_SIDE} x {MAX_TEXTURE_SIDE}")
+    try:
+        return np.asarray(image.convert("RGB"), np.float32) / 255.0
+    except (OSError, ValueError) as err:
+        raise GltfError(f"a {what} texture cannot be decoded ({err})") from None
 
 
 #: The largest base-colour texture read (as for texture() in effects, SPEC §8a;

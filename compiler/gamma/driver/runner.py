@@ -50,8 +50,9 @@ class RunOptions(Record):
     show: str | None = None       # property rendered in false colour
     width: int = 512
     height: int = 512
-    export: bool = False        # glTF / OBJ (+ baked textures) per iteration
+    export: bool | str = False  # texture sets + glTF/OBJ: "last" (or True) or "all" iterations
     bake_size: int = 1024       # baked texture width and height
+    texel_density: float | None = None   # texels per scene unit (instead of bake_size)
     samples: int = 4            # camera rays per pixel (appearance renders)
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
@@ -167,7 +168,7 @@ def build_config(rt, effect: Effect, kernels, opts: "RunOptions", bounds, down):
     for k in effect.update_kernels():
         cfg.set_update(k.surface.index, kernels.address[k.symbol])
     for k in effect.appearance_kernels():
-        cfg.set_appearance(k.surface.index, kernels.address[k.symbol])
+        cfg.set_appearance(k.surface.index, kernels.address[k.symbol], k.writes_look("displacement"))
     for surface in effect.surfaces.values():
         for slot, rate, _ in surface.shape.values():
             cfg.add_shape_rate(surface.index, slot, rate)
@@ -223,6 +224,22 @@ def load_textures(effect: Effect) -> list[np.ndarray]:
         except (OSError, UnidentifiedImageError, Image.DecompressionBombError, ValueError) as err:
             raise RunError(f"cannot read texture '{path}': {err}") from None
     return images
+
+
+def set_materials(sim, triangle_material: np.ndarray, materials: list) -> None:
+    """Hand the scene's own materials (gltf.Material per material) to the
+    runtime: base colour, roughness and metallic, factors and textures."""
+    images = []
+
+    def number(image) -> int:
+        if image is None:
+            return -1
+        images.append(np.ascontiguousarray(image, np.float32))
+        return len(images) - 1
+
+    factors = np.asarray([(*m.base_factor, m.roughness, m.metallic) for m in materials], np.float32)
+    textures = np.asarray([(number(m.base_colour), number(m.rough_metal)) for m in materials], np.int32)
+    sim.set_base_colours(np.asarray(triangle_material, np.int32), factors, textures, images)
 
 
 def run_camera(scene, opts: "RunOptions"):
@@ -533,17 +550,25 @@ class Run(Record):
         self.static_columns = static_columns(self.sim, self.surfel_surface)
 
     def export_scene(self):
-        """The scene as export sees it: the deformed mesh as one object once the
-        shape has changed, else the loaded scene."""
+        """The scene as export sees it: the loaded scene, or, once the shape
+        may have changed, the deformed mesh with an object per surface, named
+        after the scene's object that held the surface (the surface's name
+        when several did)."""
         if not self.shapes:
             return self.scene
         from types import SimpleNamespace
 
         vertices, triangles = self.sim.mesh_arrays()
         mesh = self.rt.Mesh.from_arrays(vertices, triangles)
-        return SimpleNamespace(mesh=mesh, object_names=[Path(self.opts.scene).stem],
-                               triangle_object=np.zeros(len(triangles), np.int64),
-                               triangle_surface=np.asarray(self.sim.triangle_surfaces()))
+        surfaces = np.asarray(self.sim.triangle_surfaces())
+        loaded = self.scene
+        names, number = [], np.zeros(len(surfaces), np.int64)
+        for s in np.unique(surfaces):
+            held = np.unique(loaded.triangle_object[loaded.triangle_surface == s])
+            names.append(loaded.object_names[int(held[0])] if len(held) == 1 else list(self.effect.surfaces)[s])
+            number[surfaces == s] = len(names) - 1
+        return SimpleNamespace(mesh=mesh, object_names=names, triangle_object=number,
+                               triangle_surface=surfaces)
 
 
 def static_columns(sim, surfel_surface: np.ndarray) -> dict:
@@ -669,13 +694,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     sim.set_shading(flat.astype(np.int32) if flat is not None and flat.any() else None,
                     0.0 if opts.shading == "flat" else float(opts.crease))
     if scene.materials:
-        images = [image for _, image in scene.materials if image is not None]
-        numbered = iter(range(len(images)))
-        sim.set_base_colours(scene.triangle_material,
-                             np.asarray([factor for factor, _ in scene.materials], np.float32),
-                             np.asarray([-1 if image is None else next(numbered) for _, image in scene.materials],
-                                        np.int32),
-                             [np.ascontiguousarray(image, np.float32) for image in images])
+        set_materials(sim, scene.triangle_material, scene.materials)
     if looks:
         sim.set_textures(textures)
     camera = run_camera(scene, opts)

@@ -155,12 +155,11 @@ def _column(session, name: str) -> np.ndarray:
     return property_columns(session.effect, rows, session.surfel_surface)[name]
 
 
-def export_saved(folder, iterations: list[int] | None, bake_size: int, threads: int = 0,
-                 progress: bool = False) -> list[int]:
-    """export/OBJECT/iter_NNNN.* of saved iterations (the last by default),
+def export_saved(folder, iterations: list[int] | None, bake_size: int | None, threads: int = 0,
+                 progress: bool = False, texel_density: float | None = None) -> list[int]:
+    """The export (SPEC §16.3) of saved iterations (the last by default),
     every 16-bit property map on the run's range.  Returns the iterations."""
-    from .events import IterationUpdated, WriteQueue
-    from .writers import ExportWriter
+    from .export import Exporter
 
     folder = Path(folder)
     session, summary, saved = reopen(folder, threads=threads)
@@ -169,13 +168,11 @@ def export_saved(folder, iterations: list[int] | None, bake_size: int, threads: 
         if it not in saved:
             raise RunError(f"no map of iteration {it} in '{folder}' (saved: {saved[0]}..{saved[-1]})")
     names = sorted({n for s in session.effect.surfaces.values() for n in s.properties})
-    writer = ExportWriter(bake_size, run_ranges(summary, folder, saved, names))
     session.out = folder
-    session.behind = WriteQueue()
+    exporter = Exporter(session, bake_size, texel_density, run_ranges(summary, folder, saved, names))
     from .progress import progress as shown
 
-    with session.behind:
-        for it in shown(chosen, unit=" iteration", file=sys.stderr, disable=not progress, desc="export"):
-            load_iteration(session, folder, it)
-            writer.on_iteration_updated(IterationUpdated(session, it, None, {}, {}))
+    for it in shown(chosen, unit=" iteration", file=sys.stderr, disable=not progress, desc="export"):
+        load_iteration(session, folder, it)
+        exporter.write(it)
     return chosen

@@ -47,7 +47,7 @@ class Scene(Record):
     triangle_has_uv: np.ndarray = None    # bool per triangle: its part has texture coordinates
     triangle_flat: np.ndarray = None      # bool per triangle: its part renders flat ("shading": "flat")
     triangle_material: np.ndarray = None  # int32 per triangle: index into materials, -1 none
-    materials: list = None                # (RGB factor, float32 image [h, w, 3] or None) per material
+    materials: list = None                # gltf.Material per material
 
     @property
     def diagonal(self) -> float:
@@ -129,9 +129,8 @@ def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
         except (ValueError, RuntimeError) as err:
             raise SceneError(f"glTF '{path}', node '{piece.node}': {err}") from None
         names = tuple(n for n in (piece.mesh, piece.material, path.stem) if n)
-        material = (piece.base_factor, piece.base_colour) if piece.has_material else None
         parts.append(_Part(mesh, piece.node, list(rules), np.asarray(mesh.vertices(), float), names,
-                           material=material))
+                           material=piece.look))
     return parts
 
 

@@ -6,7 +6,7 @@
     AppearanceWriter     renders/iter_NNNN.png as the appearance blocks paint it,
                          then sequence.gif, sequence.mp4, strip.png
     MeshWriter           meshes/iter_NNNN.ply when the shape changes (SPEC §19)
-    ExportWriter         export/OBJECT/iter_NNNN.{glb,obj,mtl} + baked textures
+    ExportWriter         export/: the scene's glb, per object its texture set, OBJ and sidecar
     ProgressWriter       the progress bar on stderr
 
 ``standard_writers`` picks them for a run's options, in the order above (the
@@ -399,60 +399,40 @@ def _write_mesh(path: Path, columns: dict, triangles, comments: list[str]) -> No
 
 
 class ExportWriter(Writer):
-    """Per object and iteration, in export/OBJECT/: iter_NNNN.glb, .obj + .mtl,
-    the baked colour (8-bit PNG) and every property (16-bit PNG)."""
+    """The texture sets and scene files of ``--export`` (SPEC §16.3): the
+    last iteration, or every one (``--export all``), written once the run is
+    complete so that every property map spans the whole run's range."""
 
-    def __init__(self, bake_size: int, ranges: dict | None = None):
-        self.bake_size = bake_size
-        self.ranges = ranges    # property -> (low, high) of every 16-bit map; None: each map's own
-        self.pieces = None      # the scene's objects, made on first use
+    def __init__(self, bake_size: int | None, which: str = "last", texel_density: float | None = None):
+        self.bake_size, self.which, self.texel_density = bake_size, which, texel_density
+
+    def on_setup_done(self, event) -> None:
+        from .export import memory_problem
+        from .runner import RunError
+
+        run = event.run
+        if self.bake_size and not self.texel_density:   # refused before the first iteration
+            properties = len({n for s in run.effect.surfaces.values() for n in s.properties})
+            problem = memory_problem(self.bake_size, run.effect.row_width, properties)
+            if problem:
+                raise RunError(f"--export: {problem}")
 
     @_timed_on_loop("export")
-    def on_iteration_updated(self, event: IterationUpdated) -> None:
-        from .export import bake, pieces, vertex_data
-        from .runner import property_columns
+    def on_run_finished(self, event: RunFinished) -> None:
+        from .export import Exporter
 
-        run, it = event.run, event.iteration
-        if self.pieces is None or run.shapes:      # a changing shape is re-laid out every iteration
-            scene = run.export_scene()
-            self.pieces = pieces(scene, self.bake_size)
-            self.triangle_surface = np.asarray(scene.triangle_surface)
-        triangle_surface = self.triangle_surface
-        for piece in self.pieces:
-            positions, normals, uvs, tris, rows, rgb, owner = vertex_data(run.sim, piece, it, run.threads)
-            attributes = property_columns(run.effect, rows, triangle_surface[owner])
-            colour, texels, texel_tris, texel_rows = bake(run.sim, piece, self.bake_size, it, run.threads)
-            texel_columns = property_columns(run.effect, texel_rows, triangle_surface[texel_tris])
-            run.behind.timed("export", _write_export, run.out / "export" / _safe_name(piece.name), it,
-                             piece.name, self.bake_size, (positions, normals, uvs, tris, rgb), attributes,
-                             colour, texels, texel_columns, self.ranges)
+        run = event.run
+        last = run.opts.iterations
+        exporter = Exporter(run, self.bake_size, self.texel_density, run.summary.get("ranges") or {})
+        if self.which == "all" and not run.shapes:
+            from .saved import load_iteration
 
-
-def _write_export(where: Path, it: int, name: str, size: int, mesh, attributes, colour, texels,
-                  texel_columns, ranges=None) -> None:
-    from .export import png16, png8, texture_from_texels, write_glb, write_obj
-
-    positions, normals, uvs, tris, rgb = mesh
-    stem = f"iter_{it:04d}"
-    extras = {"gamma": {"iteration": it, "object": name, "properties": {}}}
-    texture = png8(colour)
-    atomic_write(where / f"{stem}_color.png", texture)
-    for prop, column in texel_columns.items():
-        data, low, high = png16(texture_from_texels(column, texels, size)[..., 0],
-                                (ranges or {}).get(prop))
-        atomic_write(where / f"{stem}_{prop}.png", data)
-        extras["gamma"]["properties"][prop] = {"texture": f"{stem}_{prop}.png", "min": low, "max": high}
-    atomic_write(where / f"{stem}.mtl",
-                 f"newmtl {stem}\nKd 1 1 1\nmap_Kd {stem}_color.png\n".encode("ascii"))
-    atomic_write(where / f"{stem}.glb",
-                 write_glb(positions, normals, uvs, tris, rgb, attributes, texture, extras,
-                           name=name))
-    atomic_write(where / f"{stem}.obj", write_obj(positions, normals, uvs, tris, stem))
-
-
-def _safe_name(name: str) -> str:
-    """An object name as a folder name."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "object"
+            run.behind.drain()          # the maps of every iteration are on disk
+            for it in range(1, last + 1):
+                load_iteration(run, run.out, it)
+                exporter.write(it)
+        else:
+            exporter.write(last)
 
 
 class ProgressWriter(Writer):
@@ -488,7 +468,8 @@ def standard_writers(run) -> list[Writer]:
     if run.looks:
         writers.append(AppearanceWriter())
     if run.opts.export:
-        writers.append(ExportWriter(run.opts.bake_size))
+        writers.append(ExportWriter(run.opts.bake_size, "all" if run.opts.export == "all" else "last",
+                                    run.opts.texel_density))
     if run.opts.progress:
         writers.append(ProgressWriter(run.opts.iterations))
     writers.append(CompletionWriter())

@@ -477,6 +477,15 @@ KIND_NAMES = {"float": "a number", "bool": "a truth value (a comparison)", "colo
               "vector": "a vector"}
 
 
+_LOOK_KINDS = {name: kind for name, _, kind in abi.APPEARANCE_OUTPUTS}
+
+
+def _var_kind(var) -> str:
+    """The kind of a stored-to or loaded name: an appearance output's own
+    (``color`` a colour, the others numbers), else a number."""
+    return _LOOK_KINDS[var.name] if var.space == "look" else "float"
+
+
 def _short(kind: str) -> str:
     return KIND_NAMES[kind].split(" (")[0]
 
@@ -510,7 +519,7 @@ class _Typer:
                 out.append(ir.If(cond, then, otherwise, st.pos))
             else:
                 target = self.bindings.get(id(st.target))
-                kind = "color" if target is not None and target.space == "color" else "float"
+                kind = _var_kind(target) if target is not None else "float"
                 value = self.want(st.value, lets, kind)
                 self.number += 1
                 if target is not None:
@@ -546,7 +555,7 @@ class _Typer:
             if var.space == "ctx":
                 whole = var.component is None and context_kind(var.name) == "vector"
                 return ir.Load(var, "vector" if whole else "float", e.pos)
-            return ir.Load(var, "color" if var.space == "color" else "float", e.pos)
+            return ir.Load(var, _var_kind(var), e.pos)
         if isinstance(e, A.String):
             self.error(e.pos, 'a string is only the file name of texture("...")')
             return None

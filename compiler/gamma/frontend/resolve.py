@@ -27,6 +27,9 @@ from . import ast as A
 from .diagnostics import Diagnostic, GammaError, Report, SourceFile, UsageError, did_you_mean
 from .filefacts import is_file, read_text, resolved
 
+#: The outputs an appearance block assigns (SPEC §8a): name -> offset in the look array.
+LOOK_OUTPUTS = abi.appearance_offsets()
+
 MOTION_NAMES = abi.REFLECTANCE_SLOTS  # straight, parabolic, flow
 
 
@@ -256,10 +259,12 @@ class Scope:
             if len(parts) > 1:
                 return f"'{head}' is a local value and has no fields"
             return Var("let", head, text=head)
-        if head == "color" and self.kind == "appearance" and head not in params:
+        if head in LOOK_OUTPUTS and head not in params:
+            if self.kind != "appearance":
+                return f"'{head}' is an output of appearance blocks; it is not available in {self.kind} rules"
             if len(parts) > 1:
-                return "'color' has no fields"
-            return Var("color", "color", writable=("=",), text="color")
+                return f"'{head}' has no fields"
+            return Var("look", head, LOOK_OUTPUTS[head], writable=("=",), text=head)
         if head in params and head not in (self.ton_param, self.surf_param):
             if len(parts) > 1:
                 return f"'{head}' is a parameter and has no fields"
@@ -341,7 +346,8 @@ def _bind_body(scope: Scope, body: list, report: Report, bindings: Bindings, let
             _bind_expr(scope, st.value, report, bindings, lets)
             taken = (st.name in lets or st.name in (scope.ton_param, scope.surf_param)
                      or st.name in CONTEXT_VALUES or st.name in FUNCTIONS
-                     or st.name in scope.unit.params)
+                     or st.name in scope.unit.params
+                     or (scope.kind == "appearance" and st.name in LOOK_OUTPUTS))
             if taken:
                 error(st.pos, f"'{st.name}' is already a name here; choose another")
             lets = lets | {st.name}

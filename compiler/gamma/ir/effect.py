@@ -93,7 +93,8 @@ class Var:
 
     space: ``ton`` (a carried attribute), ``surf`` (a property or a
     reflectance component of the surfel row), ``ctx`` (a context value),
-    ``let`` (a local), ``color`` (the appearance output).
+    ``let`` (a local), ``look`` (an appearance output: ``color``,
+    ``roughness``, ... at ``slot`` in the look array, abi.APPEARANCE_OUTPUTS).
     ``slot`` is the index in the ton array / surfel row (the code
     generator's business); ``name`` says what it is by name (the reference
     interpreter's business): the attribute, the property, ``reflectance.X``,
@@ -300,6 +301,10 @@ class Kernel(Record):
     @property
     def writes_surface(self) -> bool:
         return any(st.target.space == "surf" for st in self.statements())
+
+    def writes_look(self, name: str) -> bool:
+        """Whether an appearance kernel assigns the output ``name`` somewhere."""
+        return any(st.target.space == "look" and st.target.name == name for st in self.statements())
 
 
 @record

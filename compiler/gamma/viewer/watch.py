@@ -261,7 +261,8 @@ class ViewerWriter(Writer):
                                                      "property_sums")})
         if run.sim.num_prepared_points != len(mesh.owner):   # once per set of surfels: kept over saves
             run.sim.prepare_points(mesh.positions, mesh.normals, mesh.owner, mesh.uvs, run.threads)
-        rows, rgb = run.sim.bake_prepared(it, run.threads)
+        rows, look = run.sim.bake_prepared(it, run.threads)
+        rgb = np.asarray(look)[:, :3]
         columns = property_columns(run.effect, np.asarray(rows), np.asarray(run.scene.triangle_surface)[mesh.owner])
         self.names = list(columns)
         parts = [np.asarray(rgb, "<f4").reshape(-1)]

@@ -12,11 +12,11 @@
 namespace gammart {
 
 // At each of k surface points (position, normal, triangle, uv), the smoothed
-// row (k x W) and the appearance colour (k x 3).  Throws gammart::Error for a
+// row (k x W) and the look (k x GAMMA_LOOK_WIDTH: abi.py's APPEARANCE_OUTPUTS).  Throws gammart::Error for a
 // triangle out of range.
 void bake_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
                  const int32_t* triangles, const float* uvs, int iteration, int threads, float* rows_out,
-                 float* rgb_out);
+                 float* look_out);
 
 // Surface points baked again and again while the surfels stay (the live
 // viewer's vertices, every iteration): their smoothing neighbours and
@@ -36,6 +36,6 @@ struct BakePoints {
                               const int32_t* triangles, const float* uvs, int threads);
 };
 void bake_prepared(const RenderScene& rs, const BakePoints& points, int iteration, int threads, float* rows_out,
-                   float* rgb_out);
+                   float* look_out);
 
 }  // namespace gammart

@@ -51,6 +51,7 @@ struct UpdateEntry {
 struct AppearanceEntry {
     int surface = 0;
     uint64_t address = 0;  // GammaAppearanceKernel; 0 = none (neutral albedo)
+    bool displaces = false;  // assigns `displacement`: the renders bend the normal by its slope
 };
 
 // A surface's shape follows a property: each iteration the surface moves
@@ -129,7 +130,9 @@ struct Config {
         transports.push_back({event, ton_type, surface, address, writes});
     }
     void set_update(int surface, uint64_t address) { updates.push_back({surface, address}); }
-    void set_appearance(int surface, uint64_t address) { appearances.push_back({surface, address}); }
+    void set_appearance(int surface, uint64_t address, bool displaces = false) {
+        appearances.push_back({surface, address, displaces});
+    }
     void add_shape_rate(int surface, int column, float metres_per_unit) {
         shape_rates.push_back({surface, column, metres_per_unit});
     }

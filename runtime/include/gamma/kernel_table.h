@@ -22,6 +22,7 @@ struct KernelTable {
     std::vector<TransportSlot> transport;           // [event][type][surface]
     std::vector<GammaUpdateKernel> update;          // [surface]
     std::vector<GammaAppearanceKernel> appearance;  // [surface]
+    std::vector<uint8_t> displaces;                 // [surface]: its appearance assigns `displacement`
 
     // Validates the entries of `c` against its ton types and surfaces (throws
     // gammart::Error); later entries for the same slot win.

@@ -6,6 +6,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "gamma_abi.h"
+
 namespace gammart {
 
 // An RGB image, row 0 = the TOP of the image, 3 floats per texel (row-major).
@@ -57,18 +59,27 @@ constexpr std::array<float, 3> kSkyZenith{0.47f, 0.63f, 0.86f};
 // Event number used for appearance kernels in NonFinite records.
 constexpr int kAppearanceEvent = -2;
 
-// The scene's own base colour (glTF materials, SPEC §8a `base_color()`):
-// per triangle a material (-1: none), per material an RGB factor and an
-// index into `images` (-1: no texture).  Without a material the colour is
-// the neutral albedo.
+// The scene's own material (glTF materials, SPEC §8a `base_color()`): per
+// triangle a material (-1: none); per material an RGB factor and an index
+// into `images` (-1: no texture) for the base colour, and a roughness and
+// metallic factor and an index into `images` (-1: none) of the glTF
+// metallic-roughness texture (roughness in its green channel, metallic in
+// its blue), which multiplies them.  Without a material the colour is the
+// neutral albedo and roughness and metallic are the look's defaults.
 struct BaseColours {
     std::vector<int32_t> triangle_material;      // empty: no materials at all
     std::vector<std::array<float, 3>> factor;
     std::vector<int32_t> texture;
+    std::vector<std::array<float, 2>> rough_metal;  // per material; empty: the defaults
+    std::vector<int32_t> rough_metal_texture;       // per material; empty: none
     std::vector<Texture> images;
 
+    int32_t material(uint32_t triangle) const {
+        return triangle < triangle_material.size() ? triangle_material[triangle] : -1;
+    }
+
     void at(uint32_t triangle, const float uv[2], float out[3]) const {
-        const int32_t m = triangle < triangle_material.size() ? triangle_material[triangle] : -1;
+        const int32_t m = material(triangle);
         if (m < 0) {
             out[0] = out[1] = out[2] = kNeutralAlbedo;
             return;
@@ -76,6 +87,24 @@ struct BaseColours {
         float texel[3] = {1.0f, 1.0f, 1.0f};
         if (texture[size_t(m)] >= 0) sample_texture(images[size_t(texture[size_t(m)])], uv[0], uv[1], texel);
         for (int c = 0; c < 3; ++c) out[c] = factor[size_t(m)][size_t(c)] * texel[c];
+    }
+
+    // The look an appearance block starts from at this point (abi.py's
+    // APPEARANCE_OUTPUTS): the base colour, the material's roughness and
+    // metallic, no displacement, no occlusion.
+    void start_look(uint32_t triangle, const float uv[2], float look[GAMMA_LOOK_WIDTH]) const {
+        at(triangle, uv, look + GAMMA_LOOK_COLOR);
+        look[GAMMA_LOOK_ROUGHNESS] = GAMMA_LOOK_DEFAULT_ROUGHNESS;
+        look[GAMMA_LOOK_METALLIC] = GAMMA_LOOK_DEFAULT_METALLIC;
+        look[GAMMA_LOOK_DISPLACEMENT] = GAMMA_LOOK_DEFAULT_DISPLACEMENT;
+        look[GAMMA_LOOK_OCCLUSION] = GAMMA_LOOK_DEFAULT_OCCLUSION;
+        const int32_t m = material(triangle);
+        if (m < 0 || size_t(m) >= rough_metal.size()) return;
+        float texel[3] = {1.0f, 1.0f, 1.0f};
+        const int32_t t = size_t(m) < rough_metal_texture.size() ? rough_metal_texture[size_t(m)] : -1;
+        if (t >= 0) sample_texture(images[size_t(t)], uv[0], uv[1], texel);
+        look[GAMMA_LOOK_ROUGHNESS] = rough_metal[size_t(m)][0] * texel[1];
+        look[GAMMA_LOOK_METALLIC] = rough_metal[size_t(m)][1] * texel[2];
     }
 };
 

@@ -1,6 +1,7 @@
 // The renderers: the false-colour render of one value per surfel and the
-// appearance render (appearance kernels per camera sample, sky ambient x AO
-// + sun with shadows); the property smoothing and the per-point albedo they
+// appearance render (appearance kernels per camera sample, shaded by a
+// metallic-roughness model under a sky x AO and a sun with shadows); the
+// property smoothing and the per-point look they
 // share with the baker.  See runtime/README.md, "Render" and "Appearance
 // render".
 #pragma once
@@ -42,19 +43,38 @@ void validate_textures(const std::vector<Texture>& textures);
 // row_j[c]) over SceneIndex::smooth's neighbours.
 void interpolate_row(const RenderScene& rs, int surface, const float p[3], float* out);
 
-// The colour the surface's appearance kernel gives at point p of triangle
-// `triangle` (normal n, texture coordinates uv) with the smoothed row,
-// clamped to [0, 1]; the scene's base colour there without a kernel.  `row`
-// (W floats) and `tex` (3 per texture, then 3 for the base colour) are
-// scratch; returns the kernel's non-finite report.
-int32_t albedo_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
-                  const float uv[2], int iteration, uint64_t random_key, float* row, float* tex, float out_rgb[3]);
+// The look the surface's appearance kernel gives at point p of triangle
+// `triangle` (normal n, texture coordinates uv) with the smoothed row:
+// abi.py's APPEARANCE_OUTPUTS (colour, roughness, metallic, displacement,
+// occlusion), started from the scene's material there (BaseColours::
+// start_look) and clamped to [0, 1] but for the displacement; the material
+// itself without a kernel.  `row` (W floats) and `tex` (3 per texture, then 3
+// for the base colour) are scratch; returns the kernel's non-finite report.
+int32_t look_at(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3], const float dir[3],
+                const float uv[2], int iteration, uint64_t random_key, float* row, float* tex,
+                float out_look[GAMMA_LOOK_WIDTH]);
 
-// albedo_at with the smoothed row already in `row` (W floats, as
+// look_at with the smoothed row already in `row` (W floats, as
 // interpolate_row gives it for the triangle's surface).
-int32_t albedo_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
-                      const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
-                      float* tex, float out_rgb[3]);
+int32_t look_of_row(const RenderScene& rs, uint32_t triangle, const float p[3], const float n[3],
+                    const float dir[3], const float uv[2], int iteration, uint64_t random_key, const float* row,
+                    float* tex, float out_look[GAMMA_LOOK_WIDTH]);
+
+struct Radiance {
+    float c[3] = {0, 0, 0};  // linear; display = clamp01(c)^(1/kDisplayGamma)
+};
+
+// The light a look reflects towards the eye (unit vectors: shading normal n,
+// to_eye, the scene's up, towards the sun): a metallic-roughness model (GGX
+// distribution, height-correlated Smith visibility, Schlick Fresnel; the
+// base colour's diffuse share 1 - metallic, F0 = mix(0.04, base, metallic))
+// under a sun of kSunIntensity (sun_visible: 1 lit, 0 in shadow) and a sky
+// of radiance `sky` (the ambient light times its unoccluded fraction),
+// brighter above than below in the mirror direction of smooth surfaces.
+// The ambient terms are multiplied by the look's occlusion.  A white,
+// non-metallic, rough surface shows about what the Lambert model gives.
+Radiance shade_look(const float look[GAMMA_LOOK_WIDTH], V3 n, V3 to_eye, V3 up, V3 sun, float sun_visible,
+                    float sky);
 
 // False colour: smoothed `values` (one per surfel) and a shade per pixel
 // (height*width each; NaN on the background).

@@ -159,17 +159,14 @@ public:
                              double w[kSmoothingNeighbours]) const;
     // The smoothed row (W floats): out[c] = float(sum_j w_j * row_j[c]).
     void interpolate_row(int surface, const float p[3], float* out) const;
-    // The colour the surface's appearance kernel gives at point p of triangle
-    // `triangle` (normal n, texture coordinates uv) with the smoothed row,
-    // clamped to [0, 1]; the neutral albedo without a kernel.  `row` (W floats)
-    // and `tex` (3 per texture) are scratch; returns the kernel's non-finite report.
-    int32_t albedo_at(uint32_t triangle, const float p[3], const float n[3], const float dir[3],
-                      const float uv[2], int iteration, uint64_t random_key, float* row, float* tex,
-                      float out_rgb[3]) const;
+    // gammart::look_at (renderer.h) on this simulation's scene.
+    int32_t look_at(uint32_t triangle, const float p[3], const float n[3], const float dir[3],
+                    const float uv[2], int iteration, uint64_t random_key, float* row, float* tex,
+                    float out_look[GAMMA_LOOK_WIDTH]) const;
     // For baking and export: at each of k surface points (position, normal,
-    // triangle, uv), the smoothed row (k x W) and the appearance colour (k x 3).
+    // triangle, uv), the smoothed row (k x W) and the look (k x GAMMA_LOOK_WIDTH: abi.py's APPEARANCE_OUTPUTS).
     void bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
-                     const float* uvs, int iteration, int threads, float* rows_out, float* rgb_out) const;
+                     const float* uvs, int iteration, int threads, float* rows_out, float* look_out) const;
     float smoothing_sigma() const;
     // bake_points for points baked again and again (the live viewer's
     // vertices): prepare_points finds their neighbours once; bake_prepared
@@ -178,7 +175,7 @@ public:
     void prepare_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
                         const float* uvs, int threads);
     size_t num_prepared_points() const { return prepared_.size(); }
-    void bake_prepared(int iteration, int threads, float* rows_out, float* rgb_out) const;
+    void bake_prepared(int iteration, int threads, float* rows_out, float* look_out) const;
 
     // Filled by the Python binding after render_appearance (GIL held).
     RenderStats last_render;
