@@ -1,5 +1,7 @@
-"""Baking and export: the glTF round-trips through an independent reader,
-and baked textures hold the surface values at the right places."""
+"""Baking and export: the texture set and the glTF round-trip through an
+independent reader (pygltflib) and the Khronos validator, baked textures
+hold the surface values at the right places, the look's outputs reach the
+ORM and normal maps with the values an analytic scene gives."""
 
 import json
 
@@ -11,7 +13,7 @@ from PIL import Image
 from conftest import ROOT, run_gammac
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
-from gamma.driver.export import bake
+from gamma.driver.export import bake_texture_set, layout, Piece, rasterise_uv
 from gamma.driver.runner import RunOptions, build_config, runtime_module
 
 SPOT = ROOT / "examples" / "scenes" / "spot.obj"
@@ -35,9 +37,20 @@ def accessor_array(gltf, index, blob):
     return np.frombuffer(blob[view.byteOffset:view.byteOffset + view.byteLength], dtype).reshape(acc.count, width)
 
 
-def test_gltf_round_trips_with_texture_and_attributes(exported):
-    path = exported / "export" / "spot" / "iter_0002.glb"
-    gltf = pygltflib.GLTF2().load(str(path))
+def image_of(gltf, blob, texture_index):
+    import io
+
+    view = gltf.bufferViews[gltf.images[gltf.textures[texture_index].source].bufferView]
+    return Image.open(io.BytesIO(blob[view.byteOffset:view.byteOffset + view.byteLength]))
+
+
+def test_only_the_last_iteration_is_exported_by_default(exported):
+    assert sorted(p.name for p in (exported / "export").glob("*.glb")) == ["spot_0002.glb"]
+    assert not list((exported / "export" / "spot").glob("*_0001*"))
+
+
+def test_gltf_round_trips_with_a_pbr_texture_set_and_attributes(exported):
+    gltf = pygltflib.GLTF2().load(str(exported / "export" / "spot_0002.glb"))
     blob = gltf.binary_blob()
     prim = gltf.meshes[0].primitives[0]
     positions = accessor_array(gltf, prim.attributes.POSITION, blob)
@@ -55,34 +68,35 @@ def test_gltf_round_trips_with_texture_and_attributes(exported):
     source = np.asarray(rt.Mesh.load(str(SPOT)).triangle_uvs()).reshape(-1, 2)
     back = np.column_stack([uvs[:, 0], 1 - uvs[:, 1]])          # glTF's v runs downward
     assert np.allclose(np.unique(back, axis=0), np.unique(source.astype(np.float32), axis=0), atol=1e-6)
-    assert len(gltf.images) == 1 and gltf.materials[0].pbrMetallicRoughness.baseColorTexture.index == 0
-    image_view = gltf.bufferViews[gltf.images[0].bufferView]
-    png = blob[image_view.byteOffset:image_view.byteOffset + image_view.byteLength]
-    assert png[:8] == b"\x89PNG\r\n\x1a\n"
-    props = gltf.extras["gamma"]["properties"]["patina"]
-    grey = Image.open(exported / "export" / "spot" / props["texture"])
+    material = gltf.materials[prim.material]
+    assert material.name == "Copper"                             # the effect's surface
+    pbr = material.pbrMetallicRoughness
+    assert pbr.metallicRoughnessTexture.index == material.occlusionTexture.index   # one ORM image
+    names = {gltf.images[gltf.textures[t].source].name for t in
+             (pbr.baseColorTexture.index, pbr.metallicRoughnessTexture.index, material.normalTexture.index)}
+    assert names == {"spot_BaseColor_0002", "spot_ORM_0002", "spot_Normal_0002"}
+    orm = np.asarray(image_of(gltf, blob, pbr.metallicRoughnessTexture.index).convert("RGB"), np.float64) / 255
+    # patina-spot: roughness 0.35 under the glaze, 0.9 under a full crust; no metal; no occlusion set
+    covered = orm[..., 1] > 0
+    assert orm[covered, 0].min() == 1.0 and orm[covered, 2].max() == 0.0
+    assert 0.34 < np.percentile(orm[covered, 1], 1) and orm[covered, 1].max() <= 0.91
+    assert np.percentile(orm[covered, 1], 99) > 0.4              # some patina roughened the glaze
+    side = json.loads((exported / "export" / "spot" / "spot_0002.json").read_text())
+    grey = Image.open(exported / "export" / "spot" / side["properties"]["patina"]["file"])
     assert grey.mode == "I;16" and grey.size == (256, 256)
+    summary = json.loads((exported / "summary.json").read_text())
+    assert [side["properties"]["patina"]["min"], side["properties"]["patina"]["max"]] == summary["ranges"]["patina"]
+    assert gltf.extras["gamma"]["properties"]["patina"] == {"min": summary["ranges"]["patina"][0],
+                                                           "max": summary["ranges"]["patina"][1]}
 
 
 def test_gltf_names_and_generator(exported):
     from gamma import __version__
 
-    gltf = pygltflib.GLTF2().load(str(exported / "export" / "spot" / "iter_0001.glb"))
+    gltf = pygltflib.GLTF2().load(str(exported / "export" / "spot_0002.glb"))
     assert gltf.asset.generator == f"gamma {__version__}"
     assert [n.name for n in gltf.nodes] == ["spot"] and gltf.meshes[0].name == "spot"
-
-
-def test_untextured_glb_has_vertex_colours_only():
-    from gamma.driver.export import write_glb
-
-    tri = np.array([[0, 1, 2]], np.uint32)
-    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
-    data = write_glb(pos, np.tile([0, 0, 1], (3, 1)).astype(np.float32), None, tri,
-                     np.full((3, 3), 0.5, np.float32), {}, None, None, name="part")
-    gltf = pygltflib.GLTF2.load_from_bytes(data)
-    prim = gltf.meshes[0].primitives[0]
-    assert prim.attributes.COLOR_0 is not None
-    assert gltf.materials[0].pbrMetallicRoughness.baseColorTexture is None
+    assert gltf.scenes[0].name == "spot"
 
 
 def khronos_validator(paths):
@@ -99,9 +113,9 @@ def khronos_validator(paths):
 
 
 def test_every_glb_passes_the_khronos_validator(exported):
-    files = sorted((exported / "export").glob("*/*.glb"))
+    files = sorted((exported / "export").glob("*.glb"))
     assert files
-    broken = files[0].parent.parent / "broken.glb"
+    broken = files[0].parent / "broken.glb"
     data = files[0].read_bytes()
     broken.write_bytes(data[:len(data) - 1024])        # a cut-off binary chunk: the validator must say so
     *reports, cut = khronos_validator(files + [broken])
@@ -112,79 +126,160 @@ def test_every_glb_passes_the_khronos_validator(exported):
     broken.unlink()
 
 
-def test_obj_and_mtl_reference_the_baked_colour(exported):
+def test_obj_and_mtl_reference_the_texture_set(exported):
     folder = exported / "export" / "spot"
-    obj = (folder / "iter_0001.obj").read_text()
-    assert "mtllib iter_0001.mtl" in obj and "\nvt " in obj
-    assert "map_Kd iter_0001_color.png" in (folder / "iter_0001.mtl").read_text()
-    assert Image.open(folder / "iter_0001_color.png").size == (256, 256)
+    obj = (folder / "spot_0002.obj").read_text()
+    assert "mtllib spot_0002.mtl" in obj and "\nvt " in obj and "\no spot\n" in obj and "usemtl Copper" in obj
+    mtl = (folder / "spot_0002.mtl").read_text()
+    assert "newmtl Copper" in mtl and "map_Kd spot_BaseColor_0002.png" in mtl and "norm spot_Normal_0002.png" in mtl
+    assert Image.open(folder / "spot_BaseColor_0002.png").size == (256, 256)
+
+
+def _simulation(effect_path, mesh_path, surfels=40000):
+    rt = runtime_module()
+    effect = load(str(effect_path))
+    kernels = JitKernels(effect)
+    mesh = rt.Mesh.load(str(mesh_path))
+    cfg = build_config(rt, effect, kernels, RunOptions(scene="", out="", surfels=surfels, threads=2),
+                       mesh.bounds, (0.0, -1.0, 0.0))
+    return effect, mesh, rt.Simulation(mesh, cfg), kernels
+
+
+def _piece(mesh):
+    corner_uvs = np.asarray(mesh.triangle_uvs()) if mesh.has_uvs else None
+    return Piece("mesh", np.arange(mesh.num_triangles), np.asarray(mesh.vertices()),
+                 np.asarray(mesh.triangles(), np.int64), corner_uvs)
 
 
 def test_baked_texels_hold_the_values_of_their_surface_points():
     """Set a property to a known smooth field (the x coordinate); every baked
     texel must hold (nearly) the x of the surface point it maps to."""
-    rt = runtime_module()
-    effect = load(str(ROOT / "examples" / "patina-spot.gamma"))
-    kernels = JitKernels(effect)
-    mesh = rt.Mesh.load(str(SPOT))
-    cfg = build_config(rt, effect, kernels, RunOptions(scene="", out="", surfels=40000, threads=2),
-                       mesh.bounds, (0.0, -1.0, 0.0))
-    sim = rt.Simulation(mesh, cfg)
+    effect, mesh, sim, kernels = _simulation(ROOT / "examples" / "patina-spot.gamma", SPOT)
     rows = sim.rows()
     rows[:, 3] = sim.surfel_positions()[:, 0]
     sim.set_rows(rows)
-    from gamma.driver.export import rasterise_uv
-
     size = 128
-    from gamma.driver.export import Piece
-
-    corner_uvs = np.asarray(mesh.triangle_uvs())
-    piece = Piece("spot", np.arange(mesh.num_triangles), np.asarray(mesh.vertices()),
-                  np.asarray(mesh.triangles(), np.int64), corner_uvs, corner_uvs)
-    _, texels, _, rows = bake(sim, piece, size, 1, 2)
-    texels2, tris, bary = rasterise_uv(corner_uvs, size)
-    assert np.array_equal(texels, texels2) and len(texels) > 0.3 * size * size
+    lay = layout(_piece(mesh), None, size)
+    ts = bake_texture_set(sim, lay, 1, 2, lambda rows, tris: {"patina": rows[:, 3]})
+    texels, tris, bary = rasterise_uv(np.asarray(mesh.triangle_uvs()), size)
+    assert len(texels) > 0.3 * size * size
     verts = np.asarray(mesh.vertices(), np.float64)
     x = np.einsum("kc,kc->k", bary, verts[np.asarray(mesh.triangles())[tris]][:, :, 0])
-    baked = rows[:, 3]
+    baked = ts.properties["patina"].reshape(-1)[texels]
     spacing = np.sqrt(0.57 / 40000)            # Spot's area / surfels, roughly
     assert np.median(np.abs(baked - x)) < spacing
     assert np.percentile(np.abs(baked - x), 99) < 4 * spacing
 
 
-def test_mesh_without_uvs_gets_an_atlas(tmp_path, bumpy_obj):
+PLANE_LOOK = """
+ton T { motion straight = 1.0 }
+surface S { reflectance straight = 0.0  property p = 0.0 }
+source sky = environment(sphere) emits T count 1000
+on settle(t: T, s: S) { s.p += 1 }
+appearance(s: S) {
+    roughness = 0.25
+    metallic = 1
+    occlusion = 0.5
+    displacement = 0.1 * position.x
+}
+"""
+
+
+def plane_with_uvs(path, n=8):
+    """A unit square in the x-z plane (normal +y), u = x and v = -z + ... so +v runs along -z."""
+    lines = []
+    for i in range(n + 1):
+        for j in range(n + 1):
+            x, z = j / n, i / n
+            lines.append(f"v {x} 0 {z}\nvt {x} {1 - z}")
+    for i in range(n):
+        for j in range(n):
+            a = i * (n + 1) + j + 1
+            b, c, d = a + 1, a + n + 2, a + n + 1
+            lines.append(f"f {a}/{a} {d}/{d} {c}/{c}\nf {a}/{a} {c}/{c} {b}/{b}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_the_looks_outputs_reach_the_orm_and_normal_maps(tmp_path):
+    """roughness 0.25, metallic 1, occlusion 0.5 everywhere; a displacement
+    rising 0.1 per unit of x, with u = x: the tangent-space normal is
+    (-0.1, 0, 1) normalised, the height map rises left to right."""
+    (tmp_path / "look.gamma").write_text(PLANE_LOOK)
+    effect, mesh, sim, kernels = _simulation(tmp_path / "look.gamma", plane_with_uvs(tmp_path / "plane.obj"), 4000)
+    size = 64
+    lay = layout(_piece(mesh), None, size)
+    ts = bake_texture_set(sim, lay, 1, 2, lambda rows, tris: {})
+    assert np.allclose(ts.orm[..., 0], 0.5) and np.allclose(ts.orm[..., 1], 0.25) and np.allclose(ts.orm[..., 2], 1)
+    want = np.array([-0.1, 0.0, 1.0]) / np.sqrt(1.01)
+    inner = ts.normal[4:-4, 4:-4].reshape(-1, 3)     # away from the border's one-sided slopes
+    assert np.abs(inner - want).max() < 1e-3, inner[:3]
+    assert np.allclose(ts.height[size // 2], (np.arange(size) + 0.5) / size * 0.1, atol=2e-3)
+
+
+def test_mesh_without_uvs_gets_a_chart_atlas(tmp_path, bumpy_obj):
     out = tmp_path / "out"
     r = run_gammac("run", ROOT / "examples" / "patina.gamma", "--scene", bumpy_obj, "--surfels", 3000,
                    "--tons", 50000, "--iterations", 1, "--size", 32, "--bake-size", 128, "--export",
                    "--quiet", "--out", out)
     assert r.returncode == 0, r.stderr
-    gltf = pygltflib.GLTF2().load(str(out / "export" / "bumpy" / "iter_0001.glb"))
+    gltf = pygltflib.GLTF2().load(str(out / "export" / "bumpy_0001.glb"))
     prim = gltf.meshes[0].primitives[0]
-    uvs = accessor_array(gltf, prim.attributes.TEXCOORD_0, gltf.binary_blob())
-    assert uvs.min() >= 0 and uvs.max() <= 1 and len(gltf.images) == 1
-    patina = np.asarray(Image.open(out / "export" / "bumpy" / "iter_0001_patina.png"), np.float64)
+    blob = gltf.binary_blob()
+    uvs = accessor_array(gltf, prim.attributes.TEXCOORD_0, blob)
+    positions = accessor_array(gltf, prim.attributes.POSITION, blob)
+    assert uvs.min() >= 0 and uvs.max() <= 1 and len(gltf.images) == 3
+    distinct = len(np.unique(positions, axis=0))
+    assert len(positions) <= 1.5 * distinct         # welded inside charts, not 3 vertices a triangle
+    patina = np.asarray(Image.open(out / "export" / "bumpy" / "bumpy_patina_0001.png"), np.float64)
     assert patina.max() > 0                    # the baked map holds the deposit
 
 
-def test_each_object_is_exported_on_its_own(tmp_path):
+def test_each_object_is_a_node_with_a_material_per_surface(tmp_path):
     from test_scenes import TWO_SURFACES, two_part_obj
 
     scene = two_part_obj(tmp_path / "scene.obj")
     (tmp_path / "two.gamma").write_text(TWO_SURFACES)
     out = tmp_path / "out"
     r = run_gammac("run", tmp_path / "two.gamma", "--scene", scene, "--assign", "ball=Metal",
-                   "--assign", "*=Stone", "--surfels", 2000, "--iterations", 1, "--size", 32,
-                   "--bake-size", 64, "--export", "--quiet", "--out", out)
+                   "--assign", "*=Stone", "--surfels", 2000, "--iterations", 2, "--size", 32,
+                   "--bake-size", 64, "--export", "all", "--quiet", "--out", out)
     assert r.returncode == 0, r.stderr
-    assert sorted(p.name for p in (out / "export").iterdir()) == ["ball", "slab"]
-    ball = pygltflib.GLTF2().load(str(out / "export" / "ball" / "iter_0001.glb"))
-    slab = pygltflib.GLTF2().load(str(out / "export" / "slab" / "iter_0001.glb"))
-    assert ball.accessors[ball.meshes[0].primitives[0].indices].count == 320 * 3
-    assert slab.accessors[slab.meshes[0].primitives[0].indices].count == 2 * 3
-    assert ball.extras["gamma"]["object"] == "ball"
-    rust = ball.accessors[ball.meshes[0].primitives[0].attributes._RUST]
+    assert sorted(p.name for p in (out / "export").iterdir()) == ["ball", "scene_0001.glb", "scene_0002.glb", "slab"]
+    gltf = pygltflib.GLTF2().load(str(out / "export" / "scene_0002.glb"))
+    assert [n.name for n in gltf.nodes] == ["ball", "slab"]
+    ball, slab = gltf.meshes
+    assert gltf.accessors[ball.primitives[0].indices].count == 320 * 3
+    assert gltf.accessors[slab.primitives[0].indices].count == 2 * 3
+    assert gltf.materials[ball.primitives[0].material].name == "Metal"
+    assert gltf.materials[slab.primitives[0].material].name == "Stone"
+    rust = gltf.accessors[ball.primitives[0].attributes._RUST]
     assert rust.max[0] > 0                          # the ball is Metal and rusted
-    assert (out / "export" / "slab" / "iter_0001_damp.png").is_file()
+    # one range per property for the whole run: both iterations' masks share it
+    first = json.loads((out / "export" / "slab" / "slab_0001.json").read_text())
+    second = json.loads((out / "export" / "slab" / "slab_0002.json").read_text())
+    assert first["properties"]["damp"]["max"] == second["properties"]["damp"]["max"] > 0
+    a = np.asarray(Image.open(out / "export" / "slab" / "slab_damp_0001.png"), np.float64)
+    b = np.asarray(Image.open(out / "export" / "slab" / "slab_damp_0002.png"), np.float64)
+    assert a.mean() < b.mean()                      # damp grows; a mask scaled per iteration would not show it
+
+
+@pytest.mark.parametrize("size", ["0", "-3", "16385"])
+def test_a_bake_size_out_of_range_is_a_usage_error(tmp_path, size):
+    r = run_gammac("export", tmp_path, "--bake-size", size)
+    assert r.returncode == 2 and "--bake-size" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_bake_larger_than_memory_allows_is_refused_before_the_run(tmp_path, bumpy_obj):
+    from gamma.driver.export import available_memory, bake_memory
+
+    if bake_memory(16384, 8, 1) < 0.8 * available_memory():
+        pytest.fail("this machine has room for a 16384² bake: the refusal cannot be shown here")
+    out = tmp_path / "out"
+    r = run_gammac("run", ROOT / "examples" / "patina.gamma", "--scene", bumpy_obj, "--surfels", 2000,
+                   "--iterations", 1, "--size", 32, "--bake-size", "16384", "--export", "--quiet", "--out", out)
+    assert r.returncode == 1 and "GiB" in r.stderr and "available" in r.stderr, r.stderr
+    assert not (out / "maps").exists() or not list((out / "maps").iterdir())
 
 
 def test_uv_rasteriser_matches_a_texel_by_texel_reference():

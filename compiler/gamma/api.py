@@ -7,7 +7,7 @@ standard outputs.
                        progress=lambda it, total, record: print(it, total))
     result.properties["patina"]          # per surfel, float32
     result.vertex_properties()["patina"] # per vertex of the mesh
-    result.bake(256)                     # {object: {"color": (256, 256, 3), "patina": (256, 256)}}
+    result.bake(256)                     # {object: {"color": (256, 256, 3), "orm": ..., "patina": (256, 256)}}
     result.summary                       # what summary.json holds
 
 A run keeps its simulation, so per-vertex values, baked textures and renders
@@ -174,19 +174,23 @@ class Result:
         return np.asarray(self.session.scene.mesh.vertices())
 
     def bake(self, size: int = 1024) -> dict:
-        """Per object of the scene: {"color": float32 (size, size, 3), PROPERTY:
-        float32 (size, size)} in the object's texture coordinates (or a cell
-        atlas), and "uvs": the layout, float32 (triangles, 3, 2)."""
-        from .driver.export import bake, pieces, texture_from_texels
+        """Per object of the scene, its texture set at ``size``²: {"color":
+        float32 (size, size, 3), "orm": occlusion, roughness, metallic
+        (size, size, 3), "normal": tangent-space unit normals (size, size, 3),
+        "height": (size, size), PROPERTY: (size, size)} in the object's
+        texture coordinates (or its chart atlas), and "uvs": the layout,
+        float32 (triangles, 3, 2)."""
+        from .driver.export import bake_texture_set, layout, pieces
         from .driver.runner import property_columns
 
         session = self.session
         out = {}
         surfaces = np.asarray(session.scene.triangle_surface)
-        for piece in pieces(session.scene, size):
-            colour, texels, tris, rows = bake(session.sim, piece, size, max(1, self.iterations), session.threads)
-            maps = {"color": colour, "uvs": piece.layout}
-            for name, column in property_columns(self.effect, rows, surfaces[tris]).items():
-                maps[name] = texture_from_texels(column, texels, size)[..., 0]
-            out[piece.name] = maps
+        corner = np.asarray(session.sim.corner_normals())
+        for piece in pieces(session.scene):
+            lay = layout(piece, corner, size)
+            ts = bake_texture_set(session.sim, lay, max(1, self.iterations), session.threads,
+                                  lambda rows, tris: property_columns(self.effect, rows, surfaces[tris]))
+            out[piece.name] = {"color": ts.base_color, "orm": ts.orm, "normal": ts.normal, "height": ts.height,
+                               **ts.properties, "uvs": lay.corner_uvs}
         return out
