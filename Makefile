@@ -13,7 +13,10 @@ APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
 # chromium: the headless browser the viewer test drives (Playwright, never its own browser download);
 # npm (unless a Node.js install already brings it): three.js and the glTF validator, see web/
 # ray: the optional extra (.[ray]); installed here so its tests run in CI
-PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray coverage playwright
+# bpy (Blender 4.5 LTS as a module: Python 3.11, numpy < 2), usd-core (< 26.8 keeps UsdUtils.ComplianceChecker)
+# and xatlas: the real clients the export tests check in, and the chart atlas
+PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray coverage playwright \
+	'bpy==4.5.*' 'usd-core>=24.8,<26.8' xatlas
 WEB_MODULES := web/node_modules/.installed
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
