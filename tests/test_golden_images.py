@@ -22,7 +22,11 @@ source sky = environment(hemisphere) emits Dust count 40000
 on settle(t: Dust, s: Stone) { s.dust += 0.02 * t.d }
 appearance(s: Stone) {
     let stripes = 0.5 + 0.5 * floor(fract(position.x * 4) * 2)
-    color = mix(rgb(0.8, 0.75, 0.6) * (0.7 + 0.3 * stripes), rgb(0.2, 0.15, 0.1), clamp(s.dust, 0, 1))
+    let dusty = clamp(s.dust, 0, 1)
+    color = mix(rgb(0.8, 0.75, 0.6) * (0.7 + 0.3 * stripes), rgb(0.2, 0.15, 0.1), dusty)
+    metallic = (1 - stripes) * 2 * (1 - dusty)   // bare metal stripes, dulled by the dust
+    roughness = 0.25 + 0.7 * dusty
+    displacement = 0.02 * dusty                  // its slope bends the shading normal
 }
 """
 
