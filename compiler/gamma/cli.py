@@ -243,6 +243,8 @@ def _parser() -> argparse.ArgumentParser:
     which.add_argument("--iteration", type=_bounded_int, help="iteration to export (default: the last saved)")
     which.add_argument("--all", action="store_true", help="every saved iteration")
     _bake_options(x)
+    x.add_argument("--format", choices=("gltf", "usd"), default="gltf",
+                   help="usd: also an OpenUSD stage DIR/export/SCENE.usdc, the iterations as time samples")
     x.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
     x.add_argument("--quiet", action="store_true", help="no progress bar")
     w = sub.add_parser("watch", help="run an effect again on every save and show it in the browser")
@@ -522,7 +524,7 @@ def _saved(args) -> int:
             elif args.iteration is not None:
                 iterations = [args.iteration]
             done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=not args.quiet,
-                                texel_density=args.texel_density)
+                                texel_density=args.texel_density, usd=args.format == "usd")
             print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
                   f"{', '.join(map(str, done))} to {args.dir}/export", file=sys.stderr)
     except RunError as err:

@@ -569,6 +569,19 @@ class Exporter:
         self.bake_size, self.texel_density = bake_size or 1024, texel_density
         self.scene_name = safe_name(Path(run.opts.scene).stem)
         self.layouts = None
+        self.usd_frames = None     # (iteration, parts, texture files) per iteration, for write_usd
+
+    def keep_for_usd(self) -> None:
+        """Keep what each write makes, for one USD stage of all of them (``finish_usd``)."""
+        self.usd_frames = []
+
+    def finish_usd(self) -> "Path":
+        """``export/SCENE.usdc``: the iterations written as time samples (SPEC §16.3)."""
+        from .usd_export import write_usd
+
+        path = self.run.out / "export" / f"{self.scene_name}.usdc"
+        write_usd(path, self.usd_frames, self.scene_name, moving=bool(self.run.shapes))
+        return path
 
     def _layouts(self) -> list[Layout]:
         run = self.run
@@ -606,7 +619,7 @@ class Exporter:
             for s in np.unique(self.triangle_surface[lay.piece.triangles]):
                 surface_parts.setdefault(int(s), []).append(lay.piece.name)
         out = run.out / "export"
-        parts, stem = [], f"{iteration:04d}"
+        parts, stem, usd_files = [], f"{iteration:04d}", {}
         for lay in layouts:
             piece = lay.piece
             surfaces = self.triangle_surface[piece.triangles]
@@ -652,6 +665,7 @@ class Exporter:
                                "ORM": (f"{part_name}_ORM_{stem}", orm),
                                "Normal": (f"{part_name}_Normal_{stem}", normal)})
             parts.append(part)
+            usd_files[piece.name] = {channel: f"{part_name}/{file}" for channel, file in files.items()}
             atomic_write(folder / f"{part_name}_{stem}.obj", write_obj(part, f"{part_name}_{stem}.mtl"))
             atomic_write(folder / f"{part_name}_{stem}.mtl", write_mtl(part, files))
             atomic_write(folder / f"{part_name}_{stem}.json",
@@ -659,3 +673,7 @@ class Exporter:
         extras = {"gamma": {"iteration": iteration, "effect": str(effect.path),
                             "properties": {p: {"min": lo, "max": hi} for p, (lo, hi) in self.ranges.items()}}}
         atomic_write(out / f"{self.scene_name}_{stem}.glb", write_glb(parts, self.scene_name, extras))
+        if self.usd_frames is not None:
+            for part in parts:
+                part.images = {}          # the stage refers to the files: the PNG bytes are not kept
+            self.usd_frames.append((iteration, parts, usd_files))

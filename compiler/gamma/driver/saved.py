@@ -156,10 +156,17 @@ def _column(session, name: str) -> np.ndarray:
 
 
 def export_saved(folder, iterations: list[int] | None, bake_size: int | None, threads: int = 0,
-                 progress: bool = False, texel_density: float | None = None) -> list[int]:
+                 progress: bool = False, texel_density: float | None = None, usd: bool = False) -> list[int]:
     """The export (SPEC §16.3) of saved iterations (the last by default),
-    every 16-bit property map on the run's range.  Returns the iterations."""
+    every 16-bit property map on the run's range, and with ``usd`` an
+    OpenUSD stage of them.  Returns the iterations."""
     from .export import Exporter
+
+    if usd:
+        try:
+            import pxr  # noqa: F401
+        except ImportError:
+            raise RunError("--format usd needs usd-core (pip install 'gamma-weathering[usd]')") from None
 
     folder = Path(folder)
     session, summary, saved = reopen(folder, threads=threads)
@@ -170,9 +177,13 @@ def export_saved(folder, iterations: list[int] | None, bake_size: int | None, th
     names = sorted({n for s in session.effect.surfaces.values() for n in s.properties})
     session.out = folder
     exporter = Exporter(session, bake_size, texel_density, run_ranges(summary, folder, saved, names))
+    if usd:
+        exporter.keep_for_usd()
     from .progress import progress as shown
 
     for it in shown(chosen, unit=" iteration", file=sys.stderr, disable=not progress, desc="export"):
         load_iteration(session, folder, it)
         exporter.write(it)
+    if usd:
+        exporter.finish_usd()
     return chosen
