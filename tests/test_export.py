@@ -304,3 +304,33 @@ def test_uv_rasteriser_matches_a_texel_by_texel_reference():
     assert np.array_equal(tris, owner[texels])
     back = np.einsum("kc,kcd->kd", bary, corners[tris])
     assert np.allclose(back, centre[texels], atol=1e-9)
+
+
+def test_blender_imports_the_export_as_an_artist_needs_it(exported, tmp_path, bumpy_obj):
+    """Blender 4.5 (the bpy wheel) imports the glb of a mesh with UVs (Spot)
+    and of one without (an atlas): objects and materials named after the
+    scene's parts and the effect's surfaces, the Principled BSDF's Base
+    Color, Roughness, Metallic and Normal each fed by an image, smooth
+    shading, the property as a mesh attribute."""
+    from clients import blender_import_many
+
+    out = tmp_path / "out"
+    r = run_gammac("run", ROOT / "stdlib" / "rust.gamma", "--scene", bumpy_obj, "--surfels", 3000,
+                   "--tons", 50000, "--iterations", 2, "--size", 32, "--bake-size", 256, "--export",
+                   "--quiet", "--out", out)
+    assert r.returncode == 0, r.stderr
+    spot, bumpy = blender_import_many([exported / "export" / "spot_0002.glb", out / "export" / "bumpy_0002.glb"])
+    for report, name, material, prop in ((spot, "spot", "Copper", "_PATINA"), (bumpy, "bumpy", "Iron", "_RUST")):
+        (obj,) = report["objects"]
+        assert obj["name"] == name and obj["materials"] == [material]
+        mesh = report["meshes"][obj["data"]]
+        assert mesh["shaded_smooth_fraction"] > 0.9, mesh["shaded_smooth_fraction"]
+        assert prop in {a["name"] for a in mesh["attributes"]}
+        bsdf = report["materials"][material]["bsdf"]
+        fed = {socket: bsdf[socket]["sources"][0]["image"] for socket in ("Base Color", "Roughness", "Metallic", "Normal")
+               if bsdf[socket]["linked"] and bsdf[socket]["sources"]}
+        assert fed == {"Base Color": f"{name}_BaseColor_0002", "Roughness": f"{name}_ORM_0002",
+                       "Metallic": f"{name}_ORM_0002", "Normal": f"{name}_Normal_0002"}, fed
+        assert bsdf["Roughness"]["sources"][0]["channel"] == "Color.Green"
+        assert bsdf["Metallic"]["sources"][0]["channel"] == "Color.Blue"
+        assert bsdf["Normal"]["sources"][0]["colorspace"] == "Non-Color"
