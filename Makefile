@@ -13,10 +13,12 @@ APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
 # chromium: the headless browser the viewer test drives (Playwright, never its own browser download);
 # npm (unless a Node.js install already brings it): three.js and the glTF validator, see web/
 # ray: the optional extra (.[ray]); installed here so its tests run in CI
-# bpy (Blender 4.5 LTS as a module: Python 3.11, numpy < 2), usd-core (< 26.8 keeps UsdUtils.ComplianceChecker)
-# and xatlas: the real clients the export tests check in, and the chart atlas
+# usd-core (< 26.8 keeps UsdUtils.ComplianceChecker; gammac export --format usd) and xatlas (the chart atlas)
 PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray coverage playwright \
-	'bpy==4.5.*' 'usd-core>=24.8,<26.8' xatlas
+	'usd-core>=24.8,<26.8' xatlas
+# Blender 4.5 LTS as a module, the real client the export tests import into (tests/clients.py): it
+# needs Python 3.11 and numpy < 2, so it has a venv of its own rather than pinning the project's numpy
+BLENDER_VENV := .venv-blender
 WEB_MODULES := web/node_modules/.installed
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
@@ -104,7 +106,13 @@ runtime-tests: install
 	cmake --build build-tests --target runtime_tests
 	./build-tests/runtime_tests
 
-pytest: install
+$(BLENDER_VENV)/.installed: | deps
+	$(PYTHON) -m venv $(BLENDER_VENV)
+	$(BLENDER_VENV)/bin/python -m pip install -q --upgrade pip
+	$(BLENDER_VENV)/bin/python -m pip install -q 'bpy==4.5.*'
+	touch $@
+
+pytest: install $(BLENDER_VENV)/.installed
 	$(PY) -m pytest -q tests
 
 test: runtime-tests pytest

@@ -81,8 +81,23 @@ def _last_error_line(error: str) -> str:
     return found[-1] if found else (lines[-1] if lines else "")
 
 
+#: Blender as a module needs Python 3.11 and numpy < 2, so it lives in a venv
+#: of its own (make test makes it), not in the project's: the Blender tasks'
+#: children run its interpreter, the others this one.
+BLENDER_PYTHON = Path(os.environ.get("GAMMA_BLENDER_PYTHON",
+                                     Path(__file__).resolve().parent.parent / ".venv-blender" / "bin" / "python"))
+
+
+def _python(task: str) -> str:
+    return str(BLENDER_PYTHON) if task.startswith("blender") else sys.executable
+
+
 def has_bpy() -> bool:
-    return importlib.util.find_spec("bpy") is not None
+    if not BLENDER_PYTHON.is_file():
+        return False
+    r = subprocess.run([str(BLENDER_PYTHON), "-c", "import importlib.util, sys; "
+                        "sys.exit(importlib.util.find_spec('bpy') is None)"], capture_output=True)
+    return r.returncode == 0
 
 
 def has_usd() -> bool:
@@ -100,7 +115,7 @@ def _child(task: str, args: dict, *, timeout: float, error_class=ClientError) ->
         env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1")
         start = time.perf_counter()
         try:
-            r = subprocess.run([sys.executable, str(Path(__file__).resolve()), task, str(args_path),
+            r = subprocess.run([_python(task), str(Path(__file__).resolve()), task, str(args_path),
                                 str(result_path)], capture_output=True, text=True, timeout=timeout,
                                env=env, cwd=tmp, stdin=subprocess.DEVNULL)
         except subprocess.TimeoutExpired as e:

@@ -93,7 +93,7 @@ def saved_run(tmp_path_factory, bumpy_obj):
     (folder / "look.gamma").write_text(LOOK)
     out = folder / "out"
     r = run_gammac("run", folder / "look.gamma", "--scene", bumpy_obj, "--surfels", 3000, "--iterations", 3,
-                   "--size", 48, "--samples", 1, "--ao", 2, "--export", "--bake-size", 64, "--quiet",
+                   "--size", 48, "--samples", 1, "--ao", 2, "--export", "all", "--bake-size", 64, "--quiet",
                    "--out", out)
     assert r.returncode == 0, r.stderr
     return out
@@ -116,16 +116,15 @@ def test_render_from_saved_maps_equals_the_runs_picture(saved_run, tmp_path):
 
 def test_export_from_saved_maps_matches_the_runs_export(saved_run):
     ranges = json.loads((saved_run / "summary.json").read_text())["ranges"]
-    during = {p.name: p.read_bytes() for p in (saved_run / "export" / "bumpy").glob("iter_*")}
+    export = saved_run / "export"
+    during = {p.name: p.read_bytes() for p in [*export.glob("*.glb"), *(export / "bumpy").iterdir()]}
     r = run_gammac("export", saved_run, "--all", "--bake-size", 64)
     assert r.returncode == 0, r.stderr
-    after = {p.name: p.read_bytes() for p in (saved_run / "export" / "bumpy").glob("iter_*")}
-    assert set(after) == set(during)
+    after = {p.name: p.read_bytes() for p in [*export.glob("*.glb"), *(export / "bumpy").iterdir()]}
+    assert set(after) == set(during) and len(during) == 3 * (1 + 7 + 1)   # glb; 5 images, obj, mtl, json; p
+    assert after == during                                               # the same bytes, file for file
     for it in (1, 2, 3):
-        stem = f"iter_{it:04d}"
-        assert after[f"{stem}.obj"] == during[f"{stem}.obj"]
-        assert after[f"{stem}_color.png"] == during[f"{stem}_color.png"]
-        gltf = pygltflib.GLTF2().load(str(saved_run / "export" / "bumpy" / f"{stem}.glb"))
+        gltf = pygltflib.GLTF2().load(str(export / f"bumpy_{it:04d}.glb"))
         props = gltf.extras["gamma"]["properties"]["p"]
         assert (props["min"], props["max"]) == tuple(ranges["p"])    # one range for the whole run
 

@@ -39,4 +39,4 @@ def test_spec_resync_keywords_are_the_parsers():
 def test_export_help_names_the_real_paths():
     r = run_gammac("run", "--help")
     text = " ".join(r.stdout.split())
-    assert "DIR/export/OBJECT/iter_NNNN.glb" in text
+    assert "DIR/export/SCENE_NNNN.glb" in text

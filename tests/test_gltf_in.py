@@ -79,8 +79,9 @@ def test_the_warning_names_the_parts_without_uvs(glb, tmp_path):
                    "--export", "--bake-size", 64, "--out", tmp_path / "out")
     assert r.returncode == 0, r.stderr
     assert "1 part of" in r.stderr and "without texture coordinates (steps)" in r.stderr
-    assert (tmp_path / "out" / "export" / "chain" / "iter_0001.glb").is_file()
-    assert (tmp_path / "out" / "export" / "steps" / "iter_0001.glb").is_file()
+    for part in ("chain", "steps"):
+        assert (tmp_path / "out" / "export" / part / f"{part}_BaseColor_0001.png").is_file()
+    assert len(list((tmp_path / "out" / "export").glob("*_0001.glb"))) == 1
 
 
 def test_bad_gltf_is_a_one_line_error(tmp_path):

@@ -262,8 +262,8 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--out", required=True, help="output folder")
     _picture_options(r)
     r.add_argument("--export", nargs="?", const="last", choices=("last", "all"),
-                   help="write the texture sets and DIR/export/SCENE_NNNN.glb of the last iteration "
-                        "(--export all: of every iteration) once the run is complete")
+                   help="write DIR/export/SCENE_NNNN.glb and per object a texture set (DIR/export/OBJECT/) "
+                        "of the last iteration (--export all: of every iteration) once the run is complete")
     _bake_options(r)
 
 

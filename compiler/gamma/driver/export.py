@@ -282,8 +282,10 @@ def fill(values: np.ndarray, texels: np.ndarray, size: int, charts: np.ndarray |
     """A (size, size, C) image with ``values`` at ``texels``, its gutters
     filled from the same chart (``charts``: chart per texel, -1 empty; None:
     from any neighbour)."""
-    values = np.asarray(values, np.float32).reshape(len(texels), -1)
-    image = np.zeros((size * size, values.shape[1]), np.float32)
+    values = np.asarray(values, np.float32)
+    channels = values.shape[1] if values.ndim == 2 else 1
+    values = values.reshape(len(texels), channels)
+    image = np.zeros((size * size, channels), np.float32)
     image[texels] = values
     image = image.reshape(size, size, -1)
     if charts is not None:
