@@ -334,3 +334,59 @@ def test_blender_imports_the_export_as_an_artist_needs_it(exported, tmp_path, bu
         assert bsdf["Roughness"]["sources"][0]["channel"] == "Color.Green"
         assert bsdf["Metallic"]["sources"][0]["channel"] == "Color.Blue"
         assert bsdf["Normal"]["sources"][0]["colorspace"] == "Non-Color"
+
+
+def test_presets_pack_the_texture_set_for_each_engine(exported):
+    """--preset unity adds HDRP's mask map (metallic, occlusion, detail,
+    smoothness = 1 - roughness) and unreal a DirectX normal map (green
+    flipped), beside glTF's ORM and OpenGL normal map; --float-maps writes
+    the height and the properties as 32-bit EXR holding the values."""
+    import OpenEXR
+
+    folder = exported / "export" / "spot"
+    r = run_gammac("export", exported, "--bake-size", 256, "--preset", "unity", "--float-maps", "--quiet")
+    assert r.returncode == 0, r.stderr
+    orm = np.asarray(Image.open(folder / "spot_ORM_0002.png").convert("RGB"), np.int64)
+    mask = np.asarray(Image.open(folder / "spot_MaskMap_0002.png"), np.int64)
+    assert mask.shape == (256, 256, 4)
+    assert np.abs(mask[..., 0] - orm[..., 2]).max() <= 1 and np.abs(mask[..., 1] - orm[..., 0]).max() <= 1
+    assert (mask[..., 2] == 255).all() and np.abs(mask[..., 3] - (255 - orm[..., 1])).max() <= 1
+    side = json.loads((folder / "spot_0002.json").read_text())
+    patina = OpenEXR.File(str(folder / side["properties"]["patina"]["file"])).channels()["Y"].pixels
+    assert patina.dtype == np.float32 and patina.shape == (256, 256)
+    assert 0 < patina.max() <= side["properties"]["patina"]["max"] + 1e-6   # the values, not a scale
+    r = run_gammac("export", exported, "--bake-size", 256, "--preset", "unreal", "--quiet")
+    assert r.returncode == 0, r.stderr
+    gl = np.asarray(Image.open(folder / "spot_Normal_0002.png").convert("RGB"), np.int64)
+    dx = np.asarray(Image.open(folder / "spot_NormalDX_0002.png").convert("RGB"), np.int64)
+    assert np.abs(dx[..., 1] - (255 - gl[..., 1])).max() <= 1 and np.array_equal(dx[..., 0], gl[..., 0])
+
+
+def test_the_assets_own_normal_map_is_kept(tmp_path):
+    """A glTF part with a normal map, weathered by a block that sets no
+    displacement: the exported normal map is the asset's, texel for texel."""
+    import trimesh
+    from trimesh.visual.material import PBRMaterial
+
+    size = 64
+    j, i = np.meshgrid(np.arange(size), np.arange(size))
+    bumps = np.stack([0.5 + 0.3 * np.sin(j / 5.0), 0.5 + 0.3 * np.cos(i / 7.0), np.full(j.shape, 0.9)], -1)
+    normal_image = Image.fromarray((bumps * 255 + 0.5).astype(np.uint8))
+    plane = plane_with_uvs(tmp_path / "plane.obj")
+    mesh = trimesh.load(str(plane), process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=PBRMaterial(
+        name="painted", baseColorFactor=[200, 200, 200, 255], normalTexture=normal_image))
+    glb = tmp_path / "plane.glb"
+    mesh.export(str(glb))
+    (tmp_path / "look.gamma").write_text(PLANE_LOOK.replace("    displacement = 0.1 * position.x\n", ""))
+    out = tmp_path / "out"
+    r = run_gammac("run", tmp_path / "look.gamma", "--scene", glb, "--surfels", 2000, "--iterations", 1,
+                   "--size", 32, "--export", "--bake-size", size, "--quiet", "--out", out)
+    assert r.returncode == 0, r.stderr
+    (normal_file,) = (out / "export").glob("*/*_Normal_0001.png")
+    got = np.asarray(Image.open(normal_file).convert("RGB"), np.float64) / 255
+    want = np.asarray(normal_image, np.float64) / 255
+    n = want * 2 - 1
+    want = (n / np.linalg.norm(n, axis=-1, keepdims=True) + 1) / 2      # stored unit length
+    inner = (slice(2, -2), slice(2, -2))
+    assert np.abs(got[inner] - want[inner]).max() < 3 / 255

@@ -274,6 +274,11 @@ def _bake_options(r: argparse.ArgumentParser) -> None:
     size.add_argument("--texel-density", type=_texel_density, metavar="TEXELS",
                       help="texels per scene unit instead of --bake-size: each object's textures get "
                            "the size that gives it")
+    r.add_argument("--float-maps", action="store_true",
+                   help="the height and every property as 32-bit float OpenEXR images instead of 16-bit PNGs")
+    r.add_argument("--preset", choices=("gltf", "unreal", "unity"), default="gltf",
+                   help="the texture set's packing: gltf (ORM, OpenGL normal map), unreal (ORM, DirectX "
+                        "normal map) or unity (HDRP mask map: metallic, occlusion, detail, smoothness)")
 
 
 def _simulation_options(r: argparse.ArgumentParser) -> None:
@@ -400,7 +405,8 @@ def _run_options(args):
                       progress=not getattr(args, "quiet", False),
                       samples=getattr(args, "samples", 4), ao_samples=getattr(args, "ao_samples", 8),
                       export=getattr(args, "export", None) or False, bake_size=getattr(args, "bake_size", 1024),
-                      texel_density=getattr(args, "texel_density", None),
+                      texel_density=getattr(args, "texel_density", None), preset=getattr(args, "preset", "gltf"),
+                      float_maps=getattr(args, "float_maps", False),
                       resume=getattr(args, "resume", False), started=_STARTED,
                       ray=getattr(args, "ray", False), ray_address=getattr(args, "ray_address", None),
                       shading=getattr(args, "shading", "smooth"), crease=getattr(args, "crease", 60.0))
@@ -524,7 +530,8 @@ def _saved(args) -> int:
             elif args.iteration is not None:
                 iterations = [args.iteration]
             done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=not args.quiet,
-                                texel_density=args.texel_density, usd=args.format == "usd")
+                                texel_density=args.texel_density, usd=args.format == "usd", preset=args.preset,
+                                float_maps=args.float_maps)
             print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
                   f"{', '.join(map(str, done))} to {args.dir}/export", file=sys.stderr)
     except RunError as err:

@@ -81,9 +81,27 @@ class Layout:
     chart: np.ndarray | None     # int32 (m,) chart per triangle (atlas), None for the mesh's own uvs
     size: int                    # the textures' width and height
 
+    _raster: tuple | None = None
+
     @property
     def corner_uvs(self) -> np.ndarray:
         return self.uvs[self.faces]
+
+    def texels(self) -> tuple:
+        """``rasterise_uv`` of the layout (texel, triangle, barycentrics),
+        made once: every iteration exported bakes the same texels."""
+        if self._raster is None:
+            self._raster = rasterise_uv(self.corner_uvs, self.size)
+        return self._raster
+
+    def charts(self) -> np.ndarray | None:
+        """The chart of each texel (size, size), -1 in the gutters; None for the mesh's own uvs."""
+        if self.chart is None:
+            return None
+        texels, tris, _ = self.texels()
+        charts = np.full(self.size * self.size, -1, np.int32)
+        charts[texels] = self.chart[tris]
+        return charts.reshape(self.size, self.size)
 
 
 def weld(vertex: np.ndarray, uvs: np.ndarray, normals: np.ndarray):
@@ -237,11 +255,13 @@ def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of,
     scene_triangles)``, when given, the asset's own tangent-space normals
     there ((k, 3), or None where it has none)."""
     size = lay.size
-    texels, tris, bary = rasterise_uv(lay.corner_uvs, size)
+    texels, tris, bary = lay.texels()
     n_texels = len(texels)
-    look = np.zeros((n_texels, 7), np.float32)
-    normals = np.zeros((n_texels, 3), np.float32)
-    columns: dict = {}
+    # Every channel but the normal map in one stack, filled into the gutters
+    # at once: base colour 0-2, ORM 3-5, height 6, then the properties.
+    names: list = []
+    stack = np.zeros((n_texels, 7), np.float32)
+    own = np.zeros((n_texels, 3), np.float32) if normal_map is not None else None
     piece = lay.piece
     for first in range(0, n_texels, BAKE_CHUNK):
         part = slice(first, first + BAKE_CHUNK)
@@ -249,33 +269,49 @@ def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of,
         positions = np.einsum("kc,kcd->kd", b, lay.positions.astype(np.float64)[lay.faces[t]]).astype(np.float32)
         n = np.einsum("kc,kcd->kd", b, lay.normals.astype(np.float64)[lay.faces[t]])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        normals[part] = n
         if piece.own_uvs is not None:
             lookup = np.einsum("kc,kcd->kd", b, piece.own_uvs.astype(np.float64)[t]).astype(np.float32)
         else:
             lookup = np.zeros((len(t), 2), np.float32)
         scene_tris = piece.triangles[t].astype(np.int32)
-        rows, looks = sim.bake_points(positions, normals[part], scene_tris, lookup, iteration, threads)
-        look[part] = looks
-        for name, column in columns_of(np.asarray(rows), scene_tris).items():
-            columns.setdefault(name, np.zeros(n_texels, np.float32))[part] = column
-        if normal_map is not None:
-            own = normal_map(lookup, scene_tris)
-            if own is not None:
-                normals[part] = np.nan_to_num(own)   # replaced below by the tangent-space form
-    charts = None
-    if lay.chart is not None:
-        charts = np.full(size * size, -1, np.int32)
-        charts[texels] = lay.chart[tris]
-        charts = charts.reshape(size, size)
+        rows, looks = sim.bake_points(positions, n.astype(np.float32), scene_tris, lookup, iteration, threads)
+        looks = np.asarray(looks)
+        stack[part, 0:3] = looks[:, 0:3]
+        stack[part, 3:6] = looks[:, [6, 3, 4]]
+        stack[part, 6] = looks[:, 5]
+        columns = columns_of(np.asarray(rows), scene_tris)
+        if not names and columns:
+            names = list(columns)
+            stack = np.concatenate([stack, np.zeros((n_texels, len(names)), np.float32)], axis=1)
+        for k, name in enumerate(names):
+            stack[part, 7 + k] = columns[name]
+        if own is not None:
+            mine = normal_map(lookup, scene_tris)
+            if mine is not None:
+                own[part] = mine
+    charts = lay.charts()
+    image = fill(stack, texels, size, charts)
+    del stack
+    height = image[..., 6]
+    tangent = tangent_normals(lay, height, texels, tris, own)
+    return TextureSet(size, image[..., 0:3], image[..., 3:6], fill(tangent, texels, size, charts), height,
+                      {name: image[..., 7 + k] for k, name in enumerate(names)})
 
-    def image(values):
-        return fill(values, texels, size, charts)
 
-    height = image(look[:, 5])[..., 0]
-    tangent = tangent_normals(lay, height, texels, tris, normals if normal_map is not None else None)
-    return TextureSet(size, image(look[:, 0:3]), image(look[:, [6, 3, 4]]), image(tangent),
-                      height, {name: image(column)[..., 0] for name, column in columns.items()})
+def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``image`` (h, w, C; row 0 at the top) at texture coordinates (k, 2),
+    v up, bilinear with wrap-around: the runtime's sample_texture."""
+    h, w = image.shape[:2]
+    u = np.mod(np.nan_to_num(uv[:, 0].astype(np.float64)), 1.0)
+    v = np.mod(np.nan_to_num(uv[:, 1].astype(np.float64)), 1.0)
+    x, y = u * w - 0.5, (1.0 - v) * h - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.astype(np.int64) % w, y0.astype(np.int64) % h
+    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
+    top = image[y0, x0] + fx * (image[y0, x1] - image[y0, x0])
+    bottom = image[y1, x0] + fx * (image[y1, x1] - image[y1, x0])
+    return (top + fy * (bottom - top)).astype(np.float32)
 
 
 def fill(values: np.ndarray, texels: np.ndarray, size: int, charts: np.ndarray | None) -> np.ndarray:
@@ -363,6 +399,35 @@ def png16(values: np.ndarray, span: tuple[float, float] | None = None) -> tuple[
     return out.getvalue(), low, high
 
 
+
+
+def encode_rgb8(images: list, threads: int) -> list[bytes]:
+    """8-bit PNGs of float RGB images in [0, 1], encoded by the runtime on
+    ``threads`` threads without the GIL (as Pillow's default level writes them)."""
+    from .outputs import PILLOW_DEFAULT_LEVEL
+    from .runner import runtime_module
+
+    pictures = [np.ascontiguousarray((np.clip(np.nan_to_num(im), 0, 1) * 255 + 0.5).astype(np.uint8))
+                for im in images]
+    return list(runtime_module().encode_pngs(pictures, PILLOW_DEFAULT_LEVEL, threads))
+
+
+def exr32(values: np.ndarray) -> bytes:
+    """A single-channel 32-bit float OpenEXR image (channel Y, ZIP), as bytes."""
+    import os
+    import tempfile
+
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    fd, path = tempfile.mkstemp(suffix=".exr")
+    os.close(fd)
+    try:    # the binding writes to a path only
+        OpenEXR.File(header, {"Y": np.ascontiguousarray(values, np.float32)}).write(path)
+        with open(path, "rb") as f:
+            return f.read()
+    finally:
+        os.unlink(path)
 
 
 def png_normal(normals: np.ndarray) -> bytes:
@@ -564,8 +629,12 @@ class Exporter:
     ``ranges``: property -> (low, high) over the whole run, which every
     16-bit property map spans."""
 
-    def __init__(self, run, bake_size: int | None, texel_density: float | None, ranges: dict):
+    def __init__(self, run, bake_size: int | None, texel_density: float | None, ranges: dict,
+                 preset: str = "gltf", float_maps: bool = False):
         from pathlib import Path
+
+        self.preset = preset
+        self.float_maps = float_maps
 
         self.run, self.ranges = run, {k: tuple(v) for k, v in ranges.items()}
         self.bake_size, self.texel_density = bake_size or 1024, texel_density
@@ -608,6 +677,29 @@ class Exporter:
                 self.layouts.append(lay)
         return self.layouts
 
+    def _normal_map(self, piece: Piece):
+        """The asset's own normal maps at bake points of ``piece`` (a callable
+        for bake_texture_set), or None when none of its materials has one."""
+        scene = self.run.export_scene()
+        materials = getattr(scene, "materials", None) or []
+        triangle_material = getattr(scene, "triangle_material", None)
+        if piece.own_uvs is None or triangle_material is None or not any(
+                getattr(m, "normal_map", None) is not None for m in materials):
+            return None
+
+        def sample(lookup: np.ndarray, scene_tris: np.ndarray):
+            out = np.zeros((len(lookup), 3), np.float32)
+            out[:, 2] = 1.0
+            which = triangle_material[scene_tris]
+            for m, material in enumerate(materials):
+                mine = np.flatnonzero(which == m)
+                if len(mine) and material.normal_map is not None:
+                    n = sample_bilinear(material.normal_map, lookup[mine]) * 2.0 - 1.0
+                    out[mine] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+            return out
+
+        return sample
+
     def write(self, iteration: int) -> None:
         from ..files import atomic_write
         from .runner import property_columns
@@ -631,11 +723,11 @@ class Exporter:
 
             rows, _, owner = vertex_looks(sim, lay, iteration, run.threads)
             attributes = property_columns(effect, rows, self.triangle_surface[owner])
-            ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of)
+            ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of, self._normal_map(piece))
             part_name = safe_name(piece.name)
             folder = out / part_name
             files, sidecar = {}, {"iteration": iteration, "object": piece.name, "size": lay.size,
-                                  "images": {}, "properties": {}}
+                                  "preset": self.preset, "images": {}, "properties": {}}
 
             def image(channel: str, data: bytes, **about) -> None:
                 file = f"{part_name}_{channel}_{stem}.png"
@@ -643,19 +735,41 @@ class Exporter:
                 files[channel] = file
                 sidecar["images"][channel] = {"file": file, "holds": CHANNELS.get(channel, channel), **about}
 
-            base, orm, normal = png8(ts.base_color), png8(ts.orm), png_normal(ts.normal)
+            base, orm, normal = encode_rgb8([ts.base_color, ts.orm, (ts.normal + 1.0) * 0.5], run.threads)
+            # glTF's ORM and OpenGL normal map always (the glb, the OBJ and the USD stage read
+            # them); a preset adds its engine's own packing beside them
             image("BaseColor", base, colour_space="sRGB")
             image("ORM", orm, colour_space="linear")
             image("Normal", normal, colour_space="linear")
+            if self.preset == "unity":      # HDRP's mask map: metallic, occlusion, detail mask, smoothness
+                mask = np.stack([ts.orm[..., 2], ts.orm[..., 0], np.ones_like(ts.orm[..., 0]),
+                                 1.0 - ts.orm[..., 1]], axis=-1)
+                image("MaskMap", png8(mask), colour_space="linear",
+                      holds="metallic (R), occlusion (G), detail mask (B), smoothness = 1 - roughness (A)")
+            if self.preset == "unreal":     # DirectX convention: green points down the image
+                flipped = ts.normal * np.array([1.0, -1.0, 1.0], np.float32)
+                image("NormalDX", encode_rgb8([(flipped + 1.0) * 0.5], run.threads)[0], colour_space="linear",
+                      holds="tangent-space normal map (DirectX: +Y down), for Unreal")
             reach = float(np.max(np.abs(ts.height))) if ts.height.size else 0.0
-            image("Height", png16_grey(ts.height, -reach, reach), min=-reach, max=reach,
-                  unit="scene units along the normal (0 is mid-grey)")
+            if self.float_maps:
+                file = f"{part_name}_Height_{stem}.exr"
+                atomic_write(folder / file, exr32(ts.height))
+                sidecar["images"]["Height"] = {"file": file, "holds": CHANNELS["Height"], "min": -reach,
+                                               "max": reach, "unit": "scene units along the normal (32-bit float)"}
+            else:
+                image("Height", png16_grey(ts.height, -reach, reach), min=-reach, max=reach,
+                      unit="scene units along the normal (0 is mid-grey)")
             for prop, values in ts.properties.items():
                 low, high = self.ranges.get(prop, (float(np.min(values)), float(np.max(values))))
-                file = f"{part_name}_{prop}_{stem}.png"
-                atomic_write(folder / file, png16_grey(values, low, high))
-                sidecar["properties"][prop] = {"file": file, "min": low, "max": high,
-                                               "scale": "0..65535 spans min..max over the whole run"}
+                if self.float_maps:
+                    file = f"{part_name}_{prop}_{stem}.exr"
+                    atomic_write(folder / file, exr32(values))
+                    scale = "the values themselves (32-bit float); min..max over the whole run"
+                else:
+                    file = f"{part_name}_{prop}_{stem}.png"
+                    atomic_write(folder / file, png16_grey(values, low, high))
+                    scale = "0..65535 spans min..max over the whole run"
+                sidecar["properties"][prop] = {"file": file, "min": low, "max": high, "scale": scale}
             primitives = []
             for s in np.unique(surfaces):
                 surface = names[int(s)]

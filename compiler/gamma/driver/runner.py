@@ -53,6 +53,8 @@ class RunOptions(Record):
     export: bool | str = False  # texture sets + glTF/OBJ: "last" (or True) or "all" iterations
     bake_size: int = 1024       # baked texture width and height
     texel_density: float | None = None   # texels per scene unit (instead of bake_size)
+    preset: str = "gltf"        # the texture set's packing: gltf, unreal or unity
+    float_maps: bool = False    # height and properties as 32-bit OpenEXR instead of 16-bit PNG
     samples: int = 4            # camera rays per pixel (appearance renders)
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True

@@ -403,8 +403,10 @@ class ExportWriter(Writer):
     last iteration, or every one (``--export all``), written once the run is
     complete so that every property map spans the whole run's range."""
 
-    def __init__(self, bake_size: int | None, which: str = "last", texel_density: float | None = None):
-        self.bake_size, self.which, self.texel_density = bake_size, which, texel_density
+    def __init__(self, bake_size: int | None, which: str = "last", texel_density: float | None = None,
+                 preset: str = "gltf", float_maps: bool = False):
+        self.bake_size, self.which, self.texel_density, self.preset = bake_size, which, texel_density, preset
+        self.float_maps = float_maps
 
     def on_setup_done(self, event) -> None:
         from .export import memory_problem
@@ -423,7 +425,8 @@ class ExportWriter(Writer):
 
         run = event.run
         last = run.opts.iterations
-        exporter = Exporter(run, self.bake_size, self.texel_density, run.summary.get("ranges") or {})
+        exporter = Exporter(run, self.bake_size, self.texel_density, run.summary.get("ranges") or {}, self.preset,
+                            self.float_maps)
         if self.which == "all" and not run.shapes:
             from .saved import load_iteration
 
@@ -469,7 +472,7 @@ def standard_writers(run) -> list[Writer]:
         writers.append(AppearanceWriter())
     if run.opts.export:
         writers.append(ExportWriter(run.opts.bake_size, "all" if run.opts.export == "all" else "last",
-                                    run.opts.texel_density))
+                                    run.opts.texel_density, run.opts.preset, run.opts.float_maps))
     if run.opts.progress:
         writers.append(ProgressWriter(run.opts.iterations))
     writers.append(CompletionWriter())
