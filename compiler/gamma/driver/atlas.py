@@ -26,9 +26,9 @@ import numpy as np
 
 #: Largest chart, in triangles of the mesh's mean area.  xatlas grows charts
 #: one triangle at a time and re-flattens and re-checks the whole chart each
-#: time, so its time grows with the chart size: unlimited charts take about a
-#: minute on the 70k-triangle bunny, 250 about 2 s (user time) with 1.3 atlas
-#: vertices per position.
+#: time, so its time grows with the chart size: with its default options
+#: (no limit) the 70k-triangle bunny takes about a minute; with 250, in
+#: pieces, about 3 s for 442 charts and 1.31 atlas vertices per position.
 CHART_AREA = 250.0
 #: Triangles per piece handed to xatlas on its own: xatlas scans every
 #: triangle of a piece for each chart it starts (quadratic in the piece), and
@@ -36,6 +36,9 @@ CHART_AREA = 250.0
 PIECE_TRIANGLES = 8000
 #: Packing attempts before the charts are scaled to fit with a thinner gutter.
 PACK_ATTEMPTS = 8
+#: Largest texture xatlas packs at (about 2 s per attempt at 4096² on the
+#: bunny); larger ones get that packing scaled up.
+PACK_LIMIT = 4096
 
 
 @dataclass
@@ -76,9 +79,8 @@ def chart_atlas(vertices, faces, size: int, corner_normals=None, padding: int = 
         point_normal = None
     else:
         bits = (normals.reshape(-1, 3) + np.float32(0)).view(np.int32).astype(np.int64)  # -0 == +0
-        keys = np.column_stack([tris.reshape(-1), bits])
-        unique, inverse = np.unique(keys, axis=0, return_inverse=True)
-        point_of_corner = inverse.reshape(-1)
+        unique, inverse = _unique_rows(np.column_stack([tris.reshape(-1), bits]))
+        point_of_corner = inverse
         point_vertex = unique[:, 0]
         point_normal = unique[:, 1:].astype(np.int32).view(np.float32)
     corner_points = point_of_corner.reshape(-1, 3)
@@ -171,8 +173,7 @@ def chart_atlas(vertices, faces, size: int, corner_normals=None, padding: int = 
         corner_texel = min(padding, size - 1) + 0.5                # a gutter texel when there is one
         spot_uv = np.full((len(left), 2), corner_texel)
         spot_uv[first >= 0] = texel_uv[first[first >= 0]]
-        keys = np.column_stack([np.repeat(np.arange(len(left)), 3), points.reshape(-1)])
-        unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+        unique, inverse = _unique_rows(np.column_stack([np.repeat(np.arange(len(left)), 3), points.reshape(-1)]))
         corner_vertex[left] = len(vertex_point) + inverse.reshape(-1, 3)
         vertex_point = np.concatenate([vertex_point, unique[:, 1]])
         texel_uv = np.concatenate([texel_uv, spot_uv[unique[:, 0]]])
@@ -187,6 +188,18 @@ def chart_atlas(vertices, faces, size: int, corner_normals=None, padding: int = 
         chart=face_chart.astype(np.int32),
         normals=None if point_normal is None else point_normal[vertex_point].astype(np.float32),
     )
+
+
+def _unique_rows(keys: np.ndarray):
+    """The distinct rows of an integer array (sorted, first column first) and
+    the row number of each input row; np.unique(axis=0) is ten times slower."""
+    order = np.lexsort(keys.T[::-1])
+    ordered = keys[order]
+    starts = np.ones(len(keys), bool)
+    starts[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
+    inverse = np.empty(len(keys), np.int64)
+    inverse[order] = np.cumsum(starts) - 1
+    return ordered[starts], inverse
 
 
 def _split(centroids: np.ndarray, ids: np.ndarray, count: int) -> list[np.ndarray]:
@@ -211,11 +224,16 @@ def _pack(uv: np.ndarray, faces: np.ndarray, chart: np.ndarray, charts: int, siz
 
     if not len(faces):
         return np.zeros((len(uv), 2))
-    room = size - 2 * padding
+    # xatlas packs on a bitmap of the texture: its time grows with the texel
+    # count.  Above PACK_LIMIT² the packing is done at PACK_LIMIT and scaled
+    # up, gutters with it (wider than asked, never narrower).
+    limit = min(size, PACK_LIMIT)
+    grow = size / limit
+    border = padding
+    padding = -(-padding * limit // size)
+    room = limit - 2 * padding
     if room < 1:
-        room, border = size, 0
-    else:
-        border = padding
+        room, border = limit, 0
     # First guess: the charts' padded boxes fill 75 % of the room.
     lo = np.full((charts, 2), np.inf)
     hi = np.full((charts, 2), -np.inf)
@@ -253,7 +271,7 @@ def _pack(uv: np.ndarray, faces: np.ndarray, chart: np.ndarray, charts: int, siz
         texels = out.astype(np.float64) * np.array([atlas.width, atlas.height])
         if extent <= room:
             best = (texels, vertex_chart)
-            if extent >= 0.93 * room:
+            if extent >= 0.9 * room:
                 break
             scale *= 0.99 * room / max(extent, 1)        # room to spare: grow once more
         elif best is not None:
@@ -267,7 +285,7 @@ def _pack(uv: np.ndarray, faces: np.ndarray, chart: np.ndarray, charts: int, siz
         best = (texels, vertex_chart)
     texels, vertex_chart = best
     texels = _place_loose_vertices(uv, texels, vertex_chart.view(np.int32), faces, chart)
-    return texels + border
+    return texels * grow + border
 
 
 def _place_loose_vertices(uv, texels, vertex_chart, faces, chart):
@@ -361,50 +379,58 @@ def dilate(image: np.ndarray, chart_of_texel: np.ndarray, passes: int = 8) -> np
     belongs to that chart for the next ring.  Colours of two charts are never
     mixed, so bilinear filtering and mip-maps at a chart's edge see only that
     chart's colours."""
-    img = np.asarray(image, np.float32)
-    squeeze = img.ndim == 2
-    if squeeze:
-        img = img[..., None]
-    h, w, c = img.shape
-    stride = w + 2
-    # A border of empty texels that never fill lets every texel look at all
-    # 8 neighbours by flat offsets.
-    label = np.full((h + 2, w + 2), -1, np.int32)
-    label[1:-1, 1:-1] = chart_of_texel
-    values = np.zeros((h + 2, w + 2, c), np.float32)
-    values[1:-1, 1:-1] = img
-    label, values = label.reshape(-1), values.reshape(-1, c)
-    filled = (label >= 0).reshape(h + 2, w + 2)
-    inner = np.zeros_like(filled)
-    inner[1:-1, 1:-1] = True
-    offsets = np.array([-stride - 1, -stride, -stride + 1, -1, 1, stride - 1, stride, stride + 1])
+    out = np.array(image, np.float32)
+    h, w = out.shape[:2]
+    values = out.reshape(h * w, -1)                   # a view: filled in place
+    label = np.array(chart_of_texel, np.int32).reshape(-1)
+    filled = (label >= 0).reshape(h, w)
+    steps = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+    none = np.iinfo(np.int32).max
     for _ in range(passes):
-        rows = filled[:-2] | filled[1:-1] | filled[2:]
-        near = np.zeros_like(filled)
-        near[1:-1, 1:-1] = rows[:, :-2] | rows[:, 1:-1] | rows[:, 2:]
-        ring = np.flatnonzero(near & ~filled & inner)
+        near = filled.copy()                          # filled 8-neighbourhoods
+        near[1:] |= filled[:-1]
+        near[:-1] |= filled[1:]
+        ring = near.copy()
+        ring[:, 1:] |= near[:, :-1]
+        ring[:, :-1] |= near[:, 1:]
+        ring = np.flatnonzero(ring & ~filled)
         if not len(ring):
             break
-        around = label[ring[:, None] + offsets]                   # (r, 8), -1 where empty
-        best = around.max(axis=1)
-        low = np.where(around >= 0, around, np.iinfo(np.int32).max).min(axis=1)
-        mixed = np.flatnonzero(low != best)                        # neighbours of several charts
+        row, col = np.divmod(ring, w)
+        edge = np.flatnonzero((row == 0) | (row == h - 1) | (col == 0) | (col == w - 1))
+        sources, around = [], []
+        for dy, dx in steps:
+            source = ring + (dy * w + dx)
+            if len(edge):                             # off the image: the empty texel itself
+                r, c = row[edge] + dy, col[edge] + dx
+                off = edge[(r < 0) | (r >= h) | (c < 0) | (c >= w)]
+                source[off] = ring[off]
+            sources.append(source)
+            around.append(np.take(label, source))     # -1 where empty
+        best = np.maximum.reduce(around)
+        low = np.minimum.reduce([np.where(a >= 0, a, none) for a in around])
+        mixed = np.flatnonzero(low != best)           # neighbours of several charts
         if len(mixed):
-            sub = around[mixed]
-            votes = ((sub[:, :, None] == sub[:, None, :]).sum(axis=2)).astype(np.int64)
+            sub = np.stack([a[mixed] for a in around], axis=1)
+            votes = (sub[:, :, None] == sub[:, None, :]).sum(axis=2).astype(np.int64)
             score = np.where(sub >= 0, votes * (np.int64(1) << 32) - sub, np.iinfo(np.int64).min)
             best[mixed] = sub[np.arange(len(mixed)), np.argmax(score, axis=1)]
-        total = np.zeros((len(ring), c), np.float32)
-        count = np.zeros(len(ring), np.float32)
-        for k, offset in enumerate(offsets):
-            mine = np.flatnonzero(around[:, k] == best)
-            total[mine] += values[ring[mine] + offset]
-            count[mine] += 1
-        values[ring] = total / count[:, None]
+        # (ring texel, neighbour of the chosen chart) pairs, summed per texel
+        into, source = [], []
+        for src, chart in zip(sources, around):
+            mine = np.flatnonzero(chart == best)
+            into.append(mine)
+            source.append(src[mine])
+        into, source = np.concatenate(into), np.concatenate(source)
+        count = np.bincount(into, minlength=len(ring))
+        gathered = np.take(values, source, axis=0)
+        mean = np.empty((len(ring), values.shape[1]), np.float32)
+        for k in range(values.shape[1]):
+            mean[:, k] = np.bincount(into, weights=gathered[:, k], minlength=len(ring)) / count
+        values[ring] = mean
         label[ring] = best
         filled.reshape(-1)[ring] = True
-    out = values.reshape(h + 2, w + 2, c)[1:-1, 1:-1].copy()
-    return out[..., 0] if squeeze else out
+    return out
 
 
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -436,28 +462,23 @@ def seam_jumps(atlas: Atlas, image: np.ndarray, size: int, threshold: float = 10
         raise ValueError(f"image is {image.shape[:2]}, not {size}²")
     vertex = atlas.source
     if positions is not None:
-        _, weld = np.unique(np.asarray(positions, np.float32).reshape(-1, 3), axis=0, return_inverse=True)
-        vertex = weld.reshape(-1)[atlas.source]
+        bits = (np.asarray(positions, np.float32).reshape(-1, 3) + np.float32(0)).view(np.int32)
+        vertex = _unique_rows(bits.astype(np.int64))[1][atlas.source]
     tri = vertex[atlas.faces]                                      # (m, 3) welded corners
-    m = len(tri)
-    a = np.concatenate([tri[:, 0], tri[:, 1], tri[:, 2]])
-    b = np.concatenate([tri[:, 1], tri[:, 2], tri[:, 0]])
-    ca = np.concatenate([atlas.faces[:, 0], atlas.faces[:, 1], atlas.faces[:, 2]])
-    cb = np.concatenate([atlas.faces[:, 1], atlas.faces[:, 2], atlas.faces[:, 0]])
-    keys = np.column_stack([np.minimum(a, b), np.maximum(a, b)])
+    a, b = tri.T.reshape(-1), tri[:, [1, 2, 0]].T.reshape(-1)      # edge k of every triangle, k = 0, 1, 2
+    ca, cb = atlas.faces.T.reshape(-1), atlas.faces[:, [1, 2, 0]].T.reshape(-1)
     keep = a != b
-    keys, ca, cb = keys[keep], ca[keep], cb[keep]
-    if not len(keys):
-        return 0.0
-    _, edge, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    edge = edge.reshape(-1)
-    pair = counts[edge] == 2
-    order = np.argsort(edge[pair], kind="stable")
-    first, second = np.flatnonzero(pair)[order][0::2], np.flatnonzero(pair)[order][1::2]
+    key = np.minimum(a, b)[keep] * (int(vertex.max()) + 1) + np.maximum(a, b)[keep]
+    ca, cb = ca[keep], cb[keep]
+    _, edge, counts = np.unique(key, return_inverse=True, return_counts=True)
+    sides = np.flatnonzero(counts[edge] == 2)
+    sides = sides[np.argsort(edge[sides], kind="stable")]         # the two sides of an edge in a row
+    first, second = sides[0::2], sides[1::2]
     if not len(first):
         return 0.0
-    mid = lambda i: 0.5 * (atlas.uvs[ca[i]].astype(np.float64) + atlas.uvs[cb[i]])
-    diff = np.abs(sample_bilinear(image, mid(first)) - sample_bilinear(image, mid(second)))
+    uv = atlas.uvs.astype(np.float64)
+    diff = np.abs(sample_bilinear(image, 0.5 * (uv[ca[first]] + uv[cb[first]]))
+                  - sample_bilinear(image, 0.5 * (uv[ca[second]] + uv[cb[second]])))
     return float((diff.max(axis=1) > threshold).mean())
 
 
@@ -468,5 +489,6 @@ def flat_fraction(faces: np.ndarray, normals: np.ndarray, tolerance: float = 1e-
     if not len(faces):
         return 0.0
     n = np.asarray(normals, np.float64)[faces]
-    same = (np.abs(n[:, 0] - n[:, 1]).max(axis=1) <= tolerance) & (np.abs(n[:, 1] - n[:, 2]).max(axis=1) <= tolerance)
+    same = ((np.abs(n[:, 0] - n[:, 1]).max(axis=1) <= tolerance)
+            & (np.abs(n[:, 1] - n[:, 2]).max(axis=1) <= tolerance))
     return float(same.mean())
