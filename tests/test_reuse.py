@@ -131,3 +131,26 @@ def test_cancel_stops_a_trace_and_leaves_the_rows(scene):
         for it in range(3, 100000):
             sim.trace(it)
     assert time.perf_counter() - t0 < 30
+
+
+def test_texel_runs_bake_like_one_point_at_a_time(scene):
+    """bake_points shares one neighbour search among each run of nearby
+    texels (SceneIndex::smooth_block); the viewer's prepared points search
+    one point at a time.  On a whole texture's texels (dense runs along the
+    rows, jumping between charts) the two agree bit for bit, at 1 and 2 threads."""
+    from gamma.driver.export import layout, pieces
+
+    first = go(effect(PATINA), scene)
+    sim = first["sim"]
+    lay = layout(pieces(scene)[0], np.asarray(sim.corner_normals()), 512)
+    texels, tris, bary = lay.texels()
+    positions = np.einsum("kc,kcd->kd", bary, lay.positions.astype(np.float64)[lay.faces[tris]]).astype(np.float32)
+    normals = np.einsum("kc,kcd->kd", bary, lay.normals.astype(np.float64)[lay.faces[tris]]).astype(np.float32)
+    owner = lay.piece.triangles[tris].astype(np.int32)
+    uvs = np.zeros((len(texels), 2), np.float32)
+    assert len(texels) > 30_000
+    sim.prepare_points(positions, normals, owner, uvs, 2)
+    want_rows, want_look = sim.bake_prepared(1, 2)
+    for threads in (1, 2):
+        rows, look = sim.bake_points(positions, normals, owner, uvs, 1, threads)
+        assert np.array_equal(rows, want_rows) and np.array_equal(look, want_look)

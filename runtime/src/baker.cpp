@@ -15,22 +15,58 @@ namespace gammart {
 void bake_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
                  const int32_t* triangles, const float* uvs, int iteration, int threads, float* rows_out,
                  float* look_out) {
+    constexpr size_t K = kSmoothingNeighbours;
     const int W = rs.state.width;
     const std::vector<int32_t>& tri_surface = rs.index.tri_surface();
     for (size_t i = 0; i < k; ++i)
         if (triangles[i] < 0 || size_t(triangles[i]) >= tri_surface.size())
             throw Error("bake_points: triangle " + std::to_string(triangles[i]) + " out of range");
+    // Runs of up to kBakeBlock consecutive points of one surface share one
+    // neighbour search (SceneIndex::smooth_block): texels come in rows, so a
+    // run is a few texels wide.  Runs are cut at fixed places, so the result
+    // does not depend on the thread count.
+    const size_t blocks = (k + kBakeBlock - 1) / kBakeBlock;
+    const float* state_rows = rs.state.rows.data();
+    const float run_reach2 = rs.index.sigma() * rs.index.sigma();
     run_with_threads(threads, [&] {
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 1024), [&](const tbb::blocked_range<size_t>& r) {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, blocks, 16), [&](const tbb::blocked_range<size_t>& r) {
             std::vector<float> tex(3 * rs.textures.size() + 3, 0.0f);
+            std::vector<uint32_t> idx(K * kBakeBlock);
+            std::vector<double> w(K * kBakeBlock);
+            std::vector<uint8_t> count(kBakeBlock);
             const float none[3] = {0.0f, 0.0f, 0.0f};
-            for (size_t i = r.begin(); i < r.end(); ++i) {
-                const uint32_t tri = uint32_t(triangles[i]);
-                float* row = rows_out + i * size_t(W);
-                // The row as the surface holds it, whether or not it has an appearance.
-                interpolate_row(rs, tri_surface[tri], positions + 3 * i, row);
-                look_of_row(rs, tri, positions + 3 * i, normals + 3 * i, none, uvs + 2 * i, iteration,
-                              mix64(kRenderKey ^ uint64_t(i)), row, tex.data(), look_out + size_t(GAMMA_LOOK_WIDTH) * i);
+            for (size_t b = r.begin(); b < r.end(); ++b) {
+                const size_t end = std::min(k, (b + 1) * kBakeBlock);
+                for (size_t start = b * kBakeBlock; start < end;) {
+                    // A run is one surface's points within a surfel spacing of its first:
+                    // consecutive texels of a row can lie on charts far apart.
+                    const int surface = tri_surface[size_t(triangles[start])];
+                    const float* p0 = positions + 3 * start;
+                    auto near_first = [&](size_t i) {
+                        const float* p = positions + 3 * i;
+                        const float dx = p[0] - p0[0], dy = p[1] - p0[1], dz = p[2] - p0[2];
+                        return dx * dx + dy * dy + dz * dz <= run_reach2;
+                    };
+                    size_t stop = start + 1;
+                    while (stop < end && tri_surface[size_t(triangles[stop])] == surface && near_first(stop)) ++stop;
+                    rs.index.smooth_block(surface, positions + 3 * start, stop - start, idx.data(), w.data(),
+                                          count.data());
+                    for (size_t i = start; i < stop; ++i) {
+                        const size_t q = i - start;
+                        float* row = rows_out + i * size_t(W);
+                        // interpolate_row's sum, in its order
+                        for (int c = 0; c < W; ++c) {
+                            double acc = 0;
+                            for (size_t j = 0; j < count[q]; ++j)
+                                acc += w[K * q + j] * state_rows[size_t(idx[K * q + j]) * size_t(W) + size_t(c)];
+                            row[c] = float(acc);
+                        }
+                        look_of_row(rs, uint32_t(triangles[i]), positions + 3 * i, normals + 3 * i, none, uvs + 2 * i,
+                                    iteration, mix64(kRenderKey ^ uint64_t(i)), row, tex.data(),
+                                    look_out + size_t(GAMMA_LOOK_WIDTH) * i);
+                    }
+                    start = stop;
+                }
             }
         });
     });

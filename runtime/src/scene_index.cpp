@@ -854,4 +854,83 @@ size_t SceneIndex::smooth(int surface, const float p[3], uint32_t* idx, double* 
     return got;
 }
 
+namespace {
+
+// smooth()'s weights of the neighbours found (their squared distances d2),
+// and its underflow rule; returns the count.
+size_t smoothing_weights_of(const float* d2, size_t got, double inv2s2, double* w) {
+    double sw = 0;
+    for (size_t j = 0; j < got; ++j) {
+        w[j] = std::exp(-double(d2[j]) * inv2s2);
+        sw += w[j];
+    }
+    if (sw > 0) {
+        for (size_t j = 0; j < got; ++j) w[j] /= sw;
+        return got;
+    }
+    w[0] = 1.0;  // every weight underflowed: the nearest surfel alone
+    return 1;
+}
+
+}  // namespace
+
+void SceneIndex::smooth_block(int surface, const float* points, size_t n, uint32_t* idx, double* w,
+                              uint8_t* counts) const {
+    constexpr size_t K = kSmoothingNeighbours;
+    if (n == 0) return;
+    const PointTree* tree = &trees_->all;
+    if (has_surfels(surface)) tree = &trees_->of(surface);
+    const size_t count = tree->cloud.n;
+    const size_t k = std::min(K, count);
+    // The block's centre and radius, in double so the bound is not cut short.
+    double c[3] = {0, 0, 0};
+    for (size_t i = 0; i < n; ++i)
+        for (int d = 0; d < 3; ++d) c[d] += double(points[3 * i + d]);
+    for (double& x : c) x /= double(n);
+    double r2 = 0;
+    for (size_t i = 0; i < n; ++i) {
+        double e = 0;
+        for (int d = 0; d < 3; ++d) e += (double(points[3 * i + d]) - c[d]) * (double(points[3 * i + d]) - c[d]);
+        r2 = std::max(r2, e);
+    }
+    const float cf[3] = {float(c[0]), float(c[1]), float(c[2])};
+    uint32_t near[K];
+    float near_d2[K];
+    nanoflann::KNNResultSet<float, uint32_t> first(k);
+    first.init(near, near_d2);
+    tree->kd->findNeighbors(first, cf, nanoflann::SearchParams());
+    // Every point's k nearest lie within d_k(c) + 2 r of c (triangle
+    // inequality), padded for float rounding of the distances.
+    const double reach = (std::sqrt(double(near_d2[first.size() - 1])) + 2.0 * std::sqrt(r2)) * (1.0 + 1e-4) +
+                         1e-6 * double(sigma_);
+    std::vector<std::pair<uint32_t, float>> found;
+    tree->kd->radiusSearch(cf, float(reach * reach), found, nanoflann::SearchParams(32, 0.0f, false));
+    // In index order: the candidates meet each point's result set in a fixed
+    // order, so the outcome does not depend on the tree's.
+    std::sort(found.begin(), found.end());
+    const double inv2s2 = 1.0 / (2.0 * double(sigma_) * double(sigma_));
+    const float* cloud = tree->cloud.p;
+    for (size_t i = 0; i < n; ++i) {
+        const float* p = points + 3 * i;
+        uint32_t* out = idx + K * i;
+        float d2[K];
+        nanoflann::KNNResultSet<float, uint32_t> rs(k);
+        rs.init(out, d2);
+        for (const auto& [j, unused] : found) {
+            (void)unused;
+            // nanoflann's L2_Simple_Adaptor, operation for operation
+            float dist = 0;
+            for (int d = 0; d < 3; ++d) {
+                const float diff = p[d] - cloud[3 * size_t(j) + size_t(d)];
+                dist += diff * diff;
+            }
+            if (dist < rs.worstDist()) rs.addPoint(dist, j);
+        }
+        const size_t got = smoothing_weights_of(d2, rs.size(), inv2s2, w + K * i);
+        counts[i] = uint8_t(got);
+        if (!tree->index.empty())
+            for (size_t j = 0; j < got; ++j) out[j] = tree->index[out[j]];
+    }
+}
+
 }  // namespace gammart

@@ -11,6 +11,9 @@
 
 namespace gammart {
 
+// Points per shared neighbour search in bake_points.
+constexpr size_t kBakeBlock = 32;
+
 // At each of k surface points (position, normal, triangle, uv), the smoothed
 // row (k x W) and the look (k x GAMMA_LOOK_WIDTH: abi.py's APPEARANCE_OUTPUTS).  Throws gammart::Error for a
 // triangle out of range.

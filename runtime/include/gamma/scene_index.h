@@ -157,6 +157,16 @@ public:
     // out of range), Gaussian weights exp(-d^2 / (2 sigma^2)), normalised to
     // sum 1; if every weight underflows, the nearest surfel alone (weight 1).
     // Returns the number of neighbours written to idx / w (nearest first).
+    // smooth() of n points close to one another (a run of texels): per
+    // point its neighbours and weights (idx, w: n * kSmoothingNeighbours,
+    // nearest first) and their count.  The neighbours are picked among the
+    // surfels within d_k(c) + 2 r of the points' centre c (r: their largest
+    // distance from it; d_k: the distance of c's k-th nearest surfel), which
+    // holds each point's k nearest: one radius search instead of n k-nearest
+    // searches, with smooth()'s distances and weights.  Surfels at exactly
+    // the same distance from a point may come in another order than smooth()'s.
+    void smooth_block(int surface, const float* points, size_t n, uint32_t* idx, double* w,
+                      uint8_t* counts) const;
     size_t smooth(int surface, const float p[3], uint32_t idx[kSmoothingNeighbours],
                   double w[kSmoothingNeighbours]) const;
 
