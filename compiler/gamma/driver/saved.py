@@ -304,39 +304,42 @@ def place_surfels(positions: np.ndarray, normals: np.ndarray, surfaces: np.ndarr
     count = last - first
     surfel = np.repeat(np.arange(len(P)), count)
     tri = owner[np.repeat(first, count) + np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)]
-    # barycentric coordinates as the runtime's carry_surfels computes them, plane distance, normal
-    e1, e2, d = b[tri] - a[tri], c[tri] - a[tri], P[surfel] - a[tri]
-    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
-    dp1, dp2 = (d * e1).sum(1), (d * e2).sum(1)
-    den = d11 * d22 - d12 * d12
-    ok = den > 0
-    den = np.where(ok, den, 1.0)
-    v, w = (d22 * dp1 - d12 * dp2) / den, (d11 * dp2 - d12 * dp1) / den
-    depth = np.minimum(np.minimum(1.0 - v - w, v), w)
+    # the triangles' planes first (most candidates are off them), then barycentric
+    # coordinates as the runtime's carry_surfels computes them, and the normals
+    e1, e2 = b - a, c - a
     cross = np.cross(e1, e2)
     length = np.linalg.norm(cross, axis=1)
     unit = cross / np.where(length > 0, length, 1.0)[:, None]
-    distance = np.abs((d * unit).sum(1))
-    facing = np.round((unit * normals.astype(np.float64)[surfel]).sum(1), 6)
-    fit = ok & (depth >= -1e-4) & (distance <= pad)
+    near = np.abs(((P[surfel] - a[tri]) * unit[tri]).sum(1)) <= pad
+    surfel, tri = surfel[near], tri[near]
+    e1, e2, d = e1[tri], e2[tri], P[surfel] - a[tri]
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    dp1, dp2 = (d * e1).sum(1), (d * e2).sum(1)
+    den = d11 * d22 - d12 * d12
+    ok = (den > 0) & (length[tri] > 0)
+    den = np.where(ok, den, 1.0)
+    v, w = (d22 * dp1 - d12 * dp2) / den, (d11 * dp2 - d12 * dp1) / den
+    depth = np.minimum(np.minimum(1.0 - v - w, v), w)
+    fit = ok & (depth >= -1e-4)
+    surfel, tri, depth = surfel[fit], tri[fit], depth[fit]
+    facing = np.round((unit[tri] * normals.astype(np.float64)[surfel]).sum(1), 6)
 
     def choose(allowed):
         """The best allowed candidate per surfel (-1: none)."""
-        rank = np.lexsort((-depth, -facing, ~allowed, surfel))      # by surfel, allowed first, ...
+        rank = np.flatnonzero(allowed)
+        rank = rank[np.lexsort((-depth[rank], -facing[rank], surfel[rank]))]   # by surfel, best first
+        held, first = np.unique(surfel[rank], return_index=True)
         best = np.full(len(P), -1, np.int64)
-        starts = np.flatnonzero(np.r_[True, surfel[rank][1:] != surfel[rank][:-1]]) if len(rank) else rank
-        pick = rank[starts]
-        pick = pick[allowed[pick]]
-        best[surfel[pick]] = tri[pick]
+        best[held] = tri[rank[first]]
         return best
 
-    placed = choose(fit)
+    placed = choose(np.ones(len(tri), bool))
     if np.any(placed < 0):
         return None, None
     triangle_surface = _triangle_surfaces(faces, placed, surfaces, (a + b + c) / 3, P)
     wrong = triangle_surface[placed] != surfaces
     if wrong.any():     # a surfel on an edge between surfaces: the triangle on its own surface's side
-        again = choose(fit & (triangle_surface[tri] == surfaces[surfel]))
+        again = choose(triangle_surface[tri] == surfaces[surfel])
         placed = np.where(wrong, again, placed)
         if np.any(placed < 0):
             return None, None
