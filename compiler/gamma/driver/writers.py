@@ -427,7 +427,7 @@ class ExportWriter(Writer):
         last = run.opts.iterations
         exporter = Exporter(run, self.bake_size, self.texel_density, run.summary.get("ranges") or {}, self.preset,
                             self.float_maps)
-        if self.which == "all" and not run.shapes:
+        if self.which == "all":
             from .saved import load_iteration
 
             run.behind.drain()          # the maps of every iteration are on disk
