@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.request
 from io import BytesIO
 
 import numpy as np
@@ -40,11 +41,34 @@ on settle(t: Weather, s: Copper) {
 """
 
 
+#: The same effect with an appearance: a constant look, ROUGHNESS and METALLIC to fill in.
+LOOK_EFFECT = EFFECT.replace("RATE", "0.05") + """
+appearance(s: Copper) {
+    color = rgb(0.8, 0.55, 0.4)
+    roughness = ROUGHNESS
+    metallic = METALLIC
+    occlusion = 0.75
+}
+"""
+
+
 @pytest.fixture()
 def watched(tmp_path, bumpy_obj):
-    """A running `gammac watch` on an effect in tmp_path: (url, effect path, process)."""
+    """A running `gammac watch` on an effect in tmp_path: (url, effect path, log)."""
     effect = tmp_path / "effect.gamma"
     effect.write_text(EFFECT.replace("RATE", "0.05"))
+    yield from watching(effect, bumpy_obj)
+
+
+@pytest.fixture()
+def watched_look(tmp_path, bumpy_obj):
+    """As ``watched``, on LOOK_EFFECT as a rough dielectric (roughness 1, metallic 0)."""
+    effect = tmp_path / "effect.gamma"
+    effect.write_text(LOOK_EFFECT.replace("ROUGHNESS", "1.0").replace("METALLIC", "0.0"))
+    yield from watching(effect, bumpy_obj)
+
+
+def watching(effect, bumpy_obj):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen([sys.executable, "-m", "gamma.cli", "watch", str(effect), "--scene", str(bumpy_obj),
                              "--surfels", "4000", "--iterations", "3", "--port", "0", "--threads", "2"],
@@ -130,3 +154,73 @@ def test_page_shows_the_mesh_follows_edits_and_shows_errors(watched):
             assert page.locator("#status").inner_text() == "error"
         finally:
             browser.close()
+
+
+def launch(p):
+    return p.chromium.launch(executable_path=CHROMIUM, headless=True,
+                             args=["--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--no-sandbox"])
+
+
+def frame_of(url: str, page) -> dict:
+    """The shown frame's bytes from the server, cut up as the page reads them."""
+    state = page.evaluate("gammaViewer.state")
+    n = state["mesh"]["vertices"]
+    with urllib.request.urlopen(f"{url}api/frame?generation={state['generation']}"
+                                f"&iteration={state['iterations']}") as response:
+        data = np.frombuffer(response.read(), "<f4")
+    assert [p["name"] for p in state["properties"]] == ["patina"]
+    assert data.size == (3 + 3 + 1) * n, "colour (3n), roughness, metallic, occlusion, one property (n each)"
+    return {"colour": data[:3 * n].reshape(n, 3), "roughness": data[3 * n:4 * n], "metallic": data[4 * n:5 * n],
+            "occlusion": data[5 * n:6 * n], "patina": data[6 * n:]}
+
+
+def test_the_look_roughness_metallic_and_occlusion_reach_the_frame_and_the_pixels(watched_look):
+    url, effect, log = watched_look
+    with playwright_api.sync_playwright() as p:
+        browser = launch(p)
+        try:
+            page = browser.new_page(viewport={"width": 900, "height": 600})
+            page.goto(url)
+            shots, frames = {}, {}
+            generation = 0
+            for name, roughness, metallic in (("matte", "1.0", "0.0"), ("metal", "0.2", "1.0")):
+                if name == "metal":     # an edit: the page follows it
+                    effect.write_text(LOOK_EFFECT.replace("ROUGHNESS", roughness).replace("METALLIC", metallic))
+                wait_for(page, f"gammaViewer.shown && gammaViewer.shown.generation > {generation}"
+                               " && gammaViewer.shown.quality === 'final'")
+                generation = page.evaluate("gammaViewer.shown.generation")
+                frames[name] = frame_of(url, page)
+                for show in ("appearance", "patina"):
+                    page.select_option("#show", show)
+                    wait_for(page, f"gammaViewer.shown.show === '{show}'"
+                                   f" && gammaViewer.shown.generation === {generation}")
+                    shots[name, show] = np.asarray(Image.open(BytesIO(page.locator("#view canvas").screenshot()))
+                                                   .convert("RGB"), np.float64)
+            assert page.locator("#errors").is_hidden(), "".join(log)
+        finally:
+            browser.close()
+
+    # the frames carry the appearance block's constants
+    for name, roughness, metallic in (("matte", 1.0, 0.0), ("metal", 0.2, 1.0)):
+        frame = frames[name]
+        assert frame["colour"] == pytest.approx(np.tile(np.float32([0.8, 0.55, 0.4]), (len(frame["patina"]), 1)))
+        assert frame["roughness"] == pytest.approx(np.full_like(frame["roughness"], roughness))
+        assert frame["metallic"] == pytest.approx(np.full_like(frame["metallic"], metallic))
+        assert frame["occlusion"] == pytest.approx(np.full_like(frame["occlusion"], 0.75))
+    assert frames["matte"]["patina"].max() > 0
+    assert np.array_equal(frames["matte"]["patina"], frames["metal"]["patina"])   # the rules did not change
+
+    # the mesh's pixels: not grey in the false-colour view (viridis)
+    patina = shots["matte", "patina"]
+    mask = patina.max(axis=2) - patina.min(axis=2) > 25
+    assert mask.mean() > 0.05, "the mesh is not on the canvas"
+    brightness = {name: shots[name, "appearance"].mean(axis=2)[mask] for name in ("matte", "metal")}
+    # the polished metal looks different from the matte paint ...
+    difference = np.abs(shots["metal", "appearance"] - shots["matte", "appearance"]).mean(axis=2)[mask]
+    assert difference.mean() > 20, difference.mean()
+    # ... is not black (it reflects the sky) and has highlights (the sky's bright panels, sharp)
+    assert brightness["metal"].mean() > 60, brightness["metal"].mean()
+    assert np.percentile(brightness["metal"], 99) > np.percentile(brightness["matte"], 99) + 20, \
+        (np.percentile(brightness["metal"], 99), np.percentile(brightness["matte"], 99))
+    # the property views ignore the look (a matte dielectric, unoccluded, whatever the effect says)
+    assert np.abs(shots["metal", "patina"] - shots["matte", "patina"]).mean() < 1.0

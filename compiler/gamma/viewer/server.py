@@ -10,8 +10,9 @@ reads it through
 - ``GET /api/mesh``    binary: uint32 n, uint32 m, float32 positions (3n),
   float32 normals (3n), uint32 triangles (3m);
 - ``GET /api/frame?generation=G&iteration=I``  binary float32: the
-  appearance colour per vertex (3n), then each property per vertex (n each,
-  in the order of ``properties``);
+  appearance colour per vertex (3n), its roughness, metallic and occlusion
+  (n each), then each property per vertex (n each, in the order of
+  ``properties``);
 - ``GET /api/events``  server-sent events, one message per published change;
 - ``POST /api/preview`` body: the preview fraction of the γ-tons (0 < f <= 1).
 """

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import abi
 from ..frontend.checker import UsageError
 from ..frontend.diagnostics import GammaError
 from ..driver.events import Writer
@@ -233,11 +234,22 @@ class Watcher:
                                    "up": [float(c) for c in camera[2]], "fov": float(camera[3])})
 
 
+#: The appearance outputs a frame carries after the colour, one float per
+#: vertex each, in this order (``displacement`` is not drawn).
+FRAME_LOOK = ("roughness", "metallic", "occlusion")
+
+
 class ViewerWriter(Writer):
-    """The page's frames, one per iteration: the appearance colour and every
-    property at the viewer mesh's vertices (the surfels' smoothed values),
-    with each property's range over the run.  Stops the run (``Superseded``)
-    as soon as the files change."""
+    """The page's frames, one per iteration: the appearance (the look) and
+    every property at the viewer mesh's vertices (the surfels' smoothed
+    values), with each property's range over the run.  Stops the run
+    (``Superseded``) as soon as the files change.
+
+    A frame (``GET /api/frame``) is little-endian float32, for the n
+    vertices of the viewer mesh: the appearance colour (3n: r, g, b per
+    vertex, display values in [0, 1]), then roughness (n), metallic (n) and
+    occlusion (n), each clamped to [0, 1] (SPEC §8a), then each property
+    (n each, in the order of the state's ``properties``)."""
 
     def __init__(self, watcher: "Watcher", mesh: ViewerMesh, quality: str):
         self.watcher, self.mesh, self.quality = watcher, mesh, quality
@@ -262,10 +274,12 @@ class ViewerWriter(Writer):
         if run.sim.num_prepared_points != len(mesh.owner):   # once per set of surfels: kept over saves
             run.sim.prepare_points(mesh.positions, mesh.normals, mesh.owner, mesh.uvs, run.threads)
         rows, look = run.sim.bake_prepared(it, run.threads)
-        rgb = np.asarray(look)[:, :3]
+        look = np.asarray(look)
+        at = abi.appearance_offsets()
         columns = property_columns(run.effect, np.asarray(rows), np.asarray(run.scene.triangle_surface)[mesh.owner])
         self.names = list(columns)
-        parts = [np.asarray(rgb, "<f4").reshape(-1)]
+        parts = [np.asarray(look[:, at["color"]:at["color"] + 3], "<f4").reshape(-1)]
+        parts += [np.clip(look[:, at[name]], 0.0, 1.0).astype("<f4") for name in FRAME_LOOK]
         for name, values in columns.items():
             finite = values[np.isfinite(values)]
             if finite.size:

@@ -9,6 +9,7 @@ import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 
 const $ = (id) => document.getElementById(id);
+const LOOK_FLOATS = 6;   // per vertex in a frame before the properties: r, g, b, roughness, metallic, occlusion
 
 // matplotlib's viridis, the polynomial fit the PNG renders use (outputs.py)
 const VIRIDIS = [
@@ -38,10 +39,77 @@ const scene = new THREE.Scene();
 const camera = new THREE.PerspectiveCamera(30, 1, 0.01, 100);
 const controls = new OrbitControls(camera, renderer.domElement);
 controls.addEventListener("change", draw);
-scene.add(new THREE.HemisphereLight(0xffffff, 0x808080, 1.6));
 const sun = new THREE.DirectionalLight(0xffffff, 1.6);
 scene.add(sun);
+
+// The sky light: an environment (image-based lighting) instead of a
+// hemisphere light, so metals have something to reflect.  A small
+// equirectangular picture in linear radiance, +Y up (turned to the scene's up
+// in loadMesh): a sky brighter towards the horizon, a darker ground, a sharp
+// horizon and two soft bright panels for highlights.  Its irradiance matches
+// the old HemisphereLight(white, grey, 1.6) within a few per cent (sky 1.56,
+// side 1.1-1.16, ground 0.78 against 1.6, 1.2, 0.8), so rough dielectrics
+// (and the false-colour views) keep their diffuse shading; they gain a faint
+// sky sheen, as in the renderer's pictures.  The PMREM conversion compiles a
+// GGX shader once per page: instant on a GPU, about 9 s under SwiftShader.
+function skyEnvironment(width = 256, height = 128) {
+  const panels = [[45, 30, 3.0, 0.12], [25, -120, 2.0, 0.15]].map(([el, az, k, sigma]) => {
+    const e = (el * Math.PI) / 180, a = (az * Math.PI) / 180;
+    return { d: [Math.cos(e) * Math.cos(a), Math.sin(e), Math.cos(e) * Math.sin(a)], k, s2: 2 * sigma * sigma };
+  });
+  const data = new Uint16Array(4 * width * height);   // half floats: filterable everywhere (float32 is not)
+  const one = THREE.DataUtils.toHalfFloat(1);
+  for (let j = 0; j < height; j++) {
+    const e = ((j + 0.5) / height) * Math.PI - Math.PI / 2, s = Math.sin(e), c = Math.cos(e);
+    for (let i = 0; i < width; i++) {
+      const a = ((i + 0.5) / width - 0.5) * 2 * Math.PI;
+      const d = [c * Math.cos(a), s, c * Math.sin(a)];
+      let radiance = s > 0 ? 0.5 - 0.15 * s : 0.25;
+      for (const p of panels) {
+        const angle = Math.acos(Math.min(1, Math.max(-1, d[0] * p.d[0] + d[1] * p.d[1] + d[2] * p.d[2])));
+        radiance += p.k * Math.exp(-(angle * angle) / p.s2);
+      }
+      const k = 4 * (j * width + i);
+      data[k] = data[k + 1] = data[k + 2] = THREE.DataUtils.toHalfFloat(radiance);
+      data[k + 3] = one;
+    }
+  }
+  const texture = new THREE.DataTexture(data, width, height, THREE.RGBAFormat, THREE.HalfFloatType);
+  texture.mapping = THREE.EquirectangularReflectionMapping;
+  texture.magFilter = texture.minFilter = THREE.LinearFilter;
+  texture.needsUpdate = true;
+  const pmrem = new THREE.PMREMGenerator(renderer);
+  const target = pmrem.fromEquirectangular(texture);
+  pmrem.dispose();
+  texture.dispose();
+  return target.texture;
+}
+scene.environment = skyEnvironment();
+
+// MeshStandardMaterial with the look per vertex: the colour attribute, and
+// `pbr` = (roughness, metallic, occlusion) replacing the material's
+// roughness and metalness and multiplying the ambient (sky) light, as the
+// renderer's occlusion does (SPEC §8a).  Chunk names of three.js r187.
 const material = new THREE.MeshStandardMaterial({ vertexColors: true, roughness: 0.85, metalness: 0 });
+material.onBeforeCompile = (shader) => {
+  shader.vertexShader = shader.vertexShader
+    .replace("#include <common>", "#include <common>\nattribute vec3 pbr;\nvarying vec3 vPbr;")
+    .replace("#include <begin_vertex>", "#include <begin_vertex>\n\tvPbr = clamp( pbr, 0.0, 1.0 );");
+  shader.fragmentShader = shader.fragmentShader
+    .replace("#include <common>", "#include <common>\nvarying vec3 vPbr;")
+    .replace("#include <roughnessmap_fragment>", "float roughnessFactor = vPbr.x;")
+    .replace("#include <metalnessmap_fragment>", "float metalnessFactor = vPbr.y;")
+    .replace("#include <aomap_fragment>", `#include <aomap_fragment>
+	{
+		float lookOcclusion = vPbr.z;
+		reflectedLight.indirectDiffuse *= lookOcclusion;
+		#if defined( USE_ENVMAP )
+			float lookDotNV = saturate( dot( geometryNormal, geometryViewDir ) );
+			reflectedLight.indirectSpecular *= computeSpecularOcclusion( lookDotNV, lookOcclusion, material.roughness );
+		#endif
+	}`);
+};
+const FALSE_COLOUR_PBR = [0.85, 0, 1];   // a matte dielectric, unoccluded: the property views
 let mesh = null;
 
 function resize() {
@@ -78,6 +146,9 @@ async function loadMesh(state) {
   geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
   geometry.setAttribute("normal", new THREE.BufferAttribute(normals, 3));
   geometry.setAttribute("color", new THREE.BufferAttribute(new Float32Array(3 * n).fill(0.8), 3));
+  const pbr = new Float32Array(3 * n);
+  for (let i = 0; i < n; i++) pbr.set(FALSE_COLOUR_PBR, 3 * i);
+  geometry.setAttribute("pbr", new THREE.BufferAttribute(pbr, 3));
   geometry.setIndex(new THREE.BufferAttribute(index, 1));
   geometry.computeBoundingSphere();
   const firstMesh = mesh === null;
@@ -91,6 +162,9 @@ async function loadMesh(state) {
     camera.position.fromArray(c.eye);
     camera.up.fromArray(c.up);
     camera.fov = c.fov;
+    // the sky's +Y to the scene's up (the shader turns world directions back)
+    const up = new THREE.Vector3().fromArray(c.up).normalize();
+    scene.environmentRotation.setFromQuaternion(new THREE.Quaternion().setFromUnitVectors(new THREE.Vector3(0, 1, 0), up));
     const r = geometry.boundingSphere.radius;
     camera.near = r / 100; camera.far = r * 100;
     controls.target.fromArray(c.target);
@@ -110,16 +184,29 @@ async function showFrame() {
   const response = await fetch(`/api/frame?generation=${state.generation}&iteration=${iteration}`);
   if (!response.ok || viewer.state !== state) return;   // a newer result arrived meanwhile
   const bytes = await response.arrayBuffer();
-  if (bytes.byteLength < 4 * 3 * viewer.vertices) return;
+  // a frame (watch.py, ViewerWriter): float32 colour (3n), roughness (n),
+  // metallic (n), occlusion (n), then each property (n)
   const n = viewer.vertices;
+  if (bytes.byteLength < 4 * (LOOK_FLOATS + state.properties.length) * n) return;
   const colours = mesh.geometry.getAttribute("color");
   const out = colours.array;
+  const pbrAttribute = mesh.geometry.getAttribute("pbr");
+  const pbr = pbrAttribute.array;
   const property = state.properties.findIndex((p) => p.name === show);
   if (property < 0) {
     out.set(new Float32Array(bytes, 0, 3 * n));
+    const roughness = new Float32Array(bytes, 4 * 3 * n, n);
+    const metallic = new Float32Array(bytes, 4 * 4 * n, n);
+    const occlusion = new Float32Array(bytes, 4 * 5 * n, n);
+    for (let i = 0; i < n; i++) {
+      pbr[3 * i] = roughness[i];
+      pbr[3 * i + 1] = metallic[i];
+      pbr[3 * i + 2] = occlusion[i];
+    }
     $("colourbar").hidden = true;
   } else {
-    const values = new Float32Array(bytes, 4 * (3 * n + property * n), n);
+    for (let i = 0; i < n; i++) pbr.set(FALSE_COLOUR_PBR, 3 * i);
+    const values = new Float32Array(bytes, 4 * (LOOK_FLOATS * n + property * n), n);
     const { min, max } = state.properties[property];
     const span = max > min ? max - min : 1;
     for (let i = 0; i < n; i++) viridis((values[i] - min) / span, out, 3 * i);
@@ -128,6 +215,7 @@ async function showFrame() {
     $("range-max").textContent = fmt(max);
   }
   colours.needsUpdate = true;
+  pbrAttribute.needsUpdate = true;
   viewer.shownKey = key;
   viewer.shown = { generation: state.generation, iteration, show, quality: state.quality };
   $("iteration-label").textContent = `${iteration} / ${state.iterations}`;
