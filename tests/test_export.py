@@ -390,3 +390,24 @@ def test_the_assets_own_normal_map_is_kept(tmp_path):
     want = (n / np.linalg.norm(n, axis=-1, keepdims=True) + 1) / 2      # stored unit length
     inner = (slice(2, -2), slice(2, -2))
     assert np.abs(got[inner] - want[inner]).max() < 3 / 255
+
+
+def test_a_texture_set_baked_in_bands_is_the_whole_textures(tmp_path, bumpy_obj):
+    """Bands of rows with their margins (export.HALO) give every image of the
+    texture set exactly as one bake of the whole texture does: the chart
+    atlas's gutters, the displacement's normal map and the properties."""
+    (tmp_path / "look.gamma").write_text(PLANE_LOOK.replace("0.1 * position.x", "0.05 * s.p + 0.02 * position.y"))
+    effect, mesh, sim, kernels = _simulation(tmp_path / "look.gamma", bumpy_obj, 3000)
+    rows = sim.rows()
+    rows[:, 3] = np.sin(7 * sim.surfel_positions()[:, 0]) + 1      # a smooth field over the surface
+    sim.set_rows(rows)
+    size = 128
+    lay = layout(_piece(mesh), np.asarray(sim.corner_normals()), size)
+    assert lay.chart is not None
+    columns = lambda rows, tris: {"p": rows[:, 3]}
+    whole = bake_texture_set(sim, lay, 1, 2, columns, band=size)
+    banded = bake_texture_set(sim, lay, 1, 2, columns, band=7)
+    assert np.abs(whole.height).max() > 0 and whole.properties["p"].max() > 0
+    for name in ("base_color", "orm", "normal", "height"):
+        assert np.array_equal(getattr(whole, name), getattr(banded, name)), name
+    assert np.array_equal(whole.properties["p"], banded.properties["p"])

@@ -158,13 +158,14 @@ def vertex_looks(sim, lay: Layout, iteration: int, threads: int):
     return np.asarray(rows), np.asarray(look), owner
 
 
-def rasterise_uv(corner_uvs: np.ndarray, size: int, chunk: int = 1 << 22):
+def rasterise_uv(corner_uvs: np.ndarray, size: int, chunk: int = 1 << 22, rows: tuple | None = None):
     """Texels covered by triangles in UV space: (texel index, triangle, barycentrics).
 
     Texel (i, j) has its centre at u = (j + 0.5)/size, v = 1 - (i + 0.5)/size; a
     texel inside several triangles goes to the lowest-numbered one.  Vectorised
     over all triangles: every texel of every triangle's bounding box is tested
-    at once (in chunks of about ``chunk`` candidates)."""
+    at once (in chunks of about ``chunk`` candidates).  ``rows`` = (first,
+    end): only the texels of those rows (the same ones the whole texture has there)."""
     uvs = np.asarray(corner_uvs, np.float64).reshape(-1, 3, 2)
     x = uvs[:, :, 0] * size - 0.5
     y = (1 - uvs[:, :, 1]) * size - 0.5
@@ -174,7 +175,9 @@ def rasterise_uv(corner_uvs: np.ndarray, size: int, chunk: int = 1 << 22):
     i1 = np.clip(np.ceil(y.max(axis=1)), 0, size - 1).astype(np.int64)
     (xa, xb, xc), (ya, yb, yc) = x.T, y.T
     det = (yb - yc) * (xa - xc) + (xc - xb) * (ya - yc)
-    width, height = j1 - j0 + 1, i1 - i0 + 1
+    if rows is not None:
+        i0, i1 = np.maximum(i0, rows[0]), np.minimum(i1, rows[1] - 1)
+    width, height = j1 - j0 + 1, np.maximum(i1 - i0 + 1, 0)
     count = np.where(np.abs(det) < 1e-18, 0, width * height)
     texel_idx, tri_idx, bary = [], [], []
     ends = np.cumsum(count)
@@ -249,13 +252,44 @@ def surface_frames(lay: Layout) -> tuple[np.ndarray, np.ndarray]:
     return pu, pv
 
 
-def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map=None) -> TextureSet:
-    """The layout's texture set.  ``columns_of(rows, scene_triangles)`` gives
+#: Rows of the texture baked at once (about BAKE_CHUNK texels), each with a
+#: margin of HALO rows on both sides: the gutter filling reaches
+#: BLEED_PASSES rows, the normal map's slope one more, and the normal map's
+#: own filling BLEED_PASSES more, so a band's own rows come out exactly as
+#: the whole texture's would, in memory bounded by the band.
+HALO = 2 * BLEED_PASSES + 1
+
+
+def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map=None,
+                     band: int | None = None) -> TextureSet:
+    """The layout's texture set, baked in bands of ``band`` rows (default:
+    about BAKE_CHUNK texels).  ``columns_of(rows, scene_triangles)`` gives
     the property columns of smoothed rows; ``normal_map(lookup_uvs,
     scene_triangles)``, when given, the asset's own tangent-space normals
     there ((k, 3), or None where it has none)."""
     size = lay.size
-    texels, tris, bary = lay.texels()
+    band = band or max(16, BAKE_CHUNK // size)
+    ts = TextureSet(size, np.zeros((size, size, 3), np.float32), np.zeros((size, size, 3), np.float32),
+                    np.zeros((size, size, 3), np.float32), np.zeros((size, size), np.float32))
+    corner_uvs = lay.corner_uvs
+    for first in range(0, size, band):
+        end = min(size, first + band)
+        top, bottom = max(0, first - HALO), min(size, end + HALO)
+        texels, tris, bary = rasterise_uv(corner_uvs, size, rows=(top, bottom))
+        images, names = _bake_band(sim, lay, iteration, threads, columns_of, normal_map,
+                                   texels - top * size, tris, bary, (bottom - top, size))
+        keep = slice(first - top, end - top)
+        ts.base_color[first:end], ts.orm[first:end] = images[0][keep], images[1][keep]
+        ts.normal[first:end], ts.height[first:end] = images[2][keep], images[3][keep]
+        for k, name in enumerate(names):
+            ts.properties.setdefault(name, np.zeros((size, size), np.float32))[first:end] = images[4][keep, :, k]
+    return ts
+
+
+def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map, texels, tris, bary,
+               shape: tuple):
+    """The images of a band of rows (``shape``; ``texels`` numbered in it):
+    (base colour, ORM, normal, height, properties (h, w, P)), property names."""
     n_texels = len(texels)
     # Every channel but the normal map in one stack, filled into the gutters
     # at once: base colour 0-2, ORM 3-5, height 6, then the properties.
@@ -289,13 +323,16 @@ def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of,
             mine = normal_map(lookup, scene_tris)
             if mine is not None:
                 own[part] = mine
-    charts = lay.charts()
-    image = fill(stack, texels, size, charts)
+    charts = None
+    if lay.chart is not None:
+        charts = np.full(shape[0] * shape[1], -1, np.int32)
+        charts[texels] = lay.chart[tris]
+        charts = charts.reshape(shape)
+    image = fill(stack, texels, shape, charts)
     del stack
     height = image[..., 6]
     tangent = tangent_normals(lay, height, texels, tris, own)
-    return TextureSet(size, image[..., 0:3], image[..., 3:6], fill(tangent, texels, size, charts), height,
-                      {name: image[..., 7 + k] for k, name in enumerate(names)})
+    return (image[..., 0:3], image[..., 3:6], fill(tangent, texels, shape, charts), height, image[..., 7:]), names
 
 
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -314,23 +351,23 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return (top + fy * (bottom - top)).astype(np.float32)
 
 
-def fill(values: np.ndarray, texels: np.ndarray, size: int, charts: np.ndarray | None) -> np.ndarray:
-    """A (size, size, C) image with ``values`` at ``texels``, its gutters
-    filled from the same chart (``charts``: chart per texel, -1 empty; None:
-    from any neighbour)."""
+def fill(values: np.ndarray, texels: np.ndarray, shape: tuple, charts: np.ndarray | None) -> np.ndarray:
+    """A (rows, columns, C) image (``shape``) with ``values`` at ``texels``,
+    its gutters filled from the same chart (``charts``: chart per texel, -1
+    empty; None: from any neighbour)."""
     values = np.asarray(values, np.float32)
     channels = values.shape[1] if values.ndim == 2 else 1
     values = values.reshape(len(texels), channels)
-    image = np.zeros((size * size, channels), np.float32)
+    image = np.zeros((shape[0] * shape[1], channels), np.float32)
     image[texels] = values
-    image = image.reshape(size, size, -1)
+    image = image.reshape(shape[0], shape[1], -1)
     if charts is not None:
         from .atlas import dilate
 
         return dilate(image, charts, BLEED_PASSES)
-    covered = np.zeros(size * size, bool)
+    covered = np.zeros(shape[0] * shape[1], bool)
     covered[texels] = True
-    return bleed(image, covered.reshape(size, size))
+    return bleed(image, covered.reshape(shape))
 
 
 def tangent_normals(lay: Layout, height: np.ndarray, texels, tris, own_normals) -> np.ndarray:
@@ -338,7 +375,7 @@ def tangent_normals(lay: Layout, height: np.ndarray, texels, tris, own_normals) 
     bent by the slope of the displacement, over the asset's own normal map
     (``own_normals``, tangent space, or None: flat).  The tangent follows +u,
     the bitangent +v (the image's up), as glTF and Blender read them."""
-    size = lay.size
+    size, columns = lay.size, height.shape[1]
     k = len(texels)
     flat = np.zeros((k, 3), np.float32)
     flat[:, 2] = 1.0
@@ -347,7 +384,7 @@ def tangent_normals(lay: Layout, height: np.ndarray, texels, tris, own_normals) 
         return base
     # slope per texel (rows run down the image, v up), then per unit of u and v
     dy, dx = np.gradient(height.astype(np.float64))
-    i, j = texels // size, texels % size
+    i, j = texels // columns, texels % columns
     dh_du, dh_dv = dx[i, j] * size, -dy[i, j] * size
     pu, pv = surface_frames(lay)
     pu, pv = pu[tris], pv[tris]
