@@ -147,7 +147,7 @@ STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions
 BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
                "SurfelSample", "SetupSnapshot", "encode_pngs", "RUNTIME_BUILD", "setup_cache_name",
-               "read_mesh_ahead", "FalseColourView"),
+               "read_mesh_ahead", "FalseColourView", "rasterise_uv"),
     "FalseColourView": ("width", "height", "surfels", "shade", "values", "picture", "to_bytes", "from_bytes"),
     "SurfelSample": ("ok", "matches", "seconds"),
     "SetupSnapshot": ("load_cached", "matches", "prepared", "taken", "surfels", "make_ahead",

@@ -21,6 +21,7 @@
 #include "gamma/remesh.h"
 #include "gamma/shape_step.h"
 #include "gamma/simulation.h"
+#include "gamma/uv_raster.h"
 #include "gamma_abi.h"
 
 namespace nb = nanobind;
@@ -187,6 +188,26 @@ NB_MODULE(_runtime, m) {
         },
         "p0"_a, "d"_a, "D"_a, "down"_a, "floor_height"_a,
         "Landing on the plane dot(x, up) = floor_height: (piecewise-linear as traced, analytic).");
+
+    m.def(
+        "rasterise_uv",
+        [](nb::handle corner_uvs, int size, int row0, int row1) {
+            using F64 = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+            F64 uv = nb::cast<F64>(numpy_asarray(corner_uvs, "float64"));
+            if (uv.ndim() != 3 || uv.shape(1) != 3 || uv.shape(2) != 2)
+                throw Error("rasterise_uv: corner uvs (m, 3, 2) expected");
+            gammart::UvRaster r;
+            {
+                nb::gil_scoped_release nogil;
+                r = gammart::rasterise_uv(uv.data(), uv.shape(0), size, row0, row1);
+            }
+            const size_t k = r.tris.size();
+            return nb::make_tuple(to_numpy(std::move(r.texels), {k}), to_numpy(std::move(r.tris), {k}),
+                                  to_numpy(std::move(r.bary), {k, 3}));
+        },
+        "corner_uvs"_a, "size"_a, "row0"_a, "row1"_a,
+        "The texels of rows [row0, row1) covered by triangles in UV space: (texel int64[k], triangle "
+        "int32[k], barycentrics float64[k, 3]), see gamma/uv_raster.h.");
 
     m.def(
         "encode_pngs",

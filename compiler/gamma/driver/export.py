@@ -158,55 +158,19 @@ def vertex_looks(sim, lay: Layout, iteration: int, threads: int):
     return np.asarray(rows), np.asarray(look), owner
 
 
-def rasterise_uv(corner_uvs: np.ndarray, size: int, chunk: int = 1 << 22, rows: tuple | None = None):
+def rasterise_uv(corner_uvs: np.ndarray, size: int, rows: tuple | None = None):
     """Texels covered by triangles in UV space: (texel index, triangle, barycentrics).
 
     Texel (i, j) has its centre at u = (j + 0.5)/size, v = 1 - (i + 0.5)/size; a
-    texel inside several triangles goes to the lowest-numbered one.  Vectorised
-    over all triangles: every texel of every triangle's bounding box is tested
-    at once (in chunks of about ``chunk`` candidates).  ``rows`` = (first,
-    end): only the texels of those rows (the same ones the whole texture has there)."""
-    uvs = np.asarray(corner_uvs, np.float64).reshape(-1, 3, 2)
-    x = uvs[:, :, 0] * size - 0.5
-    y = (1 - uvs[:, :, 1]) * size - 0.5
-    j0 = np.clip(np.floor(x.min(axis=1)), 0, size - 1).astype(np.int64)
-    j1 = np.clip(np.ceil(x.max(axis=1)), 0, size - 1).astype(np.int64)
-    i0 = np.clip(np.floor(y.min(axis=1)), 0, size - 1).astype(np.int64)
-    i1 = np.clip(np.ceil(y.max(axis=1)), 0, size - 1).astype(np.int64)
-    (xa, xb, xc), (ya, yb, yc) = x.T, y.T
-    det = (yb - yc) * (xa - xc) + (xc - xb) * (ya - yc)
-    if rows is not None:
-        i0, i1 = np.maximum(i0, rows[0]), np.minimum(i1, rows[1] - 1)
-    width, height = j1 - j0 + 1, np.maximum(i1 - i0 + 1, 0)
-    count = np.where(np.abs(det) < 1e-18, 0, width * height)
-    texel_idx, tri_idx, bary = [], [], []
-    ends = np.cumsum(count)
-    first = 0
-    while first < len(count):
-        # triangles [first, last) give at most about `chunk` candidate texels
-        start_total = ends[first] - count[first]
-        last = int(np.searchsorted(ends, start_total + chunk, side="right"))
-        last = max(last, first + 1)
-        tris = np.arange(first, last)
-        n = count[tris]
-        t = np.repeat(tris, n)
-        k = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)   # position inside the box
-        jj = j0[t] + k % width[t]
-        ii = i0[t] + k // width[t]
-        px, py = jj.astype(np.float64), ii.astype(np.float64)
-        l1 = ((yb[t] - yc[t]) * (px - xc[t]) + (xc[t] - xb[t]) * (py - yc[t])) / det[t]
-        l2 = ((yc[t] - ya[t]) * (px - xc[t]) + (xa[t] - xc[t]) * (py - yc[t])) / det[t]
-        l3 = 1 - l1 - l2
-        inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l3 >= -1e-9)
-        texel_idx.append((ii * size + jj)[inside])
-        tri_idx.append(t[inside].astype(np.int32))
-        bary.append(np.column_stack([l1, l2, l3])[inside])
-        first = last
-    if not texel_idx or not sum(len(a) for a in texel_idx):
-        return np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 3))
-    texels, first_hit = np.unique(np.concatenate(texel_idx), return_index=True)  # one triangle per texel
-    return texels, np.concatenate(tri_idx)[first_hit], np.concatenate(bary)[first_hit]
+    texel inside several triangles goes to the lowest-numbered one.  ``rows``
+    = (first, end): only the texels of those rows (the same ones the whole
+    texture has there).  The runtime's loop (gamma/uv_raster.h)."""
+    from .runner import runtime_module
 
+    first, end = rows if rows is not None else (0, size)
+    uvs = np.ascontiguousarray(np.asarray(corner_uvs, np.float64).reshape(-1, 3, 2))
+    texels, tris, bary = runtime_module().rasterise_uv(uvs, size, first, end)
+    return np.asarray(texels), np.asarray(tris), np.asarray(bary)
 
 
 def bleed(image: np.ndarray, filled: np.ndarray, passes: int = BLEED_PASSES) -> np.ndarray:

@@ -1,0 +1,59 @@
+// UV-space rasterisation of a texture layout (see gamma/uv_raster.h).
+#include "gamma/uv_raster.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "gamma/error.h"
+
+namespace gammart {
+
+UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1) {
+    if (size < 1 || row0 < 0 || row1 > size || row0 > row1) throw Error("rasterise_uv: rows out of range");
+    const size_t rows = size_t(row1 - row0), cols = size_t(size);
+    std::vector<int32_t> owner(rows * cols, -1);
+    std::vector<double> found(rows * cols * 3);
+    auto clip = [&](double v) { return int64_t(std::min(std::max(v, 0.0), double(size - 1))); };
+    for (size_t t = 0; t < m; ++t) {
+        const double* c = uvs + 6 * t;
+        double x[3], y[3];
+        bool finite = true;
+        for (int k = 0; k < 3; ++k) {
+            x[k] = c[2 * k] * size - 0.5;
+            y[k] = (1 - c[2 * k + 1]) * size - 0.5;
+            finite = finite && std::isfinite(x[k]) && std::isfinite(y[k]);
+        }
+        if (!finite) continue;
+        const double det = (y[1] - y[2]) * (x[0] - x[2]) + (x[2] - x[1]) * (y[0] - y[2]);
+        if (std::fabs(det) < 1e-18) continue;
+        const int64_t j0 = clip(std::floor(std::min({x[0], x[1], x[2]})));
+        const int64_t j1 = clip(std::ceil(std::max({x[0], x[1], x[2]})));
+        const int64_t i0 = std::max<int64_t>(clip(std::floor(std::min({y[0], y[1], y[2]}))), row0);
+        const int64_t i1 = std::min<int64_t>(clip(std::ceil(std::max({y[0], y[1], y[2]}))), row1 - 1);
+        for (int64_t i = i0; i <= i1; ++i)
+            for (int64_t j = j0; j <= j1; ++j) {
+                const size_t at = size_t(i - row0) * cols + size_t(j);
+                if (owner[at] >= 0) continue;  // a lower-numbered triangle has it
+                const double px = double(j), py = double(i);
+                const double l1 = ((y[1] - y[2]) * (px - x[2]) + (x[2] - x[1]) * (py - y[2])) / det;
+                const double l2 = ((y[2] - y[0]) * (px - x[2]) + (x[0] - x[2]) * (py - y[2])) / det;
+                const double l3 = 1 - l1 - l2;
+                if (l1 >= -1e-9 && l2 >= -1e-9 && l3 >= -1e-9) {
+                    owner[at] = int32_t(t);
+                    found[3 * at] = l1;
+                    found[3 * at + 1] = l2;
+                    found[3 * at + 2] = l3;
+                }
+            }
+    }
+    UvRaster out;
+    for (size_t at = 0; at < owner.size(); ++at) {
+        if (owner[at] < 0) continue;
+        out.texels.push_back(int64_t(row0) * int64_t(cols) + int64_t(at));
+        out.tris.push_back(owner[at]);
+        out.bary.insert(out.bary.end(), found.begin() + 3 * at, found.begin() + 3 * at + 3);
+    }
+    return out;
+}
+
+}  // namespace gammart
