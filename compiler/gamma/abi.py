@@ -159,7 +159,7 @@ BINDING = {
                "set_appearance", "add_shape_rate", "add_mass_property", "measure_accessibility",
                "measure_curvature", "measure_uv"),
     "Simulation": ("num_surfels", "row_width", "surfel_positions", "surfel_normals", "surfel_surfaces",
-                   "rows", "trace", "update", "render", "set_textures", "bake_points",
+                   "rows", "trace", "update", "render", "set_textures", "bake_points", "bake_texels",
                    "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
                    "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",

@@ -4,6 +4,8 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -70,6 +72,45 @@ void bake_points(const RenderScene& rs, size_t k, const float* positions, const 
             }
         });
     });
+}
+
+void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
+                 int iteration, int threads, float* rows_out, float* look_out) {
+    for (size_t i = 0; i < k; ++i)
+        if (tris[i] < 0 || size_t(tris[i]) >= layout.faces)
+            throw Error("bake_texels: layout triangle " + std::to_string(tris[i]) + " out of range");
+    std::vector<float> positions(3 * k), normals(3 * k), uvs(2 * k, 0.0f);
+    std::vector<int32_t> triangles(k);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i < r.end(); ++i) {
+                const size_t t = size_t(tris[i]);
+                const double* b = bary + 3 * i;
+                double n[3];
+                for (int d = 0; d < 3; ++d) {
+                    double p = 0, m = 0;
+                    for (int c = 0; c < 3; ++c) {
+                        const size_t v = size_t(layout.corners[3 * t + size_t(c)]);
+                        p += b[c] * double(layout.positions[3 * v + size_t(d)]);
+                        m += b[c] * double(layout.normals[3 * v + size_t(d)]);
+                    }
+                    positions[3 * i + size_t(d)] = float(p);
+                    n[d] = m;
+                }
+                const double length = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+                for (int d = 0; d < 3; ++d) normals[3 * i + size_t(d)] = float(n[d] / std::max(length, 1e-30));
+                if (layout.lookup_uvs)
+                    for (int d = 0; d < 2; ++d) {
+                        double u = 0;
+                        for (int c = 0; c < 3; ++c) u += b[c] * double(layout.lookup_uvs[6 * t + 2 * size_t(c) + size_t(d)]);
+                        uvs[2 * i + size_t(d)] = float(u);
+                    }
+                triangles[i] = layout.scene_triangle[t];
+            }
+        });
+    });
+    bake_points(rs, k, positions.data(), normals.data(), triangles.data(), uvs.data(), iteration, threads, rows_out,
+                look_out);
 }
 
 BakePoints BakePoints::prepare(const RenderScene& rs, size_t k, const float* positions, const float* normals,

@@ -191,7 +191,7 @@ NB_MODULE(_runtime, m) {
 
     m.def(
         "rasterise_uv",
-        [](nb::handle corner_uvs, int size, int row0, int row1) {
+        [](nb::handle corner_uvs, int size, int row0, int row1, int tile) {
             using F64 = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
             F64 uv = nb::cast<F64>(numpy_asarray(corner_uvs, "float64"));
             if (uv.ndim() != 3 || uv.shape(1) != 3 || uv.shape(2) != 2)
@@ -199,15 +199,15 @@ NB_MODULE(_runtime, m) {
             gammart::UvRaster r;
             {
                 nb::gil_scoped_release nogil;
-                r = gammart::rasterise_uv(uv.data(), uv.shape(0), size, row0, row1);
+                r = gammart::rasterise_uv(uv.data(), uv.shape(0), size, row0, row1, tile);
             }
             const size_t k = r.tris.size();
             return nb::make_tuple(to_numpy(std::move(r.texels), {k}), to_numpy(std::move(r.tris), {k}),
                                   to_numpy(std::move(r.bary), {k, 3}));
         },
-        "corner_uvs"_a, "size"_a, "row0"_a, "row1"_a,
+        "corner_uvs"_a, "size"_a, "row0"_a, "row1"_a, "tile"_a = 1,
         "The texels of rows [row0, row1) covered by triangles in UV space: (texel int64[k], triangle "
-        "int32[k], barycentrics float64[k, 3]), see gamma/uv_raster.h.");
+        "int32[k], barycentrics float64[k, 3]), tile by tile; see gamma/uv_raster.h.");
 
     m.def(
         "encode_pngs",
@@ -971,6 +971,49 @@ NB_MODULE(_runtime, m) {
              "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "iteration"_a, "threads"_a,
              "At surface points: (smoothed rows float32[k, W], looks float32[k, L]: colour, roughness, "
              "metallic, displacement, occlusion as abi.APPEARANCE_OUTPUTS).")
+        .def("bake_texels",
+             [](const gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle corners,
+                nb::handle lookup_uvs, nb::handle scene_triangle, nb::handle tris, nb::handle bary, int iteration,
+                int threads) {
+                 using F64 = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+                 F32 p = as_f32(positions), n = as_f32(normals);
+                 I32 c = as_i32(corners), st = as_i32(scene_triangle), t = as_i32(tris);
+                 F64 b = nb::cast<F64>(numpy_asarray(bary, "float64"));
+                 const size_t nv = p.ndim() == 2 ? p.shape(0) : 0, m = st.ndim() == 1 ? st.shape(0) : 0;
+                 const size_t k = t.ndim() == 1 ? t.shape(0) : 0;
+                 if (p.ndim() != 2 || p.shape(1) != 3 || n.ndim() != 2 || n.shape(0) != nv || n.shape(1) != 3 ||
+                     c.ndim() != 2 || c.shape(0) != m || c.shape(1) != 3 || t.ndim() != 1 || b.ndim() != 2 ||
+                     b.shape(0) != k || b.shape(1) != 3)
+                     throw Error("bake_texels: positions (n,3), normals (n,3), corners (m,3), scene_triangle (m,), "
+                                 "tris (k,) and bary (k,3) expected");
+                 for (size_t i = 0; i < 3 * m; ++i)
+                     if (c.data()[i] < 0 || size_t(c.data()[i]) >= nv)
+                         throw Error("bake_texels: a corner names no vertex");
+                 F32 uv;
+                 gammart::TexelLayout layout;
+                 if (!lookup_uvs.is_none()) {
+                     uv = as_f32(lookup_uvs);
+                     if (uv.ndim() != 3 || uv.shape(0) != m || uv.shape(1) != 3 || uv.shape(2) != 2)
+                         throw Error("bake_texels: lookup uvs (m,3,2) expected");
+                     layout.lookup_uvs = uv.data();
+                 }
+                 layout.positions = p.data();
+                 layout.normals = n.data();
+                 layout.corners = c.data();
+                 layout.scene_triangle = st.data();
+                 layout.faces = m;
+                 const size_t W = size_t(s.row_width());
+                 std::vector<float> rows(k * W), look(k * GAMMA_LOOK_WIDTH);
+                 {
+                     nb::gil_scoped_release nogil;
+                     s.bake_texels(layout, k, t.data(), b.data(), iteration, threads, rows.data(), look.data());
+                 }
+                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}),
+                                       to_numpy(std::move(look), {k, size_t(GAMMA_LOOK_WIDTH)}));
+             },
+             "positions"_a, "normals"_a, "corners"_a, "lookup_uvs"_a.none(), "scene_triangle"_a, "tris"_a, "bary"_a,
+             "iteration"_a, "threads"_a,
+             "bake_points() at texels of a texture layout, each given by its layout triangle and barycentrics.")
         .def("prepare_points",
              [](gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,
                 nb::handle uvs, int threads) {

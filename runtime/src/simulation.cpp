@@ -403,6 +403,11 @@ int32_t Simulation::look_at(uint32_t triangle, const float p[3], const float n[3
     return gammart::look_at(render_scene(), triangle, p, n, dir, uv, iteration, random_key, row, tex, out_look);
 }
 
+void Simulation::bake_texels(const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
+                             int iteration, int threads, float* rows_out, float* look_out) const {
+    gammart::bake_texels(render_scene(), layout, k, tris, bary, iteration, threads, rows_out, look_out);
+}
+
 void Simulation::bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
                              const float* uvs, int iteration, int threads, float* rows_out, float* look_out) const {
     gammart::bake_points(render_scene(), k, positions, normals, triangles, uvs, iteration, threads, rows_out,

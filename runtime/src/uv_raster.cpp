@@ -8,8 +8,9 @@
 
 namespace gammart {
 
-UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1) {
+UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1, int tile) {
     if (size < 1 || row0 < 0 || row1 > size || row0 > row1) throw Error("rasterise_uv: rows out of range");
+    if (tile < 1) throw Error("rasterise_uv: the tile must be at least 1 texel");
     const size_t rows = size_t(row1 - row0), cols = size_t(size);
     std::vector<int32_t> owner(rows * cols, -1);
     std::vector<double> found(rows * cols * 3);
@@ -47,12 +48,17 @@ UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1)
             }
     }
     UvRaster out;
-    for (size_t at = 0; at < owner.size(); ++at) {
-        if (owner[at] < 0) continue;
+    auto take = [&](size_t at) {
+        if (owner[at] < 0) return;
         out.texels.push_back(int64_t(row0) * int64_t(cols) + int64_t(at));
         out.tris.push_back(owner[at]);
         out.bary.insert(out.bary.end(), found.begin() + 3 * at, found.begin() + 3 * at + 3);
-    }
+    };
+    const size_t T = size_t(tile);
+    for (size_t ti = 0; ti < rows; ti += T)
+        for (size_t tj = 0; tj < cols; tj += T)
+            for (size_t i = ti; i < std::min(rows, ti + T); ++i)
+                for (size_t j = tj; j < std::min(cols, tj + T); ++j) take(i * cols + j);
     return out;
 }
 

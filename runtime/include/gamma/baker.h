@@ -12,7 +12,7 @@
 namespace gammart {
 
 // Points per shared neighbour search in bake_points.
-constexpr size_t kBakeBlock = 32;
+constexpr size_t kBakeBlock = 64;
 
 // At each of k surface points (position, normal, triangle, uv), the smoothed
 // row (k x W) and the look (k x GAMMA_LOOK_WIDTH: abi.py's APPEARANCE_OUTPUTS).  Throws gammart::Error for a
@@ -20,6 +20,25 @@ constexpr size_t kBakeBlock = 32;
 void bake_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
                  const int32_t* triangles, const float* uvs, int iteration, int threads, float* rows_out,
                  float* look_out);
+
+// A texture layout (export.py's Layout): its vertices (positions and unit
+// normals, 3 floats each), its triangles' corners (3 vertex numbers each),
+// per triangle the mesh's own texture coordinates (3 corners x 2 floats, for
+// texture() lookups; null: none) and the scene triangle it is.
+struct TexelLayout {
+    const float* positions = nullptr;
+    const float* normals = nullptr;
+    const int32_t* corners = nullptr;
+    const float* lookup_uvs = nullptr;
+    const int32_t* scene_triangle = nullptr;
+    size_t faces = 0;
+};
+
+// bake_points at k texels of a layout, each given by its layout triangle and
+// barycentrics (double): the point, the normal (the vertices' interpolated,
+// normalised) and the lookup uv interpolated in double, then rounded.
+void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
+                 int iteration, int threads, float* rows_out, float* look_out);
 
 // Surface points baked again and again while the surfels stay (the live
 // viewer's vertices, every iteration): their smoothing neighbours and

@@ -167,6 +167,9 @@ public:
     // triangle, uv), the smoothed row (k x W) and the look (k x GAMMA_LOOK_WIDTH: abi.py's APPEARANCE_OUTPUTS).
     void bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
                      const float* uvs, int iteration, int threads, float* rows_out, float* look_out) const;
+    // bake_points at texels of a texture layout (gammart::bake_texels).
+    void bake_texels(const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary, int iteration,
+                     int threads, float* rows_out, float* look_out) const;
     float smoothing_sigma() const;
     // bake_points for points baked again and again (the live viewer's
     // vertices): prepare_points finds their neighbours once; bake_prepared

@@ -20,6 +20,10 @@ struct UvRaster {
 // Inside means each barycentric >= -1e-9, computed in double in the
 // order export.py's reference writes it; triangles whose uv area is under
 // 1e-18 texels squared, or with a non-finite corner, cover nothing.
-UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1);
+// The texels come tile by tile (tiles of tile x tile texels in row-major
+// order, row-major inside a tile; tile = 1: in increasing index order), so
+// that consecutive texels lie close together on the surface (the baker
+// shares one neighbour search among a run of them).
+UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1, int tile = 1);
 
 }  // namespace gammart
