@@ -827,33 +827,6 @@ std::vector<size_t> SceneIndex::surfels_per_surface() const {
     return n;
 }
 
-size_t SceneIndex::smooth(int surface, const float p[3], uint32_t* idx, double* w) const {
-    constexpr size_t K = kSmoothingNeighbours;
-    const PointTree* tree = &trees_->all;
-    if (has_surfels(surface)) tree = &trees_->of(surface);
-    const size_t count = tree->cloud.n;
-    float d2[K];
-    nanoflann::KNNResultSet<float, uint32_t> rs(std::min(K, count));
-    rs.init(idx, d2);
-    tree->kd->findNeighbors(rs, p, nanoflann::SearchParams());
-    size_t got = rs.size();
-    const double inv2s2 = 1.0 / (2.0 * double(sigma_) * double(sigma_));
-    double sw = 0;
-    for (size_t j = 0; j < got; ++j) {
-        w[j] = std::exp(-double(d2[j]) * inv2s2);
-        sw += w[j];
-    }
-    if (sw > 0) {
-        for (size_t j = 0; j < got; ++j) w[j] /= sw;
-    } else {  // every weight underflowed: the nearest surfel alone
-        got = 1;
-        w[0] = 1.0;
-    }
-    if (!tree->index.empty())
-        for (size_t j = 0; j < got; ++j) idx[j] = tree->index[idx[j]];
-    return got;
-}
-
 namespace {
 
 // smooth()'s weights of the neighbours found (their squared distances d2),
@@ -873,6 +846,22 @@ size_t smoothing_weights_of(const float* d2, size_t got, double inv2s2, double* 
 }
 
 }  // namespace
+
+size_t SceneIndex::smooth(int surface, const float p[3], uint32_t* idx, double* w) const {
+    constexpr size_t K = kSmoothingNeighbours;
+    const PointTree* tree = &trees_->all;
+    if (has_surfels(surface)) tree = &trees_->of(surface);
+    const size_t count = tree->cloud.n;
+    float d2[K];
+    nanoflann::KNNResultSet<float, uint32_t> rs(std::min(K, count));
+    rs.init(idx, d2);
+    tree->kd->findNeighbors(rs, p, nanoflann::SearchParams());
+    const size_t got = smoothing_weights_of(d2, rs.size(), 1.0 / (2.0 * double(sigma_) * double(sigma_)), w);
+    if (!tree->index.empty())
+        for (size_t j = 0; j < got; ++j) idx[j] = tree->index[idx[j]];
+    return got;
+}
+
 
 void SceneIndex::smooth_block(int surface, const float* points, size_t n, uint32_t* idx, double* w,
                               uint8_t* counts) const {
