@@ -229,16 +229,20 @@ HALO = 2 * BLEED_PASSES + 1
 
 
 def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map=None,
-                     band: int | None = None) -> TextureSet:
+                     band: int | None = None, as_bytes: bool = False) -> TextureSet:
     """The layout's texture set, baked in bands of ``band`` rows (default:
     about BAKE_CHUNK texels).  ``columns_of(rows, scene_triangles)`` gives
     the property columns of smoothed rows; ``normal_map(lookup_uvs,
     scene_triangles)``, when given, the asset's own tangent-space normals
-    there ((k, 3), or None where it has none)."""
+    there ((k, 3), or None where it has none).  ``as_bytes``: the base
+    colour, ORM and normal map (as (n + 1) / 2) as the 8-bit values their
+    PNGs hold (``to_bytes``), a quarter of the memory of floats."""
     size = lay.size
     band = band or max(16, BAKE_CHUNK // size)
-    ts = TextureSet(size, np.zeros((size, size, 3), np.float32), np.zeros((size, size, 3), np.float32),
-                    np.zeros((size, size, 3), np.float32), np.zeros((size, size), np.float32))
+    rgb = np.uint8 if as_bytes else np.float32
+    ts = TextureSet(size, np.zeros((size, size, 3), rgb), np.zeros((size, size, 3), rgb),
+                    np.zeros((size, size, 3), rgb), np.zeros((size, size), np.float32))
+    put = to_bytes if as_bytes else (lambda image: image)
     corner_uvs = lay.corner_uvs
     for first in range(0, size, band):
         end = min(size, first + band)
@@ -247,8 +251,9 @@ def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of,
         images, names = _bake_band(sim, lay, iteration, threads, columns_of, normal_map,
                                    texels - top * size, tris, bary, (bottom - top, size))
         keep = slice(first - top, end - top)
-        ts.base_color[first:end], ts.orm[first:end] = images[0][keep], images[1][keep]
-        ts.normal[first:end], ts.height[first:end] = images[2][keep], images[3][keep]
+        ts.base_color[first:end], ts.orm[first:end] = put(images[0][keep]), put(images[1][keep])
+        ts.normal[first:end] = to_bytes((images[2][keep] + 1.0) * 0.5) if as_bytes else images[2][keep]
+        ts.height[first:end] = images[3][keep]
         for k, name in enumerate(names):
             ts.properties.setdefault(name, np.zeros((size, size), np.float32))[first:end] = images[4][keep, :, k]
     return ts
@@ -377,11 +382,12 @@ def tangent_normals(lay: Layout, height: np.ndarray, texels, tris, own_normals) 
     return (r / np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-30)).astype(np.float32)
 
 
-def png8(rgb: np.ndarray) -> bytes:
+def png_bytes(pixels: np.ndarray) -> bytes:
+    """A uint8 image (grey, RGB or RGBA) as a PNG."""
     from PIL import Image
 
     out = io.BytesIO()
-    Image.fromarray((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)).save(out, format="PNG")
+    Image.fromarray(pixels).save(out, format="PNG")
     return out.getvalue()
 
 
@@ -409,18 +415,23 @@ def png16(values: np.ndarray, span: tuple[float, float] | None = None) -> tuple[
 
 
 
+def to_bytes(image: np.ndarray) -> np.ndarray:
+    """A float image in [0, 1] as 8-bit values (x * 255 + 0.5, clamped);
+    finite input (the runtime clamps the look, normals are unit)."""
+    scaled = np.multiply(image, 255, dtype=np.float32)
+    np.add(scaled, 0.5, out=scaled)
+    np.clip(scaled, 0, 255, out=scaled)
+    return scaled.astype(np.uint8)
+
+
 def encode_rgb8(images: list, threads: int) -> list[bytes]:
-    """8-bit PNGs of float RGB images in [0, 1], encoded by the runtime on
-    ``threads`` threads without the GIL (as Pillow's default level writes them)."""
+    """8-bit PNGs of RGB images (uint8, or floats in [0, 1]), encoded by the
+    runtime on ``threads`` threads without the GIL (as Pillow's default level
+    writes them)."""
     from .outputs import PILLOW_DEFAULT_LEVEL
     from .runner import runtime_module
 
-    pictures = []
-    for im in images:                  # finite: the runtime clamps the look, the normals are unit
-        scaled = np.multiply(im, 255, dtype=np.float32)
-        np.add(scaled, 0.5, out=scaled)
-        np.clip(scaled, 0, 255, out=scaled)
-        pictures.append(np.ascontiguousarray(scaled.astype(np.uint8)))
+    pictures = [np.ascontiguousarray(im if im.dtype == np.uint8 else to_bytes(im)) for im in images]
     return list(runtime_module().encode_pngs(pictures, PILLOW_DEFAULT_LEVEL, threads))
 
 
@@ -440,11 +451,6 @@ def exr32(values: np.ndarray) -> bytes:
             return f.read()
     finally:
         os.unlink(path)
-
-
-def png_normal(normals: np.ndarray) -> bytes:
-    """Unit normals (h, w, 3) as an 8-bit normal map ((n + 1) / 2)."""
-    return png8((np.asarray(normals, np.float32) + 1.0) * 0.5)
 
 
 def png16_grey(values: np.ndarray, low: float, high: float) -> bytes:
@@ -735,7 +741,8 @@ class Exporter:
 
             rows, _, owner = vertex_looks(sim, lay, iteration, run.threads)
             attributes = property_columns(effect, rows, self.triangle_surface[owner])
-            ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of, self._normal_map(piece))
+            ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of, self._normal_map(piece),
+                                  as_bytes=True)
             part_name = safe_name(piece.name)
             folder = out / part_name
             files, sidecar = {}, {"iteration": iteration, "object": piece.name, "size": lay.size,
@@ -747,20 +754,21 @@ class Exporter:
                 files[channel] = file
                 sidecar["images"][channel] = {"file": file, "holds": CHANNELS.get(channel, channel), **about}
 
-            base, orm, normal = encode_rgb8([ts.base_color, ts.orm, (ts.normal + 1.0) * 0.5], run.threads)
+            base, orm, normal = encode_rgb8([ts.base_color, ts.orm, ts.normal], run.threads)
             # glTF's ORM and OpenGL normal map always (the glb, the OBJ and the USD stage read
             # them); a preset adds its engine's own packing beside them
             image("BaseColor", base, colour_space="sRGB")
             image("ORM", orm, colour_space="linear")
             image("Normal", normal, colour_space="linear")
             if self.preset == "unity":      # HDRP's mask map: metallic, occlusion, detail mask, smoothness
-                mask = np.stack([ts.orm[..., 2], ts.orm[..., 0], np.ones_like(ts.orm[..., 0]),
-                                 1.0 - ts.orm[..., 1]], axis=-1)
-                image("MaskMap", png8(mask), colour_space="linear",
+                mask = np.stack([ts.orm[..., 2], ts.orm[..., 0], np.full_like(ts.orm[..., 0], 255),
+                                 255 - ts.orm[..., 1]], axis=-1)
+                image("MaskMap", png_bytes(mask), colour_space="linear",
                       holds="metallic (R), occlusion (G), detail mask (B), smoothness = 1 - roughness (A)")
             if self.preset == "unreal":     # DirectX convention: green points down the image
-                flipped = ts.normal * np.array([1.0, -1.0, 1.0], np.float32)
-                image("NormalDX", encode_rgb8([(flipped + 1.0) * 0.5], run.threads)[0], colour_space="linear",
+                flipped = ts.normal.copy()
+                flipped[..., 1] = 255 - flipped[..., 1]
+                image("NormalDX", encode_rgb8([flipped], run.threads)[0], colour_space="linear",
                       holds="tangent-space normal map (DirectX: +Y down), for Unreal")
             reach = float(np.max(np.abs(ts.height))) if ts.height.size else 0.0
             if self.float_maps:
