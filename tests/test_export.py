@@ -270,16 +270,24 @@ def test_a_bake_size_out_of_range_is_a_usage_error(tmp_path, size):
     assert r.returncode == 2 and "--bake-size" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_a_bake_larger_than_memory_allows_is_refused_before_the_run(tmp_path, bumpy_obj):
-    from gamma.driver.export import available_memory, bake_memory
+def test_a_bake_larger_than_memory_allows_is_refused_before_the_run(monkeypatch):
+    """The estimate is checked against the memory available before the first
+    iteration (ExportWriter.on_setup_done), and the refusal gives both."""
+    from types import SimpleNamespace
 
-    if bake_memory(16384, 8, 1) < 0.8 * available_memory():
-        pytest.fail("this machine has room for a 16384² bake: the refusal cannot be shown here")
-    out = tmp_path / "out"
-    r = run_gammac("run", ROOT / "examples" / "patina.gamma", "--scene", bumpy_obj, "--surfels", 2000,
-                   "--iterations", 1, "--size", 32, "--bake-size", "16384", "--export", "--quiet", "--out", out)
-    assert r.returncode == 1 and "GiB" in r.stderr and "available" in r.stderr, r.stderr
-    assert not (out / "maps").exists() or not list((out / "maps").iterdir())
+    from gamma.driver import export
+    from gamma.driver.runner import RunError
+    from gamma.driver.writers import ExportWriter
+
+    effect = load(str(ROOT / "examples" / "patina.gamma"))
+    run = SimpleNamespace(effect=effect)
+    monkeypatch.setattr(export, "available_memory", lambda: 8 << 30)
+    ExportWriter(4096).on_setup_done(SimpleNamespace(run=run))         # ~0.9 GiB: made
+    with pytest.raises(RunError) as refused:
+        ExportWriter(16384).on_setup_done(SimpleNamespace(run=run))    # ~10 GiB: refused
+    need = export.bake_memory(16384, effect.row_width, 1) / 2**30
+    assert f"about {need:.1f} GiB" in str(refused.value) and "8.0 GiB is available" in str(refused.value)
+    assert 9 < need < 12
 
 
 def test_uv_rasteriser_matches_a_texel_by_texel_reference():

@@ -608,15 +608,22 @@ def texel_size(piece: Piece, lay_uvs: np.ndarray, density: float) -> int:
 
 #: The largest texture side baked (--bake-size, or what --texel-density asks for).
 MAX_BAKE_SIZE = 16384
-#: Bytes a bake holds per texel at its peak (the texel's point, normal,
-#: look, rows and the images being made), besides W floats of its row.
-BYTES_PER_TEXEL = 160
+#: What a bake holds at its peak, measured on the stain scene at 4096² (1.15
+#: GiB for the whole gammac process, bench/RESULTS.md): per texel the 8-bit
+#: base colour, ORM and normal map, the float height and their PNGs being
+#: made; per texel and property its float image and its 16-bit (or EXR)
+#: copy; and a band's working set (about BAKE_CHUNK texels of points,
+#: looks, rows and images), whatever the size.
+BYTES_PER_TEXEL = 32
+BYTES_PER_TEXEL_AND_PROPERTY = 8
+BAND_BYTES = 300 << 20
 
 
 def bake_memory(size: int, row_width: int, properties: int) -> int:
     """An estimate of the peak memory of baking one ``size``² texture set."""
     texels = size * size
-    return texels * (BYTES_PER_TEXEL + 12 * properties) + min(texels, BAKE_CHUNK) * 4 * row_width
+    return (texels * (BYTES_PER_TEXEL + BYTES_PER_TEXEL_AND_PROPERTY * properties) + BAND_BYTES
+            + min(texels, BAKE_CHUNK) * 4 * row_width)
 
 
 def available_memory() -> int | None:
