@@ -423,3 +423,54 @@ def test_a_texture_set_baked_in_bands_is_the_whole_textures(tmp_path, bumpy_obj)
     for name in ("base_color", "orm", "normal", "height"):
         assert np.array_equal(getattr(whole, name), getattr(banded, name)), name
     assert np.array_equal(whole.properties["p"], banded.properties["p"])
+
+
+UDIM_LOOK = """
+ton T { motion straight = 1.0 }
+surface S { reflectance straight = 0.0  property p = 0.0 }
+source sky = environment(sphere) emits T count 1000
+on settle(t: T, s: S) { s.p += 1 }
+appearance(s: S) { color = rgb(uv.u / 2, 0.2, 0.2) }
+"""
+
+
+def test_uvs_spanning_udim_tiles_get_a_texture_set_per_tile(tmp_path):
+    """A plane whose u runs 0..2 spans tiles 1001 and 1002: a node and a
+    texture set per tile (NAME_CHANNEL_NNNN.1001.png), each tile's uvs moved
+    to the unit square for its textures while texture() and uv still see
+    the mesh's own (the colour's red is u / 2: below 0.5 in 1001, above in 1002)."""
+    n = 8
+    lines = []
+    for i in range(n + 1):
+        for j in range(n + 1):
+            x, z = j / n, i / n
+            lines.append(f"v {x} 0 {z}\nvt {2 * x} {1 - z}")
+    for i in range(n):
+        for j in range(n):
+            a = i * (n + 1) + j + 1
+            b, c, d = a + 1, a + n + 2, a + n + 1
+            lines.append(f"f {a}/{a} {d}/{d} {c}/{c}\nf {a}/{a} {c}/{c} {b}/{b}")
+    (tmp_path / "tiles.obj").write_text("\n".join(lines) + "\n")
+    (tmp_path / "look.gamma").write_text(UDIM_LOOK)
+    out = tmp_path / "out"
+    r = run_gammac("run", tmp_path / "look.gamma", "--scene", tmp_path / "tiles.obj", "--surfels", 2000,
+                   "--iterations", 1, "--size", 32, "--export", "--bake-size", 64, "--quiet", "--out", out)
+    assert r.returncode == 0, r.stderr
+    gltf = pygltflib.GLTF2().load(str(out / "export" / "tiles_0001.glb"))
+    assert [node.name for node in gltf.nodes] == ["tiles.1001", "tiles.1002"]
+    reds = {}
+    for tile in (1001, 1002):
+        image = np.asarray(Image.open(out / "export" / "tiles" / f"tiles_BaseColor_0001.{tile}.png").convert("RGB"),
+                           np.float64) / 255
+        covered = image[8:-8, 8:-8, 0]
+        reds[tile] = (covered.min(), covered.max())
+        side = json.loads((out / "export" / "tiles" / f"tiles_0001.{tile}.json").read_text())
+        assert side["udim"] == tile
+    assert reds[1001][1] <= 0.5 + 2 / 255 and reds[1002][0] >= 0.5 - 2 / 255
+    assert reds[1001][0] < 0.1 and reds[1002][1] > 0.9
+    blob = gltf.binary_blob()
+    for mesh in gltf.meshes:
+        uvs = accessor_array(gltf, mesh.primitives[0].attributes.TEXCOORD_0, blob)
+        assert uvs.min() >= 0 and uvs.max() <= 1          # each tile's textures in the unit square
+    (report,) = khronos_validator([out / "export" / "tiles_0001.glb"])
+    assert report["errors"] == 0

@@ -52,10 +52,22 @@ class Piece:
     vertices: np.ndarray         # float32 (n, 3), this object's only
     faces: np.ndarray            # (m, 3) indices into vertices
     own_uvs: np.ndarray | None   # the mesh's texture coordinates (m, 3, 2), for texture() lookups
+    tile: int | None = None      # UDIM tile (1001 + u + 10 v) of an object whose uvs span several
+
+
+def udim_tiles(own_uvs: np.ndarray) -> np.ndarray:
+    """The UDIM tile of each triangle (its uv centre's unit square: 1001 + u
+    + 10 v, u in 0..9), for texture coordinates that span several tiles."""
+    centre = np.asarray(own_uvs, np.float64).mean(axis=1)
+    u = np.clip(np.floor(centre[:, 0]), 0, 9).astype(np.int64)
+    v = np.maximum(np.floor(centre[:, 1]), 0).astype(np.int64)
+    return 1001 + u + 10 * v
 
 
 def pieces(scene) -> list[Piece]:
-    """The scene split into its objects (``scene.object_names``)."""
+    """The scene split into its objects (``scene.object_names``), and an
+    object whose texture coordinates span several UDIM tiles into one piece
+    per tile (its textures are that tile's)."""
     mesh = scene.mesh
     verts = np.asarray(mesh.vertices(), np.float32)
     tris = np.asarray(mesh.triangles(), np.int64)
@@ -68,8 +80,24 @@ def pieces(scene) -> list[Piece]:
             continue
         used, faces = np.unique(tris[ids], return_inverse=True)
         own = uvs[ids] if uvs is not None and (has_uv is None or has_uv[ids].all()) else None
-        out.append(Piece(name, ids, verts[used], faces.reshape(-1, 3), own))
+        tiles = udim_tiles(own) if own is not None else None
+        if tiles is None or len(np.unique(tiles)) == 1:
+            out.append(Piece(name, ids, verts[used], faces.reshape(-1, 3), own))
+            continue
+        for tile in np.unique(tiles):
+            mine = ids[tiles == tile]
+            used, faces = np.unique(tris[mine], return_inverse=True)
+            out.append(Piece(name, mine, verts[used], faces.reshape(-1, 3), uvs[mine], int(tile)))
     return out
+
+
+def layout_uvs(piece: Piece) -> np.ndarray | None:
+    """The piece's own uvs as its textures lay them out: a UDIM tile's moved
+    to the unit square (texture() lookups still see the mesh's own)."""
+    if piece.own_uvs is None or piece.tile is None:
+        return piece.own_uvs
+    u, v = (piece.tile - 1001) % 10, (piece.tile - 1001) // 10
+    return (piece.own_uvs - np.array([u, v], np.float32)).astype(np.float32)
 
 
 @dataclass
@@ -130,7 +158,7 @@ def layout(piece: Piece, corner_normals: np.ndarray | None, size: int) -> Layout
     corners = (corner_normals[piece.triangles].astype(np.float32) if corner_normals is not None
                else np.repeat(face_normals(piece.vertices, piece.faces)[:, None, :], 3, axis=1))
     if piece.own_uvs is not None:
-        source, uvs, normals, faces = weld(piece.faces, piece.own_uvs, corners)
+        source, uvs, normals, faces = weld(piece.faces, layout_uvs(piece), corners)
         return Layout(piece, piece.vertices[source], normals, uvs, faces, None, size)
     from .atlas import chart_atlas
 
@@ -587,6 +615,11 @@ def write_mtl(part: ExportPart, files: dict) -> bytes:
     return "".join(text).encode("utf-8")
 
 
+def piece_label(piece: Piece) -> str:
+    """The name an exported piece's node has: the object's, with its UDIM tile."""
+    return piece.name if piece.tile is None else f"{piece.name}.{piece.tile}"
+
+
 def safe_name(name: str) -> str:
     """A part's name as a file name."""
     import re
@@ -736,7 +769,7 @@ class Exporter:
         layouts = self._layouts()
         for lay in layouts:
             for s in np.unique(self.triangle_surface[lay.piece.triangles]):
-                surface_parts.setdefault(int(s), []).append(lay.piece.name)
+                surface_parts.setdefault(int(s), []).append(piece_label(lay.piece))
         out = run.out / "export"
         parts, stem, usd_files = [], f"{iteration:04d}", {}
         for lay in layouts:
@@ -751,12 +784,13 @@ class Exporter:
             ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of, self._normal_map(piece),
                                   as_bytes=True)
             part_name = safe_name(piece.name)
+            tile = "" if piece.tile is None else f".{piece.tile}"     # UDIM: NAME.1001.png
             folder = out / part_name
-            files, sidecar = {}, {"iteration": iteration, "object": piece.name, "size": lay.size,
+            files, sidecar = {}, {"iteration": iteration, "object": piece.name, "udim": piece.tile, "size": lay.size,
                                   "preset": self.preset, "images": {}, "properties": {}}
 
             def image(channel: str, data: bytes, **about) -> None:
-                file = f"{part_name}_{channel}_{stem}.png"
+                file = f"{part_name}_{channel}_{stem}{tile}.png"
                 atomic_write(folder / file, data)
                 files[channel] = file
                 sidecar["images"][channel] = {"file": file, "holds": CHANNELS.get(channel, channel), **about}
@@ -779,7 +813,7 @@ class Exporter:
                       holds="tangent-space normal map (DirectX: +Y down), for Unreal")
             reach = float(np.max(np.abs(ts.height))) if ts.height.size else 0.0
             if self.float_maps:
-                file = f"{part_name}_Height_{stem}.exr"
+                file = f"{part_name}_Height_{stem}{tile}.exr"
                 atomic_write(folder / file, exr32(ts.height))
                 sidecar["images"]["Height"] = {"file": file, "holds": CHANNELS["Height"], "min": -reach,
                                                "max": reach, "unit": "scene units along the normal (32-bit float)"}
@@ -789,29 +823,29 @@ class Exporter:
             for prop, values in ts.properties.items():
                 low, high = self.ranges.get(prop, (float(np.min(values)), float(np.max(values))))
                 if self.float_maps:
-                    file = f"{part_name}_{prop}_{stem}.exr"
+                    file = f"{part_name}_{prop}_{stem}{tile}.exr"
                     atomic_write(folder / file, exr32(values))
                     scale = "the values themselves (32-bit float); min..max over the whole run"
                 else:
-                    file = f"{part_name}_{prop}_{stem}.png"
+                    file = f"{part_name}_{prop}_{stem}{tile}.png"
                     atomic_write(folder / file, png16_grey(values, low, high))
                     scale = "0..65535 spans min..max over the whole run"
                 sidecar["properties"][prop] = {"file": file, "min": low, "max": high, "scale": scale}
             primitives = []
             for s in np.unique(surfaces):
                 surface = names[int(s)]
-                material = surface if len(surface_parts[int(s)]) == 1 else f"{surface}_{part_name}"
+                material = surface if len(surface_parts[int(s)]) == 1 else f"{surface}_{part_name}{tile}"
                 primitives.append((material, np.flatnonzero(surfaces == s)))
-            part = ExportPart(piece.name, lay.positions, lay.normals, lay.uvs, lay.faces.astype(np.uint32),
-                              primitives, attributes,
-                              {"BaseColor": (f"{part_name}_BaseColor_{stem}", base),
-                               "ORM": (f"{part_name}_ORM_{stem}", orm),
-                               "Normal": (f"{part_name}_Normal_{stem}", normal)})
+            part = ExportPart(piece_label(piece), lay.positions, lay.normals, lay.uvs,
+                              lay.faces.astype(np.uint32), primitives, attributes,
+                              {"BaseColor": (f"{part_name}_BaseColor_{stem}{tile}", base),
+                               "ORM": (f"{part_name}_ORM_{stem}{tile}", orm),
+                               "Normal": (f"{part_name}_Normal_{stem}{tile}", normal)})
             parts.append(part)
-            usd_files[piece.name] = {channel: f"{part_name}/{file}" for channel, file in files.items()}
-            atomic_write(folder / f"{part_name}_{stem}.obj", write_obj(part, f"{part_name}_{stem}.mtl"))
-            atomic_write(folder / f"{part_name}_{stem}.mtl", write_mtl(part, files))
-            atomic_write(folder / f"{part_name}_{stem}.json",
+            usd_files[part.name] = {channel: f"{part_name}/{file}" for channel, file in files.items()}
+            atomic_write(folder / f"{part_name}_{stem}{tile}.obj", write_obj(part, f"{part_name}_{stem}{tile}.mtl"))
+            atomic_write(folder / f"{part_name}_{stem}{tile}.mtl", write_mtl(part, files))
+            atomic_write(folder / f"{part_name}_{stem}{tile}.json",
                          (json.dumps(sidecar, indent=1) + "\n").encode("utf-8"))
         extras = {"gamma": {"iteration": iteration, "effect": str(effect.path),
                             "properties": {p: {"min": lo, "max": hi} for p, (lo, hi) in self.ranges.items()}}}
