@@ -29,6 +29,7 @@ import io
 import json
 import struct
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -689,8 +690,6 @@ class Exporter:
 
     def __init__(self, run, bake_size: int | None, texel_density: float | None, ranges: dict,
                  preset: str = "gltf", float_maps: bool = False):
-        from pathlib import Path
-
         self.preset = preset
         self.float_maps = float_maps
 
@@ -704,7 +703,7 @@ class Exporter:
         """Keep what each write makes, for one USD stage of all of them (``finish_usd``)."""
         self.usd_frames = []
 
-    def finish_usd(self) -> "Path":
+    def finish_usd(self) -> Path:
         """``export/SCENE.usdc``: the iterations written as time samples (SPEC §16.3)."""
         from .usd_export import write_usd
 

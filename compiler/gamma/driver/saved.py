@@ -459,10 +459,10 @@ def export_saved(folder, iterations: list[int] | None, bake_size: int | None, th
     from .export import Exporter
 
     if usd:
-        try:
-            import pxr  # noqa: F401
-        except ImportError:
-            raise RunError("--format usd needs usd-core (pip install 'gamma-weathering[usd]')") from None
+        import importlib.util
+
+        if importlib.util.find_spec("pxr") is None:
+            raise RunError("--format usd needs usd-core (pip install 'gamma-weathering[usd]')")
 
     folder = Path(folder)
     session, summary, saved = reopen(folder, threads=threads)
