@@ -155,4 +155,4 @@ bench: install
 	$(PY) bench/bench_ray.py
 
 clean:
-	rm -rf build build-tests out $(VENV)
+	rm -rf build build-tests out $(VENV) $(BLENDER_VENV)
