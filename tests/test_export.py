@@ -185,13 +185,13 @@ appearance(s: S) {
 """
 
 
-def plane_with_uvs(path, n=8):
-    """A unit square in the x-z plane (normal +y), u = x and v = -z + ... so +v runs along -z."""
+def plane_with_uvs(path, n=8, u_span=1):
+    """A unit square in the x-z plane (normal +y), u = u_span * x and v = 1 - z (+v runs along -z)."""
     lines = []
     for i in range(n + 1):
         for j in range(n + 1):
             x, z = j / n, i / n
-            lines.append(f"v {x} 0 {z}\nvt {x} {1 - z}")
+            lines.append(f"v {x} 0 {z}\nvt {u_span * x} {1 - z}")
     for i in range(n):
         for j in range(n):
             a = i * (n + 1) + j + 1
@@ -439,18 +439,7 @@ def test_uvs_spanning_udim_tiles_get_a_texture_set_per_tile(tmp_path):
     texture set per tile (NAME_CHANNEL_NNNN.1001.png), each tile's uvs moved
     to the unit square for its textures while texture() and uv still see
     the mesh's own (the colour's red is u / 2: below 0.5 in 1001, above in 1002)."""
-    n = 8
-    lines = []
-    for i in range(n + 1):
-        for j in range(n + 1):
-            x, z = j / n, i / n
-            lines.append(f"v {x} 0 {z}\nvt {2 * x} {1 - z}")
-    for i in range(n):
-        for j in range(n):
-            a = i * (n + 1) + j + 1
-            b, c, d = a + 1, a + n + 2, a + n + 1
-            lines.append(f"f {a}/{a} {d}/{d} {c}/{c}\nf {a}/{a} {c}/{c} {b}/{b}")
-    (tmp_path / "tiles.obj").write_text("\n".join(lines) + "\n")
+    plane_with_uvs(tmp_path / "tiles.obj", u_span=2)
     (tmp_path / "look.gamma").write_text(UDIM_LOOK)
     out = tmp_path / "out"
     r = run_gammac("run", tmp_path / "look.gamma", "--scene", tmp_path / "tiles.obj", "--surfels", 2000,

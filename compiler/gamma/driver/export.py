@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .budget import available_memory
+
 BLEED_PASSES = 8
 #: Texels come to the baker in tiles of BAKE_TILE x BAKE_TILE: nearby on the
 #: surface, so runs of them share a neighbour search (kBakeBlock in baker.h).
@@ -659,16 +661,6 @@ def bake_memory(size: int, row_width: int, properties: int) -> int:
     return (texels * (BYTES_PER_TEXEL + BYTES_PER_TEXEL_AND_PROPERTY * properties) + BAND_BYTES
             + min(texels, BAKE_CHUNK) * 4 * row_width)
 
-
-def available_memory() -> int | None:
-    try:
-        with open("/proc/meminfo", encoding="ascii") as info:
-            for line in info:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
 
 
 def memory_problem(size: int, row_width: int, properties: int) -> str | None:
