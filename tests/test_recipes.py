@@ -70,6 +70,20 @@ def test_gammac_recipes_lists_them_with_parameters():
     assert 'import "rust.gamma" (rate = 0.08)' in verbose.stdout
 
 
+def test_gammac_recipes_json_is_the_same_listing_for_tools():
+    """The Blender add-on's recipe list: every recipe, with a path it can run
+    and the parameters as the text listing gives them."""
+    r = run_gammac("recipes", "--json")
+    assert r.returncode == 0, r.stderr
+    listed = {entry["name"]: entry for entry in json.loads(r.stdout)}
+    assert sorted(listed) == sorted(f"{stem}.gamma" for stem in RECIPES)
+    rust = listed["rust.gamma"]
+    assert Path(rust["path"]).is_absolute() and Path(rust["path"]).read_text().startswith("//")
+    rate = next(p for p in rust["params"] if p["name"] == "rate")
+    assert rate == {"name": "rate", "default": "0.04", "doc": "rust per unit of humidity and iteration"}
+    assert rust["surfaces"] and rust["summary"].endswith(".")
+
+
 @pytest.mark.parametrize("stem", RECIPES)
 def test_recipe_matches_golden_run(tmp_path, stem):
     reference = GOLDEN / "recipes" / f"{stem}.json"

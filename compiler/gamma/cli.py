@@ -200,6 +200,8 @@ def _parser() -> argparse.ArgumentParser:
     how.add_argument("--check", action="store_true", help="exit 1 if the file is not formatted")
     rc = sub.add_parser("recipes", help="list the standard library's recipes, their parameters and defaults")
     rc.add_argument("--verbose", "-v", action="store_true", help="print each recipe's whole description")
+    rc.add_argument("--json", action="store_true",
+                    help="the same as JSON (name, path, summary, doc, params, tons, surfaces, sources), for tools")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
     _add_run_options(r)
@@ -631,9 +633,10 @@ def main(argv=None) -> int:
         if args.command in ("render", "export"):
             return _saved(args)
         if args.command == "recipes":
-            from .frontend.recipes import describe, stdlib_recipes
+            from .frontend.recipes import as_json, describe, stdlib_recipes
 
-            sys.stdout.write(describe(stdlib_recipes(), verbose=args.verbose))
+            recipes = stdlib_recipes()
+            sys.stdout.write(as_json(recipes) if args.json else describe(recipes, verbose=args.verbose))
             return EXIT_OK
         if args.command == "sweep":
             return _sweep(args)

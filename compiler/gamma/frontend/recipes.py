@@ -80,6 +80,18 @@ def stdlib_recipes(folder: Path | None = None) -> list[Recipe]:
     return [read_recipe(p) for p in sorted(folder.glob("*.gamma"))]
 
 
+def as_json(recipes: list[Recipe]) -> str:
+    """The listing for tools (the Blender add-on): every field of every
+    recipe, the path absolute, parameters' defaults as written."""
+    import json
+
+    return json.dumps([{
+        "name": r.name, "path": str(r.path.resolve()), "summary": r.summary, "doc": r.doc,
+        "params": [{"name": p.name, "default": p.default, "doc": p.doc} for p in r.params],
+        "tons": r.tons, "surfaces": r.surfaces, "sources": r.sources,
+    } for r in recipes], indent=1, ensure_ascii=False) + "\n"
+
+
 def describe(recipes: list[Recipe], verbose: bool = False) -> str:
     """The listing: one paragraph per recipe (name, summary, what it
     declares, parameters with defaults); ``verbose`` adds the whole comment."""
