@@ -211,9 +211,10 @@ def blender_render(path, png_out, *, size: int = 512, samples: int = 32, view=DE
 
 def blender_script(source: str, *, timeout: float = 600, **args) -> dict:
     """Run ``source`` in a child with bpy imported (factory-reset, empty scene).
-    The code sees ``bpy``, ``args`` (the keyword arguments, JSON-able) and a
+    The code sees ``bpy``, ``args`` (the keyword arguments, JSON-able), a
     dict ``result`` to fill with JSON-able values, which is returned (with
-    ``seconds`` and ``stderr``)."""
+    ``seconds`` and ``stderr``), and ``render(png, size=..., samples=...)``:
+    ``blender_render``'s Cycles picture of the scene the code made."""
     return _child("blender_script", {"source": source, "args": args}, timeout=timeout)
 
 
@@ -556,10 +557,7 @@ def _task_blender_import(args) -> dict:
 
 
 def _task_blender_render(args) -> dict:
-    import math
-
     import bpy
-    from mathutils import Vector
 
     error, cap = _import_gltf(bpy, args["path"], "NORMALS")
     if error:
@@ -569,6 +567,31 @@ def _task_blender_render(args) -> dict:
     bounds = [o["bounds"] for o in report["objects"] if "bounds" in o]
     if not bounds:
         raise RuntimeError(f"{args['path']}: no mesh with vertices to render")
+    out = _render_scene(bpy, bounds, args)
+    out["report"] = report
+    return out
+
+
+def _scene_bounds(bpy) -> list:
+    """World-space (lo, hi) of every mesh object the render shows."""
+    from mathutils import Vector
+
+    bounds = []
+    for obj in bpy.context.scene.objects:
+        if obj.type == "MESH" and len(obj.data.vertices) and not obj.hide_render:
+            corners = [obj.matrix_world @ Vector(c) for c in obj.bound_box]
+            bounds.append(([min(c[i] for c in corners) for i in range(3)],
+                           [max(c[i] for c in corners) for i in range(3)]))
+    return bounds
+
+
+def _render_scene(bpy, bounds, args) -> dict:
+    """A Cycles (CPU) picture of the current scene framed on ``bounds``:
+    a camera from ``args["view"]``, a sun over its shoulder and a plain sky."""
+    import math
+
+    from mathutils import Vector
+
     lo = Vector([min(b[0][i] for b in bounds) for i in range(3)])
     hi = Vector([max(b[1][i] for b in bounds) for i in range(3)])
     centre, radius = (lo + hi) / 2, max((hi - lo).length / 2, 1e-6)
@@ -629,14 +652,26 @@ def _task_blender_render(args) -> dict:
         raise RuntimeError(f"Cycles wrote no picture:\n{render_cap.text}")
     return {"png": args["png"], "render_seconds": round(render_seconds, 3), "denoised": denoise,
             "camera": {"location": list(cam.location), "target": list(centre), "fov_deg": args["fov"]},
-            "bounds": [list(lo), list(hi)], "report": report}
+            "bounds": [list(lo), list(hi)]}
 
 
 def _task_blender_script(args) -> dict:
     import bpy
 
     _reset(bpy)
-    namespace = {"bpy": bpy, "args": args["args"], "result": {}, "__name__": "__blender_script__"}
+    def render(png, *, size=512, samples=32, view=DEFAULT_VIEW, fov_deg=30.0, sky=(0.55, 0.65, 0.8),
+               sky_strength=1.0, sun_strength=3.0, view_transform="Standard") -> dict:
+        """blender_render's picture of the script's own scene."""
+        bounds = _scene_bounds(bpy)
+        if not bounds:
+            raise RuntimeError("no mesh with vertices to render")
+        return _render_scene(bpy, bounds, {"png": str(png), "size": int(size), "samples": int(samples),
+                                           "view": list(view), "fov": float(fov_deg), "sky": list(sky),
+                                           "sky_strength": sky_strength, "sun_strength": sun_strength,
+                                           "view_transform": view_transform})
+
+    namespace = {"bpy": bpy, "args": args["args"], "result": {}, "render": render,
+                 "__name__": "__blender_script__"}
     exec(compile(args["source"], "<blender_script>", "exec"), namespace)
     json.dumps(namespace["result"])
     return namespace["result"]
