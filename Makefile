@@ -23,7 +23,7 @@ WEB_MODULES := web/node_modules/.installed
 SOURCES := $(shell find compiler language runtime stdlib -type f -not -path '*/__pycache__/*' 2>/dev/null) \
 	CMakeLists.txt pyproject.toml
 
-.PHONY: all demo stain moss-dirt leak-stain hydrant gallery erosion test deps install runtime-tests pytest bench clean fuzz coverage
+.PHONY: blender-extension all demo stain moss-dirt leak-stain hydrant gallery erosion test deps install runtime-tests pytest bench clean fuzz coverage
 
 all: install
 
@@ -112,6 +112,15 @@ $(BLENDER_VENV)/.installed: | deps
 	$(BLENDER_VENV)/bin/python -m pip install -q 'bpy==4.5.*'
 	touch $@
 
+# The Blender extension: dist/gamma-blender-VERSION.zip (install it in Blender from
+# Edit > Preferences > Get Extensions > Install from Disk); it runs the gammac that
+# `make install` puts in .venv/bin (or any on PATH, set in the add-on's preferences).
+BLENDER_EXTENSION_SOURCES := $(wildcard blender/gamma_blender/*.py blender/gamma_blender/*.toml) \
+	blender/build_extension.py CMakeLists.txt
+
+blender-extension: $(BLENDER_EXTENSION_SOURCES)
+	$(PYTHON) blender/build_extension.py --out dist
+
 pytest: install $(BLENDER_VENV)/.installed
 	$(PY) -m pytest -q tests
 
@@ -155,4 +164,4 @@ bench: install
 	$(PY) bench/bench_ray.py
 
 clean:
-	rm -rf build build-tests out $(VENV) $(BLENDER_VENV)
+	rm -rf build build-tests out dist $(VENV) $(BLENDER_VENV)
