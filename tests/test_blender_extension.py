@@ -187,14 +187,21 @@ result["after_restore"] = [len(obj.data.vertices), obj.data.name, [m.show_viewpo
 def test_a_recipe_by_name_and_parameters(extension):
     out = run('''
 obj = suzanne()
+child = suzanne("Dé/fect bolt.001")          # a name no file may have, parented and moved
+child.parent, child.location = obj, (3, 0, 0)
+for o in bpy.data.objects:
+    o.select_set(True)
 result["run"] = weather(effect="rust", iterations=2, surfels=10000, bake_size=64, params="rate=0.5")
-obj = bpy.data.objects["Suzanne"]
+obj, child = bpy.data.objects["Suzanne"], bpy.data.objects["Dé/fect bolt.001"]
+result["child"] = [list(child.matrix_world.translation), "rust" in child.data.attributes,
+                   child.parent.name, len(child.data.materials)]
 result["attributes"] = sorted(a.name for a in obj.data.attributes if not a.name.startswith((".", "_")))
 result["rust"] = float(values(obj, "rust").max())
 result["bad"] = weather(effect="no-such-recipe")
 result["bad_param"] = weather(effect="rust", params="rate")
 ''', extension)
     assert out["run"] == [["FINISHED"], ""], out["run"]
+    assert out["child"] == [[3.0, 0.0, 0.0], True, "Suzanne", 1], out["child"]
     assert "rust" in out["attributes"] and out["rust"] > 0, out
     assert out["bad"][0] == ["ERROR"] and "no effect file or recipe named 'no-such-recipe'" in out["bad"][1]
     assert out["bad_param"][0] == ["ERROR"] and "'rate' is not NAME=VALUE" in out["bad_param"][1]
@@ -424,3 +431,52 @@ result["untouched"] = digest(bpy.data.objects["Suzanne"]) == before
     assert state == ["CANCELLED"] and timers == 0, out["cancelled"]
     assert reports[-1][0] == ["WARNING"] and "cancelled" in reports[-1][1]
     assert out["untouched"]
+
+
+def test_the_add_ons_glb_reader_agrees_with_pygltflib(tmp_path):
+    """glb.py (the add-on reads gamma's export without Blender's importer)
+    gives pygltflib's arrays on a real export with a property, and its
+    diagnostics parser reads gammac's error positions."""
+    import importlib.util
+
+    import pygltflib
+
+    def module(name):                   # outside Blender: the package's __init__ needs bpy
+        spec = importlib.util.spec_from_file_location(f"gamma_blender_{name}", ROOT / "blender" / "gamma_blender" / f"{name}.py")
+        loaded = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = loaded         # dataclasses look their module up there
+        spec.loader.exec_module(loaded)
+        return loaded
+
+    read_parts, diagnostics = module("glb").read_parts, module("job").diagnostics
+
+    scene = ROOT / "examples" / "scenes" / "teapot.obj"
+    r = subprocess.run([GAMMAC, "run", PATINA, "--scene", str(scene), "--iterations", "1", "--surfels", "3000",
+                        "--out", str(tmp_path / "run"), "--export", "--bake-size", "32", "--quiet"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    path = next((tmp_path / "run" / "export").glob("*.glb"))
+    parts = read_parts(path)
+    gltf = pygltflib.GLTF2().load(str(path))
+    blob = gltf.binary_blob()
+
+    def array(index, dtype, width):
+        acc = gltf.accessors[index]
+        view = gltf.bufferViews[acc.bufferView]
+        start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+        return np.frombuffer(blob, dtype, acc.count * width, start).reshape(acc.count, width)
+
+    assert [p.name for p in parts] == [n.name for n in gltf.nodes if n.mesh is not None]
+    for part, node in zip(parts, [n for n in gltf.nodes if n.mesh is not None]):
+        prim = gltf.meshes[node.mesh].primitives[0]
+        assert np.array_equal(part.positions, array(prim.attributes.POSITION, np.float32, 3))
+        assert np.array_equal(part.uvs, array(prim.attributes.TEXCOORD_0, np.float32, 2))
+        assert np.array_equal(part.attributes["_PATINA"], array(prim.attributes._PATINA, np.float32, 1)[:, 0])
+        index_type = {5125: np.uint32, 5123: np.uint16}[gltf.accessors[prim.indices].componentType]
+        assert np.array_equal(part.primitives[0].triangles.reshape(-1), array(prim.indices, index_type, 1)[:, 0])
+        assert part.primitives[0].material == gltf.materials[prim.material].name
+    broken = tmp_path / "broken.gamma"
+    broken.write_text("surface S { property p = 0.0 }\nsource s = directional((0, -1, 0)) emits Nope count 10\n")
+    r = subprocess.run([GAMMAC, "check", str(broken)], capture_output=True, text=True)
+    found = diagnostics(r.stderr)
+    assert found and found[0]["line"] == 2 and found[0]["kind"] == "error", r.stderr

@@ -14,8 +14,6 @@ The work is in ``job`` (the child process), ``scene_io`` (glb hand-over and
 results) and ``glb`` (reading gamma's export).
 """
 
-from __future__ import annotations
-
 import contextlib
 import shutil
 import signal

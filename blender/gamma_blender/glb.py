@@ -78,7 +78,7 @@ def read_parts(path: Path) -> list[Part]:
         if "mesh" not in node:
             continue
         mesh = document["meshes"][node["mesh"]]
-        part = None
+        part, shared_positions = None, None
         for prim in mesh["primitives"]:
             attrs = prim["attributes"]
             if part is None:
@@ -88,9 +88,9 @@ def read_parts(path: Path) -> list[Part]:
                             uvs=_accessor(document, binary, attrs["TEXCOORD_0"]) if "TEXCOORD_0" in attrs else None,
                             attributes={k: _accessor(document, binary, v) for k, v in attrs.items()
                                         if k.startswith("_")})
-            elif attrs["POSITION"] != prim_position:
+                shared_positions = attrs["POSITION"]
+            elif attrs["POSITION"] != shared_positions:
                 raise ValueError(f"part {part.name}: primitives with vertices of their own are not gamma's layout")
-            prim_position = attrs["POSITION"]
             triangles = _accessor(document, binary, prim["indices"]).astype(np.int64).reshape(-1, 3)
             name = materials[prim["material"]] if "material" in prim else ""
             part.primitives.append(Primitive(triangles, name))

@@ -139,15 +139,25 @@ def _to_blender(v: np.ndarray) -> np.ndarray:
     return np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1).astype(np.float64)
 
 
-def _sidecar(export: Path, part: str) -> tuple[Path, dict]:
-    found = sorted((export / part).glob(f"{part}_*.json"))
-    if not found:
-        raise GammaError(f"the run exported no texture set for '{part}'")
-    last = json.loads(found[-1].read_text())
-    if last.get("udim") is not None:
-        raise GammaError(f"'{part}': its UVs span several UDIM tiles, which the add-on does not read yet; "
-                         "keep the UVs in 0..1")
-    return export / part, last
+def _sidecars(export: Path) -> dict:
+    """Each exported part's texture set: {part name: (folder, sidecar)}, the
+    last iteration's.  Folders are the names made file-safe, so the sidecar's
+    own "object" says whose it is."""
+    found = {}
+    for path in sorted(export.glob("*/*.json")):
+        try:
+            sidecar = json.loads(path.read_text())
+        except ValueError:
+            continue
+        name = sidecar.get("object")
+        if name is None:
+            continue
+        if sidecar.get("udim") is not None:
+            raise GammaError(f"'{name}': its UVs span several UDIM tiles, which the add-on does not read yet; "
+                             "keep the UVs in 0..1")
+        if name not in found or found[name][1]["iteration"] < sidecar["iteration"]:
+            found[name] = (path.parent, sidecar)
+    return found
 
 
 def _image(folder: Path, entry: dict, name: str, colour_space: str):
@@ -295,11 +305,9 @@ def restore(obj) -> bool:
     return True
 
 
-def apply_results(objects, run: Path, effect: str, *, shape_key: bool = False,
-                  originals: dict | None = None) -> dict:
-    """Put the run in ``run`` (its ``export/``) into ``objects``; per object
-    what it got: {name: {"properties": [...], "materials": [...], "vertices": N}}."""
-    export = run / "export"
+def _read_run(export: Path, objects) -> tuple[dict, dict]:
+    """The last iteration's parts and texture sets, every one the objects need
+    (read before any object is touched: a failure leaves them all as they were)."""
     scenes = sorted(export.glob("*.glb"))
     if not scenes:
         raise GammaError("the run exported nothing")
@@ -308,32 +316,54 @@ def apply_results(objects, run: Path, effect: str, *, shape_key: bool = False,
     if missing:
         raise GammaError(f"the run's export has no part named {', '.join(missing)} "
                          f"(it has {', '.join(sorted(parts))})")
-    # read every texture set before touching any object: a failure leaves them all as they were
-    sidecars = {o.name: _sidecar(export, o.name) for o in objects}
+    sidecars = _sidecars(export)
+    missing = [o.name for o in objects if o.name not in sidecars]
+    if missing:
+        raise GammaError(f"the run exported no texture set for {', '.join(missing)}")
+    return parts, sidecars
+
+
+def _take_names(mesh, wanted_mesh: str, materials: dict) -> None:
+    """The names a run's datablocks should have, now that the last run's are gone."""
+    if wanted_mesh not in bpy.data.meshes:
+        mesh.name = wanted_mesh
+    for wanted, mat in materials.items():
+        if wanted and wanted not in bpy.data.materials:
+            mat.name = wanted
+        for node in mat.node_tree.nodes:
+            image = node.image if node.type == "TEX_IMAGE" else None
+            if image is not None and image[TAG] not in bpy.data.images:
+                image.name = image[TAG]
+
+
+def _weather_object(obj, part: Part, folder: Path, sidecar: dict) -> tuple:
+    """Show ``part`` in ``obj`` with its texture set: (mesh, materials by name, property names)."""
+    properties = list(sidecar.get("properties", {}))
+    own = obj.get(ORIGINAL) or obj.data
+    wanted = f"{own.name} weathered"
+    mesh = build_mesh(part, wanted, obj.matrix_world.inverted(), properties)
+    materials = {}
+    for prim in part.primitives:
+        if prim.material not in materials:
+            materials[prim.material] = build_material(prim.material or obj.name, folder, sidecar, obj.name)
+    for mat in materials.values():
+        mesh.materials.append(mat)
+    _show_weathered(obj, mesh)
+    for slot in obj.material_slots:
+        slot.link = "DATA"
+    _take_names(mesh, wanted, materials)
+    return mesh, materials, properties
+
+
+def apply_results(objects, run: Path, effect: str, *, shape_key: bool = False,
+                  originals: dict | None = None) -> dict:
+    """Put the run in ``run`` (its ``export/``) into ``objects``; per object
+    what it got: {name: {"properties": [...], "materials": [...], "vertices": N}}."""
+    parts, sidecars = _read_run(run / "export", objects)
     done = {}
     for obj in objects:
-        part, (folder, sidecar) = parts[obj.name], sidecars[obj.name]
-        properties = list(sidecar.get("properties", {}))
-        own = obj.get(ORIGINAL) or obj.data
-        mesh = build_mesh(part, f"{own.name} weathered", obj.matrix_world.inverted(), properties)
-        materials = {}
-        for prim in part.primitives:
-            if prim.material not in materials:
-                materials[prim.material] = build_material(prim.material or obj.name, folder, sidecar, obj.name)
-        for mat in materials.values():
-            mesh.materials.append(mat)
-        _show_weathered(obj, mesh)
-        for slot in obj.material_slots:
-            slot.link = "DATA"
-        if f"{own.name} weathered" not in bpy.data.meshes:
-            mesh.name = f"{own.name} weathered"
-        for wanted, mat in materials.items():
-            if wanted and wanted not in bpy.data.materials:
-                mat.name = wanted
-            for node in mat.node_tree.nodes:
-                image = node.image if node.type == "TEX_IMAGE" else None
-                if image is not None and image[TAG] not in bpy.data.images:
-                    image.name = image[TAG]
+        folder, sidecar = sidecars[obj.name]
+        mesh, materials, properties = _weather_object(obj, parts[obj.name], folder, sidecar)
         if shape_key and originals and obj.name in originals:
             add_shape_key(obj, originals[obj.name], Path(effect).stem)
         obj[TAG] = {"effect": str(effect), "properties": properties}
