@@ -101,7 +101,7 @@ def run(source: str, extension: str, **args) -> dict:
     return blender_script(PRELUDE + source, zip=extension, gammac=GAMMAC, **args)
 
 
-def test_zip_is_a_valid_extension_with_the_projects_version(extension):
+def test_zip_installs_and_its_sidebar_runs_the_chosen_recipe(extension):
     assert Path(extension).name == f"gamma-blender-{build_extension.project_version()}.zip"
     out = run('''
 import addon_utils
@@ -111,10 +111,39 @@ result["panel"] = hasattr(bpy.types, "GAMMA_PT_panel")
 settings = bpy.context.scene.gamma
 settings.recipe = "rust.gamma"          # the sidebar fills a field per parameter with its default
 result["params"] = {p.name: [p.default, round(p.value, 6)] for p in settings.params}
+
+# the sidebar as drawn (a stand-in layout records it): a field per parameter, and a Run
+# button that hands the operator the panel's settings, only the parameters changed
+import types
+from bl_ext.user_default.gamma import GAMMA_PT_panel
+
+class Layout:
+    def __init__(self, log): self.log = log
+    def prop(self, data, name, text=None, **kw): self.log.append(["prop", name, text])
+    def operator(self, idname, **kw):
+        op = types.SimpleNamespace()
+        self.log.append(["operator", idname, op])
+        return op
+    def label(self, text="", **kw): self.log.append(["label", text])
+    def progress(self, **kw): self.log.append(["progress", kw.get("text")])
+    def row(self, **kw): return self
+    column = box = row
+
+next(p for p in settings.params if p.name == "rate").value = 0.25
+settings.iterations, settings.quality = 7, "DRAFT"
+log = []
+GAMMA_PT_panel.draw(types.SimpleNamespace(layout=Layout(log)), bpy.context)
+result["fields"] = [text for kind, *rest in log if kind == "prop" for name, text in [rest] if name == "value"]
+run = next(rest[1] for kind, *rest in log if kind == "operator" and rest[0] == "gamma.weather")
+result["run"] = {k: v for k, v in vars(run).items()}
 ''', extension)
     assert out["enabled"] and all(out["operators"]) and out["panel"], out
     assert out["params"]["rate"] == ["0.04", 0.04], out["params"]
     assert "tons" in out["params"]
+    assert out["fields"] == list(out["params"]), "a field per parameter"
+    button = out["run"]
+    assert (button["effect"], button["iterations"], button["surfels"], button["bake_size"]) == ("rust.gamma", 7, 30000, 512)
+    assert button["params"] == "rate=0.25", "only what differs from the recipe's defaults is passed"
 
 
 def test_weathering_suzanne_gives_attributes_a_texture_set_and_no_copies_on_a_rerun(extension, tmp_path):

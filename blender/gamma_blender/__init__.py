@@ -22,6 +22,7 @@ import threading
 from pathlib import Path
 
 import bpy
+import numpy as np
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
 
@@ -50,8 +51,8 @@ def recipes(refresh: bool = False) -> list[dict]:
     if refresh or _recipes_cache["gammac"] != gammac:
         try:
             _recipes_cache.update(gammac=gammac, recipes=list_recipes(gammac))
-        except GammaError:
-            _recipes_cache.update(gammac=None, recipes=[])
+        except GammaError:              # not asked again on every redraw; Refresh asks again
+            _recipes_cache.update(gammac=gammac, recipes=[])
     return _recipes_cache["recipes"]
 
 
@@ -110,6 +111,7 @@ def _recipe_enum(self, context):
 def _recipe_changed(self, context):
     """Fill the parameter fields with the chosen recipe's defaults."""
     self.params.clear()
+    self.params_of = self.recipe
     for r in recipes():
         if r["name"] == self.recipe:
             for p in r["params"]:
@@ -127,6 +129,7 @@ class GammaSettings(bpy.types.PropertyGroup):
     recipe: EnumProperty(name="Recipe", items=_recipe_enum, update=_recipe_changed)
     effect_path: StringProperty(name="Effect file", subtype="FILE_PATH")
     params: CollectionProperty(type=GammaParam)
+    params_of: StringProperty()         # the recipe whose fields ``params`` holds
     iterations: IntProperty(name="Iterations", default=10, min=1, max=1000)
     quality: EnumProperty(name="Quality", default="STANDARD", items=[
         ("DRAFT", "Draft", "30k surfels, 512² textures"),
@@ -340,9 +343,14 @@ class GAMMA_OT_refresh_recipes(bpy.types.Operator):
         return {"FINISHED"}
 
 
+def _as_written(value: float) -> str:
+    """A field's value as its shortest text (fields hold 32-bit floats: 0.1, not 0.10000000149)."""
+    return np.format_float_positional(np.float32(value), unique=True, trim="-")
+
+
 def _differs(param) -> bool:
     try:
-        return float(param.default) != param.value
+        return np.float32(param.default) != np.float32(param.value)
     except ValueError:
         return True
 
@@ -358,6 +366,9 @@ class GAMMA_PT_panel(bpy.types.Panel):
         s, layout = context.scene.gamma, self.layout
         layout.prop(s, "source", expand=True)
         if s.source == "RECIPE":
+            if s.params_of != s.recipe:         # first shown, or a file from another session: fill the fields
+                scene = context.scene          # (not from draw(), which may not write data)
+                bpy.app.timers.register(lambda: _recipe_changed(scene.gamma, None), first_interval=0)
             row = layout.row(align=True)
             row.prop(s, "recipe", text="")
             row.operator("gamma.refresh_recipes", text="", icon="FILE_REFRESH")
@@ -379,7 +390,7 @@ class GAMMA_PT_panel(bpy.types.Panel):
             op = layout.operator("gamma.weather", text="Run", icon="PLAY")
             op.effect = s.effect_path if s.source == "FILE" else s.recipe
             op.iterations, op.surfels, op.bake_size, op.seed = s.iterations, surfels, bake, s.seed
-            op.params = ",".join(f"{p.name}={p.value!r}" for p in s.params if s.source == "RECIPE" and _differs(p))
+            op.params = ",".join(f"{p.name}={_as_written(p.value)}" for p in s.params if s.source == "RECIPE" and _differs(p))
             op.assign, op.shape_key = s.assign, s.shape_key
             layout.operator("gamma.restore", icon="LOOP_BACK")
             if s.status and s.status != "done":
