@@ -215,6 +215,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its last complete iteration (same command; "
                         "--iterations may grow)")
+    r.add_argument("--init", metavar="DIR",
+                   help="start from the final surfel state of the run in DIR (same scene, --surfels and "
+                        "--seed): properties of the same surface and name start at its values, the rest "
+                        "at this effect's initial values")
     s = sub.add_parser("sweep", help="run every combination of a parameter grid (a Ray task each)",
                        description="Run the effect once per combination of the --grid values (each a "
                                    "'gammac run' with the other options, as a Ray task) into "
@@ -409,7 +413,8 @@ def _run_options(args):
                       export=getattr(args, "export", None) or False, bake_size=getattr(args, "bake_size", 1024),
                       texel_density=getattr(args, "texel_density", None), preset=getattr(args, "preset", "gltf"),
                       float_maps=getattr(args, "float_maps", False),
-                      resume=getattr(args, "resume", False), started=_STARTED,
+                      resume=getattr(args, "resume", False), init=getattr(args, "init", None),
+                      started=_STARTED,
                       ray=getattr(args, "ray", False), ray_address=getattr(args, "ray_address", None),
                       shading=getattr(args, "shading", "smooth"), crease=getattr(args, "crease", 60.0))
 

@@ -34,6 +34,9 @@ def run_key(ir_text: str, scene, opts) -> str:
     h.update(np.ascontiguousarray(scene.mesh.triangles(), dtype=np.int32).tobytes())
     h.update(np.ascontiguousarray(scene.triangle_surface, dtype=np.int32).tobytes())
     options = {k: v for k, v in vars(opts).items() if k not in _NOT_IN_KEY}
+    # a run folder by its path; a gamma.Result (the Python API) by what it is, not its address
+    options["init"] = None if opts.init is None else str(opts.init) if isinstance(opts.init, (str, Path)) \
+        else "result"
     h.update(json.dumps(options, sort_keys=True, default=str).encode())
     return h.hexdigest()
 

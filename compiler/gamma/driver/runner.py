@@ -59,6 +59,7 @@ class RunOptions(Record):
     ao_samples: int = 8         # ambient-occlusion rays per hit
     progress: bool = True
     resume: bool = False          # continue the run in ``out`` from its last complete iteration
+    init: object = None           # start from this run's final state: a run folder or a gamma.Result (layered.py)
     started: float | None = None  # time.perf_counter() when gammac started (start-up time)
     shading: str = "smooth"       # renders: "smooth" (up to the crease angle) or "flat"
     crease: float = 60.0          # degrees; sharper edges stay sharp in smooth shading
@@ -277,6 +278,18 @@ def prepare_output(out: Path) -> None:
             (out / sub).mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise RunError(f"cannot write to '{out}': {err.strerror or err}") from None
+
+
+def _remove_empty_folders(out: Path) -> None:
+    for sub in sorted((p for p in out.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
+        try:
+            sub.rmdir()
+        except OSError:
+            pass
+    try:
+        out.rmdir()
+    except OSError:
+        pass
 
 
 def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None,
@@ -629,7 +642,9 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None, w
         print(f"gammac: note: this run needs about {budget.gigabytes(need)} of memory", file=sys.stderr)
     looks = bool(effect.appearance_kernels())
     textures = load_textures(effect) if looks else None     # before any long setup
+    init = _init_state(opts)             # a missing or mismatched --init is refused before any work
     out = Path(opts.out)
+    created = not out.exists()
     prepare_output(out)
     from . import folder
 
@@ -641,9 +656,11 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None, w
         raise RunError(str(err)) from None
     try:
         session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse,
-                                warm_outputs)
+                                warm_outputs, init)
     except BaseException:
         lock.__exit__()
+        if created:
+            _remove_empty_folders(out)      # a run refused at its start leaves no empty --out behind
         raise
     session.lock = lock
     # reading the mesh and binding its triangles to surfaces; all of start (scene,
@@ -654,7 +671,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None, w
 
 
 def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse=None,
-                  warm_outputs=False) -> Run:
+                  warm_outputs=False, init=None) -> Run:
     """The rest of ``start``, with the output folder locked."""
     from . import folder
     from .events import WriteQueue
@@ -710,18 +727,22 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         except RayUnavailable as err:
             raise RunError(str(err)) from None
     try:
+        layered_rows = _layered_rows(effect, opts, sim, init)     # before the earlier results are set aside
         key, earlier, first = _resume_or_set_aside(effect, opts, scene, kernels, sim, out)
     except BaseException:
         if tracer is not None:
             tracer.close()
         raise
+    if layered_rows is not None and first == 1:
+        sim.set_rows(layered_rows[0])
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     static = static_columns(sim, surfel_surface)
     threads = min(opts.threads or _cpu_count(), LIMITS["--threads"][1])
     summary = {
         "effect": str(effect.path), "scene": str(opts.scene),
-        "surfaces": {name: {"triangles": count, "surfels": int(np.sum(surfel_surface == s.index))}
+        "surfaces": {name: {"triangles": count, "surfels": int(np.sum(surfel_surface == s.index)),
+                            "properties": list(s.properties)}
                      for (name, count), s in zip(scene.triangles_per_surface.items(),
                                                  effect.surfaces.values())},
         "surfels": sim.num_surfels, "triangles": mesh.num_triangles, "threads": threads,
@@ -757,6 +778,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                     "shading": opts.shading, "crease": opts.crease},
         "iterations": [],
     }
+    if layered_rows is not None:
+        summary["init"] = layered_rows[1]
     if tracer is not None:
         summary["ray"] = {"address": opts.ray_address or "local", "workers": tracer.workers,
                           "job_bytes": tracer.job_bytes}
@@ -800,6 +823,34 @@ def _simulation(rt, mesh, cfg, shape_static: bool = False):
     if sim.from_snapshot != "setup" or sim.setup_made_ahead:
         setup_cache.store(sim, mesh, cfg.surfels, cfg.seed, behind=shape_static)
     return sim
+
+
+def _init_state(opts):
+    """``opts.init``'s final state (layered.py), its options checked against
+    this run's; None without --init (or when resuming: the run's own maps count)."""
+    if opts.init is None or opts.resume:
+        return None
+    from . import layered
+
+    try:
+        state = layered.final_state(opts.init)
+        layered.check_options(state, opts)
+    except layered.InitError as err:
+        raise RunError(str(err)) from None
+    return state
+
+
+def _layered_rows(effect, opts, sim, init):
+    """With --init: (the rows the run starts from, what they took from the
+    earlier run), checked before anything is written; else None."""
+    if init is None:
+        return None
+    from . import layered
+
+    try:
+        return layered.initial_rows(init, effect, opts, sim)
+    except layered.InitError as err:
+        raise RunError(str(err)) from None
 
 
 def _resume_or_set_aside(effect, opts, scene, kernels, sim, out) -> tuple:
