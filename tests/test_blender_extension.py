@@ -93,8 +93,11 @@ def extension(tmp_path_factory) -> str:
 
 @pytest.fixture(autouse=True)
 def blender_user_folder(tmp_path, monkeypatch):
-    """Extensions install into a folder of the test's own, not the user's Blender."""
+    """Extensions install into a folder of the test's own, not the user's Blender,
+    and the add-on's scratch and kept runs go into the test's folder too."""
     monkeypatch.setenv("BLENDER_USER_RESOURCES", str(tmp_path / "blender-user"))
+    (tmp_path / "scratch").mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "scratch"))
 
 
 def run(source: str, extension: str, **args) -> dict:
@@ -409,7 +412,7 @@ class Operator:
     """The operator's own methods over plain attributes (its properties)."""
     def __init__(self, **props):
         self.__dict__.update(effect="", iterations=10, surfels=100000, bake_size=1024, seed=1, tons=0,
-                             params="", assign="", shape_key=False)
+                             params="", assign="", shape_key=False, continue_run=False)
         self.__dict__.update(props)
         self.reports = []
     def report(self, kind, message): self.reports.append([sorted(kind), message])
@@ -509,3 +512,25 @@ def test_the_add_ons_glb_reader_agrees_with_pygltflib(tmp_path):
     r = subprocess.run([GAMMAC, "check", str(broken)], capture_output=True, text=True)
     found = diagnostics(r.stderr)
     assert found and found[0]["line"] == 2 and found[0]["kind"] == "error", r.stderr
+
+
+def test_continue_from_the_last_run_starts_where_it_ended(extension):
+    """"Continue from the last run" is gammac run --init of the objects' last run."""
+    out = run('''
+obj = suzanne()
+result["first"] = weather(effect="dust", iterations=2, surfels=10000, bake_size=64)
+obj = bpy.data.objects["Suzanne"]
+first = float(values(obj, "dust").sum())
+result["next"] = weather(effect="dust", iterations=2, surfels=10000, bake_size=64, continue_run=True)
+result["ratio"] = float(values(obj, "dust").sum()) / first
+result["other_count"] = weather(effect="dust", iterations=1, surfels=12000, bake_size=64, continue_run=True)
+bpy.ops.gamma.restore()
+result["never_run"] = weather(effect="dust", iterations=1, surfels=10000, bake_size=64, continue_run=True)
+''', extension)
+    assert out["first"] == [["FINISHED"], ""] and out["next"] == [["FINISHED"], ""], out
+    # the same two iterations again, on top of the first two: dust settles as it did, so about twice
+    assert 1.9 < out["ratio"] < 2.1, out["ratio"]
+    state, message = out["other_count"]
+    assert state == ["ERROR"] and "--surfels: A had 10000, this run 12000" in message, message
+    state, message = out["never_run"]
+    assert state == ["ERROR"] and "not all weathered by one earlier run" in message, message

@@ -140,6 +140,8 @@ class GammaSettings(bpy.types.PropertyGroup):
                            "are which of the effect's surfaces (default: the effect's own rule)")
     shape_key: BoolProperty(name="Shape change as shape key",
                             description="A shape-changing effect adds a shape key instead of replacing the shape")
+    continue_run: BoolProperty(name="Continue from the last run",
+                               description="Start from where the selected objects' last run ended")
     # what the running job shows
     running: BoolProperty()
     progress: FloatProperty(min=0, max=1)
@@ -188,6 +190,9 @@ class GAMMA_OT_weather(bpy.types.Operator):
     params: StringProperty(name="Parameters", description="NAME=VALUE, comma-separated")
     assign: StringProperty(name="Assign", description="PATTERN=SURFACE, comma-separated")
     shape_key: BoolProperty(name="Shape change as shape key")
+    continue_run: BoolProperty(name="Continue from the last run",
+                               description="Start from where the selected objects' last run ended "
+                                           "(gammac run --init): same objects, quality and seed")
 
     _job = None
     _timer = None
@@ -207,6 +212,8 @@ class GAMMA_OT_weather(bpy.types.Operator):
                                params=dict(p.split("=", 1) for p in _pairs(self.params, "parameter")),
                                assign=_pairs(self.assign, "assignment"))
         objects = [o for o in context.selected_objects if o.type == "MESH"] or context.selected_objects
+        if self.continue_run:
+            settings.init = scene_io.last_run(objects)
         self._folder = Path(tempfile.mkdtemp(prefix="gamma-blender-"))
         scene = self._folder / "scene.glb"
         with scene_io.AsMade(objects):          # a second run starts from the objects as made, too
@@ -229,8 +236,9 @@ class GAMMA_OT_weather(bpy.types.Operator):
                 state.status = job.message.splitlines()[0] if job.message else "failed"
                 return {"CANCELLED"}
             objects = [bpy.data.objects[n] for n in self._names if n in bpy.data.objects]
+            kept = scene_io.keep_run(job.out)
             done = scene_io.apply_results(objects, job.out, job.settings.effect, shape_key=self.shape_key,
-                                          originals=self._originals)
+                                          originals=self._originals, kept=kept)
             state.last_run = _numbers(job, done)
             state.status = "done"
             self.report({"INFO"}, f"gamma: weathered {', '.join(done)}: {state.last_run}")
@@ -382,6 +390,8 @@ class GAMMA_PT_panel(bpy.types.Panel):
         col.prop(s, "seed")
         layout.prop(s, "assign")
         layout.prop(s, "shape_key")
+        if any((o.get("gamma") or {}).get("run") for o in context.selected_objects):
+            layout.prop(s, "continue_run")
         if s.running:
             layout.progress(factor=s.progress, text=s.status)
             layout.label(text="Esc cancels", icon="INFO")
@@ -392,6 +402,8 @@ class GAMMA_PT_panel(bpy.types.Panel):
             op.iterations, op.surfels, op.bake_size, op.seed = s.iterations, surfels, bake, s.seed
             op.params = ",".join(f"{p.name}={_as_written(p.value)}" for p in s.params if s.source == "RECIPE" and _differs(p))
             op.assign, op.shape_key = s.assign, s.shape_key
+            op.continue_run = s.continue_run and any((o.get("gamma") or {}).get("run")
+                                                     for o in context.selected_objects)
             layout.operator("gamma.restore", icon="LOOP_BACK")
             if s.status and s.status != "done":
                 layout.label(text=s.status, icon="ERROR")

@@ -94,6 +94,7 @@ class RunSettings:
     params: dict = field(default_factory=dict)
     assign: list = field(default_factory=list)   # "PATTERN=SURFACE" strings
     threads: int = 0
+    init: str = ""                       # a run folder to start from (gammac run --init)
 
     def arguments(self, scene: Path, out: Path) -> list[str]:
         args = ["run", self.effect, "--scene", str(scene), "--out", str(out),
@@ -111,6 +112,8 @@ class RunSettings:
             args += ["--param", f"{name}={value}"]
         for rule in self.assign:
             args += ["--assign", rule]
+        if self.init:
+            args += ["--init", self.init]
         return args
 
 

@@ -23,6 +23,9 @@ tagged ``gamma``) instead of piling up copies.
 from __future__ import annotations
 
 import json
+import shutil
+import tempfile
+import uuid
 from pathlib import Path
 
 import bpy
@@ -39,6 +42,8 @@ TAG = "gamma"
 ORIGINAL = "gamma_original_mesh"
 #: The modifiers a run switched off (the weathered mesh has them applied).
 SWITCHED_OFF = "gamma_switched_off"
+#: Where the add-on keeps each object's last run (its maps), for "continue from the last run".
+RUNS = Path(tempfile.gettempdir()) / "gamma-blender-runs"
 
 
 # ---- hand-over ----------------------------------------------------------------------
@@ -298,10 +303,12 @@ def restore(obj) -> bool:
     shown = obj.data
     obj.data = original
     _switch(obj, True)
+    earlier = {(obj.get(TAG) or {}).get("run")}
     for key in (ORIGINAL, SWITCHED_OFF, TAG):
         if key in obj:
             del obj[key]
     _forget(shown)
+    _forget_runs(earlier)
     return True
 
 
@@ -355,18 +362,55 @@ def _weather_object(obj, part: Part, folder: Path, sidecar: dict) -> tuple:
     return mesh, materials, properties
 
 
+def keep_run(run: Path) -> Path:
+    """Keep a finished run's maps and summary (not its pictures and texture
+    sets, which are packed now) where a later run can start from them."""
+    RUNS.mkdir(parents=True, exist_ok=True)
+    kept = RUNS / uuid.uuid4().hex
+    kept.mkdir()
+    shutil.copy2(run / "summary.json", kept / "summary.json")
+    maps = sorted((run / "maps").glob("iter_*.ply"))
+    (kept / "maps").mkdir()
+    if maps:
+        shutil.copy2(maps[-1], kept / "maps" / maps[-1].name)
+    return kept
+
+
+def last_run(objects) -> str:
+    """The run folder the objects' last run left (all of them weathered by that run)."""
+    runs = {(o.get(TAG) or {}).get("run") for o in objects}
+    if len(runs) != 1 or None in runs:
+        raise GammaError("continue from the last run: the selected objects were not all weathered by one "
+                         "earlier run; select the objects of that run, or run without continuing")
+    run = runs.pop()
+    if not (Path(run) / "summary.json").is_file():
+        raise GammaError(f"continue from the last run: its maps are gone ({run}); run without continuing")
+    return run
+
+
+def _forget_runs(earlier: set) -> None:
+    """Delete the kept runs among ``earlier`` that no object names any more
+    (only those: other .blend files keep theirs in the same folder)."""
+    named = {(o.get(TAG) or {}).get("run") for o in bpy.data.objects}
+    for folder in earlier - named:
+        if folder and Path(folder).parent == RUNS:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
 def apply_results(objects, run: Path, effect: str, *, shape_key: bool = False,
-                  originals: dict | None = None) -> dict:
+                  originals: dict | None = None, kept: Path | None = None) -> dict:
     """Put the run in ``run`` (its ``export/``) into ``objects``; per object
     what it got: {name: {"properties": [...], "materials": [...], "vertices": N}}."""
     parts, sidecars = _read_run(run / "export", objects)
+    earlier = {(o.get(TAG) or {}).get("run") for o in objects}
     done = {}
     for obj in objects:
         folder, sidecar = sidecars[obj.name]
         mesh, materials, properties = _weather_object(obj, parts[obj.name], folder, sidecar)
         if shape_key and originals and obj.name in originals:
             add_shape_key(obj, originals[obj.name], Path(effect).stem)
-        obj[TAG] = {"effect": str(effect), "properties": properties}
+        obj[TAG] = {"effect": str(effect), "properties": properties, "run": str(kept) if kept else ""}
         done[obj.name] = {"properties": properties, "materials": [m.name for m in materials.values()],
                           "vertices": len(mesh.vertices)}
+    _forget_runs(earlier)
     return done
