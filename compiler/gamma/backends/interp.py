@@ -52,6 +52,9 @@ def _row_layout(kernel: Kernel) -> dict[str, int]:
     layout = {f"reflectance.{n}": i for i, n in enumerate(abi.REFLECTANCE_SLOTS)}
     for init in kernel.surface.decl.properties:
         layout.setdefault(init.name, abi.ROW_HEADER + len(layout) - len(abi.REFLECTANCE_SLOTS))
+    # mask() and attribute() values follow every surface's properties, in the effect's order
+    for i, name in enumerate(kernel.inputs):
+        layout[name] = kernel.inputs_base + i
     return layout
 
 

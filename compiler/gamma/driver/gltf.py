@@ -45,6 +45,7 @@ class GltfPart:
     faces: np.ndarray                  # int32 (m, 3)
     uvs: np.ndarray | None             # float32 (m, 3, 2), OBJ convention (v up), or None
     look: Material | None = None       # None: the part has no material
+    attributes: dict = None            # vertex attributes: "_WET" as "WET", COLOR_0 as "COLOR_0.r" ... (float32)
 
 
 def is_gltf(path: str | Path) -> bool:
@@ -85,10 +86,33 @@ def _parts(path: Path, scene, trimesh) -> list[GltfPart]:
         except GltfError as err:
             raise GltfError(f"glTF '{path}', node '{node}': {err}") from None
         parts.append(GltfPart(str(node), str(geometry_name), getattr(material, "name", None),
-                              world.astype(np.float32), faces.astype(np.int32), uvs, look))
+                              world.astype(np.float32), faces.astype(np.int32), uvs, look,
+                              _vertex_attributes(geometry, len(verts))))
     if not parts:
         raise GltfError(f"glTF '{path}' has no triangle mesh")
     return parts
+
+
+def _vertex_attributes(geometry, count: int) -> dict:
+    """A primitive's per-vertex attributes for attribute() (SPEC §12a):
+    application-specific ones (``_WET``: "WET") and COLOR_0 by channel."""
+    found = {}
+    for name, values in getattr(geometry, "vertex_attributes", {}).items():
+        values = np.asarray(values, np.float32)
+        if len(values) != count:
+            continue
+        if values.ndim == 1 or values.shape[1] == 1:
+            found[name.lstrip("_")] = values.reshape(-1)
+        else:
+            for c in range(values.shape[1]):
+                found[f"{name.lstrip('_')}.{'xyzw'[c] if c < 4 else c}"] = values[:, c]
+    visual = geometry.visual
+    colours = visual.vertex_colors if getattr(visual, "kind", None) == "vertex" else None
+    if colours is not None and len(colours) == count:
+        colours = np.asarray(colours, np.float32) / 255.0
+        for c, channel in enumerate("rgba"[:colours.shape[1]]):
+            found[f"COLOR_0.{channel}"] = colours[:, c]
+    return found
 
 
 def _material(material) -> Material:

@@ -179,7 +179,9 @@ def build_config(rt, effect: Effect, kernels, opts: "RunOptions", bounds, down):
     reads = effect.context_reads()
     cfg.measure_accessibility = "accessibility" in reads
     cfg.measure_curvature = "curvature" in reads
-    cfg.measure_uv = "uv" in effect.context_reads(("transport", "update"))
+    # mask() in a rule reads the image at the surfel's texture coordinates, at setup (scene_inputs.py)
+    cfg.measure_uv = "uv" in effect.context_reads(("transport", "update")) or \
+        any(item.kind == "mask" for item in effect.inputs)
     for name in mass_properties(effect):
         cfg.add_mass_property([s.properties.get(name, -1) for s in effect.surfaces.values()],
                               [t.carry.get(name, -1) for t in effect.tons.values()])
@@ -213,10 +215,18 @@ def load_textures(effect: Effect) -> list[np.ndarray]:
     from ..files import file_problem
 
     images = []
-    for path in effect.textures:
+    for path, kind in zip(effect.textures, effect.texture_kinds or ["color"] * len(effect.textures)):
         problem = file_problem(Path(path))
         if problem:
-            raise RunError(f"cannot read texture '{path}': {problem}")
+            raise RunError(f"cannot read {'texture' if kind == 'color' else 'mask'} '{path}': {problem}")
+        if kind == "mask":              # luminance at full precision in every channel (scene_inputs.py)
+            from .scene_inputs import MaskError, as_texture
+
+            try:
+                images.append(as_texture(path))
+            except MaskError as err:
+                raise RunError(str(err)) from None
+            continue
         try:
             with Image.open(path) as image:
                 w, h = image.size
@@ -491,6 +501,7 @@ class Run(Record):
     lock: object = None            # folder.OutputLock, held for the run
     call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
     tracer: object = None          # distributed.RayTracer with --ray / --ray-address
+    input_values: object = None    # float32 (surfels, inputs): mask() and attribute() (scene_inputs.py)
     loop_ended: float | None = None  # time.perf_counter() when the last iteration was done
 
     def trace(self, it: int) -> dict:
@@ -618,6 +629,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None, w
     except SceneError as err:
         raise RunError(str(err)) from None
     scene_seconds = time.perf_counter() - t0
+    _check_scene_inputs(effect, scene)
     mesh = scene.mesh
     if mesh.degenerate_dropped:
         print(f"gammac: warning: {mesh.degenerate_dropped} degenerate triangles of "
@@ -726,6 +738,10 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
             tracer = distributed.start(rt, effect, kernels, opts, scene, sim, build_config)
         except RayUnavailable as err:
             raise RunError(str(err)) from None
+    from . import scene_inputs
+
+    input_values = scene_inputs.columns(effect, scene, sim)
+    scene_inputs.write(sim, effect, input_values)
     try:
         layered_rows = _layered_rows(effect, opts, sim, init)     # before the earlier results are set aside
         key, earlier, first = _resume_or_set_aside(effect, opts, scene, kernels, sim, out)
@@ -735,6 +751,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         raise
     if layered_rows is not None and first == 1:
         sim.set_rows(layered_rows[0])
+    elif first > 1:
+        scene_inputs.write(sim, effect, input_values)     # the maps do not hold them
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     static = static_columns(sim, surfel_surface)
@@ -801,6 +819,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                   surfel_surface, static, summary, report, WriteQueue(), shapes, where, tracer=tracer)
     session.first_iteration = first
     session.call = call
+    session.input_values = input_values
     return session
 
 
@@ -823,6 +842,22 @@ def _simulation(rt, mesh, cfg, shape_static: bool = False):
     if sim.from_snapshot != "setup" or sim.setup_made_ahead:
         setup_cache.store(sim, mesh, cfg.surfels, cfg.seed, behind=shape_static)
     return sim
+
+
+def _check_scene_inputs(effect, scene) -> None:
+    """mask() and attribute() against this scene: errors stop the run, with
+    the calls' file:line:col; warnings are printed (scene_inputs.py)."""
+    if not effect.inputs and not effect.mask_uses:
+        return
+    from ..frontend.diagnostics import GammaError, render
+    from .scene_inputs import problems
+
+    found = problems(effect, scene)
+    errors = [d for d in found if d.severity == "error"]
+    if errors:
+        raise GammaError(effect.path, effect.source, errors)
+    if found:
+        print(render(found, effect.path, effect.source), file=sys.stderr)
 
 
 def _init_state(opts):

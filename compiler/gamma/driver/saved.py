@@ -95,6 +95,10 @@ def load_iteration(session, folder: str | Path, iteration: int) -> dict:
             if name not in columns:
                 raise RunError(f"'{path}' has no column '{name}' (the effect changed since the run)")
             rows[mine, slot] = columns[name][mine]
+    if session.input_values is not None:        # mask() and attribute(): not in the maps
+        from .scene_inputs import write
+
+        write(sim, session.effect, session.input_values, rows)
     sim.set_rows(np.ascontiguousarray(rows))
     return columns
 

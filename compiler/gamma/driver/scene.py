@@ -48,6 +48,10 @@ class Scene(Record):
     triangle_flat: np.ndarray = None      # bool per triangle: its part renders flat ("shading": "flat")
     triangle_material: np.ndarray = None  # int32 per triangle: index into materials, -1 none
     materials: list = None                # gltf.Material per material
+    #: attribute(): {name as the file has it: (float32 per vertex, bool per vertex: the part has it)},
+    #: read only when the effect asks for attributes (vertex_attributes.py)
+    vertex_attributes: dict = None
+    part_attribute_names: dict = None     # part name -> the attribute names it has (for messages)
 
     @property
     def diagonal(self) -> float:
@@ -107,6 +111,8 @@ class _Part(Record):
     names: tuple = ()                    # more names --assign patterns match (glTF mesh, material)
     flat: bool = False                   # rendered with flat shading (a scene file's "shading": "flat")
     material: tuple | None = None        # glTF base colour: (RGB factor, float32 image [h, w, 3] or None)
+    source: Path | None = None           # the OBJ or PLY file (its vertex attributes are read from it)
+    attributes: dict | None = None       # a glTF part's vertex attributes (name -> float32 per vertex)
 
 
 def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
@@ -114,7 +120,7 @@ def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
     from .gltf import GltfError, is_gltf, read_gltf
 
     if not is_gltf(path):
-        return [_Part(_load_mesh(rt, path), path.stem, list(rules))]
+        return [_Part(_load_mesh(rt, path), path.stem, list(rules), source=path)]
     if not path.is_file():
         what = "is a directory" if path.is_dir() else "file not found"
         raise SceneError(f"cannot read mesh '{path}': {what}")
@@ -130,7 +136,7 @@ def _file_parts(rt, path: Path, rules=()) -> list[_Part]:
             raise SceneError(f"glTF '{path}', node '{piece.node}': {err}") from None
         names = tuple(n for n in (piece.mesh, piece.material, path.stem) if n)
         parts.append(_Part(mesh, piece.node, list(rules), np.asarray(mesh.vertices(), float), names,
-                           material=piece.look))
+                           material=piece.look, attributes=piece.attributes))
     return parts
 
 
@@ -349,6 +355,10 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None, part
                                                  np.int32) for p in parts])
     scene = Scene(mesh, surface, down, mesh.bounds, counts, objects, names, has_uv, flat,
                   triangle_material, materials)
+    if any(item.kind == "attribute" for item in effect.inputs):
+        from .vertex_attributes import scene_attributes
+
+        scene.vertex_attributes, scene.part_attribute_names = scene_attributes(parts, mesh.num_vertices)
     problem = scene_size_problem(scene.diagonal)
     if problem:
         raise SceneError(f"scene '{path}': {problem}")

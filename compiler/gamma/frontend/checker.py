@@ -28,7 +28,7 @@ import dataclasses
 from ..ir.builtins import (FUNCTIONS, MAX_OCTAVES, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS,
                            VECTOR_COMPONENTS, context_kind)
 from ..ir.float32 import arith_f32, round_f32
-from ..ir.effect import Effect, Kernel, Length, Place, Source, Surface, TonType
+from ..ir.effect import Effect, Input, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
 from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
@@ -75,8 +75,11 @@ class _Checker:
         self.overrides = overrides
         self.report = Report()
         self.unit: Unit | None = None
-        self.textures: dict[str, int] = {}      # resolved path -> index
+        self.textures: dict[tuple, int] = {}    # (kind, resolved path) -> index; kind "color" or "mask"
         self.base_color_calls: list = []        # base_color(): Call.texture set to len(textures) at the end
+        self.inputs: dict[str, Input] = {}      # what surfels read at setup (mask(), attribute()), by name
+        self.inputs_base = abi.ROW_HEADER       # their first row slot: after every surface's properties
+        self.mask_uses: list = []               # every mask() call: (pos, file, surface, path)
 
     def error(self, pos: A.Pos, message: str) -> None:
         self.report.error(pos, message, self.unit.file)
@@ -107,6 +110,7 @@ class _Checker:
                 tons[d.name] = self.ton(d, len(tons))
             elif isinstance(d, A.SurfaceDecl) and declare(d.name, d.pos, "surface"):
                 surfaces[d.name] = self.surface(d, len(surfaces))
+        self.inputs_base = abi.ROW_HEADER + max((len(s.properties) for s in surfaces.values()), default=0)
         sources = []
         for unit, d in decls:
             self.unit = unit
@@ -134,7 +138,7 @@ class _Checker:
         self.unit = main
         if program.unknown_overrides:
             raise UsageError(program.unknown_overrides[0])
-        width = abi.ROW_HEADER + max((len(s.properties) for s in surfaces.values()), default=0)
+        width = self.inputs_base + len(self.inputs)
         self.report.raise_errors(self.module.path, self.module.source)
         effect = Effect(self.module.path, self.module.source, tons, surfaces, sources,
                         list(kernels.values()), width)
@@ -142,11 +146,16 @@ class _Checker:
         effect.warnings = self.report.warnings
         effect.params = dict(main.params)
         effect.assign = assign
-        effect.textures = list(self.textures)
+        effect.textures = [path for _, path in self.textures]
+        effect.texture_kinds = [kind for kind, _ in self.textures]
+        effect.inputs = list(self.inputs.values())
+        effect.mask_uses = list(self.mask_uses)
         for call in self.base_color_calls:
             call.texture = len(effect.textures)
         for kernel in effect.kernels:
             kernel.base_slot = len(effect.textures)
+            kernel.inputs = [item.name for item in effect.inputs]
+            kernel.inputs_base = self.inputs_base
         effect.files = [u.path for u in program.units]
         effect.overrides = dict(self.overrides)
         return effect
@@ -456,21 +465,38 @@ class _Checker:
         kernel.rules.append(d)
         kernel.random_sites = typer.sites
 
-    def texture(self, call: A.Call) -> int | None:
-        """The index in Effect.textures of ``texture("file")``'s image."""
+    def image(self, call: A.Call, kind: str = "color") -> str | None:
+        """The resolved path of ``texture("file")``'s or ``mask("file")``'s image."""
+        what = "texture" if kind == "color" else "mask"
         arg = call.args[0] if call.args else None
         if not isinstance(arg, A.String):
-            self.error(call.pos, 'texture() takes a file name in quotes: texture("rust.png")')
+            example = "rust.png" if kind == "color" else "moss-mask.png"
+            self.error(call.pos, f'{call.name}() takes a file name in quotes: {call.name}("{example}")')
             return None
         problem = path_problem(arg.value)
         if problem:
-            self.error(arg.pos, f"cannot read texture '{shown_path(arg.value)}': {problem}")
+            self.error(arg.pos, f"cannot read {what} '{shown_path(arg.value)}': {problem}")
             return None
         path = resolved(resolved(Path(self.unit.path)).parent / arg.value)
         if not is_file(path):
-            self.error(arg.pos, f"cannot find texture '{arg.value}' next to {Path(self.unit.path).name}")
+            self.error(arg.pos, f"cannot find {what} '{arg.value}' next to {Path(self.unit.path).name}")
             return None
-        return self.textures.setdefault(str(path), len(self.textures))
+        return str(path)
+
+    def texture(self, call: A.Call, kind: str = "color") -> int | None:
+        """The index in Effect.textures of ``texture("file")``'s (or an
+        appearance block's ``mask("file")``'s) image."""
+        path = self.image(call, kind)
+        return None if path is None else self.textures.setdefault((kind, path), len(self.textures))
+
+    def input(self, kind: str, key: str, pos: A.Pos, surface: str, text: str) -> Input:
+        """The row column of ``mask(key)`` or ``attribute(key)`` (made on first use)."""
+        name = f"{kind}:{key}"
+        item = self.inputs.get(name)
+        if item is None:
+            item = self.inputs[name] = Input(kind, key, self.inputs_base + len(self.inputs))
+        item.uses.append((pos, self.unit.file, surface, text))
+        return item
 
 
 KIND_NAMES = {"float": "a number", "bool": "a truth value (a comparison)", "color": "a colour",
@@ -557,7 +583,7 @@ class _Typer:
                 return ir.Load(var, "vector" if whole else "float", e.pos)
             return ir.Load(var, _var_kind(var), e.pos)
         if isinstance(e, A.String):
-            self.error(e.pos, 'a string is only the file name of texture("...")')
+            self.error(e.pos, 'a string is only the argument of texture("..."), mask("...") or attribute("...")')
             return None
         if isinstance(e, A.Unary):
             operand = self.expr(e.operand, lets)
@@ -633,6 +659,30 @@ class _Typer:
             return None
         return value
 
+    def scene_input(self, e: A.Call):
+        """``mask("file")`` / ``attribute("NAME")``: the surfel's value, kept in
+        its row from setup (a read-only Load); in an appearance block a mask is
+        sampled at the point instead, like texture()."""
+        surface = self.scope.surface.name
+        if e.name == "mask":
+            key = self.checker.image(e, "mask")
+            if key is None:
+                return ir.Const(0.0, e.pos)      # reported; the rest is still checked
+            self.checker.mask_uses.append((e.pos, self.checker.unit.file, surface, key))
+            if self.scope.kind == "appearance":
+                textures = self.checker.textures
+                index = textures.setdefault(("mask", key), len(textures))
+                return ir.Call("mask", [], "float", e.pos, texture=index)
+        else:
+            arg = e.args[0] if e.args else None
+            if not isinstance(arg, A.String) or not arg.value.strip():
+                self.error(e.pos, 'attribute() takes a vertex attribute\'s name in quotes: attribute("wetness")')
+                return ir.Const(0.0, e.pos)
+            key = arg.value.strip()
+        text = f'{e.name}("{e.args[0].value}")'
+        item = self.checker.input(e.name, key, e.pos, surface, text)
+        return ir.Load(ir.Var("surf", item.name, item.slot, text=text), "float", e.pos)
+
     def call(self, e: A.Call, lets: dict):
         if e.name == "relative":
             self.error(e.pos, "relative() describes a place or length in the scene; "
@@ -656,6 +706,8 @@ class _Typer:
         if e.name == "texture":
             # a colour even when the file is missing, so the rest is still checked
             return ir.Call("texture", [], "color", e.pos, texture=self.checker.texture(e))
+        if e.name in ("mask", "attribute"):
+            return self.scene_input(e)
         if e.name == "base_color":
             # its slot follows the effect's textures, whose number is known at the end
             call = ir.Call("base_color", [], "color", e.pos)

@@ -406,7 +406,7 @@ def _bind_expr(scope: Scope, e: A.Expr, report: Report, bindings: Bindings, lets
         if fn is None:
             report.error(e.pos, f"unknown function '{e.name}'{did_you_mean(e.name, FUNCTIONS)}",
                          scope.unit.file)
-        elif not fn.accepts(len(e.args)) or fn.name == "texture" \
+        elif not fn.accepts(len(e.args)) or fn.string_arg \
                 or (fn.appearance_only and scope.kind != "appearance"):
             return      # a malformed call's arguments are not looked at (one error is enough)
         for a in e.args:

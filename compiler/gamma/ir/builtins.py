@@ -68,6 +68,7 @@ class Builtin:
     spec: tuple[str, str] | None   # (function, value) cells of SPEC §11's table; None: see ``spec_section``
     appearance_only: bool = False  # gives a colour: only in appearance blocks
     spec_section: str = "11"
+    string_arg: bool = False       # its one argument is a string: a file name or a name in quotes
     #: the kind of each argument (KINDS, or "octaves": a constant whole number
     #: 1 .. MAX_OCTAVES); None: every argument is a number
     args: tuple[str, ...] | None = None
@@ -315,6 +316,10 @@ def _low_fbm(emit, call, args):
     return _low_unit(emit, emit.arith("/", acc, emit.const(total)))
 
 
+def _read_from_row(*_):
+    raise AssertionError("attribute() is read from the surfel row: the checker makes it a Load")
+
+
 BUILTINS: tuple[Builtin, ...] = (
     Builtin("min", 2, None, "float", _low_fold("min"), _ref_fold("min"),
             ("`min(a, b, …)`", "≥ 2 arguments, folded left: `pick(pick(a, b), c)`, where "
@@ -380,7 +385,18 @@ BUILTINS: tuple[Builtin, ...] = (
             lambda state, call, args: tuple(args), None, appearance_only=True, spec_section="8a"),
     Builtin("texture", 1, 1, "color", lambda emit, call, args: emit.texture(call.texture),
             lambda state, call, args: state.texture(call), None, appearance_only=True,
-            spec_section="8a"),
+            spec_section="8a", string_arg=True),
+    # a mask's luminance: in appearance blocks sampled at the point like texture() (its image is
+    # one of the effect's textures, luminance in every channel); in rules the checker reads the
+    # surfel's value from its row (a Load), so only the appearance form is lowered here
+    Builtin("mask", 1, 1, "float", lambda emit, call, args: emit.texture(call.texture)[0],
+            lambda state, call, args: state.texture(call)[0],
+            ('`mask("file.png")`', "the image's luminance in [0, 1] at the texture coordinates (§12a)"),
+            string_arg=True),
+    # a vertex attribute: always the surfel row's value (a Load), never lowered as a call
+    Builtin("attribute", 1, 1, "float", _read_from_row, _read_from_row,
+            ('`attribute("NAME")`', "the mesh's vertex attribute NAME interpolated at the point (§12a)"),
+            string_arg=True),
     # the scene's own colour: the slot after the effect's textures (``Call.texture``, set by the checker)
     Builtin("base_color", 0, 0, "color", lambda emit, call, args: emit.texture(call.texture),
             lambda state, call, args: state.texture(call), None, appearance_only=True,

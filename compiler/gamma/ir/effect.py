@@ -277,6 +277,8 @@ class Kernel(Record):
     rules: list = field(default_factory=list)   # the AST declaration of each body (warnings)
     random_sites: int = 0          # random() calls in all bodies (their sites are 0 .. this - 1)
     base_slot: int = 0             # appearance: the textures slot of the scene's base colour
+    inputs: list = field(default_factory=list)   # the effect's Input names ("mask:PATH", ...), row order
+    inputs_base: int = 0           # the row slot of the first input (after every surface's properties)
 
     @property
     def label(self) -> str:
@@ -308,6 +310,24 @@ class Kernel(Record):
 
 
 @record
+class Input(Record):
+    """A value a surfel reads from the scene once, at setup (SPEC §12a):
+    ``mask("file.png")`` (an image's luminance at the surfel's texture
+    coordinates) or ``attribute("NAME")`` (a vertex attribute of the mesh
+    interpolated at the surfel).  It is kept in the surfel's row at ``slot``,
+    after every surface's properties; rules read it there."""
+
+    kind: str                      # "mask" or "attribute"
+    key: str                       # the image's resolved path, or the attribute's name
+    slot: int
+    uses: list = field(default_factory=list)   # (Pos, SourceFile, surface name, as written)
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}:{self.key}"
+
+
+@record
 class Effect(Record):
     path: str
     source: str
@@ -319,7 +339,10 @@ class Effect(Record):
     warnings: list = field(default_factory=list)
     params: dict = field(default_factory=dict)
     assign: list = field(default_factory=list)   # (pattern, surface) from `assign` declarations
-    textures: list = field(default_factory=list) # image files read by texture(), in index order
+    textures: list = field(default_factory=list) # image files read by texture() and mask(), in index order
+    texture_kinds: list = field(default_factory=list)  # per texture: "color" (texture()) or "mask"
+    inputs: list = field(default_factory=list)   # Input: what surfels read from the scene at setup
+    mask_uses: list = field(default_factory=list)  # (Pos, SourceFile, surface name, path) of every mask()
     files: list = field(default_factory=list)    # the effect file and every file it imports
     overrides: dict = field(default_factory=dict) # --param values it was checked with (NAME or RECIPE.NAME)
 
@@ -401,7 +424,10 @@ def dump(effect: Effect) -> str:
         lines.append(f"source {src.name} {src.kind} ton #{src.ton} count {src.count} "
                      f"iterations {src.first}..{src.last or 'end'} {src.params}")
     for i, path in enumerate(effect.textures):
-        lines.append(f"texture <{i}> {path}")
+        kind = effect.texture_kinds[i] if i < len(effect.texture_kinds) else "color"
+        lines.append(f"texture <{i}> {path}" + ("  (mask: luminance)" if kind == "mask" else ""))
+    for item in effect.inputs:
+        lines.append(f"input {item.name} -> row slot {item.slot}")
     for k in effect.kernels:
         lines.append(f"kernel {k.label} -> {k.symbol}")
         for n, body in enumerate(k.bodies):
