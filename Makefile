@@ -15,7 +15,7 @@ APT_PACKAGES := g++ cmake ninja-build pkg-config python3-dev python3-venv \
 # ray: the optional extra (.[ray]); installed here so its tests run in CI
 # usd-core (< 26.8 keeps UsdUtils.ComplianceChecker; gammac export --format usd) and xatlas (the chart atlas)
 PY_PACKAGES := scikit-build-core nanobind lark llvmlite numpy pillow pytest hypothesis pygltflib ray coverage playwright \
-	'usd-core>=24.8,<26.8' 'xatlas==0.0.11' openexr
+	'usd-core>=24.8,<26.8' 'xatlas==0.0.11' openexr pypng
 # Blender 4.5 LTS as a module, the real client the export tests import into (tests/clients.py): it
 # needs Python 3.11 and numpy < 2, so it has a venv of its own rather than pinning the project's numpy
 BLENDER_VENV := .venv-blender

@@ -19,7 +19,7 @@ from gamma.frontend.parser import parse
 from test_kernels import HEADER, TRANSPORT, UPDATE, GammaContext, assert_hit_and_update_agree, set_key
 
 READS = ["t.a", "t.b", "s.p", "s.q", "s.reflectance.straight", "iteration", "interactions",
-         "height", "position.y", "normal.x", "direction.z"]
+         "height", "position.y", "normal.x", "direction.z", 'attribute("w")', 'attribute("flow.x")']
 SPECIAL = [0.0, -0.0, 1.0, -1.0, 0.5, 2.0, 1e-42, -1e-42, 3.4e38, float("inf"), float("-inf"),
            float("nan"), 1e-7, 123.25]
 
@@ -35,7 +35,8 @@ def floats(names):
         most = lambda name: 3 if FUNCTIONS[name].max_args is None else FUNCTIONS[name].max_args
         # built-ins of numbers (the vector ones have their own test, test_vectors.py)
         fn = st.sampled_from(sorted(n for n, f in FUNCTIONS.items()
-                                    if not f.appearance_only and f.args is None)).flatmap(
+                                    if not f.appearance_only and f.args is None
+                                    and not f.string_arg)).flatmap(
             lambda name: st.lists(inner, min_size=FUNCTIONS[name].min_args, max_size=most(name)).map(
                 lambda args: f"{name}({', '.join(args)})"))
         binary = st.tuples(inner, st.sampled_from("+-*/"), inner).map(lambda t: f"({t[0]} {t[1]} {t[2]})")
@@ -77,7 +78,7 @@ TRANSPORT_TARGETS = {"t.a": ["=", "+=", "-=", "*="], "t.b": ["=", "+="], "s.p": 
                      "s.q": ["+=", "-="]}
 UPDATE_TARGETS = {"s.p": ["=", "+=", "-=", "*="], "s.q": ["=", "*="],
                   "s.reflectance.straight": ["=", "-="]}
-UPDATE_READS = ["s.p", "s.q", "s.reflectance.straight", "iteration", "height", "position.z"]
+UPDATE_READS = ["s.p", "s.q", "s.reflectance.straight", "iteration", "height", "position.z", 'attribute("w")']
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -7,7 +7,8 @@ Each is one column of every surfel's row, after the properties
 tracing reads it like a property.  ``check`` refuses, with the call's file,
 line and column, a mask on a part without texture coordinates and an
 attribute that no part has.  Masks are read at full precision: 8- and
-16-bit PNG (grey or colour), anything imageio reads, OpenEXR.
+16-bit PNG, grey or colour (16-bit PNGs by pypng: Pillow, under imageio,
+reads 16-bit colour as 8 bits), anything else imageio reads, OpenEXR.
 """
 
 from __future__ import annotations
@@ -41,6 +42,19 @@ def _exr(path: Path) -> np.ndarray:
         return np.asarray(first.pixels, np.float32)
 
 
+def _png16(path: Path) -> np.ndarray | None:
+    """A 16-bit PNG's samples (uint16, height x width x channels), or None for another PNG."""
+    with open(path, "rb") as f:
+        head = f.read(26)
+    if head[:8] != b"\x89PNG\r\n\x1a\n" or head[24] != 16:
+        return None
+    import png
+
+    width, height, rows, info = png.Reader(filename=str(path)).asDirect()
+    image = np.vstack([np.asarray(row, np.uint16) for row in rows])
+    return image.reshape(height, width, info["planes"])
+
+
 def load_mask(path: str | Path) -> np.ndarray:
     """The image's luminance, float32 (height, width), values in [0, 1] for
     integer images (8 or 16 bits as stored), as stored for float images."""
@@ -48,6 +62,8 @@ def load_mask(path: str | Path) -> np.ndarray:
     try:
         if path.suffix.lower() == ".exr":
             image = _exr(path)
+        elif (image := _png16(path)) is not None:
+            pass
         else:
             import imageio.v3 as iio
 

@@ -45,6 +45,8 @@ def _ply_properties(path: Path, count: int) -> dict:
         data = mesh.metadata["_ply_raw"]["vertex"]["data"]
     except Exception:       # a file the runtime read but trimesh cannot: no attributes, said by the checks
         return {}
+    if not isinstance(data, dict):      # binary files: a structured array
+        data = {name: data[name] for name in data.dtype.names}
     found = {}
     for name, values in data.items():
         values = np.asarray(values).reshape(len(values), -1)
