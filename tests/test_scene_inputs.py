@@ -12,7 +12,6 @@ import json
 import struct
 
 import numpy as np
-import pytest
 from PIL import Image
 
 from conftest import run_gammac
