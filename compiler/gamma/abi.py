@@ -20,7 +20,7 @@ import sys
 
 #: Bumped whenever anything below changes; ``driver.runner.runtime_module``
 #: refuses a runtime built for another version.
-ABI_VERSION = 7
+ABI_VERSION = 8
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -137,11 +137,11 @@ def random_value(key: int, site: int) -> float:
 
 
 #: Source kinds the runtime emits from (``Config.add_source``'s first argument).
-SOURCE_KINDS = ("point", "spot", "rect", "disk", "directional", "sphere", "hemisphere")
+SOURCE_KINDS = ("point", "spot", "rect", "disk", "directional", "sphere", "hemisphere", "surface")
 
 #: Counts ``Simulation.trace`` reports per iteration, in the order summary.json lists them.
 STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions", "rays",
-              "bounces", "flow_steps", "drips", "segments")
+              "bounces", "flow_steps", "drips", "segments", "silent")
 
 #: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.
 BINDING = {

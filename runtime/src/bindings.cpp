@@ -84,6 +84,7 @@ nb::dict trace_stats_dict(const gammart::TraceStats& st) {
     d["bounces"] = st.bounces;
     d["drips"] = st.drips;
     d["segments"] = st.segments;
+    d["silent"] = st.silent;
     d["trace_seconds"] = st.trace_seconds;
     d["log_records_peak"] = st.log_records_peak;
     d["nonfinite"] = nonfinite_list(st.nonfinite);
@@ -117,6 +118,7 @@ gammart::TraceStats trace_stats_from(nb::handle obj) {
     st.bounces = nb::cast<int64_t>(d["bounces"]);
     st.drips = nb::cast<int64_t>(d["drips"]);
     st.segments = nb::cast<int64_t>(d["segments"]);
+    st.silent = d.contains("silent") ? nb::cast<int64_t>(d["silent"]) : 0;
     for (nb::handle item : nb::cast<nb::list>(d["nonfinite"])) {
         auto t = nb::cast<nb::tuple>(item);
         gammart::count_nonfinite(st.nonfinite, nb::cast<int>(t[0]), nb::cast<int>(t[1]), nb::cast<int>(t[2]),
@@ -342,7 +344,8 @@ NB_MODULE(_runtime, m) {
             "add_source",
             [](gammart::Config& c, std::string kind, int ton_type, int64_t count, std::array<float, 3> position,
                std::array<float, 3> direction, float angle_deg, float falloff, std::array<float, 2> size,
-               float radius, std::string emission, int first_iteration, int last_iteration, float strength) {
+               float radius, std::string emission, int first_iteration, int last_iteration, float strength,
+               int surface, bool along_normal, uint64_t weight_kernel) {
                 gammart::Source s;
                 s.kind = std::move(kind);
                 s.ton_type = ton_type;
@@ -357,12 +360,16 @@ NB_MODULE(_runtime, m) {
                 s.first_iteration = first_iteration;
                 s.last_iteration = last_iteration;
                 s.strength = strength;
+                s.surface = surface;
+                s.along_normal = along_normal;
+                s.weight_kernel = weight_kernel;
                 return c.add_source(std::move(s));
             },
             "kind"_a, "ton_type"_a, "count"_a, "position"_a = std::array<float, 3>{0, 0, 0},
             "direction"_a = std::array<float, 3>{0, -1, 0}, "angle_deg"_a = 0.0f, "falloff"_a = 0.0f,
             "size"_a = std::array<float, 2>{0, 0}, "radius"_a = 0.0f, "emission"_a = "parallel",
-            "first_iteration"_a = 1, "last_iteration"_a = 0, "strength"_a = 0.0f)
+            "first_iteration"_a = 1, "last_iteration"_a = 0, "strength"_a = 0.0f, "surface"_a = -1,
+            "along_normal"_a = false, "weight_kernel"_a = uint64_t(0))
         .def("set_transport", &gammart::Config::set_transport, "event"_a, "ton_type"_a, "surface"_a, "address"_a,
              "writes_surface"_a)
         .def("set_update", &gammart::Config::set_update, "surface"_a, "address"_a)

@@ -9,9 +9,15 @@
 #include <cstring>
 #include <string>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include "gamma/error.h"
+#include "gamma/kernel_table.h"
 #include "gamma/libm_sincos8.h"
 #include "gamma/sampling.h"
+#include "gamma/threads.h"
+#include "gamma/update_pass.h"
 
 namespace gammart {
 
@@ -45,8 +51,9 @@ std::vector<SourceRt> build_sources(const Config& c, const SceneFrame& frame) {
         else if (s.kind == "directional") r.kind = SourceKind::Directional;
         else if (s.kind == "sphere") r.kind = SourceKind::Sphere;
         else if (s.kind == "hemisphere") r.kind = SourceKind::Hemisphere;
+        else if (s.kind == "surface") r.kind = SourceKind::Surface;
         else fail(at + "unknown source kind '" + s.kind +
-                  "' (expected point, spot, rect, disk, directional, sphere or hemisphere)");
+                  "' (expected point, spot, rect, disk, directional, sphere, hemisphere or surface)");
         if (s.emission == "parallel") r.emission = Emission::Parallel;
         else if (s.emission == "uniform") r.emission = Emission::Uniform;
         else if (s.emission == "cosine") r.emission = Emission::Cosine;
@@ -66,7 +73,8 @@ std::vector<SourceRt> build_sources(const Config& c, const SceneFrame& frame) {
             fail(at + "last_iteration " + std::to_string(s.last_iteration) + " is before first_iteration " +
                  std::to_string(s.first_iteration));
         const bool directed = r.kind == SourceKind::Spot || r.kind == SourceKind::Rect ||
-                              r.kind == SourceKind::Disk || r.kind == SourceKind::Directional;
+                              r.kind == SourceKind::Disk || r.kind == SourceKind::Directional ||
+                              (r.kind == SourceKind::Surface && !s.along_normal);
         if (directed && !nonzero3(s.direction)) fail(at + "direction is the zero vector");
         r.pos = to_v3(s.position);
         r.dir = directed ? unit(s.direction) : V3{0, -1, 0};
@@ -92,6 +100,14 @@ std::vector<SourceRt> build_sources(const Config& c, const SceneFrame& frame) {
         if (r.kind == SourceKind::Disk) {
             if (!(s.radius > 0)) fail(at + "radius must be positive");
             r.radius = s.radius;
+        }
+        if (r.kind == SourceKind::Surface) {
+            if (s.surface < 0 || s.surface >= int(c.surface_rows.size()))
+                fail(at + "surface index " + std::to_string(s.surface) + " out of range");
+            r.surface = s.surface;
+            r.along_normal = s.along_normal;
+            r.weight_kernel = s.weight_kernel;
+            r.offset = 10.0f * frame.eps;   // off the surface, past the rays' own offset
         }
         if (r.kind == SourceKind::Directional) {
             float umin = INFINITY, umax = -INFINITY, vmin = INFINITY, vmax = -INFINITY;
@@ -123,8 +139,37 @@ void emit_environment(V3 centre, float radius, V3 up, PhiloxStream& rng, bool up
     dir = cosine_hemisphere(o * -1.0f, a, b);
 }
 
+namespace {
+
+// A surfel of the source's table, picked by one draw, and a direction about
+// its axis: 1 + the emission's draws.
+void emit_from_surface(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir) {
+    const SurfaceEmitters& t = *s.table;
+    const double x = double(rng.next()) * t.total();
+    size_t k = size_t(std::upper_bound(t.cdf.begin(), t.cdf.end(), x) - t.cdf.begin());
+    k = std::min(std::max<size_t>(k, 1), t.surfel.size()) - 1;
+    while (k > 0 && !(t.cdf[k + 1] > t.cdf[k])) --k;     // never a surfel of weight 0
+    const size_t i = t.surfel[k];
+    const V3 p{s.positions[3 * i], s.positions[3 * i + 1], s.positions[3 * i + 2]};
+    const V3 n{s.normals[3 * i], s.normals[3 * i + 1], s.normals[3 * i + 2]};
+    const V3 axis = s.along_normal ? n : s.dir;
+    // start on the side of the surface the gamma-ton leaves to
+    const V3 side = dot(n, axis) < 0.0f ? n * -1.0f : n;
+    org = p + side * s.offset;
+    switch (s.emission) {
+        case Emission::Parallel: dir = axis; return;
+        case Emission::Uniform: { float a = rng.next(), b = rng.next(); dir = uniform_hemisphere(axis, a, b); return; }
+        case Emission::Cosine: { float a = rng.next(), b = rng.next(); dir = cosine_hemisphere(axis, a, b); return; }
+    }
+}
+
+}  // namespace
+
 void emit(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir) {
     switch (s.kind) {
+        case SourceKind::Surface:
+            emit_from_surface(s, rng, org, dir);
+            return;
         case SourceKind::Point: {
             org = s.pos;
             float a = rng.next(), b = rng.next();
@@ -319,11 +364,58 @@ void emit_run(const SourceRt& s, uint64_t seed, uint32_t iteration, int64_t firs
     }
 }
 
-EmissionSchedule schedule(const std::vector<Source>& sources, int iteration) {
+std::vector<SurfaceEmitters> surface_emitters(const std::vector<SourceRt>& sources, const SurfelState& state,
+                                              const SceneFrame& frame, int iteration, uint64_t seed, int threads) {
+    std::vector<SurfaceEmitters> tables(sources.size());
+    const size_t n = state.size();
+    const int W = state.width;
+    for (size_t si = 0; si < sources.size(); ++si) {
+        const SourceRt& s = sources[si];
+        if (s.kind != SourceKind::Surface) continue;
+        SurfaceEmitters& t = tables[si];
+        t.surface_source = true;
+        for (size_t i = 0; i < n; ++i)
+            if (state.surface[i] == s.surface) t.surfel.push_back(uint32_t(i));
+        std::vector<float> weight(t.surfel.size(), 1.0f);
+        if (s.weight_kernel != 0) {
+            const auto fn = reinterpret_cast<GammaUpdateKernel>(s.weight_kernel);
+            const uint64_t key = mix64(mix64(seed ^ 0x5EED5EED5EED5EEDULL ^ uint64_t(si)) ^ uint64_t(uint32_t(iteration)));
+            run_with_threads(threads, [&] {
+                tbb::parallel_for(tbb::blocked_range<size_t>(0, t.surfel.size(), 4096),
+                                  [&](const tbb::blocked_range<size_t>& r) {
+                    std::vector<float> row(size_t(W) + 1);
+                    GammaContext ctx;
+                    for (size_t k = r.begin(); k < r.end(); ++k) {
+                        const size_t i = t.surfel[k];
+                        std::copy(state.row(i), state.row(i) + W, row.begin());
+                        row[size_t(W)] = 0.0f;
+                        surfel_context(state, frame, i, iteration, ctx);
+                        set_random_key(ctx, mix64(key ^ uint64_t(i)));
+                        fn(row.data(), &ctx);
+                        const float w = row[size_t(W)];
+                        weight[k] = std::isfinite(w) && w > 0.0f ? w : 0.0f;
+                    }
+                });
+            });
+        }
+        t.cdf.resize(t.surfel.size() + 1);
+        for (size_t k = 0; k < t.surfel.size(); ++k) t.cdf[k + 1] = t.cdf[k] + double(weight[k]);
+    }
+    return tables;
+}
+
+std::vector<uint8_t> silent_sources(const std::vector<SurfaceEmitters>& tables) {
+    std::vector<uint8_t> silent(tables.size(), 0);
+    for (size_t i = 0; i < tables.size(); ++i) silent[i] = tables[i].surface_source && !(tables[i].total() > 0.0);
+    return silent;
+}
+
+EmissionSchedule schedule(const std::vector<Source>& sources, int iteration, const std::vector<uint8_t>& silent) {
     EmissionSchedule e;
     for (size_t i = 0; i < sources.size(); ++i) {
         const Source& s = sources[i];
         if (iteration < s.first_iteration || (s.last_iteration != 0 && iteration > s.last_iteration)) continue;
+        if (i < silent.size() && silent[i]) continue;
         e.active.push_back(i);
         e.start.push_back(e.start.back() + s.count);
     }

@@ -28,6 +28,7 @@ void TraceStats::add(const TraceStats& o) {
     bounces += o.bounces;
     drips += o.drips;
     segments += o.segments;
+    silent += o.silent;
     for (const NonFinite& nf : o.nonfinite)
         count_nonfinite(nonfinite, nf.event, nf.ton_type, nf.surface, nf.statement, nf.count);
     if (mass.size() < o.mass.size()) mass.resize(o.mass.size());

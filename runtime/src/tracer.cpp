@@ -40,13 +40,29 @@ int64_t trace_batch_chunks(const Config& c) {
 Tracer::Tracer(const Config& c, const KernelTable& kernels, const std::vector<SourceRt>& sources)
     : cfg_(c), kernels_(kernels), sources_(sources), max_carry_(max_carry(c)) {}
 
-int64_t Tracer::num_chunks(int iteration) const {
-    return (schedule(cfg_.sources, iteration).total() + kChunkSize - 1) / kChunkSize;
+Tracer::Emission Tracer::emission(int iteration, const SurfelState& state, const SceneFrame& frame) const {
+    Emission e;
+    bool any_surface = false;
+    for (const SourceRt& s : sources_) any_surface = any_surface || s.kind == SourceKind::Surface;
+    if (any_surface) {
+        e.tables = surface_emitters(sources_, state, frame, iteration, cfg_.seed, cfg_.threads);
+        e.silent = silent_sources(e.tables);
+        const EmissionSchedule all = schedule(cfg_.sources, iteration);
+        for (size_t k = 0; k < all.active.size(); ++k)
+            if (e.silent[all.active[k]]) e.silent_tons += all.start[k + 1] - all.start[k];
+    }
+    e.sched = schedule(cfg_.sources, iteration, e.silent);
+    return e;
+}
+
+int64_t Tracer::num_chunks(int iteration, const SurfelState& state, const SceneFrame& frame) const {
+    return (emission(iteration, state, frame).sched.total() + kChunkSize - 1) / kChunkSize;
 }
 
 TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state) {
     const auto t0 = std::chrono::steady_clock::now();
-    const int64_t nchunks = num_chunks(iteration);
+    const Emission plan = emission(iteration, state, frame);
+    const int64_t nchunks = (plan.sched.total() + kChunkSize - 1) / kChunkSize;
     const int P = state.width - GAMMA_ROW_HEADER;
     // Chunks are traced in batches and each batch's logs summed before the
     // next: the logs held at once are those of one batch, whatever the pass's
@@ -88,13 +104,14 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
                            &state.splat);
         }
     });
+    total_st.silent = plan.silent_tons;
     total_st.trace_seconds = seconds_since(t0);
     return total_st;
 }
 
 std::vector<ChunkLog> Tracer::trace_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
                                            const SceneFrame& frame, const SurfelState& state) const {
-    const int64_t nchunks = num_chunks(iteration);
+    const int64_t nchunks = num_chunks(iteration, state, frame);
     if (first < 0 || last > nchunks || first > last)
         throw Error("trace_chunks: chunks [" + std::to_string(first) + ", " + std::to_string(last) +
                     ") are not within the " + std::to_string(nchunks) + " chunks of iteration " +
@@ -104,21 +121,24 @@ std::vector<ChunkLog> Tracer::trace_chunks(int iteration, int64_t first, int64_t
     return logs;
 }
 
-TraceStats Tracer::merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state) {
-    const int64_t nchunks = num_chunks(iteration);
+TraceStats Tracer::merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state,
+                                 const SceneFrame& frame) {
+    const int64_t nchunks = num_chunks(iteration, state, frame);
     if (int64_t(logs.size()) != nchunks)
         throw Error("merge_chunks: iteration " + std::to_string(iteration) + " has " + std::to_string(nchunks) +
                     " chunks, not " + std::to_string(logs.size()));
-    merge_begin(iteration);
+    merge_begin(iteration, state, frame);
     merge_add(logs, state);
     return merge_end(state);
 }
 
-void Tracer::merge_begin(int iteration) {
+void Tracer::merge_begin(int iteration, const SurfelState& state, const SceneFrame& frame) {
     const auto t0 = std::chrono::steady_clock::now();
     batched_ = BatchedMerge{};
     batched_.iteration = iteration;
-    batched_.nchunks = num_chunks(iteration);
+    const Emission plan = emission(iteration, state, frame);
+    batched_.nchunks = (plan.sched.total() + kChunkSize - 1) / kChunkSize;
+    batched_.silent = plan.silent_tons;
     batched_.st.mass.assign(cfg_.mass_properties.size(), MassBooks{});
     batched_.active = true;
     batched_.seconds = seconds_since(t0);
@@ -176,6 +196,7 @@ TraceStats Tracer::merge_end(SurfelState& state) {
                        &state.splat);
     }
     TraceStats st = std::move(m.st);
+    st.silent = m.silent;
     st.trace_seconds = m.seconds + seconds_since(t0);
     return st;
 }
@@ -214,7 +235,16 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
     const KernelTable& K = kernels_;
     const int W = state.width;
     const int P = W - GAMMA_ROW_HEADER;  // property columns
-    const EmissionSchedule sched = schedule(c.sources, iteration);
+    const Emission plan = emission(iteration, state, frame);
+    const EmissionSchedule& sched = plan.sched;
+    // surface sources emit from this iteration's table of their surfels
+    std::vector<SourceRt> sources = sources_;
+    for (size_t i = 0; i < sources.size(); ++i)
+        if (sources[i].kind == SourceKind::Surface) {
+            sources[i].table = &plan.tables[i];
+            sources[i].positions = state.surf.position.data();
+            sources[i].normals = state.surf.normal.data();
+        }
     const std::vector<int64_t>& start = sched.start;
     const int64_t total = sched.total();
     const float* rows = state.rows.data();
@@ -460,7 +490,7 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                 while (g >= start[a + 1]) ++a;
                 const int64_t run_end = std::min(g1, start[a + 1]);
                 const size_t n_run = size_t(run_end - g);
-                emit_run(sources_[sched.active[a]], seed, iter_u, g, n_run, run_rng.data(), run_org.data(),
+                emit_run(sources[sched.active[a]], seed, iter_u, g, n_run, run_rng.data(), run_org.data(),
                          run_dir.data());
                 for (size_t i = 0; i < n_run; ++i) {
                     Emitted& e = group[g - g0 + int64_t(i)];

@@ -12,6 +12,23 @@
 
 namespace gammart {
 
+void surfel_context(const SurfelState& state, const SceneFrame& frame, size_t i, int iteration, GammaContext& ctx) {
+    for (int k = 0; k < 3; ++k) {
+        ctx.position[k] = state.surf.position[3 * i + size_t(k)];
+        ctx.normal[k] = state.surf.normal[3 * i + size_t(k)];
+        ctx.direction[k] = 0.0f;
+    }
+    ctx.height = dot(V3{ctx.position[0], ctx.position[1], ctx.position[2]}, frame.up) - frame.min_up;
+    ctx.iteration = iteration;
+    ctx.interactions = 0;
+    const SurfelMeasures& m = state.measures;
+    ctx.uv[0] = m.uv.empty() ? 0.0f : m.uv[2 * i];
+    ctx.uv[1] = m.uv.empty() ? 0.0f : m.uv[2 * i + 1];
+    ctx.up[0] = frame.up.x; ctx.up[1] = frame.up.y; ctx.up[2] = frame.up.z;
+    ctx.accessibility = m.accessibility.empty() ? 0.0f : m.accessibility[i];
+    ctx.curvature = m.curvature.empty() ? 0.0f : m.curvature[i];
+}
+
 UpdateStats run_update_pass(const KernelTable& K, const SceneFrame& frame, SurfelState& state, int iteration,
                             uint64_t seed, int threads) {
     const auto t0 = std::chrono::steady_clock::now();
@@ -32,20 +49,7 @@ UpdateStats run_update_pass(const KernelTable& K, const SceneFrame& frame, Surfe
             for (size_t i = r.begin(); i < r.end(); ++i) {
                 GammaUpdateKernel fn = K.update[size_t(state.surface[i])];
                 if (!fn) continue;
-                for (int k = 0; k < 3; ++k) {
-                    ctx.position[k] = state.surf.position[3 * i + size_t(k)];
-                    ctx.normal[k] = state.surf.normal[3 * i + size_t(k)];
-                    ctx.direction[k] = 0.0f;
-                }
-                ctx.height = dot(V3{ctx.position[0], ctx.position[1], ctx.position[2]}, frame.up) - frame.min_up;
-                ctx.iteration = iteration;
-                ctx.interactions = 0;
-                const SurfelMeasures& m = state.measures;
-                ctx.uv[0] = m.uv.empty() ? 0.0f : m.uv[2 * i];
-                ctx.uv[1] = m.uv.empty() ? 0.0f : m.uv[2 * i + 1];
-                ctx.up[0] = frame.up.x; ctx.up[1] = frame.up.y; ctx.up[2] = frame.up.z;
-                ctx.accessibility = m.accessibility.empty() ? 0.0f : m.accessibility[i];
-                ctx.curvature = m.curvature.empty() ? 0.0f : m.curvature[i];
+                surfel_context(state, frame, i, iteration, ctx);
                 set_random_key(ctx, mix64(iteration_key ^ uint64_t(i)));
                 if (int32_t bad = fn(rows + i * size_t(W), &ctx))
                     count_nonfinite(local, -1, 0, state.surface[i], bad);

@@ -55,6 +55,8 @@ def _row_layout(kernel: Kernel) -> dict[str, int]:
     # mask() and attribute() values follow every surface's properties, in the effect's order
     for i, name in enumerate(kernel.inputs):
         layout[name] = kernel.inputs_base + i
+    if kernel.event == "weight":        # a surface source's weight: the slot after the row
+        layout["weight"] = kernel.inputs_base + len(kernel.inputs)
     return layout
 
 

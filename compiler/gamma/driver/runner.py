@@ -135,6 +135,10 @@ def source_arguments(src: Source, lo, hi, diagonal: float, down) -> dict:
         args["radius"] = p["radius"].resolve(diagonal)
     if "emission" in p:
         args["emission"] = p["emission"]
+    if src.kind == "surface":           # the surface's index and the weight kernel's are added by build_config
+        args["along_normal"] = p["direction"] == "normal"
+        if p["direction"] == "normal":
+            del args["direction"]
     return args
 
 
@@ -164,6 +168,10 @@ def build_config(rt, effect: Effect, kernels, opts: "RunOptions", bounds, down):
             problem = budget.distance_problem(f"source '{src.name}'", args["position"], (lo + hi) / 2, diagonal)
             if problem:
                 raise RunError(problem)
+        if src.kind == "surface":
+            args["surface"] = effect.surfaces[src.params["surface"]].index
+            weight = src.params.get("weight")
+            args["weight_kernel"] = kernels.address[weight.symbol] if weight is not None else 0
         cfg.add_source(src.kind, src.ton, count, **args)
     for k in effect.transport_kernels():
         cfg.set_transport(abi.EVENTS[k.event], k.ton.index, k.surface.index,
@@ -525,7 +533,9 @@ class Run(Record):
         self.nonfinite.add(it, traced["nonfinite"], updated["nonfinite"])
         rows = self.sim.rows()
         props = property_columns(self.effect, rows, self.surfel_surface)
-        record = {k: traced[k] for k in abi.STATISTICS if k in traced}
+        # "silent" (γ-tons of surface sources whose weights were all 0) only where such sources are
+        record = {k: traced[k] for k in abi.STATISTICS
+                  if k in traced and (k != "silent" or any(s.kind == "surface" for s in self.effect.sources))}
         record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
                                    for name, col in props.items()}
         record["trace_seconds"] = traced["trace_seconds"]

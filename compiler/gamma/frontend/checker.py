@@ -25,13 +25,13 @@ from .. import abi
 from ..ir import effect as ir
 import dataclasses
 
-from ..ir.builtins import (FUNCTIONS, MAX_OCTAVES, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS,
+from ..ir.builtins import (CONTEXT_VALUES, FUNCTIONS, MAX_OCTAVES, REQUIRED, SHAPED_KINDS, SOURCE_KINDS, SOURCE_PARAMS,
                            VECTOR_COMPONENTS, context_kind)
 from ..ir.float32 import arith_f32, round_f32
 from ..ir.effect import Effect, Input, Kernel, Length, Place, Source, Surface, TonType
 from . import ast as A
 from .diagnostics import Report, did_you_mean
-from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, constant, declared,
+from .resolve import (MOTION_NAMES, Program, Scope, Unit, UsageError, bind, bind_expression, constant, declared,
                       path_problem, shown_path, stdlib_dir)
 from .filefacts import is_file, resolved
 
@@ -111,6 +111,8 @@ class _Checker:
             elif isinstance(d, A.SurfaceDecl) and declare(d.name, d.pos, "surface"):
                 surfaces[d.name] = self.surface(d, len(surfaces))
         self.inputs_base = abi.ROW_HEADER + max((len(s.properties) for s in surfaces.values()), default=0)
+        self.surfaces = surfaces
+        self.weight_kernels: list[Kernel] = []   # surface sources' weights, slot fixed at the end
         sources = []
         for unit, d in decls:
             self.unit = unit
@@ -139,6 +141,11 @@ class _Checker:
         if program.unknown_overrides:
             raise UsageError(program.unknown_overrides[0])
         width = self.inputs_base + len(self.inputs)
+        for kernel in self.weight_kernels:      # the weight goes in the slot after the row
+            for body in kernel.bodies:
+                body[:] = [dataclasses.replace(st, target=dataclasses.replace(st.target, slot=width))
+                           for st in body]
+            kernels[("weight", kernel.source)] = kernel
         self.report.raise_errors(self.module.path, self.module.source)
         effect = Effect(self.module.path, self.module.source, tons, surfaces, sources,
                         list(kernels.values()), width)
@@ -307,6 +314,19 @@ class _Checker:
             return self.direction(e, what)
         if kind_of_value == "length":
             return self.length(e, what)
+        if kind_of_value == "surface":
+            name = e.parts[0] if isinstance(e, A.Ref) and len(e.parts) == 1 else None
+            if name in self.surfaces:
+                return name
+            self.error(e.pos, f"{what} must be a surface of the effect"
+                       + (did_you_mean(name, self.surfaces) if name else ""))
+            return None
+        if kind_of_value == "axis":
+            if isinstance(e, A.Ref) and e.parts == ["normal"]:
+                return "normal"
+            return self.direction(e, what + " (normal, down, up or (x, y, z))")
+        if kind_of_value == "weight":
+            return e                    # an expression of the surfel, typed by surface_source_weight
         if kind_of_value == "size2":
             if isinstance(e, A.Vector) and len(e.items) == 2:
                 sizes = [self.length(a, what) for a in e.items]
@@ -429,7 +449,36 @@ class _Checker:
         if not ok or params is None or count is None or first is None or last is None:
             return None
         kind = params.get("shape", d.kind) if d.kind in SHAPED_KINDS else d.kind
+        if kind == "surface":
+            weight = params["weight"]
+            params["weight"] = None if weight is None else self.surface_source_weight(d, params["surface"], weight)
+            if weight is not None and params["weight"] is None:
+                return None
         return Source(d.name, kind, ton.index, int(count), params, first or 1, last, d, strength)
+
+    def surface_source_weight(self, d: A.SourceDecl, surface: str, e: A.Expr) -> Kernel | None:
+        """The kernel of a surface source's ``weight``: an update-shaped kernel
+        over the surfel's row (``s.NAME``) that stores the weight after it."""
+        for ref in _refs(e):
+            head = ref.parts[0]
+            if head != "s" and len(ref.parts) > 1 and head not in CONTEXT_VALUES:
+                self.error(ref.pos, f"the weight of a surface source is worked out for each surfel before "
+                           f"any γ-ton leaves, so it cannot read '{'.'.join(ref.parts)}'; "
+                           "it reads the surfel as s.NAME")
+                return None
+        surf = self.surfaces[surface]
+        scope = Scope("update", None, None, "s", surf, self.unit)
+        kernel = Kernel("weight", None, surf, source=d.name)
+        before = len(self.report.errors)
+        typer = _Typer(self, scope, bind_expression(scope, e, self.report), kernel)
+        value = typer.want(e, {}, "float")
+        if value is None or len(self.report.errors) > before:
+            return None
+        target = ir.Var("surf", "weight", 0, text=f"weight of {d.name}")
+        kernel.bodies.append([ir.Store(target, "=", value, 1, e.pos, self.unit.path)])
+        kernel.random_sites = typer.sites
+        self.weight_kernels.append(kernel)
+        return kernel
 
 
     # -- rules --
@@ -497,6 +546,19 @@ class _Checker:
             item = self.inputs[name] = Input(kind, key, self.inputs_base + len(self.inputs))
         item.uses.append((pos, self.unit.file, surface, text))
         return item
+
+
+def _refs(e) -> list:
+    """Every name (A.Ref) in an expression."""
+    if isinstance(e, A.Ref):
+        return [e]
+    found = []
+    for f in dataclasses.fields(e) if dataclasses.is_dataclass(e) else ():
+        value = getattr(e, f.name)
+        for item in value if isinstance(value, list) else [value]:
+            if dataclasses.is_dataclass(item) and not isinstance(item, A.Pos):
+                found += _refs(item)
+    return found
 
 
 KIND_NAMES = {"float": "a number", "bool": "a truth value (a comparison)", "color": "a colour",

@@ -339,6 +339,13 @@ def bind(scope: Scope, body: list, report: Report) -> Bindings:
     return bindings
 
 
+def bind_expression(scope: Scope, e: A.Expr, report: Report) -> Bindings:
+    """Bind every name of one expression (a surface source's weight)."""
+    bindings: Bindings = {}
+    _bind_expr(scope, e, report, bindings, frozenset())
+    return bindings
+
+
 def _bind_body(scope: Scope, body: list, report: Report, bindings: Bindings, lets: frozenset) -> None:
     error = lambda pos, message: report.error(pos, message, scope.unit.file)
     for st in body:

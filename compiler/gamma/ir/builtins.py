@@ -465,6 +465,10 @@ SOURCE_PARAMS = {
              ("emission", ("parallel", "uniform", "cosine"), "parallel")),
     "directional": (("direction", "direction", "down"),),
     "environment": (("shape", ("sphere", "hemisphere"), REQUIRED),),
+    # γ-tons leave the surfels of a surface of the effect (SPEC §6): `direction` is the axis,
+    # `normal` each surfel's own; `weight` an expression of the surfel (s.NAME), per iteration
+    "surface": (("surface", "surface", REQUIRED), ("direction", "axis", "normal"),
+                ("emission", ("parallel", "uniform", "cosine"), "parallel"), ("weight", "weight", None)),
 }
 SOURCE_KINDS = tuple(SOURCE_PARAMS)
 #: The language kinds whose ``shape`` argument is the runtime's kind.

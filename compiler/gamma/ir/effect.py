@@ -279,9 +279,12 @@ class Kernel(Record):
     base_slot: int = 0             # appearance: the textures slot of the scene's base colour
     inputs: list = field(default_factory=list)   # the effect's Input names ("mask:PATH", ...), row order
     inputs_base: int = 0           # the row slot of the first input (after every surface's properties)
+    source: str | None = None      # a surface source's weight kernel (event "weight"): the source's name
 
     @property
     def label(self) -> str:
+        if self.event == "weight":
+            return f"weight of source {self.source}"
         if self.ton is None:
             return f"{self.event}({self.surface.name})"
         return f"on {self.event}({self.ton.name}, {self.surface.name})"
@@ -289,6 +292,8 @@ class Kernel(Record):
     @property
     def symbol(self) -> str:
         # '.' cannot occur in a name, so symbols never collide
+        if self.event == "weight":
+            return f"gamma.weight.{self.source}"
         if self.ton is None:
             return f"gamma.{self.event}.{self.surface.name}"
         return f"gamma.{self.event}.{self.ton.name}.{self.surface.name}"
@@ -367,6 +372,11 @@ class Effect(Record):
     def appearance_kernels(self) -> list[Kernel]:
         return [k for k in self.kernels if k.event == "appearance"]
 
+    def weight_kernels(self) -> list[Kernel]:
+        """Surface sources' weights: update-shaped kernels that store the
+        surfel's weight in the slot after its row (``row_width``)."""
+        return [k for k in self.kernels if k.event == "weight"]
+
 
 # ---- printing -------------------------------------------------------------------------
 
@@ -421,8 +431,9 @@ def dump(effect: Effect) -> str:
     for s in effect.surfaces.values():
         lines.append(f"surface {s.name} #{s.index} properties {s.properties} initial row {s.initial_row}")
     for src in effect.sources:
+        params = {k: (v.symbol if isinstance(v, Kernel) else v) for k, v in src.params.items()}
         lines.append(f"source {src.name} {src.kind} ton #{src.ton} count {src.count} "
-                     f"iterations {src.first}..{src.last or 'end'} {src.params}")
+                     f"iterations {src.first}..{src.last or 'end'} {params}")
     for i, path in enumerate(effect.textures):
         kind = effect.texture_kinds[i] if i < len(effect.texture_kinds) else "color"
         lines.append(f"texture <{i}> {path}" + ("  (mask: luminance)" if kind == "mask" else ""))

@@ -22,7 +22,7 @@ struct TonType {
 };
 
 struct Source {
-    std::string kind;  // point | spot | rect | disk | directional | sphere | hemisphere
+    std::string kind;  // point | spot | rect | disk | directional | sphere | hemisphere | surface
     int ton_type = 0;
     int64_t count = 0;
     std::array<float, 3> position{0, 0, 0};
@@ -35,6 +35,9 @@ struct Source {
     int first_iteration = 1;          // active in first..last (inclusive)
     int last_iteration = 0;           // 0 = no end
     float strength = 0;               // > 0: gamma-tons weigh strength * surfels / count (SPEC 13.2); 0: weight 1
+    int surface = -1;                 // surface: the surface whose surfels emit
+    bool along_normal = false;        // surface: each surfel's normal is the axis (else `direction`)
+    uint64_t weight_kernel = 0;       // surface: GammaUpdateKernel storing the weight at row slot W (0: 1)
 };
 
 struct TransportEntry {

@@ -78,19 +78,19 @@ public:
     TraceStats trace(int iteration);
     // trace() in pieces (see Tracer::trace_chunks): the driver of a
     // distributed run merges the chunks its workers traced.
-    int64_t num_chunks(int iteration) const { return tracer_->num_chunks(iteration); }
+    int64_t num_chunks(int iteration) const { return tracer_->num_chunks(iteration, state_, frame_); }
     std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last) const {
         return tracer_->trace_chunks(iteration, first, last, *index_, frame_, state_);
     }
     TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs) {
         shape_.begin_iteration(state_);  // as trace(): the rows before this iteration's deposits
-        return tracer_->merge_chunks(iteration, logs, state_);
+        return tracer_->merge_chunks(iteration, logs, state_, frame_);
     }
     // merge_chunks in batches (see Tracer::merge_begin): a driver merges
     // chunks as they arrive, holding one batch of logs at a time.
     void merge_begin(int iteration) {
         shape_.begin_iteration(state_);  // the rows stay those before this iteration's deposits until merge_end
-        tracer_->merge_begin(iteration);
+        tracer_->merge_begin(iteration, state_, frame_);
     }
     void merge_add(const std::vector<ChunkLog>& logs) { tracer_->merge_add(logs, state_); }
     TraceStats merge_end() { return tracer_->merge_end(state_); }

@@ -8,11 +8,12 @@
 #include "gamma/config.h"
 #include "gamma/philox.h"
 #include "gamma/scene_index.h"
+#include "gamma/surfel_state.h"
 #include "gamma/vec.h"
 
 namespace gammart {
 
-enum class SourceKind { Point, Spot, Rect, Disk, Directional, Sphere, Hemisphere };
+enum class SourceKind { Point, Spot, Rect, Disk, Directional, Sphere, Hemisphere, Surface };
 enum class Emission { Parallel, Uniform, Cosine };
 
 // Source with everything precomputed in scene units.
@@ -24,7 +25,37 @@ struct SourceRt {
     float u0 = 0, du = 0, v0 = 0, dv = 0;  // directional: projected bbox rectangle
     V3 env_centre, env_up;      // sphere / hemisphere: bbox centre and up
     float env_radius = 1;
+    // surface: the emitting surface, the axis (each surfel's normal, or dir), the
+    // weight kernel, how far off the surface gamma-tons start, and during a pass
+    // the iteration's table of surfels (surface_emitters) and the surfels' places
+    int surface = -1;
+    bool along_normal = false;
+    uint64_t weight_kernel = 0;
+    float offset = 0;
+    const struct SurfaceEmitters* table = nullptr;
+    const float* positions = nullptr;
+    const float* normals = nullptr;
 };
+
+// A surface source's surfels in one iteration: surfel[k] is picked with
+// probability (cdf[k + 1] - cdf[k]) / total (its weight; every surfel stands
+// for the same area, SPEC 13.2).  total 0: the source is silent this iteration.
+struct SurfaceEmitters {
+    bool surface_source = false;        // false: the source is of another kind (no table)
+    std::vector<uint32_t> surfel;
+    std::vector<double> cdf{0.0};
+    double total() const { return cdf.back(); }
+};
+
+// Every source's table for `iteration` (empty for the sources that are not
+// surface sources): the weight kernels run on a copy of each surfel's row as
+// it is at the iteration's start, in parallel; the sums are formed in surfel
+// order, so the tables do not depend on the thread count.  A weight that is
+// not a positive finite number counts as 0.
+std::vector<SurfaceEmitters> surface_emitters(const std::vector<SourceRt>& sources, const SurfelState& state,
+                                              const SceneFrame& frame, int iteration, uint64_t seed, int threads);
+// Which sources emit nothing in `iteration` although active: surface sources whose weights are all 0.
+std::vector<uint8_t> silent_sources(const std::vector<SurfaceEmitters>& tables);
 
 // Validates c.sources (throws gammart::Error naming the source) and
 // precomputes them for the scene frame.
@@ -55,6 +86,8 @@ struct EmissionSchedule {
     std::vector<int64_t> start{0};
     int64_t total() const { return start.back(); }
 };
-EmissionSchedule schedule(const std::vector<Source>& sources, int iteration);
+// `silent` (per source, may be empty): sources that emit nothing this iteration.
+EmissionSchedule schedule(const std::vector<Source>& sources, int iteration,
+                          const std::vector<uint8_t>& silent = {});
 
 }  // namespace gammart

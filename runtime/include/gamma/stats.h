@@ -44,6 +44,9 @@ struct TraceStats {
     int64_t interactions = 0, rays = 0;
     int64_t missed = 0;  // emission ray missed the mesh (also counted in escaped)
     int64_t flow_steps = 0, bounces = 0, drips = 0, segments = 0;
+    // gamma-tons of surface sources not emitted: their weights were all 0 this iteration
+    // (set for the whole pass by Tracer::trace / merge_end; 0 in a chunk's counters)
+    int64_t silent = 0;
     std::vector<NonFinite> nonfinite;
     std::vector<MassBooks> mass;  // per Config::mass_properties entry
     double trace_seconds = 0;

@@ -44,10 +44,11 @@ public:
     // chunk's log depends only on (config, scene, rows, iteration, chunk), so
     // the pieces give trace()'s bytes wherever they are traced.  Both throw
     // gammart::Error on chunks or logs that do not fit.
-    int64_t num_chunks(int iteration) const;
+    int64_t num_chunks(int iteration, const SurfelState& state, const SceneFrame& frame) const;
     std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
                                        const SceneFrame& frame, const SurfelState& state) const;
-    TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state);
+    TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state,
+                            const SceneFrame& frame);
 
     // merge_chunks in batches, so a driver need not hold a pass's logs at
     // once: merge_begin, then merge_add with the next chunks of the pass in
@@ -58,7 +59,7 @@ public:
     // and merge_chunks, so the batches never change the bytes.  The rows are
     // untouched until merge_end; a batch that does not fit throws
     // gammart::Error and abandons the merge (rows unchanged).
-    void merge_begin(int iteration);
+    void merge_begin(int iteration, const SurfelState& state, const SceneFrame& frame);
     void merge_add(const std::vector<ChunkLog>& logs, const SurfelState& state);
     TraceStats merge_end(SurfelState& state);
 
@@ -84,6 +85,15 @@ public:
 private:
     // Traces chunks [first, last) into out[0 .. last - first); with
     // rays_out, also keeps each chunk's cast rays in rays_out[0 .. last - first).
+    // The iteration's schedule and its surface sources' tables (surface_emitters):
+    // both follow from the rows at the iteration's start.
+    struct Emission {
+        std::vector<SurfaceEmitters> tables;
+        std::vector<uint8_t> silent;
+        EmissionSchedule sched;
+        int64_t silent_tons = 0;      // the gamma-tons silent surface sources would have emitted
+    };
+    Emission emission(int iteration, const SurfelState& state, const SceneFrame& frame) const;
     void run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index, const SceneFrame& frame,
                     const SurfelState& state, const UniformReflectance& reflectance, ChunkLog* out,
                     std::vector<RecordedRay>* rays_out) const;
@@ -98,6 +108,7 @@ private:
         bool active = false;
         int iteration = 0;
         int64_t nchunks = 0, merged = 0;   // chunks of the pass; chunks added so far
+        int64_t silent = 0;                // TraceStats::silent of the pass
         bool any_record = false;
         TraceStats st;
         double seconds = 0;

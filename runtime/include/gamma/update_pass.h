@@ -11,6 +11,11 @@
 
 namespace gammart {
 
+// The context of surfel i as update rules see it (SPEC 12): its position and
+// normal, height, iteration, uv, up, accessibility and curvature; no
+// direction, no interactions, no random key (the caller sets it).
+void surfel_context(const SurfelState& state, const SceneFrame& frame, size_t i, int iteration, GammaContext& ctx);
+
 UpdateStats run_update_pass(const KernelTable& kernels, const SceneFrame& frame, SurfelState& state, int iteration,
                             uint64_t seed, int threads);
 
