@@ -210,6 +210,25 @@ NB_MODULE(_runtime, m) {
         "int32[k], barycentrics float64[k, 3]), tile by tile; see gamma/uv_raster.h.");
 
     m.def(
+        "dilate_charts",
+        [](nb::ndarray<float, nb::ndim<3>, nb::c_contig, nb::device::cpu> image, nb::handle charts, int passes,
+           int threads) {
+            I32 c = as_i32(charts);
+            const size_t rows = image.shape(0), cols = image.shape(1);
+            if (c.ndim() != 2 || c.shape(0) != rows || c.shape(1) != cols)
+                throw Error("dilate_charts: charts (rows, columns) of the image's size expected");
+            std::vector<int32_t> label(c.data(), c.data() + rows * cols);
+            {
+                nb::gil_scoped_release nogil;
+                gammart::dilate_charts(image.data(), label.data(), rows, cols, image.shape(2), passes, threads);
+            }
+        },
+        "image"_a, "charts"_a, "passes"_a, "threads"_a,
+        "Fills the gutters of a float32[rows, columns, C] image in place, `passes` rings deep, each texel "
+        "from the neighbours of one chart (charts: int32[rows, columns], -1 empty); atlas.py's dilate, "
+        "see gamma/uv_raster.h.");
+
+    m.def(
         "encode_pngs",
         [](nb::handle pictures, int level, int threads) {
             using U8 = nb::ndarray<const uint8_t, nb::ndim<3>, nb::c_contig, nb::device::cpu>;

@@ -364,9 +364,9 @@ def fill(values: np.ndarray, texels: np.ndarray, shape: tuple, charts: np.ndarra
     image[texels] = values
     image = image.reshape(shape[0], shape[1], -1)
     if charts is not None:
-        from .atlas import dilate
+        from .atlas import dilate_in_place
 
-        return dilate(image, charts, BLEED_PASSES)
+        return dilate_in_place(image, charts, BLEED_PASSES)
     covered = np.zeros(shape[0] * shape[1], bool)
     covered[texels] = True
     return bleed(image, covered.reshape(shape))
