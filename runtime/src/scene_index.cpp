@@ -899,22 +899,38 @@ void SceneIndex::smooth_block(int surface, const float* points, size_t n, uint32
     std::sort(found.begin(), found.end());
     const double inv2s2 = 1.0 / (2.0 * double(sigma_) * double(sigma_));
     const float* cloud = tree->cloud.p;
+    // The candidates' coordinates side by side, so that each point's
+    // distances to all of them are one loop the compiler vectorizes.
+    thread_local std::vector<float> xs, ys, zs, dist;
+    const size_t m = found.size();
+    xs.resize(m);
+    ys.resize(m);
+    zs.resize(m);
+    dist.resize(m);
+    for (size_t c = 0; c < m; ++c) {
+        const float* q = cloud + 3 * size_t(found[c].first);
+        xs[c] = q[0];
+        ys[c] = q[1];
+        zs[c] = q[2];
+    }
     for (size_t i = 0; i < n; ++i) {
         const float* p = points + 3 * i;
         uint32_t* out = idx + K * i;
         float d2[K];
         nanoflann::KNNResultSet<float, uint32_t> rs(k);
         rs.init(out, d2);
-        for (const auto& [j, unused] : found) {
-            (void)unused;
-            // nanoflann's L2_Simple_Adaptor, operation for operation
-            float dist = 0;
-            for (int d = 0; d < 3; ++d) {
-                const float diff = p[d] - cloud[3 * size_t(j) + size_t(d)];
-                dist += diff * diff;
-            }
-            if (dist < rs.worstDist()) rs.addPoint(dist, j);
+        // nanoflann's L2_Simple_Adaptor, operation for operation: ((0 + dx²) + dy²) + dz²
+        const float px = p[0], py = p[1], pz = p[2];
+        const float* cx = xs.data();
+        const float* cy = ys.data();
+        const float* cz = zs.data();
+        float* dd = dist.data();
+        for (size_t c = 0; c < m; ++c) {
+            const float dx = px - cx[c], dy = py - cy[c], dz = pz - cz[c];
+            dd[c] = dx * dx + dy * dy + dz * dz;
         }
+        for (size_t c = 0; c < m; ++c)
+            if (dd[c] < rs.worstDist()) rs.addPoint(dd[c], found[c].first);
         const size_t got = smoothing_weights_of(d2, rs.size(), inv2s2, w + K * i);
         counts[i] = uint8_t(got);
         if (!tree->index.empty())
