@@ -380,19 +380,13 @@ def dilate(image: np.ndarray, chart_of_texel: np.ndarray, passes: int = 8, threa
     mixed, so bilinear filtering and mip-maps at a chart's edge see only that
     chart's colours.  The runtime's loop (``dilate_charts``, gamma/uv_raster.h)
     on ``threads`` threads (0: all); ``image`` itself is left as it is."""
-    out = np.array(image, np.float32)
-    return dilate_in_place(out, chart_of_texel, passes, threads)
-
-
-def dilate_in_place(image: np.ndarray, chart_of_texel: np.ndarray, passes: int = 8, threads: int = 0) -> np.ndarray:
-    """``dilate`` of a float32 image, filled in place (and returned)."""
     from .runner import runtime_module
 
-    h, w = image.shape[:2]
-    view = image.reshape(h, w, -1)
-    assert view.dtype == np.float32 and view.flags.c_contiguous
-    runtime_module().dilate_charts(view, np.asarray(chart_of_texel, np.int32).reshape(h, w), passes, threads)
-    return image
+    out = np.array(image, np.float32)
+    h, w = out.shape[:2]
+    runtime_module().dilate_charts(out.reshape(h, w, -1), np.asarray(chart_of_texel, np.int32).reshape(h, w),
+                                   passes, threads)
+    return out
 
 
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:

@@ -325,16 +325,13 @@ def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns_of, norma
             mine = normal_map(lookup, scene_tris)
             if mine is not None:
                 own[part] = mine
-    charts = None
-    if lay.chart is not None:
-        charts = np.full(shape[0] * shape[1], -1, np.int32)
-        charts[texels] = lay.chart[tris]
-        charts = charts.reshape(shape)
-    image = fill(stack, texels, shape, charts)
+    charts = None if lay.chart is None else np.ascontiguousarray(lay.chart[tris], np.int32)
+    image = fill(stack, texels, shape, charts, threads)
     del stack
     height = image[..., 6]
     tangent = tangent_normals(lay, height, texels, tris, own)
-    return (image[..., 0:3], image[..., 3:6], fill(tangent, texels, shape, charts), height, image[..., 7:]), names
+    return (image[..., 0:3], image[..., 3:6], fill(tangent, texels, shape, charts, threads), height,
+            image[..., 7:]), names
 
 
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -353,20 +350,22 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return (top + fy * (bottom - top)).astype(np.float32)
 
 
-def fill(values: np.ndarray, texels: np.ndarray, shape: tuple, charts: np.ndarray | None) -> np.ndarray:
+def fill(values: np.ndarray, texels: np.ndarray, shape: tuple, charts: np.ndarray | None,
+         threads: int = 0) -> np.ndarray:
     """A (rows, columns, C) image (``shape``) with ``values`` at ``texels``,
-    its gutters filled from the same chart (``charts``: chart per texel, -1
-    empty; None: from any neighbour)."""
+    its gutters filled from the same chart (``charts``: the chart of each
+    texel of ``texels``; None: from any neighbour).  With charts, the
+    runtime's ``fill_charts`` (atlas.dilate's rings) on ``threads`` threads."""
     values = np.asarray(values, np.float32)
     channels = values.shape[1] if values.ndim == 2 else 1
     values = values.reshape(len(texels), channels)
+    if charts is not None:
+        from .runner import runtime_module
+
+        return runtime_module().fill_charts(values, texels, shape[0], shape[1], charts, BLEED_PASSES, threads)
     image = np.zeros((shape[0] * shape[1], channels), np.float32)
     image[texels] = values
     image = image.reshape(shape[0], shape[1], -1)
-    if charts is not None:
-        from .atlas import dilate_in_place
-
-        return dilate_in_place(image, charts, BLEED_PASSES)
     covered = np.zeros(shape[0] * shape[1], bool)
     covered[texels] = True
     return bleed(image, covered.reshape(shape))
