@@ -212,6 +212,56 @@ NB_MODULE(_runtime, m) {
         "int32[k], barycentrics float64[k, 3]), tile by tile; see gamma/uv_raster.h.");
 
     m.def(
+        "dilate_charts",
+        [](nb::ndarray<float, nb::ndim<3>, nb::c_contig, nb::device::cpu> image, nb::handle charts, int passes,
+           int threads) {
+            I32 c = as_i32(charts);
+            const size_t rows = image.shape(0), cols = image.shape(1);
+            if (c.ndim() != 2 || c.shape(0) != rows || c.shape(1) != cols)
+                throw Error("dilate_charts: charts (rows, columns) of the image's size expected");
+            std::vector<int32_t> label(c.data(), c.data() + rows * cols);
+            {
+                nb::gil_scoped_release nogil;
+                gammart::dilate_charts(image.data(), label.data(), rows, cols, image.shape(2), passes, threads);
+            }
+        },
+        "image"_a, "charts"_a, "passes"_a, "threads"_a,
+        "Fills the gutters of a float32[rows, columns, C] image in place, `passes` rings deep, each texel "
+        "from the neighbours of one chart (charts: int32[rows, columns], -1 empty); atlas.py's dilate, "
+        "see gamma/uv_raster.h.");
+
+    m.def(
+        "fill_charts",
+        [](nb::handle values, nb::handle texels, size_t rows, size_t cols, nb::handle texel_chart, int passes,
+           int threads) {
+            using I64 = nb::ndarray<const int64_t, nb::c_contig, nb::device::cpu>;
+            F32 v = as_f32(values);
+            I64 t = nb::cast<I64>(numpy_asarray(texels, "int64"));
+            I32 c = as_i32(texel_chart);
+            const size_t k = t.ndim() == 1 ? t.shape(0) : 0, n = rows * cols;
+            const size_t C = v.ndim() == 2 ? v.shape(1) : 1;
+            if (t.ndim() != 1 || (v.ndim() != 1 && v.ndim() != 2) || v.shape(0) != k || c.ndim() != 1 ||
+                c.shape(0) != k)
+                throw Error("fill_charts: values (k,) or (k, C), texels (k,) and their charts (k,) expected");
+            std::vector<float> image(n * C, 0.0f);
+            std::vector<int32_t> label(n, -1);
+            for (size_t i = 0; i < k; ++i) {
+                const int64_t at = t.data()[i];
+                if (at < 0 || size_t(at) >= n) throw Error("fill_charts: a texel outside the image");
+                std::copy(v.data() + i * C, v.data() + (i + 1) * C, image.begin() + long(size_t(at) * C));
+                label[size_t(at)] = c.data()[i];
+            }
+            {
+                nb::gil_scoped_release nogil;
+                gammart::dilate_charts(image.data(), label.data(), rows, cols, C, passes, threads);
+            }
+            return to_numpy(std::move(image), {rows, cols, C});
+        },
+        "values"_a, "texels"_a, "rows"_a, "columns"_a, "texel_chart"_a, "passes"_a, "threads"_a,
+        "A float32[rows, columns, C] image with `values` at the flat `texels` (0 elsewhere), its gutters "
+        "filled by dilate_charts from each texel's chart (texel_chart, >= 0).");
+
+    m.def(
         "encode_pngs",
         [](nb::handle pictures, int level, int threads) {
             using U8 = nb::ndarray<const uint8_t, nb::ndim<3>, nb::c_contig, nb::device::cpu>;

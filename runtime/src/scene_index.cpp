@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <stdexcept>
 
 #include "gamma/error.h"
@@ -894,28 +895,76 @@ void SceneIndex::smooth_block(int surface, const float* points, size_t n, uint32
                          1e-6 * double(sigma_);
     std::vector<std::pair<uint32_t, float>> found;
     tree->kd->radiusSearch(cf, float(reach * reach), found, nanoflann::SearchParams(32, 0.0f, false));
-    // In index order: the candidates meet each point's result set in a fixed
-    // order, so the outcome does not depend on the tree's.
-    std::sort(found.begin(), found.end());
+    // Each point keeps the k candidates smallest in (squared distance, index):
+    // what nanoflann's KNNResultSet keeps when they come in index order (it
+    // takes a candidate only if strictly nearer than its worst, and places it
+    // after those as near), but in any order.  They come nearest to the
+    // block's centre first, so few are taken and then dropped, and a point
+    // stops at the first candidate that cannot be among its k (triangle
+    // inequality, with a margin far above the float distances' rounding).
     const double inv2s2 = 1.0 / (2.0 * double(sigma_) * double(sigma_));
     const float* cloud = tree->cloud.p;
+    const size_t m = found.size();
+    thread_local std::vector<std::pair<double, uint32_t>> order;
+    thread_local std::vector<float> xs, ys, zs;
+    thread_local std::vector<double> centre_distance;
+    thread_local std::vector<uint32_t> ids;
+    order.resize(m);
+    for (size_t a = 0; a < m; ++a) {
+        const float* q = cloud + 3 * size_t(found[a].first);
+        double e = 0;
+        for (int d = 0; d < 3; ++d) e += (double(q[d]) - c[d]) * (double(q[d]) - c[d]);
+        order[a] = {std::sqrt(e), found[a].first};
+    }
+    std::sort(order.begin(), order.end());
+    xs.resize(m);
+    ys.resize(m);
+    zs.resize(m);
+    centre_distance.resize(m);
+    ids.resize(m);
+    for (size_t a = 0; a < m; ++a) {
+        const float* q = cloud + 3 * size_t(order[a].second);
+        xs[a] = q[0];
+        ys[a] = q[1];
+        zs[a] = q[2];
+        centre_distance[a] = order[a].first;
+        ids[a] = order[a].second;
+    }
     for (size_t i = 0; i < n; ++i) {
         const float* p = points + 3 * i;
         uint32_t* out = idx + K * i;
         float d2[K];
-        nanoflann::KNNResultSet<float, uint32_t> rs(k);
-        rs.init(out, d2);
-        for (const auto& [j, unused] : found) {
-            (void)unused;
-            // nanoflann's L2_Simple_Adaptor, operation for operation
-            float dist = 0;
-            for (int d = 0; d < 3; ++d) {
-                const float diff = p[d] - cloud[3 * size_t(j) + size_t(d)];
-                dist += diff * diff;
+        double rp = 0;
+        for (int d = 0; d < 3; ++d) rp += (double(p[d]) - c[d]) * (double(p[d]) - c[d]);
+        rp = std::sqrt(rp);
+        const float px = p[0], py = p[1], pz = p[2];
+        size_t got_k = 0;
+        for (size_t q = 0; q < m; ++q) {
+            if (got_k == k) {
+                if (k == 0) break;
+                const double bound = centre_distance[q] - rp;   // |p - candidate| >= bound
+                if (bound > 0 && bound * bound > double(d2[k - 1]) * (1.0 + 1e-5) + 1e-30) break;
             }
-            if (dist < rs.worstDist()) rs.addPoint(dist, j);
+            // nanoflann's L2_Simple_Adaptor, operation for operation: ((0 + dx²) + dy²) + dz²
+            const float dx = px - xs[q], dy = py - ys[q], dz = pz - zs[q];
+            const float dist = dx * dx + dy * dy + dz * dz;
+            const uint32_t j = ids[q];
+            if (got_k == k) {
+                if (!(dist < d2[k - 1] || (dist == d2[k - 1] && j < out[k - 1]))) continue;
+            } else if (!(dist < std::numeric_limits<float>::max())) {
+                continue;                                        // KNNResultSet's empty worst
+            }
+            size_t at = got_k < k ? got_k : k - 1;
+            while (at > 0 && (d2[at - 1] > dist || (d2[at - 1] == dist && out[at - 1] > j))) {
+                d2[at] = d2[at - 1];
+                out[at] = out[at - 1];
+                --at;
+            }
+            d2[at] = dist;
+            out[at] = j;
+            if (got_k < k) ++got_k;
         }
-        const size_t got = smoothing_weights_of(d2, rs.size(), inv2s2, w + K * i);
+        const size_t got = smoothing_weights_of(d2, got_k, inv2s2, w + K * i);
         counts[i] = uint8_t(got);
         if (!tree->index.empty())
             for (size_t j = 0; j < got; ++j) out[j] = tree->index[out[j]];

@@ -4,7 +4,13 @@
 #include <algorithm>
 #include <cmath>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <vector>
+
 #include "gamma/error.h"
+#include "gamma/threads.h"
 
 namespace gammart {
 
@@ -60,6 +66,93 @@ UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1,
             for (size_t i = ti; i < std::min(rows, ti + T); ++i)
                 for (size_t j = tj; j < std::min(cols, tj + T); ++j) take(i * cols + j);
     return out;
+}
+
+}  // namespace gammart
+
+namespace gammart {
+
+void dilate_charts(float* image, int32_t* label, size_t rows, size_t cols, size_t channels, int passes,
+                   int threads) {
+    if (rows == 0 || cols == 0) return;
+    const size_t n = rows * cols, C = channels;
+    const long dy[8] = {-1, -1, -1, 0, 0, 1, 1, 1}, dx[8] = {-1, 0, 1, -1, 1, -1, 0, 1};
+    // The ring texel's neighbours in order: their flat index, or n off the image.
+    auto neighbours = [&](size_t at, size_t out[8]) {
+        const long i = long(at / cols), j = long(at % cols);
+        for (int s = 0; s < 8; ++s) {
+            const long r = i + dy[s], c = j + dx[s];
+            out[s] = (r < 0 || r >= long(rows) || c < 0 || c >= long(cols)) ? n : size_t(r) * cols + size_t(c);
+        }
+    };
+    std::vector<int32_t> queued(n, -1);  // the pass that queued a texel
+    std::vector<size_t> ring, next;
+    for (size_t at = 0; at < n; ++at) {
+        if (label[at] >= 0) continue;
+        size_t nb[8];
+        neighbours(at, nb);
+        for (size_t s : nb)
+            if (s < n && label[s] >= 0) {
+                ring.push_back(at);
+                queued[at] = 0;
+                break;
+            }
+    }
+    std::vector<int32_t> best;
+    std::vector<float> mean;
+    for (int pass = 0; pass < passes && !ring.empty(); ++pass) {
+        best.assign(ring.size(), -1);
+        mean.assign(ring.size() * C, 0.0f);
+        run_with_threads(threads, [&] {
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, ring.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+                std::vector<double> sum(C);
+                for (size_t q = r.begin(); q < r.end(); ++q) {
+                    size_t nb[8];
+                    neighbours(ring[q], nb);
+                    int32_t around[8];
+                    for (int s = 0; s < 8; ++s) around[s] = nb[s] < n ? label[nb[s]] : -1;
+                    // the chart most neighbours belong to, the lowest-numbered on a tie
+                    int32_t chosen = -1, chosen_votes = 0;
+                    for (int s = 0; s < 8; ++s) {
+                        if (around[s] < 0) continue;
+                        int32_t votes = 0;
+                        for (int t = 0; t < 8; ++t) votes += around[t] == around[s];
+                        if (votes > chosen_votes || (votes == chosen_votes && around[s] < chosen)) {
+                            chosen = around[s];
+                            chosen_votes = votes;
+                        }
+                    }
+                    best[q] = chosen;
+                    std::fill(sum.begin(), sum.end(), 0.0);
+                    int64_t count = 0;
+                    for (int s = 0; s < 8; ++s) {
+                        if (around[s] != chosen) continue;
+                        const float* v = image + nb[s] * C;
+                        for (size_t c = 0; c < C; ++c) sum[c] += double(v[c]);
+                        ++count;
+                    }
+                    for (size_t c = 0; c < C; ++c) mean[q * C + c] = float(sum[c] / double(count));
+                }
+            });
+        });
+        for (size_t q = 0; q < ring.size(); ++q) {
+            std::copy(mean.begin() + long(q * C), mean.begin() + long((q + 1) * C), image + ring[q] * C);
+            label[ring[q]] = best[q];
+        }
+        if (pass + 1 == passes) break;
+        // the next ring: empty neighbours of this one
+        next.clear();
+        for (size_t at : ring) {
+            size_t nb[8];
+            neighbours(at, nb);
+            for (size_t s : nb)
+                if (s < n && label[s] < 0 && queued[s] != pass + 1) {
+                    queued[s] = pass + 1;
+                    next.push_back(s);
+                }
+        }
+        ring.swap(next);
+    }
 }
 
 }  // namespace gammart

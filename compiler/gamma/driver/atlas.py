@@ -371,65 +371,21 @@ def texel_hits(corner_uvs: np.ndarray, size: int, chunk: int = 1 << 22):
     return np.concatenate(found_texels), np.concatenate(found_tris), np.concatenate(found_bary)
 
 
-def dilate(image: np.ndarray, chart_of_texel: np.ndarray, passes: int = 8) -> np.ndarray:
+def dilate(image: np.ndarray, chart_of_texel: np.ndarray, passes: int = 8, threads: int = 0) -> np.ndarray:
     """``image`` with its empty texels (chart -1) filled ``passes`` rings deep.
 
     A texel of a ring takes the mean of its filled 8-neighbours of one chart:
     the chart most of them belong to, the lowest-numbered on a tie; it then
     belongs to that chart for the next ring.  Colours of two charts are never
     mixed, so bilinear filtering and mip-maps at a chart's edge see only that
-    chart's colours."""
+    chart's colours.  The runtime's loop (``dilate_charts``, gamma/uv_raster.h)
+    on ``threads`` threads (0: all); ``image`` itself is left as it is."""
+    from .runner import runtime_module
+
     out = np.array(image, np.float32)
     h, w = out.shape[:2]
-    values = out.reshape(h * w, -1)                   # a view: filled in place
-    label = np.array(chart_of_texel, np.int32).reshape(-1)
-    filled = (label >= 0).reshape(h, w)
-    steps = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
-    none = np.iinfo(np.int32).max
-    for _ in range(passes):
-        near = filled.copy()                          # filled 8-neighbourhoods
-        near[1:] |= filled[:-1]
-        near[:-1] |= filled[1:]
-        ring = near.copy()
-        ring[:, 1:] |= near[:, :-1]
-        ring[:, :-1] |= near[:, 1:]
-        ring = np.flatnonzero(ring & ~filled)
-        if not len(ring):
-            break
-        row, col = np.divmod(ring, w)
-        edge = np.flatnonzero((row == 0) | (row == h - 1) | (col == 0) | (col == w - 1))
-        sources, around = [], []
-        for dy, dx in steps:
-            source = ring + (dy * w + dx)
-            if len(edge):                             # off the image: the empty texel itself
-                r, c = row[edge] + dy, col[edge] + dx
-                off = edge[(r < 0) | (r >= h) | (c < 0) | (c >= w)]
-                source[off] = ring[off]
-            sources.append(source)
-            around.append(np.take(label, source))     # -1 where empty
-        best = np.maximum.reduce(around)
-        low = np.minimum.reduce([np.where(a >= 0, a, none) for a in around])
-        mixed = np.flatnonzero(low != best)           # neighbours of several charts
-        if len(mixed):
-            sub = np.stack([a[mixed] for a in around], axis=1)
-            votes = (sub[:, :, None] == sub[:, None, :]).sum(axis=2).astype(np.int64)
-            score = np.where(sub >= 0, votes * (np.int64(1) << 32) - sub, np.iinfo(np.int64).min)
-            best[mixed] = sub[np.arange(len(mixed)), np.argmax(score, axis=1)]
-        # (ring texel, neighbour of the chosen chart) pairs, summed per texel
-        into, source = [], []
-        for src, chart in zip(sources, around):
-            mine = np.flatnonzero(chart == best)
-            into.append(mine)
-            source.append(src[mine])
-        into, source = np.concatenate(into), np.concatenate(source)
-        count = np.bincount(into, minlength=len(ring))
-        gathered = np.take(values, source, axis=0)
-        mean = np.empty((len(ring), values.shape[1]), np.float32)
-        for k in range(values.shape[1]):
-            mean[:, k] = np.bincount(into, weights=gathered[:, k], minlength=len(ring)) / count
-        values[ring] = mean
-        label[ring] = best
-        filled.reshape(-1)[ring] = True
+    runtime_module().dilate_charts(out.reshape(h, w, -1), np.asarray(chart_of_texel, np.int32).reshape(h, w),
+                                   passes, threads)
     return out
 
 

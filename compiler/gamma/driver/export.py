@@ -325,16 +325,13 @@ def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns_of, norma
             mine = normal_map(lookup, scene_tris)
             if mine is not None:
                 own[part] = mine
-    charts = None
-    if lay.chart is not None:
-        charts = np.full(shape[0] * shape[1], -1, np.int32)
-        charts[texels] = lay.chart[tris]
-        charts = charts.reshape(shape)
-    image = fill(stack, texels, shape, charts)
+    charts = None if lay.chart is None else np.ascontiguousarray(lay.chart[tris], np.int32)
+    image = fill(stack, texels, shape, charts, threads)
     del stack
     height = image[..., 6]
     tangent = tangent_normals(lay, height, texels, tris, own)
-    return (image[..., 0:3], image[..., 3:6], fill(tangent, texels, shape, charts), height, image[..., 7:]), names
+    return (image[..., 0:3], image[..., 3:6], fill(tangent, texels, shape, charts, threads), height,
+            image[..., 7:]), names
 
 
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -353,20 +350,22 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return (top + fy * (bottom - top)).astype(np.float32)
 
 
-def fill(values: np.ndarray, texels: np.ndarray, shape: tuple, charts: np.ndarray | None) -> np.ndarray:
+def fill(values: np.ndarray, texels: np.ndarray, shape: tuple, charts: np.ndarray | None,
+         threads: int = 0) -> np.ndarray:
     """A (rows, columns, C) image (``shape``) with ``values`` at ``texels``,
-    its gutters filled from the same chart (``charts``: chart per texel, -1
-    empty; None: from any neighbour)."""
+    its gutters filled from the same chart (``charts``: the chart of each
+    texel of ``texels``; None: from any neighbour).  With charts, the
+    runtime's ``fill_charts`` (atlas.dilate's rings) on ``threads`` threads."""
     values = np.asarray(values, np.float32)
     channels = values.shape[1] if values.ndim == 2 else 1
     values = values.reshape(len(texels), channels)
+    if charts is not None:
+        from .runner import runtime_module
+
+        return runtime_module().fill_charts(values, texels, shape[0], shape[1], charts, BLEED_PASSES, threads)
     image = np.zeros((shape[0] * shape[1], channels), np.float32)
     image[texels] = values
     image = image.reshape(shape[0], shape[1], -1)
-    if charts is not None:
-        from .atlas import dilate
-
-        return dilate(image, charts, BLEED_PASSES)
     covered = np.zeros(shape[0] * shape[1], bool)
     covered[texels] = True
     return bleed(image, covered.reshape(shape))
@@ -430,18 +429,32 @@ PNG16_LEVEL = 3
 def png16(values: np.ndarray, span: tuple[float, float] | None = None) -> tuple[bytes, float, float]:
     """A property as a 16-bit grey PNG, 0..65535 spanning [low, high] (returned):
     ``span``, else the values' own range."""
-    from PIL import Image
-
     finite = values[np.isfinite(values)]
     if span is not None:
         low, high = (float(span[0]), float(span[1]))
     else:
         low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    return png16_encode(grey16(values, low, high)), low, high
+
+
+def grey16(values: np.ndarray, low: float, high: float) -> np.ndarray:
+    """``values`` as 16-bit grey levels, 0..65535 spanning [low, high]
+    (clamped; NaN as 0), with one float temporary."""
     scale = 65535.0 / (high - low) if high > low else 0.0
-    grey = np.clip(np.nan_to_num((values - low) * scale), 0, 65535).astype(np.uint16)
+    scaled = np.subtract(values, low, dtype=np.float32)
+    np.multiply(scaled, scale, out=scaled)
+    np.nan_to_num(scaled, copy=False)
+    np.clip(scaled, 0, 65535, out=scaled)
+    return scaled.astype(np.uint16)
+
+
+def png16_encode(grey: np.ndarray) -> bytes:
+    """A uint16 image as a 16-bit grey PNG (Pillow releases the GIL while it compresses)."""
+    from PIL import Image
+
     out = io.BytesIO()
     Image.fromarray(grey).save(out, format="PNG", compress_level=PNG16_LEVEL)  # uint16 -> 16-bit grey
-    return out.getvalue(), low, high
+    return out.getvalue()
 
 
 
@@ -484,8 +497,6 @@ def exr32(values: np.ndarray) -> bytes:
         os.unlink(path)
 
 
-def png16_grey(values: np.ndarray, low: float, high: float) -> bytes:
-    return png16(values, (low, high))[0]
 
 
 def _glb(doc: dict, binary: bytes) -> bytes:
@@ -763,81 +774,92 @@ class Exporter:
                 surface_parts.setdefault(int(s), []).append(piece_label(lay.piece))
         out = run.out / "export"
         parts, stem, usd_files = [], f"{iteration:04d}", {}
-        for lay in layouts:
-            piece = lay.piece
-            surfaces = self.triangle_surface[piece.triangles]
+        from concurrent.futures import ThreadPoolExecutor
 
-            def columns_of(rows, scene_tris):
-                return property_columns(effect, rows, self.triangle_surface[scene_tris])
+        with ThreadPoolExecutor(2) as pool:
+            for lay in layouts:
+                piece = lay.piece
+                surfaces = self.triangle_surface[piece.triangles]
 
-            rows, _, owner = vertex_looks(sim, lay, iteration, run.threads)
-            attributes = property_columns(effect, rows, self.triangle_surface[owner])
-            ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of, self._normal_map(piece),
-                                  as_bytes=True)
-            part_name = safe_name(piece.name)
-            tile = "" if piece.tile is None else f".{piece.tile}"     # UDIM: NAME.1001.png
-            folder = out / part_name
-            files, sidecar = {}, {"iteration": iteration, "object": piece.name, "udim": piece.tile, "size": lay.size,
-                                  "preset": self.preset, "images": {}, "properties": {}}
+                def columns_of(rows, scene_tris):
+                    return property_columns(effect, rows, self.triangle_surface[scene_tris])
 
-            def image(channel: str, data: bytes, **about) -> None:
-                file = f"{part_name}_{channel}_{stem}{tile}.png"
-                atomic_write(folder / file, data)
-                files[channel] = file
-                sidecar["images"][channel] = {"file": file, "holds": CHANNELS.get(channel, channel), **about}
+                rows, _, owner = vertex_looks(sim, lay, iteration, run.threads)
+                attributes = property_columns(effect, rows, self.triangle_surface[owner])
+                ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of, self._normal_map(piece),
+                                      as_bytes=True)
+                part_name = safe_name(piece.name)
+                tile = "" if piece.tile is None else f".{piece.tile}"     # UDIM: NAME.1001.png
+                folder = out / part_name
+                files, sidecar = {}, {"iteration": iteration, "object": piece.name, "udim": piece.tile, "size": lay.size,
+                                      "preset": self.preset, "images": {}, "properties": {}}
 
-            base, orm, normal = encode_rgb8([ts.base_color, ts.orm, ts.normal], run.threads)
-            # glTF's ORM and OpenGL normal map always (the glb, the OBJ and the USD stage read
-            # them); a preset adds its engine's own packing beside them
-            image("BaseColor", base, colour_space="sRGB")
-            image("ORM", orm, colour_space="linear")
-            image("Normal", normal, colour_space="linear")
-            if self.preset == "unity":      # HDRP's mask map: metallic, occlusion, detail mask, smoothness
-                mask = np.stack([ts.orm[..., 2], ts.orm[..., 0], np.full_like(ts.orm[..., 0], 255),
-                                 255 - ts.orm[..., 1]], axis=-1)
-                image("MaskMap", png_bytes(mask), colour_space="linear",
-                      holds="metallic (R), occlusion (G), detail mask (B), smoothness = 1 - roughness (A)")
-            if self.preset == "unreal":     # DirectX convention: green points down the image
-                flipped = ts.normal.copy()
-                flipped[..., 1] = 255 - flipped[..., 1]
-                image("NormalDX", encode_rgb8([flipped], run.threads)[0], colour_space="linear",
-                      holds="tangent-space normal map (DirectX: +Y down), for Unreal")
-            reach = float(np.max(np.abs(ts.height))) if ts.height.size else 0.0
-            if self.float_maps:
-                file = f"{part_name}_Height_{stem}{tile}.exr"
-                atomic_write(folder / file, exr32(ts.height))
-                sidecar["images"]["Height"] = {"file": file, "holds": CHANNELS["Height"], "min": -reach,
-                                               "max": reach, "unit": "scene units along the normal (32-bit float)"}
-            else:
-                image("Height", png16_grey(ts.height, -reach, reach), min=-reach, max=reach,
-                      unit="scene units along the normal (0 is mid-grey)")
-            for prop, values in ts.properties.items():
-                low, high = self.ranges.get(prop, (float(np.min(values)), float(np.max(values))))
+                def image(channel: str, data: bytes, **about) -> None:
+                    file = f"{part_name}_{channel}_{stem}{tile}.png"
+                    atomic_write(folder / file, data)
+                    files[channel] = file
+                    sidecar["images"][channel] = {"file": file, "holds": CHANNELS.get(channel, channel), **about}
+
+                # the 16-bit maps compress on worker threads (Pillow, without the GIL) while the
+                # runtime encodes the 8-bit ones; their files are written below in the same order
+                reach = float(np.max(np.abs(ts.height))) if ts.height.size else 0.0
+                spans = {prop: self.ranges.get(prop, (float(np.min(values)), float(np.max(values))))
+                         for prop, values in ts.properties.items()}
+                grey = {} if self.float_maps else {"Height": pool.submit(png16_encode, grey16(ts.height, -reach, reach))}
+                if not self.float_maps:
+                    for prop, values in ts.properties.items():
+                        grey[prop] = pool.submit(png16_encode, grey16(values, *spans[prop]))
+                base, orm, normal = encode_rgb8([ts.base_color, ts.orm, ts.normal], run.threads)
+                # glTF's ORM and OpenGL normal map always (the glb, the OBJ and the USD stage read
+                # them); a preset adds its engine's own packing beside them
+                image("BaseColor", base, colour_space="sRGB")
+                image("ORM", orm, colour_space="linear")
+                image("Normal", normal, colour_space="linear")
+                if self.preset == "unity":      # HDRP's mask map: metallic, occlusion, detail mask, smoothness
+                    mask = np.stack([ts.orm[..., 2], ts.orm[..., 0], np.full_like(ts.orm[..., 0], 255),
+                                     255 - ts.orm[..., 1]], axis=-1)
+                    image("MaskMap", png_bytes(mask), colour_space="linear",
+                          holds="metallic (R), occlusion (G), detail mask (B), smoothness = 1 - roughness (A)")
+                if self.preset == "unreal":     # DirectX convention: green points down the image
+                    flipped = ts.normal.copy()
+                    flipped[..., 1] = 255 - flipped[..., 1]
+                    image("NormalDX", encode_rgb8([flipped], run.threads)[0], colour_space="linear",
+                          holds="tangent-space normal map (DirectX: +Y down), for Unreal")
                 if self.float_maps:
-                    file = f"{part_name}_{prop}_{stem}{tile}.exr"
-                    atomic_write(folder / file, exr32(values))
-                    scale = "the values themselves (32-bit float); min..max over the whole run"
+                    file = f"{part_name}_Height_{stem}{tile}.exr"
+                    atomic_write(folder / file, exr32(ts.height))
+                    sidecar["images"]["Height"] = {"file": file, "holds": CHANNELS["Height"], "min": -reach,
+                                                   "max": reach, "unit": "scene units along the normal (32-bit float)"}
                 else:
-                    file = f"{part_name}_{prop}_{stem}{tile}.png"
-                    atomic_write(folder / file, png16_grey(values, low, high))
-                    scale = "0..65535 spans min..max over the whole run"
-                sidecar["properties"][prop] = {"file": file, "min": low, "max": high, "scale": scale}
-            primitives = []
-            for s in np.unique(surfaces):
-                surface = names[int(s)]
-                material = surface if len(surface_parts[int(s)]) == 1 else f"{surface}_{part_name}{tile}"
-                primitives.append((material, np.flatnonzero(surfaces == s)))
-            part = ExportPart(piece_label(piece), lay.positions, lay.normals, lay.uvs,
-                              lay.faces.astype(np.uint32), primitives, attributes,
-                              {"BaseColor": (f"{part_name}_BaseColor_{stem}{tile}", base),
-                               "ORM": (f"{part_name}_ORM_{stem}{tile}", orm),
-                               "Normal": (f"{part_name}_Normal_{stem}{tile}", normal)})
-            parts.append(part)
-            usd_files[part.name] = {channel: f"{part_name}/{file}" for channel, file in files.items()}
-            atomic_write(folder / f"{part_name}_{stem}{tile}.obj", write_obj(part, f"{part_name}_{stem}{tile}.mtl"))
-            atomic_write(folder / f"{part_name}_{stem}{tile}.mtl", write_mtl(part, files))
-            atomic_write(folder / f"{part_name}_{stem}{tile}.json",
-                         (json.dumps(sidecar, indent=1) + "\n").encode("utf-8"))
+                    image("Height", grey["Height"].result(), min=-reach, max=reach,
+                          unit="scene units along the normal (0 is mid-grey)")
+                for prop, values in ts.properties.items():
+                    low, high = spans[prop]
+                    if self.float_maps:
+                        file = f"{part_name}_{prop}_{stem}{tile}.exr"
+                        atomic_write(folder / file, exr32(values))
+                        scale = "the values themselves (32-bit float); min..max over the whole run"
+                    else:
+                        file = f"{part_name}_{prop}_{stem}{tile}.png"
+                        atomic_write(folder / file, grey[prop].result())
+                        scale = "0..65535 spans min..max over the whole run"
+                    sidecar["properties"][prop] = {"file": file, "min": low, "max": high, "scale": scale}
+                primitives = []
+                for s in np.unique(surfaces):
+                    surface = names[int(s)]
+                    material = surface if len(surface_parts[int(s)]) == 1 else f"{surface}_{part_name}{tile}"
+                    primitives.append((material, np.flatnonzero(surfaces == s)))
+                part = ExportPart(piece_label(piece), lay.positions, lay.normals, lay.uvs,
+                                  lay.faces.astype(np.uint32), primitives, attributes,
+                                  {"BaseColor": (f"{part_name}_BaseColor_{stem}{tile}", base),
+                                   "ORM": (f"{part_name}_ORM_{stem}{tile}", orm),
+                                   "Normal": (f"{part_name}_Normal_{stem}{tile}", normal)})
+                parts.append(part)
+                usd_files[part.name] = {channel: f"{part_name}/{file}" for channel, file in files.items()}
+                atomic_write(folder / f"{part_name}_{stem}{tile}.obj", write_obj(part, f"{part_name}_{stem}{tile}.mtl"))
+                atomic_write(folder / f"{part_name}_{stem}{tile}.mtl", write_mtl(part, files))
+                atomic_write(folder / f"{part_name}_{stem}{tile}.json",
+                             (json.dumps(sidecar, indent=1) + "\n").encode("utf-8"))
         extras = {"gamma": {"iteration": iteration, "effect": str(effect.path),
                             "properties": {p: {"min": lo, "max": hi} for p, (lo, hi) in self.ranges.items()}}}
         atomic_write(out / f"{self.scene_name}_{stem}.glb", write_glb(parts, self.scene_name, extras))

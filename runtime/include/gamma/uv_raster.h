@@ -27,3 +27,19 @@ struct UvRaster {
 UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1, int tile = 1);
 
 }  // namespace gammart
+
+namespace gammart {
+
+// The gutters of a chart atlas filled `passes` rings deep, in place
+// (atlas.py's dilate): image is rows x cols x C floats, label the chart of
+// each texel (-1: empty), updated as rings fill.  A ring is every empty texel
+// with a filled 8-neighbour; each takes the chart most of its filled
+// neighbours belong to (the lowest-numbered on a tie) and the mean of those
+// neighbours' values (summed in double in the order (-1,-1), (-1,0), (-1,1),
+// (0,-1), (0,1), (1,-1), (1,0), (1,1), divided by their count, rounded to
+// float), all from the image as it was before the ring.  Colours of two
+// charts are never mixed.
+void dilate_charts(float* image, int32_t* label, size_t rows, size_t cols, size_t channels, int passes,
+                   int threads);
+
+}  // namespace gammart
