@@ -170,6 +170,7 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
         }
     });
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    tracer_->set_mesh(&mesh_);
     tracer_->set_cancel_flag(&cancel_);
 }
 
@@ -224,6 +225,7 @@ void Simulation::reconfigure(const Config& config) {
     state_.rows = std::move(rows);
     state_.width = W;
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
+    tracer_->set_mesh(&mesh_);
     tracer_->set_cancel_flag(&cancel_);
     cancel_.store(false);
 }

@@ -141,8 +141,45 @@ void emit_environment(V3 centre, float radius, V3 up, PhiloxStream& rng, bool up
 
 namespace {
 
-// A surfel of the source's table, picked by one draw, and a direction about
-// its axis: 1 + the emission's draws.
+// A point of surfel i's surface: within `spread` of it on its triangle (a disk
+// by rejection, 8 tries at most, else the surfel itself), or anywhere on the
+// triangle when the triangle is smaller than that disk.  So origins cover the
+// surface, not only the surfels' points, and amounts do not depend on
+// --surfels (SPEC 13.2); they stay near the surfel that was picked.
+V3 point_near_surfel(const SourceRt& s, size_t i, V3 p, PhiloxStream& rng) {
+    const int32_t* t = s.mesh_triangles + 3 * size_t(s.surfel_triangle[i]);
+    auto vertex = [&](int k) {
+        const float* v = s.mesh_vertices + 3 * size_t(t[k]);
+        return V3{v[0], v[1], v[2]};
+    };
+    const V3 a = vertex(0), b = vertex(1), c = vertex(2);
+    const V3 e1 = b - a, e2 = c - a;
+    const V3 nt = cross(e1, e2);
+    const float twice_area = length(nt);
+    const float R = s.spread;
+    if (!(twice_area > 0.0f) || !(R > 0.0f)) return p;
+    if (0.5f * twice_area <= float(M_PI) * R * R) {
+        float u = rng.next(), v = rng.next();
+        if (u + v > 1.0f) { u = 1.0f - u; v = 1.0f - v; }
+        return a + e1 * u + e2 * v;
+    }
+    const V3 n = nt * (1.0f / twice_area);
+    const V3 x = normalize(e1), y = cross(n, x);
+    for (int k = 0; k < 8; ++k) {
+        const float r = R * std::sqrt(rng.next()), phi = 2.0f * float(M_PI) * rng.next();
+        const V3 q = p + x * (r * std::cos(phi)) + y * (r * std::sin(phi));
+        // inside the triangle: barycentric coordinates in [0, 1]
+        const V3 d = q - a;
+        const float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
+        const float d1 = dot(d, e1), d2 = dot(d, e2), det = d11 * d22 - d12 * d12;
+        const float bu = (d22 * d1 - d12 * d2) / det, bv = (d11 * d2 - d12 * d1) / det;
+        if (bu >= 0.0f && bv >= 0.0f && bu + bv <= 1.0f) return q;
+    }
+    return p;
+}
+
+// A surfel of the source's table, picked by one draw, a point of the
+// surface near it, and a direction about its axis.
 void emit_from_surface(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir) {
     const SurfaceEmitters& t = *s.table;
     const double x = double(rng.next()) * t.total();
@@ -153,9 +190,10 @@ void emit_from_surface(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir) {
     const V3 p{s.positions[3 * i], s.positions[3 * i + 1], s.positions[3 * i + 2]};
     const V3 n{s.normals[3 * i], s.normals[3 * i + 1], s.normals[3 * i + 2]};
     const V3 axis = s.along_normal ? n : s.dir;
-    // start on the side of the surface the gamma-ton leaves to
-    const V3 side = dot(n, axis) < 0.0f ? n * -1.0f : n;
-    org = p + side * s.offset;
+    // start on the surfel's side (outside a consistently wound solid): a gamma-ton
+    // sent into the surface meets it at once, as a drip on the top of a link runs
+    // over the link before it falls
+    org = point_near_surfel(s, i, p, rng) + n * s.offset;
     switch (s.emission) {
         case Emission::Parallel: dir = axis; return;
         case Emission::Uniform: { float a = rng.next(), b = rng.next(); dir = uniform_hemisphere(axis, a, b); return; }

@@ -239,11 +239,29 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
     const EmissionSchedule& sched = plan.sched;
     // surface sources emit from this iteration's table of their surfels
     std::vector<SourceRt> sources = sources_;
+    float spread = 0.0f;
+    if (mesh_ != nullptr && state.size() > 0) {   // half the mean surfel spacing sqrt(A / n)
+        double area = 0.0;
+        const std::vector<float>& v = mesh_->vertices;
+        const std::vector<int32_t>& t = mesh_->triangles;
+        for (size_t k = 0; k + 2 < t.size(); k += 3) {
+            const V3 a{v[3 * size_t(t[k])], v[3 * size_t(t[k]) + 1], v[3 * size_t(t[k]) + 2]};
+            const V3 b{v[3 * size_t(t[k + 1])], v[3 * size_t(t[k + 1]) + 1], v[3 * size_t(t[k + 1]) + 2]};
+            const V3 c{v[3 * size_t(t[k + 2])], v[3 * size_t(t[k + 2]) + 1], v[3 * size_t(t[k + 2]) + 2]};
+            area += 0.5 * double(length(cross(b - a, c - a)));
+        }
+        spread = float(0.5 * std::sqrt(area / double(state.size())));
+    }
     for (size_t i = 0; i < sources.size(); ++i)
         if (sources[i].kind == SourceKind::Surface) {
+            if (mesh_ == nullptr) throw Error("a surface source needs the scene's mesh (Tracer::set_mesh)");
             sources[i].table = &plan.tables[i];
             sources[i].positions = state.surf.position.data();
             sources[i].normals = state.surf.normal.data();
+            sources[i].surfel_triangle = state.surf.triangle.data();
+            sources[i].mesh_vertices = mesh_->vertices.data();
+            sources[i].mesh_triangles = mesh_->triangles.data();
+            sources[i].spread = spread;
         }
     const std::vector<int64_t>& start = sched.start;
     const int64_t total = sched.total();

@@ -35,6 +35,10 @@ struct SourceRt {
     const struct SurfaceEmitters* table = nullptr;
     const float* positions = nullptr;
     const float* normals = nullptr;
+    const int32_t* surfel_triangle = nullptr;   // each surfel's triangle
+    const float* mesh_vertices = nullptr;       // n*3
+    const int32_t* mesh_triangles = nullptr;    // m*3
+    float spread = 0;                           // origins within spread of the surfel (half its spacing)
 };
 
 // A surface source's surfels in one iteration: surfel[k] is picked with

@@ -67,6 +67,8 @@ public:
     // order fixed by the config, the same at any thread count);
     // take_recorded_rays() hands them over.
     void set_record_rays(bool on) { record_rays_ = on; }
+    // The scene's mesh (surface sources start on its triangles); it must outlive the tracer.
+    void set_mesh(const Mesh* mesh) { mesh_ = mesh; }
     // While *flag is set, trace() (and trace_chunks) stops before its next chunk and throws
     // gammart::Error ("cancelled: ...") without touching the rows.
     void set_cancel_flag(std::atomic<bool>* flag) { cancel_ = flag; }
@@ -114,6 +116,7 @@ private:
         double seconds = 0;
     };
     BatchedMerge batched_;
+    const Mesh* mesh_ = nullptr;
     bool record_rays_ = false;
     std::atomic<bool>* cancel_ = nullptr;
     std::vector<std::vector<RecordedRay>> ray_logs_;  // per chunk
