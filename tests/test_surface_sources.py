@@ -154,3 +154,54 @@ on settle(t: Spore, s: Stone) { s.moss += 0.1 * t.seed }
         assert got["emitted"] == expected["emitted"] and got["silent"] == expected["silent"]
         assert np.array_equal(pieces.rows(), whole.rows()), f"iteration {it}"
     assert expected["silent"] == 0 and expected["emitted"] == 5000
+
+
+def test_example_rust_drips_from_the_rusty_links_only(tmp_path, staircase):
+    """examples/rust-drip.gamma: the cement under the chain stains, and the
+    drips start on links in proportion to their rust (none on clean iron)."""
+    out = tmp_path / "out"
+    r = run_gammac("run", ROOT / "examples" / "rust-drip.gamma", "--scene", staircase, "--assign", "chain=Iron",
+                   "--assign", "*=Cement", "--surfels", 20000, "--iterations", 4, "--quiet", "--size", 32,
+                   "--samples", 1, "--ao", 0, "--out", out)
+    assert r.returncode == 0, r.stderr
+    m = read_ply(out / "maps" / "iter_0004.ply")
+    iron = m["surface"] == 0
+    assert (m["rust"][iron] == 0).mean() > 0.3 and (m["rust"][iron] > 0).mean() > 0.05, "some links rust, not all"
+    below, away = (np.mean(v) for v in _stain_rings(m))
+    assert below > 10 * away, (below, away)
+    iterations = json.loads((out / "summary.json").read_text())["iterations"]
+    assert iterations[0]["silent"] == 50000 and all(it["silent"] == 0 for it in iterations[1:]), \
+        "no rust before the first update: the drips start from the second iteration"
+
+
+def _stain_rings(m):
+    iron = m["surface"] == 0
+    p = np.stack([m["x"], m["z"]], axis=1)
+    d = np.linalg.norm(p[~iron] - p[iron].mean(axis=0), axis=1)
+    stain = m["stain"][~iron].astype(np.float64)
+    return stain[d < 0.15], stain[(d > 0.5) & (d < 0.7)]
+
+
+def test_example_moss_spreads_from_moss(tmp_path):
+    """examples/moss-spread.gamma: spores leave the moss, so the surface
+    source is silent until moss has grown, and moss then gains more than the
+    recipe alone gives it."""
+    import subprocess
+    import sys
+
+    scene = tmp_path / "courtyard.obj"
+    r = subprocess.run([sys.executable, str(ROOT / "examples" / "scenes" / "make_courtyard.py"), str(scene)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    sums = {}
+    for name, seeding in (("spread", "0.2"), ("recipe", "0")):
+        out = tmp_path / name
+        r = run_gammac("run", ROOT / "examples" / "moss-spread.gamma", "--scene", scene, "--assign", "*=Stone",
+                       "--param", f"seeding={seeding}", "--surfels", 15000, "--iterations", 5, "--tons", 120000,
+                       "--quiet", "--size", 32, "--samples", 1, "--ao", 0, "--out", out)
+        assert r.returncode == 0, r.stderr
+        iterations = json.loads((out / "summary.json").read_text())["iterations"]
+        sums[name] = iterations[-1]["property_sums"]["moss"]
+        if name == "spread":
+            assert iterations[0]["silent"] > 0 and iterations[-1]["silent"] == 0
+    assert sums["spread"] > 1.2 * sums["recipe"], sums
