@@ -8,13 +8,16 @@ reads it through
 - ``GET /api/state``   JSON: status, generation, quality, the run's numbers,
   property ranges, the number of iterations, compile errors;
 - ``GET /api/mesh``    binary: uint32 n, uint32 m, float32 positions (3n),
-  float32 normals (3n), uint32 triangles (3m);
+  float32 normals (3n), uint32 triangles (3m), float32 texture coordinates (2n);
 - ``GET /api/frame?generation=G&iteration=I``  binary float32: the
   appearance colour per vertex (3n), its roughness, metallic and occlusion
   (n each), then each property per vertex (n each, in the order of
   ``properties``);
 - ``GET /api/events``  server-sent events, one message per published change;
-- ``POST /api/preview`` body: the preview fraction of the γ-tons (0 < f <= 1).
+- ``POST /api/preview`` body: the preview fraction of the γ-tons (0 < f <= 1);
+- ``GET /api/mask?index=K``  the K-th image the effect reads with mask() (state ``masks``);
+- ``POST /api/mask?index=K`` body: a PNG of the same size, painted in the page: it
+  replaces the file (atomically), and the watch loop re-runs as after an edit.
 """
 
 from __future__ import annotations
@@ -25,6 +28,9 @@ from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from urllib.parse import parse_qs, urlparse
+
+#: The largest painted mask the page may send.
+MAX_MASK_BYTES = 256 << 20
 
 CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
                  ".css": "text/css; charset=utf-8"}
@@ -41,9 +47,11 @@ class ViewerState:
         self.preview_changed = threading.Event()
         self.info = {"effect": effect, "scene": scene, "status": "starting", "generation": 0,
                      "quality": "final", "iterations": 0, "properties": [], "appearance": False,
-                     "error": None, "run": None, "mesh": None, "camera": None, "progress": None}
+                     "error": None, "run": None, "mesh": None, "camera": None, "progress": None,
+                     "masks": []}
         self.mesh_bytes = b""
         self.frames: list[bytes] = []
+        self.mask_paths: list = []  # the files behind info["masks"], in the same order
 
     def publish(self, frames: list[bytes] | None = None, mesh_bytes: bytes | None = None, **info) -> None:
         with self.cond:
@@ -55,6 +63,21 @@ class ViewerState:
             self.info["iterations"] = len(self.frames)
             self.version += 1
             self.cond.notify_all()
+
+    def set_masks(self, paths: list) -> None:
+        """The images the effect reads with mask(), as the page may paint them."""
+        from pathlib import Path
+
+        with self.cond:
+            self.mask_paths = [Path(p) for p in paths]
+            self.info["masks"] = [{"name": p.name, "paintable": p.suffix.lower() == ".png"}
+                                  for p in self.mask_paths]
+            self.version += 1
+            self.cond.notify_all()
+
+    def mask_path(self, index: int):
+        with self.cond:
+            return self.mask_paths[index] if 0 <= index < len(self.mask_paths) else None
 
     def snapshot(self) -> dict:
         with self.cond:
@@ -111,14 +134,64 @@ class _Handler(BaseHTTPRequestHandler):
             if data is None:
                 return self._send(b"no such frame", "text/plain", HTTPStatus.NOT_FOUND)
             return self._send(data, "application/octet-stream")
+        if url.path == "/api/mask":
+            path = self._mask_path(query)
+            if path is None or not path.is_file():
+                return self._send(b"no such mask", "text/plain", HTTPStatus.NOT_FOUND)
+            return self._send(path.read_bytes(), "image/png")
         if url.path == "/favicon.ico":
             return self._send(b"", "image/x-icon", HTTPStatus.NO_CONTENT)
         if url.path == "/api/events":
             return self._events()
         self._send(b"not found", "text/plain", HTTPStatus.NOT_FOUND)
 
+    def _mask_path(self, query: dict):
+        try:
+            return self.state.mask_path(int(query.get("index", -1)))
+        except ValueError:
+            return None
+
+    def _save_mask(self, query: dict) -> None:
+        """A painted mask: the same kind of PNG, the same size, written whole or not at all."""
+        import os
+        import tempfile
+        from io import BytesIO
+
+        from PIL import Image
+
+        path = self._mask_path(query)
+        length = int(self.headers.get("Content-Length") or 0)
+        if path is None or path.suffix.lower() != ".png":
+            return self._send(b"no such paintable mask", "text/plain", HTTPStatus.NOT_FOUND)
+        if not 0 < length <= MAX_MASK_BYTES:
+            return self._send(b"a mask must be a PNG of at most 256 MB", "text/plain", HTTPStatus.BAD_REQUEST)
+        body = self.rfile.read(length)
+        try:
+            with Image.open(BytesIO(body)) as new, Image.open(path) as old:
+                ok = new.format == "PNG" and new.size == old.size
+        except (OSError, ValueError, Image.DecompressionBombError):
+            ok = False
+        if not ok:
+            return self._send(b"not a PNG of the mask's size", "text/plain", HTTPStatus.BAD_REQUEST)
+        fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(body)
+            os.replace(temporary, path)
+        except OSError as err:
+            try:
+                os.unlink(temporary)
+            except OSError:
+                pass
+            return self._send(f"cannot write {path.name}: {err.strerror or err}".encode(), "text/plain",
+                              HTTPStatus.INTERNAL_SERVER_ERROR)
+        self._send(b"ok", "text/plain")
+
     def do_POST(self):  # noqa: N802
-        if urlparse(self.path).path != "/api/preview":
+        url = urlparse(self.path)
+        if url.path == "/api/mask":
+            return self._save_mask({k: v[-1] for k, v in parse_qs(url.query).items()})
+        if url.path != "/api/preview":
             return self._send(b"not found", "text/plain", HTTPStatus.NOT_FOUND)
         length = int(self.headers.get("Content-Length") or 0)
         try:

@@ -47,7 +47,8 @@ class ViewerMesh:
     def to_bytes(self) -> bytes:
         n, m = len(self.positions), len(self.triangles)
         return (struct.pack("<II", n, m) + self.positions.astype("<f4").tobytes()
-                + self.normals.astype("<f4").tobytes() + self.triangles.astype("<u4").tobytes())
+                + self.normals.astype("<f4").tobytes() + self.triangles.astype("<u4").tobytes()
+                + self.uvs.astype("<f4").tobytes())
 
 
 def viewer_mesh(mesh) -> ViewerMesh:
@@ -140,7 +141,12 @@ class Watcher:
             self._fail(err)
             return
         self._check()
-        self.files = [self.path] + [str(Path(f)) for f in effect.files if Path(f) != Path(self.path)]
+        masks = sorted({path for _, _, _, path in effect.mask_uses})
+        # the effect, its imports, and the images it reads: saving any of them (a mask
+        # painted in the page too) runs the effect again
+        self.files = [self.path] + [str(Path(f)) for f in effect.files if Path(f) != Path(self.path)] \
+            + masks + [p for p in effect.textures if p not in masks]
+        self.state.set_masks(masks)
         self.stamps.update({f: s for f, s in self._stamp().items() if f not in self.stamps})
         try:
             fraction = self.state.preview
@@ -229,7 +235,7 @@ class Watcher:
     def _publish_mesh(self, camera) -> None:
         self.state.publish(mesh_bytes=self.mesh.to_bytes(), frames=[],
                            mesh={"version": self.generation, "vertices": len(self.mesh.positions),
-                                 "triangles": len(self.mesh.triangles)},
+                                 "triangles": len(self.mesh.triangles), "has_uvs": bool(self.scene.mesh.has_uvs)},
                            camera={"eye": [float(c) for c in camera[0]], "target": [float(c) for c in camera[1]],
                                    "up": [float(c) for c in camera[2]], "fov": float(camera[3])})
 

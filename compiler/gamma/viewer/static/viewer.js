@@ -1,7 +1,9 @@
 // The `gammac watch` page: the weathered scene in 3D (three.js, orbit and
 // zoom), a switch between the appearance and each property (false colour
 // with its colour bar and the run's range), an iteration slider, the run's
-// numbers and compile errors.  The server tells the page about every new
+// numbers and compile errors, and a brush that paints the images the effect
+// reads with mask() (saved beside the effect, which then runs again).  The
+// server tells the page about every new
 // result over server-sent events (/api/events); the page then fetches the
 // state (/api/state), the mesh when it changed (/api/mesh) and the per-vertex
 // values of the shown iteration (/api/frame).
@@ -142,6 +144,7 @@ async function loadMesh(state) {
   const positions = new Float32Array(bytes, 8, 3 * n);
   const normals = new Float32Array(bytes, 8 + 12 * n, 3 * n);
   const index = new Uint32Array(bytes, 8 + 24 * n, 3 * m);
+  const uvs = new Float32Array(bytes, 8 + 24 * n + 12 * m, 2 * n);
   const geometry = new THREE.BufferGeometry();
   geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
   geometry.setAttribute("normal", new THREE.BufferAttribute(normals, 3));
@@ -149,6 +152,7 @@ async function loadMesh(state) {
   const pbr = new Float32Array(3 * n);
   for (let i = 0; i < n; i++) pbr.set(FALSE_COLOUR_PBR, 3 * i);
   geometry.setAttribute("pbr", new THREE.BufferAttribute(pbr, 3));
+  geometry.setAttribute("uv", new THREE.BufferAttribute(uvs, 2));   // where the brush paints the mask
   geometry.setIndex(new THREE.BufferAttribute(index, 1));
   geometry.computeBoundingSphere();
   const firstMesh = mesh === null;
@@ -223,6 +227,116 @@ async function showFrame() {
   viewer.frames++;
 }
 
+
+// ---- painting a mask ----------------------------------------------------
+// The brush paints into a canvas the size of the mask image, at the texture
+// coordinates under the pointer (the mesh's own UVs, the ones mask() reads),
+// a soft disk of `brush` texels; the painted mask shows on the mesh as a red
+// glow.  Undo restores the canvas before the last stroke; Save sends it as a
+// PNG, which replaces the file, and the effect runs again as after an edit.
+const paint = (viewer.paint = { canvas: document.createElement("canvas"), index: -1, undo: [], saved: 0,
+                               strokes: 0, texture: null, painting: false });
+const paintContext = paint.canvas.getContext("2d", { willReadFrequently: true });
+const raycaster = new THREE.Raycaster();
+
+async function loadMask(index) {
+  const blob = await (await fetch(`/api/mask?index=${index}&t=${Date.now()}`)).blob();
+  const image = await createImageBitmap(blob);
+  paint.canvas.width = image.width;
+  paint.canvas.height = image.height;
+  paintContext.fillStyle = "black";
+  paintContext.fillRect(0, 0, image.width, image.height);
+  paintContext.drawImage(image, 0, 0);
+  paint.index = index;
+  paint.undo = [];
+  if (paint.texture) paint.texture.dispose();
+  paint.texture = new THREE.CanvasTexture(paint.canvas);
+  paint.texture.colorSpace = THREE.NoColorSpace;
+  paint.texture.wrapS = paint.texture.wrapT = THREE.RepeatWrapping;
+  showPaint();
+}
+
+function showPaint() {
+  const on = $("paint").checked && paint.texture !== null;
+  material.emissiveMap = on ? paint.texture : null;
+  material.emissive.setRGB(on ? 0.8 : 0, on ? 0.1 : 0, on ? 0.1 : 0);
+  material.needsUpdate = true;
+  controls.enabled = !$("paint").checked;   // the left button paints instead of turning the view
+  draw();
+}
+
+function paintAt(u, v) {
+  const w = paint.canvas.width, h = paint.canvas.height;
+  const x = (u - Math.floor(u)) * w, y = (1 - (v - Math.floor(v))) * h;   // v up, as mask() samples
+  const r = Math.max(1, Number($("brush-size").value));
+  const strength = Number($("brush-strength").value);
+  const colour = $("erase").checked ? "0,0,0" : "255,255,255";
+  const g = paintContext.createRadialGradient(x, y, 0, x, y, r);
+  g.addColorStop(0, `rgba(${colour},${strength})`);
+  g.addColorStop(1, `rgba(${colour},0)`);
+  paintContext.fillStyle = g;
+  paintContext.fillRect(x - r, y - r, 2 * r, 2 * r);
+  paint.texture.needsUpdate = true;
+}
+
+function strokeAt(event) {
+  const rect = renderer.domElement.getBoundingClientRect();
+  const pointer = new THREE.Vector2(((event.clientX - rect.left) / rect.width) * 2 - 1,
+                                    -((event.clientY - rect.top) / rect.height) * 2 + 1);
+  raycaster.setFromCamera(pointer, camera);
+  const hit = mesh && raycaster.intersectObject(mesh)[0];
+  if (hit && hit.uv) { paintAt(hit.uv.x, hit.uv.y); draw(); }
+}
+
+renderer.domElement.addEventListener("pointerdown", (event) => {
+  if (!$("paint").checked || paint.index < 0 || event.button !== 0) return;
+  paint.undo.push(paintContext.getImageData(0, 0, paint.canvas.width, paint.canvas.height));
+  if (paint.undo.length > 20) paint.undo.shift();
+  paint.painting = true;
+  renderer.domElement.setPointerCapture(event.pointerId);
+  strokeAt(event);
+});
+renderer.domElement.addEventListener("pointermove", (event) => { if (paint.painting) strokeAt(event); });
+renderer.domElement.addEventListener("pointerup", () => {
+  if (paint.painting) paint.strokes++;
+  paint.painting = false;
+});
+$("paint").addEventListener("change", showPaint);
+$("mask").addEventListener("change", () => loadMask(Number($("mask").value)));
+$("undo").addEventListener("click", () => {
+  const before = paint.undo.pop();
+  if (!before) return;
+  paintContext.putImageData(before, 0, 0);
+  paint.texture.needsUpdate = true;
+  draw();
+});
+$("save-mask").addEventListener("click", async () => {
+  const blob = await new Promise((resolve) => paint.canvas.toBlob(resolve, "image/png"));
+  const response = await fetch(`/api/mask?index=${paint.index}`, { method: "POST", body: blob });
+  $("paint-note").textContent = response.ok ? "saved: running again" : `not saved: ${await response.text()}`;
+  if (response.ok) paint.saved++;
+});
+// the sum of the canvas's grey levels (tests follow a stroke and an undo by it)
+viewer.maskSum = () => paintContext.getImageData(0, 0, paint.canvas.width, paint.canvas.height).data
+  .reduce((sum, value, i) => (i % 4 === 0 ? sum + value : sum), 0);
+
+function showMasks(state) {
+  const masks = state.masks || [];
+  const panel = $("paint-panel"), select = $("mask");
+  panel.hidden = masks.length === 0;
+  const names = masks.map((m) => m.name).join();
+  if (select.dataset.names !== names) {
+    select.dataset.names = names;
+    select.innerHTML = "";
+    masks.forEach((m, i) => { if (m.paintable) select.add(new Option(m.name, i)); });
+    if (select.options.length) loadMask(Number(select.value));
+  }
+  const bare = state.mesh && !state.mesh.has_uvs;
+  $("paint").disabled = bare || select.options.length === 0;
+  $("paint-note").textContent = bare ? "the mesh has no texture coordinates: mask() cannot read it"
+    : select.options.length === 0 ? "only PNG masks can be painted here" : $("paint-note").textContent;
+}
+
 const fmt = (x) => (Math.abs(x) >= 1e4 || (Math.abs(x) < 1e-3 && x !== 0) ? x.toExponential(2) : Number(x.toPrecision(4)).toString());
 
 function drawRamp() {
@@ -281,6 +395,7 @@ async function refresh() {
     else $("quality").add(new Option(`${state.preview} of the γ-tons (--preview), then refine`, state.preview), 0), ($("quality").value = String(state.preview));
   }
   showErrors(state);
+  showMasks(state);
   const select = $("show");
   const wanted = ["appearance", ...state.properties.map((p) => p.name)];
   const current = Array.from(select.options).map((o) => o.value);
