@@ -224,3 +224,75 @@ def test_the_look_roughness_metallic_and_occlusion_reach_the_frame_and_the_pixel
         (np.percentile(brightness["metal"], 99), np.percentile(brightness["matte"], 99))
     # the property views ignore the look (a matte dielectric, unoccluded, whatever the effect says)
     assert np.abs(shots["metal", "patina"] - shots["matte", "patina"]).mean() < 1.0
+
+
+#: A look from a mask: green where the mask is white.
+MASK_EFFECT = EFFECT.replace("RATE", "0.05") + """
+appearance(s: Copper) {
+    color = mix(rgb(0.8, 0.8, 0.8), rgb(0.1, 0.6, 0.1), mask("paint.png"))
+}
+"""
+
+
+def test_a_brush_stroke_changes_the_mask_file_and_the_picture(tmp_path):
+    """The page's brush paints paint.png (read by the effect through mask())
+    at the texture coordinates under the pointer; Undo takes a stroke back;
+    Save replaces the file beside the effect, which then runs again."""
+    n = 8
+    lines = [f"v {x} 0 {z}" for z in range(n + 1) for x in range(n + 1)]
+    lines += [f"vt {x / n} {1 - z / n}" for z in range(n + 1) for x in range(n + 1)]
+    for z in range(n):
+        for x in range(n):
+            a, b, c, d = (z * (n + 1) + x + 1, z * (n + 1) + x + 2, (z + 1) * (n + 1) + x + 1,
+                          (z + 1) * (n + 1) + x + 2)
+            lines += [f"f {a}/{a} {c}/{c} {b}/{b}", f"f {b}/{b} {c}/{c} {d}/{d}"]
+    plane = tmp_path / "plane.obj"
+    plane.write_text("\n".join(lines) + "\n")
+    Image.fromarray(np.zeros((64, 64), np.uint8)).save(tmp_path / "paint.png")
+    before = (tmp_path / "paint.png").read_bytes()
+    effect = tmp_path / "effect.gamma"
+    effect.write_text(MASK_EFFECT)
+    for url, _, log in watching(effect, plane):
+        with playwright_api.sync_playwright() as p:
+            browser = launch(p)
+            try:
+                page = browser.new_page(viewport={"width": 900, "height": 600})
+                page.goto(url)
+                wait_for(page, "gammaViewer.shown && gammaViewer.shown.quality === 'final'"
+                               " && gammaViewer.paint.index === 0")
+                generation = page.evaluate("gammaViewer.shown.generation")
+                first = frame_of(url, page)
+                page.check("#paint")
+                page.fill("#brush-size", "12")
+                box = page.locator("#view canvas").bounding_box()
+                cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+
+                def stroke():
+                    page.mouse.move(cx - 40, cy)
+                    page.mouse.down()
+                    for k in range(9):
+                        page.mouse.move(cx - 40 + 10 * k, cy)
+                    page.mouse.up()
+
+                stroke()
+                painted = page.evaluate("gammaViewer.maskSum()")
+                assert painted > 0, "the stroke painted nothing"
+                page.click("#undo")
+                assert page.evaluate("gammaViewer.maskSum()") == 0, "undo takes the stroke back"
+                stroke()
+                assert page.evaluate("gammaViewer.maskSum()") == painted
+                page.click("#save-mask")
+                wait_for(page, "gammaViewer.paint.saved === 1")
+                wait_for(page, f"gammaViewer.shown.generation > {generation}"
+                               " && gammaViewer.shown.quality === 'final'")
+                second = frame_of(url, page)
+            finally:
+                browser.close()
+        assert "".join(log).count("error") == 0, "".join(log)
+    saved = Image.open(tmp_path / "paint.png")
+    assert (tmp_path / "paint.png").read_bytes() != before and saved.size == (64, 64)
+    assert np.asarray(saved.convert("L")).max() > 100, "the file holds the stroke"
+    # the picture: vertices under the stroke turned green, the others stayed grey
+    green = second["colour"][:, 1] - second["colour"][:, 0]
+    assert np.all(first["colour"][:, 1] - first["colour"][:, 0] < 1e-6)
+    assert green.max() > 0.2 and (green > 0.05).mean() < 0.5, (green.max(), (green > 0.05).mean())
