@@ -36,6 +36,16 @@ CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; c
                  ".css": "text/css; charset=utf-8"}
 
 
+def _png8(path) -> bool:
+    """An 8-bit PNG: what the page paints and saves without losing precision."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(26)
+    except OSError:
+        return False
+    return head[:8] == b"\x89PNG\r\n\x1a\n" and head[24] == 8
+
+
 class ViewerState:
     """The result on show, changed by the watch loop, read by request threads."""
 
@@ -70,8 +80,7 @@ class ViewerState:
 
         with self.cond:
             self.mask_paths = [Path(p) for p in paths]
-            self.info["masks"] = [{"name": p.name, "paintable": p.suffix.lower() == ".png"}
-                                  for p in self.mask_paths]
+            self.info["masks"] = [{"name": p.name, "paintable": _png8(p)} for p in self.mask_paths]
             self.version += 1
             self.cond.notify_all()
 
@@ -161,8 +170,8 @@ class _Handler(BaseHTTPRequestHandler):
 
         path = self._mask_path(query)
         length = int(self.headers.get("Content-Length") or 0)
-        if path is None or path.suffix.lower() != ".png":
-            return self._send(b"no such paintable mask", "text/plain", HTTPStatus.NOT_FOUND)
+        if path is None or not _png8(path):
+            return self._send(b"no such paintable mask (8-bit PNG)", "text/plain", HTTPStatus.NOT_FOUND)
         if not 0 < length <= MAX_MASK_BYTES:
             return self._send(b"a mask must be a PNG of at most 256 MB", "text/plain", HTTPStatus.BAD_REQUEST)
         body = self.rfile.read(length)

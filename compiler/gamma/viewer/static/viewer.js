@@ -334,7 +334,7 @@ function showMasks(state) {
   const bare = state.mesh && !state.mesh.has_uvs;
   $("paint").disabled = bare || select.options.length === 0;
   $("paint-note").textContent = bare ? "the mesh has no texture coordinates: mask() cannot read it"
-    : select.options.length === 0 ? "only PNG masks can be painted here" : $("paint-note").textContent;
+    : select.options.length === 0 ? "only 8-bit PNG masks can be painted here" : $("paint-note").textContent;
 }
 
 const fmt = (x) => (Math.abs(x) >= 1e4 || (Math.abs(x) < 1e-3 && x !== 0) ? x.toExponential(2) : Number(x.toPrecision(4)).toString());
