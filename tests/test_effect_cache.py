@@ -95,6 +95,10 @@ def every_builtin_body() -> str:
     for name, fn in sorted(FUNCTIONS.items()):
         if fn.appearance_only or fn.args is not None or name == "random":
             continue
+        if fn.string_arg:           # a name, not a value: a vertex attribute's column of the row
+            if name == "attribute":  # (mask() needs an image on disk: test_scene_inputs reads them)
+                lines.append('s.q += attribute("wetness")')
+            continue
         count = fn.min_args if fn.max_args is None else fn.max_args
         lines.append(f"s.q += {name}({', '.join(args[i % 3] for i in range(count))})" if count else
                      f"s.q += {name}()")

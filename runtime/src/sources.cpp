@@ -36,42 +36,114 @@ V3 emit_dir(const SourceRt& s, PhiloxStream& rng) {
 
 }  // namespace
 
+namespace {
+
+[[noreturn]] void fail(const std::string& m) { throw Error(m); }
+
+SourceKind kind_of(const std::string& kind, const std::string& at) {
+    if (kind == "point") return SourceKind::Point;
+    if (kind == "spot") return SourceKind::Spot;
+    if (kind == "rect") return SourceKind::Rect;
+    if (kind == "disk") return SourceKind::Disk;
+    if (kind == "directional") return SourceKind::Directional;
+    if (kind == "sphere") return SourceKind::Sphere;
+    if (kind == "hemisphere") return SourceKind::Hemisphere;
+    if (kind == "surface") return SourceKind::Surface;
+    fail(at + "unknown source kind '" + kind +
+         "' (expected point, spot, rect, disk, directional, sphere, hemisphere or surface)");
+}
+
+Emission emission_of(const std::string& emission, const std::string& at) {
+    if (emission == "parallel") return Emission::Parallel;
+    if (emission == "uniform") return Emission::Uniform;
+    if (emission == "cosine") return Emission::Cosine;
+    fail(at + "unknown emission '" + emission + "' (expected parallel, uniform or cosine)");
+}
+
+// What every source must satisfy, whatever its kind.
+void check_common(const Source& s, int ntypes, const std::string& at) {
+    if (s.ton_type < 0 || s.ton_type >= ntypes)
+        fail(at + "ton type index " + std::to_string(s.ton_type) + " out of range (" + std::to_string(ntypes) +
+             " ton types)");
+    if (s.count < 0) fail(at + "negative count");
+    if (!finite3(s.position)) fail(at + "non-finite position");
+    if (!finite3(s.direction)) fail(at + "non-finite direction");
+    if (!std::isfinite(s.angle_deg) || !std::isfinite(s.falloff) || !std::isfinite(s.size[0]) ||
+        !std::isfinite(s.size[1]) || !std::isfinite(s.radius))
+        fail(at + "non-finite angle, falloff, size or radius");
+    if (s.first_iteration < 1) fail(at + "first_iteration must be at least 1");
+    if (s.last_iteration < 0) fail(at + "last_iteration must be 0 (no end) or at least 1");
+    if (s.last_iteration != 0 && s.last_iteration < s.first_iteration)
+        fail(at + "last_iteration " + std::to_string(s.last_iteration) + " is before first_iteration " +
+             std::to_string(s.first_iteration));
+}
+
+// The directional source's plane upstream of the scene: the bounding box's
+// corners projected on it give the rectangle its origins cover.
+void directional_plane(SourceRt& r, const SceneFrame& frame) {
+    float umin = INFINITY, umax = -INFINITY, vmin = INFINITY, vmax = -INFINITY;
+    for (int k = 0; k < 8; ++k) {
+        const V3 corner{(k & 1) ? frame.hi[0] : frame.lo[0], (k & 2) ? frame.hi[1] : frame.lo[1],
+                        (k & 4) ? frame.hi[2] : frame.lo[2]};
+        const float pu = dot(corner - frame.centre, r.u), pv = dot(corner - frame.centre, r.v);
+        umin = std::min(umin, pu); umax = std::max(umax, pu);
+        vmin = std::min(vmin, pv); vmax = std::max(vmax, pv);
+    }
+    r.pos = frame.centre - r.dir * frame.radius;
+    r.u0 = umin; r.du = umax - umin;
+    r.v0 = vmin; r.dv = vmax - vmin;
+}
+
+// The parameters of the source's own kind, checked and precomputed.
+void precompute_kind(SourceRt& r, const Source& s, const Config& c, const SceneFrame& frame, const std::string& at) {
+    switch (r.kind) {
+        case SourceKind::Spot:
+            if (!(s.angle_deg > 0 && s.angle_deg <= 180)) {
+                char buf[64];
+                std::snprintf(buf, sizeof buf, "%g", double(s.angle_deg));
+                fail(at + "angle_deg must be in (0, 180] (got " + buf + ")");
+            }
+            if (s.falloff < 0) fail(at + "falloff must be non-negative");
+            r.cos_a = s.angle_deg >= 180 ? -1.0f : float(std::cos(double(s.angle_deg) * M_PI / 180.0));
+            r.falloff = s.falloff;
+            return;
+        case SourceKind::Rect:
+            if (!(s.size[0] > 0 && s.size[1] > 0)) fail(at + "size must be positive");
+            r.w = s.size[0];
+            r.h = s.size[1];
+            return;
+        case SourceKind::Disk:
+            if (!(s.radius > 0)) fail(at + "radius must be positive");
+            r.radius = s.radius;
+            return;
+        case SourceKind::Surface:
+            if (s.surface < 0 || s.surface >= int(c.surface_rows.size()))
+                fail(at + "surface index " + std::to_string(s.surface) + " out of range");
+            r.surface = s.surface;
+            r.along_normal = s.along_normal;
+            r.weight_kernel = s.weight_kernel;
+            r.offset = 10.0f * frame.eps;   // off the surface, past the rays' own offset
+            return;
+        case SourceKind::Directional:
+            directional_plane(r, frame);
+            return;
+        default:
+            return;
+    }
+}
+
+}  // namespace
+
 std::vector<SourceRt> build_sources(const Config& c, const SceneFrame& frame) {
-    auto fail = [](const std::string& m) { throw Error(m); };
     const int ntypes = int(c.ton_types.size());
     std::vector<SourceRt> out;
     for (size_t i = 0; i < c.sources.size(); ++i) {
         const Source& s = c.sources[i];
         const std::string at = "config: source " + std::to_string(i) + ": ";
         SourceRt r;
-        if (s.kind == "point") r.kind = SourceKind::Point;
-        else if (s.kind == "spot") r.kind = SourceKind::Spot;
-        else if (s.kind == "rect") r.kind = SourceKind::Rect;
-        else if (s.kind == "disk") r.kind = SourceKind::Disk;
-        else if (s.kind == "directional") r.kind = SourceKind::Directional;
-        else if (s.kind == "sphere") r.kind = SourceKind::Sphere;
-        else if (s.kind == "hemisphere") r.kind = SourceKind::Hemisphere;
-        else if (s.kind == "surface") r.kind = SourceKind::Surface;
-        else fail(at + "unknown source kind '" + s.kind +
-                  "' (expected point, spot, rect, disk, directional, sphere, hemisphere or surface)");
-        if (s.emission == "parallel") r.emission = Emission::Parallel;
-        else if (s.emission == "uniform") r.emission = Emission::Uniform;
-        else if (s.emission == "cosine") r.emission = Emission::Cosine;
-        else fail(at + "unknown emission '" + s.emission + "' (expected parallel, uniform or cosine)");
-        if (s.ton_type < 0 || s.ton_type >= ntypes)
-            fail(at + "ton type index " + std::to_string(s.ton_type) + " out of range (" +
-                 std::to_string(ntypes) + " ton types)");
-        if (s.count < 0) fail(at + "negative count");
-        if (!finite3(s.position)) fail(at + "non-finite position");
-        if (!finite3(s.direction)) fail(at + "non-finite direction");
-        if (!std::isfinite(s.angle_deg) || !std::isfinite(s.falloff) || !std::isfinite(s.size[0]) ||
-            !std::isfinite(s.size[1]) || !std::isfinite(s.radius))
-            fail(at + "non-finite angle, falloff, size or radius");
-        if (s.first_iteration < 1) fail(at + "first_iteration must be at least 1");
-        if (s.last_iteration < 0) fail(at + "last_iteration must be 0 (no end) or at least 1");
-        if (s.last_iteration != 0 && s.last_iteration < s.first_iteration)
-            fail(at + "last_iteration " + std::to_string(s.last_iteration) + " is before first_iteration " +
-                 std::to_string(s.first_iteration));
+        r.kind = kind_of(s.kind, at);
+        r.emission = emission_of(s.emission, at);
+        check_common(s, ntypes, at);
         const bool directed = r.kind == SourceKind::Spot || r.kind == SourceKind::Rect ||
                               r.kind == SourceKind::Disk || r.kind == SourceKind::Directional ||
                               (r.kind == SourceKind::Surface && !s.along_normal);
@@ -82,46 +154,7 @@ std::vector<SourceRt> build_sources(const Config& c, const SceneFrame& frame) {
         r.env_centre = frame.centre;
         r.env_radius = frame.radius;
         r.env_up = frame.up;
-        if (r.kind == SourceKind::Spot) {
-            if (!(s.angle_deg > 0 && s.angle_deg <= 180)) {
-                char buf[64];
-                std::snprintf(buf, sizeof buf, "%g", double(s.angle_deg));
-                fail(at + "angle_deg must be in (0, 180] (got " + buf + ")");
-            }
-            if (s.falloff < 0) fail(at + "falloff must be non-negative");
-            r.cos_a = s.angle_deg >= 180 ? -1.0f : float(std::cos(double(s.angle_deg) * M_PI / 180.0));
-            r.falloff = s.falloff;
-        }
-        if (r.kind == SourceKind::Rect) {
-            if (!(s.size[0] > 0 && s.size[1] > 0)) fail(at + "size must be positive");
-            r.w = s.size[0];
-            r.h = s.size[1];
-        }
-        if (r.kind == SourceKind::Disk) {
-            if (!(s.radius > 0)) fail(at + "radius must be positive");
-            r.radius = s.radius;
-        }
-        if (r.kind == SourceKind::Surface) {
-            if (s.surface < 0 || s.surface >= int(c.surface_rows.size()))
-                fail(at + "surface index " + std::to_string(s.surface) + " out of range");
-            r.surface = s.surface;
-            r.along_normal = s.along_normal;
-            r.weight_kernel = s.weight_kernel;
-            r.offset = 10.0f * frame.eps;   // off the surface, past the rays' own offset
-        }
-        if (r.kind == SourceKind::Directional) {
-            float umin = INFINITY, umax = -INFINITY, vmin = INFINITY, vmax = -INFINITY;
-            for (int k = 0; k < 8; ++k) {
-                const V3 corner{(k & 1) ? frame.hi[0] : frame.lo[0], (k & 2) ? frame.hi[1] : frame.lo[1],
-                                (k & 4) ? frame.hi[2] : frame.lo[2]};
-                const float pu = dot(corner - frame.centre, r.u), pv = dot(corner - frame.centre, r.v);
-                umin = std::min(umin, pu); umax = std::max(umax, pu);
-                vmin = std::min(vmin, pv); vmax = std::max(vmax, pv);
-            }
-            r.pos = frame.centre - r.dir * frame.radius;
-            r.u0 = umin; r.du = umax - umin;
-            r.v0 = vmin; r.dv = vmax - vmin;
-        }
+        precompute_kind(r, s, c, frame, at);
         out.push_back(r);
     }
     return out;

@@ -533,9 +533,7 @@ class Run(Record):
         self.nonfinite.add(it, traced["nonfinite"], updated["nonfinite"])
         rows = self.sim.rows()
         props = property_columns(self.effect, rows, self.surfel_surface)
-        # "silent" (γ-tons of surface sources whose weights were all 0) only where such sources are
-        record = {k: traced[k] for k in abi.STATISTICS
-                  if k in traced and (k != "silent" or any(s.kind == "surface" for s in self.effect.sources))}
+        record = {k: traced[k] for k in abi.STATISTICS if k in traced}
         record["property_sums"] = {name: float(np.sum(col, dtype=np.float64))
                                    for name, col in props.items()}
         record["trace_seconds"] = traced["trace_seconds"]
