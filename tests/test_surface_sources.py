@@ -4,7 +4,8 @@ effect, each surfel picked by its weight.
 On the paper's staircase with no rain, a chain whose rust is 1 drips rust
 onto the cement below it and a chain with rust 0 emits nothing; the amounts
 do not depend on the count or --surfels; the same bytes at 1 and 2 threads
-and in chunks (what --ray distributes); the weight cannot read a γ-ton."""
+(and in chunks, what --ray distributes: test_chunks.py); the weight cannot
+read a γ-ton."""
 
 from __future__ import annotations
 
@@ -114,46 +115,6 @@ def test_a_weight_reads_the_surfel_not_a_gamma_ton(tmp_path):
     r = run_gammac("check", effect)
     assert r.returncode == 1 and "'surface' of surface() must be a surface of the effect (did you mean 'Iron'?)" \
         in r.stderr, r.stderr
-
-
-def test_chunks_merged_in_order_equal_trace_with_a_surface_source(bumpy_obj):
-    """What --ray distributes: the weights are worked out from the same rows wherever a chunk is traced."""
-    from gamma.backends.jit import JitKernels
-    from gamma.driver.runner import RunOptions, build_config, runtime_module
-    from gamma.driver.scene import load_scene
-    from gamma.frontend.checker import check
-    from gamma.frontend.parser import parse
-
-    text = """
-ton Spore { motion straight = 0.5  carry seed = 1.0 }
-surface Stone { reflectance straight = 0.3  property moss = 0.0 }
-source start = point(0, 1, 0) emits Spore count 2000
-source spread = surface(Stone, emission = cosine, weight = s.moss * (0.5 + random())) emits Spore count 3000
-on settle(t: Spore, s: Stone) { s.moss += 0.1 * t.seed }
-"""
-    rt = runtime_module()
-    effect = check(parse(text, "spread.gamma"))
-    kernels = JitKernels(effect)
-    scene = load_scene(rt, str(bumpy_obj), effect, [], None)
-
-    def make(threads):
-        opts = RunOptions(scene=str(bumpy_obj), out="", surfels=3000, seed=5, threads=threads)
-        cfg = build_config(rt, effect, kernels, opts, scene.bounds, scene.down)
-        cfg.triangle_surface = scene.triangle_surface
-        return rt.Simulation(scene.mesh, cfg)
-
-    whole, pieces = make(2), make(1)
-    # iteration 1: no moss yet, so the surface source is silent; then it spreads
-    assert pieces.num_chunks(1) == -(-2000 // rt.CHUNK_SIZE)
-    for it in (1, 2, 3):
-        expected = whole.trace(it)
-        whole.update(it)
-        n = pieces.num_chunks(it)
-        got = pieces.merge_chunks(it, pieces.trace_chunks(it, 0, n))
-        pieces.update(it)
-        assert got["emitted"] == expected["emitted"] and got["silent"] == expected["silent"]
-        assert np.array_equal(pieces.rows(), whole.rows()), f"iteration {it}"
-    assert expected["silent"] == 0 and expected["emitted"] == 5000
 
 
 def test_example_rust_drips_from_the_rusty_links_only(tmp_path, staircase):

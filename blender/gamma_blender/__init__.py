@@ -257,12 +257,18 @@ class GAMMA_OT_weather(bpy.types.Operator):
 
     # -- a script or --background: to completion
 
-    def execute(self, context):
+    def _started(self, context) -> bool:
+        """The hand-over written and gammac started, or an error reported."""
         try:
             self._prepare(context)
         except GammaError as e:
             self._cleanup()
             self.report({"ERROR"}, f"gamma: {e}")
+            return False
+        return True
+
+    def execute(self, context):
+        if not self._started(context):
             return {"CANCELLED"}
         shown = [-1]
 
@@ -281,11 +287,7 @@ class GAMMA_OT_weather(bpy.types.Operator):
     # -- the interface: modal over the child, Esc cancels
 
     def invoke(self, context, event):
-        try:
-            self._prepare(context)
-        except GammaError as e:
-            self._cleanup()
-            self.report({"ERROR"}, f"gamma: {e}")
+        if not self._started(context):
             return {"CANCELLED"}
         state = context.scene.gamma
         state.running, state.progress, state.status = True, 0.0, "starting"
