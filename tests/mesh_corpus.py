@@ -68,7 +68,6 @@ def cases() -> list[tuple[str, bytes, str]]:
         ("ok_quad.ply", ply_ascii(verts=[(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1)],
                                   faces=[(0, 1, 2, 3), (0, 1, 4)]), "ok"),
         ("ok_degenerate_face.ply", ply_ascii(faces=TETRA_F + [(0, 0, 1)]), "ok"),
-        ("ok_two_index_face.ply", ply_ascii(face_lines=["3 0 2 1", "2 0 1", "3 0 1 3"], face_count=3), "ok"),
         ("ok_nonmanifold.ply", ply_ascii(verts=TETRA_V + [(0, -1, 0)],
                                          faces=TETRA_F + [(0, 1, 4), (0, 1, 2)]), "ok"),
         ("ok_extra_element.ply", ply_ascii(extra_header="comment hello\nobj_info x"), "ok"),
@@ -113,6 +112,8 @@ def cases() -> list[tuple[str, bytes, str]]:
                                  b"property float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n",
          "no triangles"),
         ("only_degenerate.ply", ply_ascii(faces=[(0, 0, 1), (2, 2, 2)]), "only degenerate"),
+        ("two_corner_face.ply", ply_ascii(face_lines=["3 0 1 2", "2 1 3"], face_count=2),
+         "face 1 has fewer than 3 vertices (2)"),
         ("flat.ply", ply_ascii(verts=[(0, 0, 0), (1, 0, 0), (2, 0, 0)], faces=[(0, 1, 2)]), "degenerate"),
         # --- OBJ ---
         ("empty.obj", b"", "no triangles"),

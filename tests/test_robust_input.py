@@ -119,6 +119,30 @@ def test_deeply_nested_scene_file(tmp_path):
     assert_one_line_error(small_run(tmp_path, scene=tmp_path / "deep.json"), "deep.json", "nested too deeply")
 
 
+@pytest.mark.parametrize("entry, down, where", [
+    ({"scale": True}, None, "meshes[0].scale"),
+    ({"translate": [0, True, 0]}, None, "meshes[0].translate"),
+    ({"rotate": [False, 0, 0]}, None, "meshes[0].rotate"),
+    ({}, [0, True, 0], "down"),
+])
+def test_scene_numbers_are_not_true_or_false(tmp_path, entry, down, where):
+    """JSON's true and false are not numbers (Python's bool is an int, so they read as 1 and 0 before)."""
+    spec = {"meshes": [{"file": str(BUNNY), **entry}]}
+    if down is not None:
+        spec["down"] = down
+    (tmp_path / "s.json").write_text(json.dumps(spec))
+    assert_one_line_error(small_run(tmp_path, scene=tmp_path / "s.json"), "s.json", where,
+                          "must be a list of 3 finite numbers")
+
+
+def test_a_ply_face_of_two_vertices_is_an_error_naming_it(tmp_path):
+    from mesh_corpus import ply_ascii
+
+    (tmp_path / "m.ply").write_bytes(ply_ascii(face_lines=["3 0 1 2", "3 0 2 3", "2 1 3"], face_count=3))
+    assert_one_line_error(small_run(tmp_path, scene=tmp_path / "m.ply"), "m.ply",
+                          "face 2 has fewer than 3 vertices (2)")
+
+
 @pytest.mark.parametrize("scale", [1e-30, 1e30])
 def test_scene_scaled_out_of_range_is_refused(tmp_path, scale):
     (tmp_path / "s.json").write_text(json.dumps({"meshes": [{"file": str(BUNNY), "scale": scale}]}))
@@ -255,6 +279,20 @@ def test_other_line_separators_do_not_shift_line_numbers(tmp_path, separator):
     head, source_line = r.stderr.splitlines()[:2]
     assert ":6:5: error: surface S has no property 'q'" in head, r.stderr
     assert source_line.strip() == "s.q += 1"
+
+
+@pytest.mark.parametrize("separator, shown", [("\f", "\\f"), ("\x85", "\\x85"), ("\u2028", "\\u2028"),
+                                              ("\x0b", "\\v")])
+def test_an_echoed_line_with_a_separator_is_whole_and_escaped(tmp_path, separator, shown):
+    """The echoed source line is the whole line (splitlines would cut it at the separator), escaped."""
+    text = HEADER + f"on hit(t: T, s: S) {{\n    s.q += 1 // wet{separator}dry\n}}\n"
+    (tmp_path / "e.gamma").write_text(text, encoding="utf-8")
+    r = check(tmp_path / "e.gamma")
+    assert r.returncode == 1
+    head, source_line, caret = r.stderr.splitlines()[:3]
+    assert ":5:5: error: surface S has no property 'q'" in head, r.stderr
+    assert source_line == f"        s.q += 1 // wet{shown}dry", source_line
+    assert caret == "        ^~~", caret
 
 
 @pytest.mark.parametrize("text", [

@@ -7,7 +7,8 @@
 // Here every declared size is checked against the bytes actually present
 // before anything is allocated, every read is bounds-checked, and a face with
 // repeated vertices is simply a degenerate triangle, dropped with a warning
-// like any other (SPEC §16.1).
+// like any other (SPEC §16.1); a face of fewer than 3 vertices is an error
+// naming it, as in an OBJ file.
 //
 // Read: element `vertex` (x, y, z; optional texture coordinates named
 // u/v, s/t or texture_u/texture_v), element `face` (list property
@@ -92,13 +93,12 @@ public:
         check_sizes();
         std::vector<float> verts, texcoords;
         std::vector<int32_t> tris;
-        size_t short_faces = 0;
         bool have_uv = false;
         for (const Element& e : elements_) {
             if (e.name == "vertex") {
                 read_vertices(e, verts, texcoords, have_uv);
             } else if (e.name == "face") {
-                read_faces(e, verts.size() / 3, tris, short_faces);
+                read_faces(e, verts.size() / 3, tris);
             } else {
                 for (uint64_t i = 0; i < e.count; ++i) skip_element(e, i);
             }
@@ -112,13 +112,9 @@ public:
                 uvs[2 * i + 1] = texcoords[2 * size_t(tris[i]) + 1];
             }
         }
-        if (tris.empty() && short_faces == 0) fail("has no triangles");
-        if (tris.empty()) throw Error("mesh '" + name_ + "' has only degenerate triangles");
-        Mesh mesh = Mesh::from_arrays(verts.data(), verts.size() / 3, tris.data(), tris.size() / 3,
-                                      name_, uvs.empty() ? nullptr : uvs.data());
-        mesh.degenerate_dropped += short_faces;
-        mesh.input_triangles += short_faces;
-        return mesh;
+        if (tris.empty()) fail("has no triangles");
+        return Mesh::from_arrays(verts.data(), verts.size() / 3, tris.data(), tris.size() / 3, name_,
+                                 uvs.empty() ? nullptr : uvs.data());
     }
 
 private:
@@ -339,7 +335,7 @@ private:
         }
     }
 
-    void read_faces(const Element& e, size_t num_vertices, std::vector<int32_t>& tris, size_t& short_faces) {
+    void read_faces(const Element& e, size_t num_vertices, std::vector<int32_t>& tris) {
         int indices = -1;
         for (size_t k = 0; k < e.props.size(); ++k)
             if (e.props[k].is_list() && (e.props[k].name == "vertex_indices" || e.props[k].name == "vertex_index"))
@@ -364,7 +360,9 @@ private:
                              " vertices)");
                     poly.push_back(int64_t(v));
                 }
-                if (poly.size() < 3) { ++short_faces; continue; }
+                if (poly.size() < 3)   // as an OBJ face is: the file is broken, not a triangle degenerate
+                    fail(": face " + std::to_string(i) + " has fewer than 3 vertices (" + std::to_string(poly.size()) +
+                         ")");
                 for (size_t j = 1; j + 1 < poly.size(); ++j) {
                     tris.push_back(int32_t(poly[0]));
                     tris.push_back(int32_t(poly[j]));

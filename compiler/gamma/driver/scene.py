@@ -71,9 +71,14 @@ def parse_assign(items: list[str], effect: Effect) -> list[tuple[str, str]]:
     return rules
 
 
+def _number(value) -> bool:
+    """A JSON number: true and false are not (Python's bool is an int)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def _vector(value, n: int, where: str) -> np.ndarray:
     if (not isinstance(value, list) or len(value) != n
-            or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in value)):
+            or not all(_number(v) and math.isfinite(v) for v in value)):
         raise SceneError(f"{where} must be a list of {n} finite numbers")
     return np.asarray(value, dtype=float)
 
@@ -176,7 +181,7 @@ def _read_scene_file(rt, path: Path, effect: Effect):
         if shading not in ("smooth", "flat"):
             raise SceneError(f"{where}.shading must be \"smooth\" or \"flat\", not {json.dumps(shading)}")
         scale = entry.get("scale", 1.0)
-        if isinstance(scale, (int, float)):
+        if _number(scale):
             scale = [scale] * 3
         scale = _vector(scale, 3, f"{where}.scale")
         if np.any(scale == 0):

@@ -41,14 +41,31 @@ class Diagnostic:
         head = f"{path}:{self.pos.line}:{self.pos.col}: {self.severity}: {self.message}"
         if not 1 <= self.pos.line <= len(lines):
             return head
-        text = lines[self.pos.line - 1].expandtabs(1)
-        col, width = self.pos.col, min(self.pos.width, 60)
+        text, col = _shown(lines[self.pos.line - 1].expandtabs(1), self.pos.col)
+        width = min(self.pos.width, 60)
         if len(text) > 120:  # show a window of a very long line around the caret
             start = max(0, col - 60)
             text = ("..." if start else "") + text[start:start + 120] + "..."
             col = col - start + (3 if start else 0)
         caret = " " * (col - 1) + "^" + "~" * max(0, width - 1)
         return f"{head}\n    {text}\n    {caret}"
+
+
+#: Characters a terminal or ``str.splitlines`` would take for a line end (the
+#: parser does not): shown escaped, so the echoed line is whole and on one line.
+_ESCAPED = {"\f": "\\f", "\v": "\\v", "\x1c": "\\x1c", "\x1d": "\\x1d", "\x1e": "\\x1e",
+            "\x85": "\\x85", "\u2028": "\\u2028", "\u2029": "\\u2029", "\r": "\\r"}
+
+
+def _shown(text: str, col: int) -> tuple[str, int]:
+    """The line as echoed, and the 1-based column ``col`` moves to in it."""
+    out, shown_col = [], col
+    for i, c in enumerate(text):
+        escaped = _ESCAPED.get(c, c)
+        if i < col - 1:
+            shown_col += len(escaped) - 1
+        out.append(escaped)
+    return "".join(out), shown_col
 
 
 def render(diagnostics: list[Diagnostic], path: str, source: str) -> str:
