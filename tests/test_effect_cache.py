@@ -344,3 +344,21 @@ def test_orphaned_libraries_and_stale_temporaries_are_removed(tmp_path, monkeypa
     assert not orphan.exists() and not stale_file.exists() and not stale_folder.exists()
     assert young_orphan.exists() and fresh_file.exists()      # perhaps another process's, being written
     assert checked_from_cache(main)[1]
+
+
+def test_a_cache_folder_others_can_write_to_is_not_used(tmp_path):
+    """Issue 33, item 8: the caches load machine code, so a folder other
+    users may write to is passed over; the run works and says so once."""
+    cache = tmp_path / "shared"
+    cache.mkdir()
+    cache.chmod(0o777)
+    effect = tmp_path / "e.gamma"
+    effect.write_text((ROOT / "examples" / "patina.gamma").read_text())
+    r = subprocess.run([sys.executable, "-m", "gamma.cli", "run", str(effect), "--scene",
+                        str(ROOT / "examples" / "scenes" / "teapot.obj"), "--surfels", "2000", "--tons", "2000",
+                        "--iterations", "1", "--size", "16", "--quiet", "--out", str(tmp_path / "out")],
+                       capture_output=True, text=True, timeout=300, env=dict(os.environ, GAMMA_CACHE_DIR=str(cache)))
+    assert r.returncode == 0, r.stderr
+    note = f"gammac: note: not using the cache folder '{cache}': other users can write to it"
+    assert r.stderr.count(note) == 1, r.stderr
+    assert not any(cache.iterdir()), "nothing was kept there"

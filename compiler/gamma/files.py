@@ -45,17 +45,46 @@ def _umask() -> int:
     return mask
 
 
+_unsafe_said: set = set()
+
+
 def cache_dir() -> Path | None:
     """Where compiled kernels and setups are kept: $GAMMA_CACHE_DIR, else
     ~/.cache/gamma ($XDG_CACHE_HOME respected); GAMMA_CACHE_DIR=off disables
-    the caches."""
+    the caches.  A folder that another user owns, or that others may write
+    to, is not used (the caches load machine code from it): None, and a note
+    on stderr once per folder."""
     configured = os.environ.get("GAMMA_CACHE_DIR")
     if configured == "off":
         return None
     if configured:
-        return Path(configured)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "gamma"
+        folder = Path(configured)
+    else:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        folder = Path(base) / "gamma"
+    problem = _unsafe(folder)
+    if problem:
+        if str(folder) not in _unsafe_said:
+            _unsafe_said.add(str(folder))
+            import sys
+
+            print(f"gammac: note: not using the cache folder '{folder}': {problem} "
+                  "(it would load code from there); running without the cache", file=sys.stderr)
+        return None
+    return folder
+
+
+def _unsafe(folder: Path) -> str:
+    """Why code kept in ``folder`` could be someone else's ('' if it cannot)."""
+    try:
+        st = os.stat(folder)
+    except OSError:
+        return ""                       # made by this user when first written
+    if st.st_uid != os.getuid():
+        return "another user owns it"
+    if st.st_mode & 0o022:
+        return "other users can write to it"
+    return ""
 
 
 def atomic_write(path: Path, data, mode: int | None = None) -> None:
