@@ -154,6 +154,10 @@ def test_weathering_suzanne_gives_attributes_a_texture_set_and_no_copies_on_a_re
     keep = os.environ.get("GAMMA_KEEP_PICTURES")      # where to keep the picture (the README's: 512², 32 samples)
     out = run('''
 obj = suzanne()
+own = bpy.data.materials.new("Own")               # a material linked to the object, not its mesh
+obj.data.materials.append(None)
+obj.material_slots[0].link = "OBJECT"
+obj.material_slots[0].material = own
 bpy.ops.mesh.primitive_plane_add(size=6, location=(0, 0, -1.2))
 floor = bpy.context.active_object
 floor.name = "Floor"
@@ -188,6 +192,7 @@ result["render"] = render(args["png"], size=args["size"], samples=args["samples"
 result["restored"] = sorted(bpy.ops.gamma.restore())
 result["after_restore"] = [len(obj.data.vertices), obj.data.name, [m.show_viewport for m in obj.modifiers],
                            "patina" in obj.data.attributes, len(bpy.data.materials), len(files())]
+result["own_material"] = [obj.material_slots[0].link, obj.material_slots[0].material.name]
 ''', extension, effect=PATINA, png=str(picture), size=512 if keep else 200, samples=32 if keep else 8)
     assert out["first"] == [["FINISHED"], ""], out["first"]
     assert out["names"] == ["Floor", "Suzanne"], "Suzanne keeps her name; nothing is added"
@@ -200,12 +205,14 @@ result["after_restore"] = [len(obj.data.vertices), obj.data.name, [m.show_viewpo
     assert out["second"] == [["FINISHED"], ""], out["second"]
     assert out["counts_second"] == out["counts_first"], "a second run replaces the first run's datablocks"
     assert not any("." in name for name in out["materials"] + out["images"]), (out["materials"], out["images"])
+    assert "Own" in out["materials"]
     assert out["patina_again"], "the same run again gives the same attribute"
     assert out["recipe"] == [["FINISHED"], ""] and out["counts_recipe"] == out["counts_first"], out["recipe"]
     assert out["restored"] == ["FINISHED"]
     vertices, mesh_name, modifiers, has_patina, materials, images = out["after_restore"]
     assert (vertices, mesh_name, modifiers, has_patina) == (507, "Suzanne", [True], False)
-    assert (materials, images) == (0, 0), "restoring removes what the runs made"
+    assert (materials, images) == (1, 0), "restoring removes what the runs made (the user's own stays)"
+    assert out["own_material"] == ["OBJECT", "Own"], "the object's own material comes back as it was"
     # Cycles' picture: a weathered Suzanne, with verdigris (green over red) somewhere on her
     rgb = np.asarray(Image.open(out["render"]).convert("RGB"), dtype=np.float64)
     assert rgb.std() > 10, "the render is not blank"

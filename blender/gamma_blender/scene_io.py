@@ -42,6 +42,8 @@ TAG = "gamma"
 ORIGINAL = "gamma_original_mesh"
 #: The modifiers a run switched off (the weathered mesh has them applied).
 SWITCHED_OFF = "gamma_switched_off"
+#: The object's material slots' links (DATA or OBJECT) as the user had them.
+SLOT_LINKS = "gamma_slot_links"
 #: Where the add-on keeps each object's last run (its maps), for "continue from the last run".
 RUNS = Path(tempfile.gettempdir()) / "gamma-blender-runs"
 
@@ -75,12 +77,16 @@ class AsMade:
         for obj, _ in self.swapped:
             obj.data = obj[ORIGINAL]
             _switch(obj, True)
+            for slot, link in zip(obj.material_slots, obj.get(SLOT_LINKS, ())):
+                slot.link = link
         return self
 
     def __exit__(self, *exc):
         for obj, weathered in self.swapped:
             obj.data = weathered
             _switch(obj, False)
+            for slot in obj.material_slots:
+                slot.link = "DATA"
         return False
 
 
@@ -290,6 +296,7 @@ def _show_weathered(obj, mesh) -> None:
     if obj.get(ORIGINAL) is None:
         obj[ORIGINAL] = shown
         obj[SWITCHED_OFF] = [m.name for m in obj.modifiers if m.show_viewport or m.show_render]
+        obj[SLOT_LINKS] = [slot.link for slot in obj.material_slots]
     obj.data = mesh
     _switch(obj, False)
     _forget(shown)
@@ -303,8 +310,10 @@ def restore(obj) -> bool:
     shown = obj.data
     obj.data = original
     _switch(obj, True)
+    for slot, link in zip(obj.material_slots, obj.get(SLOT_LINKS, ())):
+        slot.link = link
     earlier = {(obj.get(TAG) or {}).get("run")}
-    for key in (ORIGINAL, SWITCHED_OFF, TAG):
+    for key in (ORIGINAL, SWITCHED_OFF, SLOT_LINKS, TAG):
         if key in obj:
             del obj[key]
     _forget(shown)
