@@ -76,11 +76,20 @@ TEST(Ply, BinaryBothEndiansAgree) {
 
 TEST(Ply, DegenerateFacesAreDroppedAndCounted) {
     std::string s = kAsciiTetra;
-    s.replace(s.find("element face 4"), 14, "element face 6");
-    s += "3 0 0 1\n2 0 1\n";
+    s.replace(s.find("element face 4"), 14, "element face 5");
+    s += "3 0 0 1\n";
     Mesh m = Mesh::parse_ply(s, "d.ply");
     EXPECT_EQ(m.num_triangles(), 4u);
-    EXPECT_EQ(m.degenerate_dropped, 2u);
+    EXPECT_EQ(m.degenerate_dropped, 1u);
+}
+
+// A face of two corners is a broken file, not a degenerate triangle (as in OBJ): an error naming it.
+TEST(Ply, AFaceOfFewerThanThreeVerticesIsAnErrorNamingIt) {
+    std::string s = kAsciiTetra;
+    s.replace(s.find("element face 4"), 14, "element face 5");
+    s += "2 0 1\n";
+    std::string msg = gamma_test::expect_error([&] { Mesh::parse_ply(s, "d.ply"); });
+    EXPECT_EQ(msg, "mesh 'd.ply': face 4 has fewer than 3 vertices (2)");
 }
 
 TEST(Ply, DeclaredSizesAreCheckedBeforeReading) {
