@@ -217,3 +217,69 @@ appearance(s: Ground) {
     # seen from above, +x is to the right: the white half of the mask (u > 0.5) renders dark
     left, right = picture[24:40, 8:24].mean(), picture[24:40, 40:56].mean()
     assert left > right + 60, (left, right)
+
+
+def _atlas_scene(tmp_path):
+    """The bare plane as the run assembles it, with an effect that reads mask.png."""
+    from gamma.driver.runner import runtime_module
+    from gamma.driver.scene import load_scene
+    from gamma.frontend.checker import check
+    from gamma.frontend.parser import parse
+
+    effect_path = tmp_path / "rain.gamma"
+    effect_path.write_text(RAIN.format(steer='mask("mask.png")'))
+    missing = []
+    effect = check(parse(effect_path.read_text(), str(effect_path)), missing_masks=missing)
+    assert missing == [str((tmp_path / "mask.png").resolve())]
+    return effect, load_scene(runtime_module(), str(tmp_path / "bare.obj"), effect, [])
+
+
+def test_a_mask_painted_in_the_atlas_of_a_mesh_without_uvs_steers_where_it_was_painted(tmp_path):
+    """A mesh without UVs: the mask the watch makes is laid out in the scene's
+    chart atlas; painted white wherever its texels lie at x > 0 (as the
+    page's brush paints, by the texels' scene points), dirt falls 20x more
+    there than at x < 0, and the painted file keeps its atlas record."""
+    from gamma.driver import mask_atlas
+
+    write_obj(tmp_path / "bare.obj", uvs=False)
+    effect, scene = _atlas_scene(tmp_path)
+    assert not scene.mesh.has_uvs
+    mask_atlas.create(tmp_path / "mask.png", scene.mesh.vertices(), scene.mesh.triangles(), scene.triangle_has_uv,
+                      size=128)
+    assert mask_atlas.layout(tmp_path / "mask.png")["size"] == 128
+    # the run's scene now reads the mask's atlas: the same coordinates each time
+    from gamma.driver.runner import runtime_module
+    from gamma.driver.scene import load_scene
+
+    scene = load_scene(runtime_module(), str(tmp_path / "bare.obj"), effect, [])
+    again = load_scene(runtime_module(), str(tmp_path / "bare.obj"), effect, [])
+    assert scene.mesh.has_uvs and not scene.triangle_has_uv.any()
+    uvs = np.asarray(scene.mesh.triangle_uvs())
+    assert np.array_equal(uvs, np.asarray(again.mesh.triangle_uvs()))
+    assert 0.3 < np.ptp(uvs[..., 0]) <= 1 and 0.3 < np.ptp(uvs[..., 1]) <= 1
+    points, per_texel = mask_atlas.texel_points(scene.mesh, scene.triangle_has_uv, 128)
+    assert points.shape == (128, 128, 3) and np.isfinite(points[..., 0]).mean() > 0.3
+    assert 2.0 / 128 < per_texel < 2.0 / 20        # a 2 x 2 plane over part of a 128² image
+    painted = np.where(np.nan_to_num(points[..., 0], nan=-1) > 0, 255, 0).astype(np.uint8)
+    from io import BytesIO
+
+    body = BytesIO()
+    Image.fromarray(painted).save(body, format="PNG")        # as a browser sends it: no text chunk
+    (tmp_path / "mask.png").write_bytes(mask_atlas.keep_record(body.getvalue(), tmp_path / "mask.png"))
+    assert mask_atlas.layout(tmp_path / "mask.png")["size"] == 128
+    r, out = run(tmp_path, RAIN.format(steer='mask("mask.png")'), tmp_path / "bare.obj")
+    assert r.returncode == 0, r.stderr
+    white, black, _ = halves(out)
+    assert white > 0 and white >= 20 * black, (white, black)
+
+
+def test_an_atlas_mask_of_another_mesh_is_refused(tmp_path):
+    write_obj(tmp_path / "bare.obj", uvs=False)
+    effect, scene = _atlas_scene(tmp_path)
+    from gamma.driver import mask_atlas
+
+    vertices = np.asarray(scene.mesh.vertices()) * 2          # the mesh as it was before an edit
+    mask_atlas.create(tmp_path / "mask.png", vertices, scene.mesh.triangles(), scene.triangle_has_uv, 64)
+    r, out = run(tmp_path, RAIN.format(steer='mask("mask.png")'), tmp_path / "bare.obj")
+    assert r.returncode == 1 and not out.exists()
+    assert "mask 'mask.png' was painted on another mesh's atlas" in r.stderr, r.stderr

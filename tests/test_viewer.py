@@ -296,3 +296,85 @@ def test_a_brush_stroke_changes_the_mask_file_and_the_picture(tmp_path):
     green = second["colour"][:, 1] - second["colour"][:, 0]
     assert np.all(first["colour"][:, 1] - first["colour"][:, 0] < 1e-6)
     assert green.max() > 0.2 and (green > 0.05).mean() < 0.5, (green.max(), (green > 0.05).mean())
+
+
+def _components(painted: np.ndarray) -> int:
+    """Connected regions (8-neighbours) of the True texels."""
+    seen = np.zeros_like(painted)
+    count = 0
+    h, w = painted.shape
+    for start in zip(*np.nonzero(painted)):
+        if seen[start]:
+            continue
+        count += 1
+        stack = [start]
+        seen[start] = True
+        while stack:
+            i, j = stack.pop()
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    a, b = i + di, j + dj
+                    if 0 <= a < h and 0 <= b < w and painted[a, b] and not seen[a, b]:
+                        seen[a, b] = True
+                        stack.append((a, b))
+    return count
+
+
+def test_a_mesh_without_uvs_is_painted_in_its_atlas_across_chart_seams(tmp_path, bumpy_obj):
+    """A mesh without texture coordinates (the bumpy sphere): the watch makes
+    the missing paint.png, black and laid out in the scene's chart atlas; the
+    brush paints in space, so one stroke lands on several charts of the
+    image while on the mesh it stays one spot; the saved file keeps its
+    atlas record and the picture follows it."""
+    from gamma.driver import mask_atlas
+    from gamma.driver.runner import runtime_module
+    from gamma.driver.scene import load_scene
+    from gamma.frontend.checker import load
+
+    effect = tmp_path / "effect.gamma"
+    effect.write_text(MASK_EFFECT)
+    for url, _, log in watching(effect, bumpy_obj):
+        with playwright_api.sync_playwright() as p:
+            browser = launch(p)
+            try:
+                page = browser.new_page(viewport={"width": 900, "height": 600})
+                page.goto(url)
+                wait_for(page, "gammaViewer.shown && gammaViewer.shown.quality === 'final'"
+                               " && gammaViewer.paint.index === 0 && gammaViewer.paint.points !== null")
+                assert page.evaluate("gammaViewer.paint.atlas")
+                generation = page.evaluate("gammaViewer.shown.generation")
+                first = frame_of(url, page)
+                page.check("#paint")
+                page.fill("#brush-size", "60")
+                box = page.locator("#view canvas").bounding_box()
+                cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+                page.mouse.move(cx - 30, cy)
+                page.mouse.down()
+                for k in range(7):
+                    page.mouse.move(cx - 30 + 10 * k, cy)
+                page.mouse.up()
+                assert page.evaluate("gammaViewer.maskSum()") > 0, "the stroke painted nothing"
+                page.click("#save-mask")
+                wait_for(page, "gammaViewer.paint.saved === 1")
+                wait_for(page, f"gammaViewer.shown.generation > {generation}"
+                               " && gammaViewer.shown.quality === 'final'")
+                second = frame_of(url, page)
+            finally:
+                browser.close()
+        text = "".join(log)
+        assert "made paint.png, a black 1024x1024 mask in the scene's atlas" in text, text
+        assert text.count("error") == 0, text
+    record = mask_atlas.layout(tmp_path / "paint.png")
+    assert record is not None and record["size"] == 1024, "the saved mask keeps its atlas record"
+    painted = np.asarray(Image.open(tmp_path / "paint.png").convert("L")) > 0
+    scene = load_scene(runtime_module(), str(bumpy_obj), load(str(effect)), [])
+    points, _ = mask_atlas.texel_points(scene.mesh, scene.triangle_has_uv, 1024)
+    spot = points[painted]
+    assert np.isfinite(spot).all(), "only texels with a place on the mesh are painted"
+    lo, hi = (np.asarray(b) for b in scene.bounds)
+    spread = np.linalg.norm(spot.max(axis=0) - spot.min(axis=0))
+    assert spread < 0.6 * np.linalg.norm(hi - lo), "one spot on the mesh"
+    assert _components(painted) >= 2, "the stroke crossed a chart seam and was painted on both charts"
+    green = second["colour"][:, 1] - second["colour"][:, 0]
+    assert np.all(first["colour"][:, 1] - first["colour"][:, 0] < 1e-6)
+    assert green.max() > 0.2 and (green > 0.05).mean() < 0.5, (green.max(), (green > 0.05).mean())

@@ -346,13 +346,20 @@ def load_scene(rt, path: str, effect: Effect, assign: list[str], down=None, part
         except (ValueError, RuntimeError) as err:
             raise SceneError(f"scene '{path}': {err}") from None
     surface = np.concatenate(surface_of).astype(np.int32)
+    has_uv = np.concatenate([np.full(p.mesh.num_triangles, p.mesh.has_uvs) for p in parts])
+    if effect.mask_uses:
+        from .mask_atlas import LayoutError, with_atlas
+
+        try:
+            mesh = with_atlas(rt, mesh, has_uv, effect)
+        except (LayoutError, ValueError, RuntimeError) as err:
+            raise SceneError(f"scene '{path}': {err}") from None
     if len(surface) != mesh.num_triangles:
         # from_arrays drops triangles that became degenerate under the transform
         raise SceneError(f"scene '{path}': {len(surface) - mesh.num_triangles} triangles "
                          "became degenerate after scaling")
     counts = {name: int(np.sum(surface == s.index)) for name, s in effect.surfaces.items()}
     objects, names = _objects(parts)
-    has_uv = np.concatenate([np.full(p.mesh.num_triangles, p.mesh.has_uvs) for p in parts])
     flat = np.concatenate([np.full(p.mesh.num_triangles, p.flat) for p in parts])
     materials = [p.material for p in parts if p.material is not None]
     numbered = iter(range(len(materials)))

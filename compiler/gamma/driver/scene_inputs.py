@@ -126,13 +126,23 @@ def problems(effect, scene) -> list:
 
     found = []
     if effect.mask_uses and scene.triangle_has_uv is not None:
+        from .mask_atlas import LayoutError, layout
+
         bare = ~np.asarray(scene.triangle_has_uv, bool)
         for pos, file, surface, path in effect.mask_uses:
+            try:
+                if layout(path) is not None:
+                    continue        # laid out in the scene's atlas (mask_atlas.py), checked with the scene
+            except LayoutError as err:
+                found.append(Diagnostic(pos, str(err), "error", file))
+                continue
             parts = _surface_parts(scene, effect, surface, bare)
             if parts:
                 found.append(Diagnostic(pos, f"mask() reads texture coordinates, and part "
                                         f"{', '.join(repr(p) for p in parts[:6])} (surface {surface}) has none; "
-                                        "give it UVs or bind it to another surface", "error", file))
+                                        "give it UVs, bind it to another surface, or paint the mask in "
+                                        "gammac watch, which lays a new mask out in the scene's atlas "
+                                        "(move this one away first)", "error", file))
     table = scene.vertex_attributes or {}
     for item in effect.inputs:
         if item.kind != "attribute":

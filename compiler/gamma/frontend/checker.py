@@ -43,13 +43,16 @@ RESERVED_PROPERTY_NAMES = {"x", "y", "z", "nx", "ny", "nz", "surface", "reflecta
 MAX_COUNT = 1e12  # gamma-tons per source and iteration
 
 
-def check(module: A.Module, overrides: dict[str, float] | None = None) -> Effect:
+def check(module: A.Module, overrides: dict[str, float] | None = None,
+          missing_masks: list | None = None) -> Effect:
     """Check a parsed file and everything it imports; ``overrides`` replaces the
-    values of the file's own parameters (``gammac run --param``)."""
+    values of the file's own parameters (``gammac run --param``).  With
+    ``missing_masks`` (a list), a mask() image that is not there is not an
+    error: its path is added to the list (``gammac watch`` makes it)."""
     from .parser import too_deep
 
     try:
-        return _Checker(module, overrides or {}).run()
+        return _Checker(module, overrides or {}, missing_masks).run()
     except RecursionError:
         raise too_deep(module.path, module.source) from None
 
@@ -70,9 +73,10 @@ _fold = arith_f32          # one float32 operation on constants, rounded as the 
 # ---- declarations ------------------------------------------------------------------------
 
 class _Checker:
-    def __init__(self, module: A.Module, overrides: dict[str, float]):
+    def __init__(self, module: A.Module, overrides: dict[str, float], missing_masks: list | None = None):
         self.module = module
         self.overrides = overrides
+        self.missing_masks = missing_masks
         self.report = Report()
         self.unit: Unit | None = None
         self.textures: dict[tuple, int] = {}    # (kind, resolved path) -> index; kind "color" or "mask"
@@ -528,6 +532,10 @@ class _Checker:
             return None
         path = resolved(resolved(Path(self.unit.path)).parent / arg.value)
         if not is_file(path):
+            if kind == "mask" and self.missing_masks is not None and not path.exists():
+                if str(path) not in self.missing_masks:
+                    self.missing_masks.append(str(path))
+                return str(path)
             self.error(arg.pos, f"cannot find {what} '{arg.value}' next to {Path(self.unit.path).name}")
             return None
         return str(path)

@@ -17,7 +17,12 @@ reads it through
 - ``POST /api/preview`` body: the preview fraction of the γ-tons (0 < f <= 1);
 - ``GET /api/mask?index=K``  the K-th image the effect reads with mask() (state ``masks``);
 - ``POST /api/mask?index=K`` body: a PNG of the same size, painted in the page: it
-  replaces the file (atomically), and the watch loop re-runs as after an edit.
+  replaces the file (atomically, keeping its atlas record), and the watch loop
+  re-runs as after an edit;
+- ``GET /api/mask-points?index=K``  for a mask laid out in the scene's atlas
+  (``atlas`` in its state, driver/mask_atlas.py): uint32 size, float32 scene
+  units per texel, float32 (size² x 3) the scene point under each texel (NaN
+  where there is none), so the brush paints in space, across chart seams.
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ class ViewerState:
         self.mesh_bytes = b""
         self.frames: list[bytes] = []
         self.mask_paths: list = []  # the files behind info["masks"], in the same order
+        self.mask_points = None     # path -> (points, units per texel) of an atlas mask (the watch loop's)
 
     def publish(self, frames: list[bytes] | None = None, mesh_bytes: bytes | None = None, **info) -> None:
         with self.cond:
@@ -74,19 +80,37 @@ class ViewerState:
             self.version += 1
             self.cond.notify_all()
 
-    def set_masks(self, paths: list) -> None:
-        """The images the effect reads with mask(), as the page may paint them."""
+    def set_masks(self, paths: list, atlas: frozenset = frozenset(), points=None) -> None:
+        """The images the effect reads with mask(), as the page may paint them;
+        those in ``atlas`` are laid out in the scene's atlas, and ``points``
+        (path -> (points, units per texel)) gives their texels' places."""
         from pathlib import Path
 
         with self.cond:
             self.mask_paths = [Path(p) for p in paths]
-            self.info["masks"] = [{"name": p.name, "paintable": _png8(p)} for p in self.mask_paths]
+            self.mask_points = points
+            self.info["masks"] = [{"name": p.name, "paintable": _png8(p), "atlas": str(p) in atlas}
+                                  for p in self.mask_paths]
             self.version += 1
             self.cond.notify_all()
 
     def mask_path(self, index: int):
         with self.cond:
             return self.mask_paths[index] if 0 <= index < len(self.mask_paths) else None
+
+    def texel_points(self, index: int) -> bytes | None:
+        """``/api/mask-points``'s body for the index-th mask, None if it is not an atlas mask."""
+        import struct
+
+        with self.cond:
+            if not 0 <= index < len(self.mask_paths) or not self.info["masks"][index]["atlas"]:
+                return None
+            path, points_of = self.mask_paths[index], self.mask_points
+        found = points_of(path) if points_of is not None else None
+        if found is None:
+            return None
+        points, per_texel = found
+        return struct.pack("<If", points.shape[0], per_texel) + points.astype("<f4").tobytes()
 
     def snapshot(self) -> dict:
         with self.cond:
@@ -148,6 +172,14 @@ class _Handler(BaseHTTPRequestHandler):
             if path is None or not path.is_file():
                 return self._send(b"no such mask", "text/plain", HTTPStatus.NOT_FOUND)
             return self._send(path.read_bytes(), "image/png")
+        if url.path == "/api/mask-points":
+            try:
+                data = self.state.texel_points(int(query.get("index", -1)))
+            except ValueError:
+                data = None
+            if data is None:
+                return self._send(b"no such atlas mask", "text/plain", HTTPStatus.NOT_FOUND)
+            return self._send(data, "application/octet-stream")
         if url.path == "/favicon.ico":
             return self._send(b"", "image/x-icon", HTTPStatus.NO_CONTENT)
         if url.path == "/api/events":
@@ -182,6 +214,12 @@ class _Handler(BaseHTTPRequestHandler):
             ok = False
         if not ok:
             return self._send(b"not a PNG of the mask's size", "text/plain", HTTPStatus.BAD_REQUEST)
+        from ..driver.mask_atlas import keep_record
+
+        try:
+            body = keep_record(body, path)
+        except (OSError, ValueError) as err:
+            return self._send(f"cannot read {path.name}: {err}".encode(), "text/plain", HTTPStatus.BAD_REQUEST)
         fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as f:

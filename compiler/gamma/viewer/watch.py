@@ -134,10 +134,13 @@ class Watcher:
         started = time.perf_counter()
         # the generation changes with the result, so the page never takes the old one for the new
         self.state.publish(status="running", progress="compiling")
+        missing: list = []
         try:
             source = Path(self.path).read_text(encoding="utf-8")
-            effect = check(parse(source, self.path), self.overrides)
-        except (GammaError, UsageError, OSError, UnicodeDecodeError) as err:
+            effect = check(parse(source, self.path), self.overrides, missing_masks=missing)
+            if missing:
+                self._make_masks(effect, missing)
+        except (GammaError, UsageError, OSError, UnicodeDecodeError, RunError) as err:
             self._fail(err)
             return
         self._check()
@@ -146,7 +149,13 @@ class Watcher:
         # painted in the page too) runs the effect again
         self.files = [self.path] + [str(Path(f)) for f in effect.files if Path(f) != Path(self.path)] \
             + masks + [p for p in effect.textures if p not in masks]
-        self.state.set_masks(masks)
+        from ..driver.mask_atlas import LayoutError, atlas_masks
+
+        try:
+            atlas = frozenset(atlas_masks(effect))
+        except LayoutError:
+            atlas = frozenset()       # reported by the run
+        self.state.set_masks(masks, atlas, self._texel_points)
         self.stamps.update({f: s for f, s in self._stamp().items() if f not in self.stamps})
         try:
             fraction = self.state.preview
@@ -155,6 +164,39 @@ class Watcher:
             self.simulate(effect, 1.0, started)
         except (RunError, GammaError) as err:
             self._fail(err)
+
+    def _make_masks(self, effect, paths: list) -> None:
+        """The masks the effect reads that are not there yet, black: in the
+        scene's atlas if parts of the scene have no texture coordinates."""
+        from ..driver.mask_atlas import DEFAULT_SIZE, create
+        from ..driver.scene import SceneError, load_scene
+
+        try:
+            scene = load_scene(runtime_module(), self.opts.scene, effect, self.opts.assign, self.opts.down)
+        except SceneError as err:
+            raise RunError(str(err)) from None
+        bare = not np.asarray(scene.triangle_has_uv, bool).all()
+        for path in paths:
+            create(path, scene.mesh.vertices(), scene.mesh.triangles(), scene.triangle_has_uv)
+            where = " in the scene's atlas (parts have no texture coordinates)" if bare else ""
+            self.log(f"gammac: made {Path(path).name}, a black {DEFAULT_SIZE}x{DEFAULT_SIZE} mask{where}: "
+                     "paint it in the page")
+
+    def _texel_points(self, path):
+        """Scene points of an atlas mask's texels (for the page's brush), for the scene on show."""
+        from ..driver.mask_atlas import texel_points
+        from PIL import Image
+
+        scene = self.scene
+        if scene is None or not scene.mesh.has_uvs:
+            return None
+        with Image.open(path) as image:
+            size = image.size[0]
+        key = (id(scene), str(path), size)
+        if getattr(self, "_points_key", None) != key:
+            self._points = texel_points(scene.mesh, scene.triangle_has_uv, size)
+            self._points_key = key
+        return self._points
 
     def _fail(self, err) -> None:
         # An editor writing the file in place (truncate, then write) can be
@@ -179,7 +221,13 @@ class Watcher:
         from ..driver.scene import SceneError, load_scene
 
         opts = self.opts
-        key = (tuple(effect.surfaces), tuple(effect.assign))
+        from ..driver.mask_atlas import LayoutError, atlas_masks
+
+        try:   # the atlas masks' records: they give parts without UVs their coordinates
+            layouts = tuple(sorted((p, r["mesh"], r["size"]) for p, r in atlas_masks(effect).items()))
+        except LayoutError as err:
+            raise RunError(str(err)) from None
+        key = (tuple(effect.surfaces), tuple(effect.assign), layouts)
         if self.scene_key != key:
             try:
                 self.scene = load_scene(runtime_module(), opts.scene, effect, opts.assign, opts.down)

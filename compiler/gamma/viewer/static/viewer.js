@@ -161,6 +161,7 @@ async function loadMesh(state) {
   scene.add(mesh);
   viewer.meshVersion = state.mesh.version;
   viewer.vertices = n;
+  if (paint.atlas) loadPoints(paint.index);   // the scene (so the texels' places) may have changed
   if (firstMesh) {
     const c = state.camera;
     camera.position.fromArray(c.eye);
@@ -234,8 +235,12 @@ async function showFrame() {
 // a soft disk of `brush` texels; the painted mask shows on the mesh as a red
 // glow.  Undo restores the canvas before the last stroke; Save sends it as a
 // PNG, which replaces the file, and the effect runs again as after an edit.
+// A mask laid out in the scene's atlas (a mesh without UVs) is painted in
+// space instead: every texel whose scene point is within the brush's radius
+// of the point under the pointer, so a stroke crosses the atlas's seams.
 const paint = (viewer.paint = { canvas: document.createElement("canvas"), index: -1, undo: [], saved: 0,
-                               strokes: 0, texture: null, painting: false });
+                               strokes: 0, texture: null, painting: false, masks: [], atlas: false,
+                               points: null, perTexel: 0 });
 const paintContext = paint.canvas.getContext("2d", { willReadFrequently: true });
 const raycaster = new THREE.Raycaster();
 
@@ -249,6 +254,9 @@ async function loadMask(index) {
   paintContext.drawImage(image, 0, 0);
   paint.index = index;
   paint.undo = [];
+  paint.atlas = Boolean(paint.masks[index] && paint.masks[index].atlas);
+  paint.points = null;
+  if (paint.atlas) await loadPoints(index);
   if (paint.texture) paint.texture.dispose();
   paint.texture = new THREE.CanvasTexture(paint.canvas);
   paint.texture.colorSpace = THREE.NoColorSpace;
@@ -263,6 +271,33 @@ function showPaint() {
   material.needsUpdate = true;
   controls.enabled = !$("paint").checked;   // the left button paints instead of turning the view
   draw();
+}
+
+async function loadPoints(index) {
+  const response = await fetch(`/api/mask-points?index=${index}&t=${Date.now()}`);
+  if (!response.ok || index !== paint.index) return;   // not ready (the scene is loading) or superseded
+  const bytes = await response.arrayBuffer();
+  const size = new Uint32Array(bytes, 0, 1)[0];
+  if (size !== paint.canvas.width) return;
+  paint.perTexel = new Float32Array(bytes, 4, 1)[0];
+  paint.points = new Float32Array(bytes, 8, 3 * size * size);
+}
+
+function paintAtPoint(p) {
+  const w = paint.canvas.width, h = paint.canvas.height, points = paint.points;
+  const radius = Math.max(1, Number($("brush-size").value)) * paint.perTexel, r2 = radius * radius;
+  const strength = Number($("brush-strength").value), target = $("erase").checked ? 0 : 255;
+  const image = paintContext.getImageData(0, 0, w, h), data = image.data;
+  for (let t = 0, k = 0; t < w * h; t++, k += 3) {
+    const dx = points[k] - p.x, dy = points[k + 1] - p.y, dz = points[k + 2] - p.z;
+    const d2 = dx * dx + dy * dy + dz * dz;       // NaN (no point here) compares false
+    if (!(d2 < r2)) continue;
+    const a = strength * (1 - Math.sqrt(d2) / radius);   // the UV brush's soft disk, in space
+    for (let c = 0; c < 3; c++) data[4 * t + c] = Math.round(data[4 * t + c] + a * (target - data[4 * t + c]));
+    data[4 * t + 3] = 255;
+  }
+  paintContext.putImageData(image, 0, 0);
+  paint.texture.needsUpdate = true;
 }
 
 function paintAt(u, v) {
@@ -285,7 +320,9 @@ function strokeAt(event) {
                                     -((event.clientY - rect.top) / rect.height) * 2 + 1);
   raycaster.setFromCamera(pointer, camera);
   const hit = mesh && raycaster.intersectObject(mesh)[0];
-  if (hit && hit.uv) { paintAt(hit.uv.x, hit.uv.y); draw(); }
+  if (hit && paint.atlas) {
+    if (paint.points) { paintAtPoint(mesh.worldToLocal(hit.point.clone())); draw(); }
+  } else if (hit && hit.uv) { paintAt(hit.uv.x, hit.uv.y); draw(); }
 }
 
 renderer.domElement.addEventListener("pointerdown", (event) => {
@@ -324,7 +361,8 @@ function showMasks(state) {
   const masks = state.masks || [];
   const panel = $("paint-panel"), select = $("mask");
   panel.hidden = masks.length === 0;
-  const names = masks.map((m) => m.name).join();
+  paint.masks = masks;
+  const names = masks.map((m) => `${m.name}${m.atlas ? " (atlas)" : ""}`).join();
   if (select.dataset.names !== names) {
     select.dataset.names = names;
     select.innerHTML = "";
@@ -333,7 +371,8 @@ function showMasks(state) {
   }
   const bare = state.mesh && !state.mesh.has_uvs;
   $("paint").disabled = bare || select.options.length === 0;
-  $("paint-note").textContent = bare ? "the mesh has no texture coordinates: mask() cannot read it"
+  $("paint-note").textContent = bare ? "the mesh has no texture coordinates: move the mask away, and a new " +
+    "one is made in the mesh's atlas"
     : select.options.length === 0 ? "only 8-bit PNG masks can be painted here" : $("paint-note").textContent;
 }
 
