@@ -362,3 +362,26 @@ def test_a_cache_folder_others_can_write_to_is_not_used(tmp_path):
     note = f"gammac: note: not using the cache folder '{cache}': other users can write to it"
     assert r.stderr.count(note) == 1, r.stderr
     assert not any(cache.iterdir()), "nothing was kept there"
+
+
+def test_cache_entries_are_0600_in_0700_folders(tmp_path):
+    """Issue 33, item 8: what the caches keep (kernels, libraries, set-ups,
+    views) only their owner can read or replace, whatever the umask."""
+    cache = tmp_path / "made" / "cache"
+    effect = tmp_path / "e.gamma"
+    effect.write_text((ROOT / "examples" / "patina.gamma").read_text())
+    command = [sys.executable, "-c", "import os, sys; os.umask(0o002); from gamma.cli import main; "
+               "sys.exit(main(sys.argv[1:]))", "run", str(effect), "--scene",
+               str(ROOT / "examples" / "scenes" / "teapot.obj"), "--surfels", "2000", "--tons", "2000",
+               "--iterations", "1", "--size", "16", "--quiet"]
+    env = dict(os.environ, GAMMA_CACHE_DIR=str(cache))
+    for k in range(2):      # the second run keeps what the first one's background work had not
+        r = subprocess.run(command + ["--out", str(tmp_path / f"out{k}")], capture_output=True, text=True,
+                           timeout=300, env=env)
+        assert r.returncode == 0, r.stderr
+    entries = [p for p in cache.rglob("*")]
+    files = [p for p in entries if p.is_file()]
+    assert any(p.suffix == ".so" for p in files) and any(p.name.startswith("setup-") for p in files), entries
+    assert (cache.stat().st_mode & 0o777) == 0o700
+    for p in entries:
+        assert (p.stat().st_mode & 0o777) == (0o600 if p.is_file() else 0o700), (p, oct(p.stat().st_mode))

@@ -63,6 +63,11 @@ def cache_dir() -> Path | None:
         base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
         folder = Path(base) / "gamma"
     problem = _unsafe(folder)
+    if not problem:
+        try:    # made private: entries are written 0600 (``cache_write``) in 0700 folders
+            folder.mkdir(mode=CACHE_FOLDER_MODE, parents=True, exist_ok=True)
+        except OSError:
+            return None                 # cannot be made (read-only, a file there): no cache
     if problem:
         if str(folder) not in _unsafe_said:
             _unsafe_said.add(str(folder))
@@ -85,6 +90,17 @@ def _unsafe(folder: Path) -> str:
     if st.st_mode & 0o022:
         return "other users can write to it"
     return ""
+
+
+#: Modes of the caches' entries and folders: only their owner reads them.
+CACHE_FILE_MODE = 0o600
+CACHE_FOLDER_MODE = 0o700
+
+
+def cache_write(path: Path, data) -> None:
+    """``atomic_write`` of a cache entry: 0600, in a folder made 0700."""
+    path.parent.mkdir(mode=CACHE_FOLDER_MODE, parents=True, exist_ok=True)
+    atomic_write(path, data, CACHE_FILE_MODE)
 
 
 def atomic_write(path: Path, data, mode: int | None = None) -> None:

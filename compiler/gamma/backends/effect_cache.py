@@ -46,7 +46,7 @@ import threading
 from pathlib import Path
 
 from ..driver import background
-from ..files import atomic_write, cache_dir
+from ..files import CACHE_FOLDER_MODE, cache_dir, cache_write
 
 #: ``effect-KEY.bin`` starts with this, then the SHA-256 of the pickle after it.
 MAGIC = b"gamma-effect\x001\x00"
@@ -250,7 +250,7 @@ def _keep(unsaved: tuple, ir_text: str, symbols: list[str], llvm_version: tuple)
         from .jit import position_independent_object
 
         code = position_independent_object(ir_text)
-        folder.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(mode=CACHE_FOLDER_MODE, parents=True, exist_ok=True)
         # not a TemporaryDirectory: its finalizer runs at the interpreter's exit, before
         # background's handler joins this thread, and took the folder from under the
         # compiler (no entry kept when the run ended first: seen in CI)
@@ -270,12 +270,12 @@ def _keep(unsaved: tuple, ir_text: str, symbols: list[str], llvm_version: tuple)
         # names a library that is gone, and the next run compiles and keeps it again.
         for older in folder.glob(f"effect-{key}-*.so"):
             _unlink(str(older))
-        atomic_write(folder / _library_name(key, digest), shared)
+        cache_write(folder / _library_name(key, digest), shared)
         body = pickle.dumps({"key": key, "effect": pickled, "facts": facts,
                              "ir_text": ir_text, "symbols": symbols, "llvm_version": list(llvm_version),
                              "shared_sha256": digest},
                             protocol=pickle.HIGHEST_PROTOCOL)
-        atomic_write(folder / f"effect-{key}.bin", (MAGIC, hashlib.sha256(body).digest(), body))
+        cache_write(folder / f"effect-{key}.bin", (MAGIC, hashlib.sha256(body).digest(), body))
         _trim(folder)
     except Exception:  # noqa: BLE001 - an entry not kept only costs the next run time
         return

@@ -152,9 +152,9 @@ class JitKernels:
             if path is None or cached is not None:
                 return
             try:
-                from ..files import atomic_write
+                from ..files import cache_write
 
-                atomic_write(path, pack_cached(key, bytes(data)))
+                cache_write(path, pack_cached(key, bytes(data)))
             except OSError:
                 pass  # an unwritable cache only costs time
 

@@ -37,7 +37,7 @@ import struct
 import zlib
 from pathlib import Path
 
-from ..files import atomic_write, cache_dir
+from ..files import cache_dir, cache_write
 from . import background
 
 #: Trailer after the snapshot: CRC-32 of the snapshot, then this mark (the
@@ -123,7 +123,7 @@ def _take_and_write(sim, path: Path) -> None:
         f.write(TRAILER.pack(crc, MARK))
 
     try:
-        atomic_write(path, write)
+        cache_write(path, write)
         trim(path.parent, keep=path)
     except Exception:  # noqa: BLE001 - a setup not kept only costs the next run time
         pass
@@ -139,7 +139,7 @@ def _write(path: Path, data) -> None:
 def write_with_trailer(path: Path, data, mark: bytes) -> None:
     """``data`` then its CRC-32 and ``mark`` written to ``path`` (atomically),
     then the folder trimmed (this file kept)."""
-    atomic_write(path, (memoryview(data), TRAILER.pack(zlib.crc32(memoryview(data)), mark)))
+    cache_write(path, (memoryview(data), TRAILER.pack(zlib.crc32(memoryview(data)), mark)))
     trim(path.parent, keep=path)
 
 
