@@ -143,6 +143,10 @@ SOURCE_KINDS = ("point", "spot", "rect", "disk", "directional", "sphere", "hemis
 STATISTICS = ("emitted", "settled", "escaped", "missed", "capped", "interactions", "rays",
               "bounces", "flow_steps", "drips", "segments", "silent")
 
+#: The books of one conserved property in one iteration (``TraceStats.mass``,
+#: gamma/stats.h): removed + emitted + created = deposited + escaped + dropped + in_flight.
+MASS_BOOKS = ("removed", "deposited", "escaped", "in_flight", "emitted", "created", "dropped")
+
 #: The binding: every attribute the Python side uses, per object of ``gamma._runtime``.
 BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
@@ -207,6 +211,10 @@ def c_header() -> str:
     lines.append(f"#define GAMMA_LOOK_WIDTH {APPEARANCE_WIDTH}")
     for name, value in APPEARANCE_DEFAULTS.items():
         lines.append(f"#define GAMMA_LOOK_DEFAULT_{name.upper()} {value!r}f")
+    # X-macros of the trace counters and the mass books: the C++ struct fields,
+    # their sums and their conversions to and from Python follow from them
+    lines.append("#define GAMMA_TRACE_COUNTERS(X) " + " ".join(f"X({n})" for n in STATISTICS))
+    lines.append("#define GAMMA_MASS_BOOKS(X) " + " ".join(f"X({n})" for n in MASS_BOOKS))
     lines.append("typedef struct GammaContext {")
     for name, ctype, count in CONTEXT_FIELDS:
         lines.append(f"    {ctype} {name}{f'[{count}]' if count > 1 else ''};")

@@ -17,18 +17,9 @@ void count_nonfinite(std::vector<NonFinite>& list, int event, int ton_type, int 
 }
 
 void TraceStats::add(const TraceStats& o) {
-    emitted += o.emitted;
-    settled += o.settled;
-    escaped += o.escaped;
-    missed += o.missed;
-    capped += o.capped;
-    interactions += o.interactions;
-    rays += o.rays;
-    flow_steps += o.flow_steps;
-    bounces += o.bounces;
-    drips += o.drips;
-    segments += o.segments;
-    silent += o.silent;
+#define GAMMA_COUNTER_ADD(name) name += o.name;
+    GAMMA_TRACE_COUNTERS(GAMMA_COUNTER_ADD)
+#undef GAMMA_COUNTER_ADD
     for (const NonFinite& nf : o.nonfinite)
         count_nonfinite(nonfinite, nf.event, nf.ton_type, nf.surface, nf.statement, nf.count);
     if (mass.size() < o.mass.size()) mass.resize(o.mass.size());

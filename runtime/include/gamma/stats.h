@@ -4,6 +4,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "gamma_abi.h"  // GAMMA_TRACE_COUNTERS, GAMMA_MASS_BOOKS (abi.py's STATISTICS, MASS_BOOKS)
+
 namespace gammart {
 
 // How often a kernel's statement produced NaN or infinity (the store was
@@ -27,26 +29,26 @@ void count_nonfinite(std::vector<NonFinite>& list, int event, int ton_type, int 
 // (every gamma-ton ends within its iteration, so 0 in this version).
 // removed + emitted + created = deposited + escaped + dropped + in_flight.
 struct MassBooks {
-    double removed = 0, deposited = 0, emitted = 0, created = 0, escaped = 0, dropped = 0, in_flight = 0;
+#define GAMMA_BOOK_FIELD(name) double name = 0;
+    GAMMA_MASS_BOOKS(GAMMA_BOOK_FIELD)
+#undef GAMMA_BOOK_FIELD
     void add(const MassBooks& o) {
-        removed += o.removed;
-        deposited += o.deposited;
-        emitted += o.emitted;
-        created += o.created;
-        escaped += o.escaped;
-        dropped += o.dropped;
-        in_flight += o.in_flight;
+#define GAMMA_BOOK_ADD(name) name += o.name;
+        GAMMA_MASS_BOOKS(GAMMA_BOOK_ADD)
+#undef GAMMA_BOOK_ADD
     }
 };
 
+// The counters (abi.py's STATISTICS): emitted, settled, escaped, missed (the
+// emission ray missed the mesh; also counted in escaped), capped,
+// interactions, rays, bounces, flow_steps, drips, segments, and silent
+// (gamma-tons of surface sources not emitted because their weights were all 0
+// this iteration: set for the whole pass by Tracer::trace / merge_end, 0 in a
+// chunk's counters).
 struct TraceStats {
-    int64_t emitted = 0, settled = 0, escaped = 0, capped = 0;
-    int64_t interactions = 0, rays = 0;
-    int64_t missed = 0;  // emission ray missed the mesh (also counted in escaped)
-    int64_t flow_steps = 0, bounces = 0, drips = 0, segments = 0;
-    // gamma-tons of surface sources not emitted: their weights were all 0 this iteration
-    // (set for the whole pass by Tracer::trace / merge_end; 0 in a chunk's counters)
-    int64_t silent = 0;
+#define GAMMA_COUNTER_FIELD(name) int64_t name = 0;
+    GAMMA_TRACE_COUNTERS(GAMMA_COUNTER_FIELD)
+#undef GAMMA_COUNTER_FIELD
     std::vector<NonFinite> nonfinite;
     std::vector<MassBooks> mass;  // per Config::mass_properties entry
     double trace_seconds = 0;
