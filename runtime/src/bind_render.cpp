@@ -211,7 +211,7 @@ void bind_simulation_render(nb::class_<gammart::Simulation>& simulation) {
              "of the metallic-roughness texture); images float32[H, W, 3] (row 0 = top).")
         .def("corner_normals",
              [](const gammart::Simulation& s) {
-                 std::vector<float> c = s.corner_normals();
+                 std::vector<float> c = *s.corner_normals();
                  const size_t m = c.size() / 9;
                  return to_numpy<float>(std::move(c), {m, 3, 3});
              },

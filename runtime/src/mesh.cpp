@@ -5,6 +5,7 @@
 #include <OpenMesh/Core/System/omstream.hh>
 
 #include <algorithm>
+#include <array>
 #include <cctype>
 #include <charconv>
 #include <cfloat>
@@ -223,229 +224,260 @@ double Mesh::area() const {
     return total;
 }
 
-Mesh Mesh::parse_obj(const std::string& text, const std::string& name) {
-    std::vector<float> verts;
-    std::vector<int32_t> tris;
-    Labels labels;
-    std::unordered_map<std::string, int32_t> name_id;
-    size_t line_no = 0, pos = 0;
-    const std::string where = "mesh " + q(name) + ": ";
-    auto intern = [&](const std::string& s, const char* kind) -> int32_t {
-        if (s.empty()) return -1;
-        if (!valid_utf8(s))
-            throw Error(where + "line " + std::to_string(line_no) + ": the " + kind +
-                        " name is not UTF-8 text (re-save the file as UTF-8)");
-        auto it = name_id.find(s);
-        if (it != name_id.end()) return it->second;
-        int32_t id = int32_t(labels.names.size());
-        labels.names.push_back(s);
-        name_id.emplace(s, id);
-        return id;
-    };
-    int32_t cur_object = -1, cur_group = -1, cur_material = -1;
+namespace {
+
+// One OBJ file read line by line: its vertices, texture coordinates, faces
+// (fan-triangulated) and object / group / material labels.
+class ObjReader {
+public:
+    ObjReader(const std::string& text, const std::string& name)
+        : text_(text), name_(name), where_("mesh " + q(name) + ": ") {}
+
+    Mesh read() {
+        reserve();
+        for (size_t pos = 0; pos < text_.size();) {
+            size_t eol = text_.find('\n', pos);
+            if (eol == std::string::npos) eol = text_.size();
+            line(std::string_view(text_).substr(pos, eol - pos));
+            pos = eol + 1;
+        }
+        check_vertex_indices();
+        const std::vector<float> uvs = corner_uvs();
+        return build(std::move(verts_), tris_.data(), tris_.size() / 3, name_, &labels_,
+                     uvs.empty() ? nullptr : uvs.data());
+    }
+
+private:
     // Positive indices may refer to vertices defined later; they are checked
     // once the file is read.  Only a corner whose index was not yet in range
     // when its face was read (a forward reference, or 0) can be out of range
     // then: the line and the written index of those corners alone are kept,
-    // for the message (per corner, they were 8 MB of the bunny's load).
+    // for the message (kept per corner, they were most of a large file's load).
     struct Pending { size_t line; int64_t written; bool forward; };
     struct Forward { size_t corner; size_t line; int64_t written; };
-    std::vector<Forward> vertex_forward, vt_forward;
-    std::vector<int64_t> face;
-    std::vector<Pending> face_src;
+
+    const std::string& text_;
+    const std::string& name_;
+    const std::string where_;
+    size_t line_no_ = 0;
+    std::vector<float> verts_;
+    std::vector<int32_t> tris_;
+    Labels labels_;
+    std::unordered_map<std::string, int32_t> name_id_;
+    int32_t object_ = -1, group_ = -1, material_ = -1;
+    std::vector<Forward> vertex_forward_, vt_forward_;
+    std::vector<int64_t> face_;
+    std::vector<Pending> face_src_;
     // Texture coordinates: `vt` values (2 per entry) and, while every corner
     // so far names one, per triangle corner the 0-based vt index (checked at
     // the end like vertex indices).
-    std::vector<float> texcoords;
-    std::vector<int64_t> tri_vt, face_vt;
-    std::vector<Pending> face_vt_src;
-    bool all_corners_have_vt = true;
-    const std::string_view all(text);
-    size_t corners_hint = 0;   // 3 per line starting "f ", for tri_vt's room
-    {
-        // Room for what lines starting "v " and "f " add (triangles: 3
-        // corners a face), reserved once rather than grown by doubling: each
-        // growth copies the array and faults in new pages (a third of the
-        // bunny's load was page faults).  A hint only: other lines still fit.
+    std::vector<float> texcoords_;
+    std::vector<int64_t> tri_vt_, face_vt_;
+    std::vector<Pending> face_vt_src_;
+    bool all_corners_have_vt_ = true;
+    size_t corners_hint_ = 0;  // 3 per line starting "f ", for tri_vt_'s room
+
+    std::string at_line() const { return where_ + "line " + std::to_string(line_no_) + ": "; }
+    std::string at_face() const { return where_ + "face on line " + std::to_string(line_no_); }
+
+    // Room for what lines starting "v " and "f " add (triangles: 3 corners a
+    // face), reserved once rather than grown by doubling: each growth copies
+    // the array and faults in new pages.  A hint only: other lines still fit.
+    void reserve() {
         size_t v = 0, f = 0;
-        for (size_t at = 0; at + 1 < text.size();) {
-            if (text[at + 1] == ' ' || text[at + 1] == '\t') {
-                v += text[at] == 'v';
-                f += text[at] == 'f';
+        for (size_t at = 0; at + 1 < text_.size();) {
+            if (text_[at + 1] == ' ' || text_[at + 1] == '\t') {
+                v += text_[at] == 'v';
+                f += text_[at] == 'f';
             }
-            const size_t eol = text.find('\n', at);
+            const size_t eol = text_.find('\n', at);
             if (eol == std::string::npos) break;
             at = eol + 1;
         }
-        verts.reserve(3 * v);
-        tris.reserve(3 * f);
-        corners_hint = 3 * f;
-        labels.object.reserve(f);
-        labels.group.reserve(f);
-        labels.material.reserve(f);
+        verts_.reserve(3 * v);
+        tris_.reserve(3 * f);
+        corners_hint_ = 3 * f;
+        labels_.object.reserve(f);
+        labels_.group.reserve(f);
+        labels_.material.reserve(f);
     }
-    while (pos < text.size()) {
-        size_t eol = text.find('\n', pos);
-        if (eol == std::string::npos) eol = text.size();
-        std::string_view line = all.substr(pos, eol - pos);
-        pos = eol + 1;
-        ++line_no;
-        size_t hash = line.find('#');
+
+    void line(std::string_view line) {
+        ++line_no_;
+        const size_t hash = line.find('#');
         if (hash != std::string_view::npos) line = line.substr(0, hash);
         size_t a = 0;
         while (a < line.size() && is_space(line[a])) ++a;
         size_t b = a;
         while (b < line.size() && !is_space(line[b])) ++b;
         const std::string_view kw = line.substr(a, b - a);
-        const char* const line_end = line.data() + line.size();
-        if (kw == "v") {
-            const char* p = line.data() + b;
-            float xyz[3];
-            for (int k = 0; k < 3; ++k) {
-                double c = 0;
-                if (!read_double(p, line_end, c))
-                    throw Error(where + "line " + std::to_string(line_no) + ": cannot read vertex coordinates");
-                if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
-                    throw Error(non_finite_vertex(name, verts.size() / 3));
-                xyz[k] = float(c);
-            }
-            verts.insert(verts.end(), xyz, xyz + 3);
-        } else if (kw == "vt") {
-            // vt u [v [w]]: v defaults to 0, w is ignored.
-            const char* p = line.data() + b;
-            float uv[2] = {0.0f, 0.0f};
-            for (int k = 0; k < 2; ++k) {
-                double c = 0;
-                if (!read_double(p, line_end, c)) {
-                    if (k == 1) break;
-                    throw Error(where + "line " + std::to_string(line_no) + ": cannot read texture coordinates");
-                }
-                if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
-                    throw Error(where + "line " + std::to_string(line_no) + ": texture coordinate is not finite");
-                uv[k] = float(c);
-            }
-            texcoords.insert(texcoords.end(), uv, uv + 2);
-        } else if (kw == "f") {
-            face.clear();
-            face_src.clear();
-            face_vt.clear();
-            face_vt_src.clear();
-            // The whitespace-separated tokens `istringstream >> std::string` would give
-            // (lines hold no '\n'), without a stream per face: ~70 ms on the bunny.
-            for (size_t q = b;;) {
-                while (q < line.size() && is_space(line[q])) ++q;
-                if (q >= line.size()) break;
-                size_t e = q;
-                while (e < line.size() && !is_space(line[e])) ++e;
-                const std::string_view tok = line.substr(q, e - q);
-                q = e;
-                auto unreadable = [&] {
-                    return Error(where + "face on line " + std::to_string(line_no) + ": cannot read '" +
-                                 std::string(tok) + "'");
-                };
-                // Texture index: between the first and the second '/'.
-                const size_t s1 = tok.find('/');
-                std::string_view tpart;
-                if (s1 != std::string_view::npos) {
-                    const size_t s2 = tok.find('/', s1 + 1);
-                    tpart = tok.substr(s1 + 1, s2 == std::string_view::npos ? std::string_view::npos : s2 - s1 - 1);
-                }
-                if (tpart.empty()) {
-                    all_corners_have_vt = false;
-                    face_vt.push_back(0);
-                    face_vt_src.push_back({line_no, 0, false});
-                } else {
-                    long long tidx = 0;
-                    if (!read_whole_integer(tpart, tidx)) throw unreadable();
-                    const int64_t nt = int64_t(texcoords.size() / 2);
-                    int64_t tz = tidx < 0 ? nt + tidx : tidx - 1;
-                    if (tidx < 0 && tz < 0)
-                        throw Error(where + "face on line " + std::to_string(line_no) + " has texture index " +
-                                    std::to_string(tidx) + " out of range (" + std::to_string(nt) +
-                                    " texture coordinates)");
-                    face_vt.push_back(tz);
-                    face_vt_src.push_back({line_no, tidx, tz < 0 || tz >= nt});
-                }
-                const std::string_view first = tok.substr(0, tok.find('/'));
-                long long idx = 0;
-                if (first.empty() || !read_whole_integer(first, idx)) throw unreadable();
-                const int64_t nv = int64_t(verts.size() / 3);
-                int64_t zero_based;
-                if (idx < 0) {
-                    zero_based = nv + idx;
-                    if (zero_based < 0)
-                        throw Error(where + "face on line " + std::to_string(line_no) + " has vertex index " +
-                                    std::to_string(idx) + " out of range (" + std::to_string(nv) + " vertices)");
-                } else {
-                    zero_based = idx - 1;  // 0 -> -1, reported below
-                }
-                face.push_back(zero_based);
-                face_src.push_back({line_no, idx, zero_based < 0 || zero_based >= nv});
-            }
-            if (face.size() < 3)
-                throw Error(where + "face on line " + std::to_string(line_no) + " has fewer than 3 vertices");
-            if (!all_corners_have_vt && !tri_vt.empty()) {
-                tri_vt = {};             // no UVs: their indices are never checked
-                vt_forward = {};
-            }
-            for (size_t k = 1; k + 1 < face.size(); ++k) {
-                const size_t corner[3] = {0, k, k + 1};
-                for (size_t c : corner) {
-                    if (face_src[c].forward)
-                        vertex_forward.push_back({tris.size(), face_src[c].line, face_src[c].written});
-                    if (all_corners_have_vt) {
-                        if (tri_vt.empty()) tri_vt.reserve(corners_hint);
-                        if (face_vt_src[c].forward)
-                            vt_forward.push_back({tri_vt.size(), face_vt_src[c].line, face_vt_src[c].written});
-                        tri_vt.push_back(face_vt[c]);
-                    }
-                    tris.push_back(int32_t(std::min<int64_t>(face[c], INT32_MAX)));
-                }
-                labels.object.push_back(cur_object);
-                labels.group.push_back(cur_group);
-                labels.material.push_back(cur_material);
-            }
-        } else if (kw == "o") {
-            cur_object = intern(trim(line, b), "object");
-        } else if (kw == "g") {
-            cur_group = intern(trim(line, b), "group");
-        } else if (kw == "usemtl") {
-            cur_material = intern(trim(line, b), "material");
-        }
+        const char* const end = line.data() + line.size();
+        if (kw == "v") vertex(line.data() + b, end);
+        else if (kw == "vt") texcoord(line.data() + b, end);
+        else if (kw == "f") face(line, b);
+        else if (kw == "o") object_ = intern(trim(line, b), "object");
+        else if (kw == "g") group_ = intern(trim(line, b), "group");
+        else if (kw == "usemtl") material_ = intern(trim(line, b), "material");
         // Everything else (vn, s, mtllib, l, p, ...) is ignored.
     }
+
+    int32_t intern(const std::string& s, const char* kind) {
+        if (s.empty()) return -1;
+        if (!valid_utf8(s))
+            throw Error(at_line() + "the " + kind + " name is not UTF-8 text (re-save the file as UTF-8)");
+        auto it = name_id_.find(s);
+        if (it != name_id_.end()) return it->second;
+        const int32_t id = int32_t(labels_.names.size());
+        labels_.names.push_back(s);
+        name_id_.emplace(s, id);
+        return id;
+    }
+
+    void vertex(const char* p, const char* end) {
+        float xyz[3];
+        for (int k = 0; k < 3; ++k) {
+            double c = 0;
+            if (!read_double(p, end, c)) throw Error(at_line() + "cannot read vertex coordinates");
+            if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
+                throw Error(non_finite_vertex(name_, verts_.size() / 3));
+            xyz[k] = float(c);
+        }
+        verts_.insert(verts_.end(), xyz, xyz + 3);
+    }
+
+    // vt u [v [w]]: v defaults to 0, w is ignored.
+    void texcoord(const char* p, const char* end) {
+        float uv[2] = {0.0f, 0.0f};
+        for (int k = 0; k < 2; ++k) {
+            double c = 0;
+            if (!read_double(p, end, c)) {
+                if (k == 1) break;
+                throw Error(at_line() + "cannot read texture coordinates");
+            }
+            if (!std::isfinite(c) || std::fabs(c) > double(FLT_MAX))
+                throw Error(at_line() + "texture coordinate is not finite");
+            uv[k] = float(c);
+        }
+        texcoords_.insert(texcoords_.end(), uv, uv + 2);
+    }
+
+    void face(std::string_view line, size_t b) {
+        face_.clear();
+        face_src_.clear();
+        face_vt_.clear();
+        face_vt_src_.clear();
+        // The whitespace-separated tokens `istringstream >> std::string` would
+        // give (lines hold no '\n'), without a stream per face.
+        for (size_t q = b;;) {
+            while (q < line.size() && is_space(line[q])) ++q;
+            if (q >= line.size()) break;
+            size_t e = q;
+            while (e < line.size() && !is_space(line[e])) ++e;
+            corner(line.substr(q, e - q));
+            q = e;
+        }
+        if (face_.size() < 3) throw Error(at_face() + " has fewer than 3 vertices");
+        if (!all_corners_have_vt_ && !tri_vt_.empty()) {
+            tri_vt_ = {};             // no UVs: their indices are never checked
+            vt_forward_ = {};
+        }
+        for (size_t k = 1; k + 1 < face_.size(); ++k) triangle({0, k, k + 1});
+    }
+
+    // One `v`, `v/vt`, `v//vn` or `v/vt/vn` token of a face.
+    void corner(std::string_view tok) {
+        auto unreadable = [&] { return Error(at_face() + ": cannot read '" + std::string(tok) + "'"); };
+        const size_t s1 = tok.find('/');
+        std::string_view tpart;  // the texture index: between the first and the second '/'
+        if (s1 != std::string_view::npos) {
+            const size_t s2 = tok.find('/', s1 + 1);
+            tpart = tok.substr(s1 + 1, s2 == std::string_view::npos ? std::string_view::npos : s2 - s1 - 1);
+        }
+        if (tpart.empty()) {
+            all_corners_have_vt_ = false;
+            face_vt_.push_back(0);
+            face_vt_src_.push_back({line_no_, 0, false});
+        } else {
+            long long tidx = 0;
+            if (!read_whole_integer(tpart, tidx)) throw unreadable();
+            const int64_t nt = int64_t(texcoords_.size() / 2);
+            const int64_t tz = tidx < 0 ? nt + tidx : tidx - 1;
+            if (tidx < 0 && tz < 0)
+                throw Error(at_face() + " has texture index " + std::to_string(tidx) + " out of range (" +
+                            std::to_string(nt) + " texture coordinates)");
+            face_vt_.push_back(tz);
+            face_vt_src_.push_back({line_no_, tidx, tz < 0 || tz >= nt});
+        }
+        const std::string_view first = tok.substr(0, tok.find('/'));
+        long long idx = 0;
+        if (first.empty() || !read_whole_integer(first, idx)) throw unreadable();
+        const int64_t nv = int64_t(verts_.size() / 3);
+        const int64_t zero_based = idx < 0 ? nv + idx : idx - 1;  // 0 -> -1, reported at the end
+        if (idx < 0 && zero_based < 0)
+            throw Error(at_face() + " has vertex index " + std::to_string(idx) + " out of range (" +
+                        std::to_string(nv) + " vertices)");
+        face_.push_back(zero_based);
+        face_src_.push_back({line_no_, idx, zero_based < 0 || zero_based >= nv});
+    }
+
+    void triangle(const std::array<size_t, 3>& corners) {
+        for (size_t c : corners) {
+            if (face_src_[c].forward)
+                vertex_forward_.push_back({tris_.size(), face_src_[c].line, face_src_[c].written});
+            if (all_corners_have_vt_) {
+                if (tri_vt_.empty()) tri_vt_.reserve(corners_hint_);
+                if (face_vt_src_[c].forward)
+                    vt_forward_.push_back({tri_vt_.size(), face_vt_src_[c].line, face_vt_src_[c].written});
+                tri_vt_.push_back(face_vt_[c]);
+            }
+            tris_.push_back(int32_t(std::min<int64_t>(face_[c], INT32_MAX)));
+        }
+        labels_.object.push_back(object_);
+        labels_.group.push_back(group_);
+        labels_.material.push_back(material_);
+    }
+
     // The record of corner i among the forward ones (every corner out of range has one).
-    auto forward_of = [](const std::vector<Forward>& forward, size_t i) -> const Forward& {
+    static const Forward& forward_of(const std::vector<Forward>& forward, size_t i) {
         const auto it = std::lower_bound(forward.begin(), forward.end(), i,
                                          [](const Forward& f, size_t corner) { return f.corner < corner; });
         if (it == forward.end() || it->corner != i) throw std::logic_error("parse_obj: no record of a corner");
         return *it;
-    };
-    const int64_t nv = int64_t(verts.size() / 3);
-    for (size_t i = 0; i < tris.size(); ++i)
-        if (tris[i] < 0 || tris[i] >= nv) {
-            const Forward& f = forward_of(vertex_forward, i);
-            throw Error(where + "face on line " + std::to_string(f.line) + " has vertex index " +
-                        std::to_string(f.written) + " out of range (" + std::to_string(nv) + " vertices)");
-        }
-    // UVs only if every corner of every face names a texture coordinate.
-    std::vector<float> uvs;
-    if (all_corners_have_vt && !tris.empty()) {
-        const int64_t nt = int64_t(texcoords.size() / 2);
-        uvs.resize(2 * tri_vt.size());
-        for (size_t i = 0; i < tri_vt.size(); ++i) {
-            if (tri_vt[i] < 0 || tri_vt[i] >= nt) {
-                const Forward& f = forward_of(vt_forward, i);
-                throw Error(where + "face on line " + std::to_string(f.line) + " has texture index " +
+    }
+
+    void check_vertex_indices() const {
+        const int64_t nv = int64_t(verts_.size() / 3);
+        for (size_t i = 0; i < tris_.size(); ++i)
+            if (tris_[i] < 0 || tris_[i] >= nv) {
+                const Forward& f = forward_of(vertex_forward_, i);
+                throw Error(where_ + "face on line " + std::to_string(f.line) + " has vertex index " +
+                            std::to_string(f.written) + " out of range (" + std::to_string(nv) + " vertices)");
+            }
+    }
+
+    // UVs per corner, only if every corner of every face names a texture coordinate.
+    std::vector<float> corner_uvs() const {
+        std::vector<float> uvs;
+        if (!all_corners_have_vt_ || tris_.empty()) return uvs;
+        const int64_t nt = int64_t(texcoords_.size() / 2);
+        uvs.resize(2 * tri_vt_.size());
+        for (size_t i = 0; i < tri_vt_.size(); ++i) {
+            if (tri_vt_[i] < 0 || tri_vt_[i] >= nt) {
+                const Forward& f = forward_of(vt_forward_, i);
+                throw Error(where_ + "face on line " + std::to_string(f.line) + " has texture index " +
                             std::to_string(f.written) + " out of range (" + std::to_string(nt) +
                             " texture coordinates)");
             }
-            uvs[2 * i] = texcoords[2 * size_t(tri_vt[i])];
-            uvs[2 * i + 1] = texcoords[2 * size_t(tri_vt[i]) + 1];
+            uvs[2 * i] = texcoords_[2 * size_t(tri_vt_[i])];
+            uvs[2 * i + 1] = texcoords_[2 * size_t(tri_vt_[i]) + 1];
         }
+        return uvs;
     }
-    return build(std::move(verts), tris.data(), tris.size() / 3, name, &labels, uvs.empty() ? nullptr : uvs.data());
-}
+};
+
+}  // namespace
+
+Mesh Mesh::parse_obj(const std::string& text, const std::string& name) { return ObjReader(text, name).read(); }
 
 namespace {
 

@@ -226,171 +226,108 @@ enum class Pass { Remesh, Slivers };
 // kSliverPassRings vertex rings of them.
 // `cut`: convert only the region and the margin rings around it,
 // else the whole mesh.  slivers_left is not filled in.
-Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
-                    int iterations, const std::vector<uint8_t>* region, bool cut, Pass pass) {
-    Retiled out;
-    const size_t m = mesh.num_triangles(), n = mesh.num_vertices();
-    // A pass on a region hands CGAL only the region and a few
-    // vertex rings around it (CGAL's relaxation recomputes the normals of
-    // every vertex of the mesh it is given, each round): `sub` flags the
-    // triangles converted, `frozen` the vertices on the sub-mesh's cut (it
-    // shares them with triangles left outside, so no face touching one is
-    // ever re-tiled).
-    std::vector<uint8_t> sub(m, 1), frozen(n, 0);
-    if (region && cut) {
-        sub = *region;
-        grow_by_rings(mesh, sub, pass == Pass::Remesh ? kRemeshMarginRings : kSliverMarginRings);
-        for (size_t t = 0; t < m; ++t)
-            if (!sub[t])
-                for (int k = 0; k < 3; ++k) frozen[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
-    }
-    SurfaceMesh sm;
-    auto patch = sm.add_property_map<FaceIndex, int32_t>("f:surface", 0).first;
-    // Which input vertex / triangle an element was (-1: made by the remeshing;
-    // CGAL resets properties of recycled elements).
-    auto vertex_input = sm.add_property_map<VertexIndex, int32_t>("v:input", -1).first;
-    auto face_input = sm.add_property_map<FaceIndex, int32_t>("f:input", -1).first;
-    auto vertex_frozen = sm.add_property_map<VertexIndex, bool>("v:frozen", false).first;
-    std::vector<VertexIndex> vi(n, SurfaceMesh::null_vertex());
-    std::vector<uint8_t> used(n, region && cut ? 0 : 1);   // the whole mesh: every vertex, isolated ones too
-    for (size_t t = 0; t < m; ++t)
-        if (sub[t])
-            for (int k = 0; k < 3; ++k) used[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
-    for (size_t i = 0; i < n; ++i) {
-        if (!used[i]) continue;
-        vi[i] = sm.add_vertex(Point(mesh.vertices[3 * i], mesh.vertices[3 * i + 1], mesh.vertices[3 * i + 2]));
-        vertex_input[vi[i]] = int32_t(i);
-        vertex_frozen[vi[i]] = frozen[i] != 0;
-    }
-    std::vector<FaceIndex> faces;
-    const bool refuse = region && cut && take_refusal_for_testing();
-    for (size_t t = 0; t < m; ++t) {
-        if (!sub[t]) continue;
-        const FaceIndex f = refuse ? SurfaceMesh::null_face()
-                                   : sm.add_face(vi[size_t(mesh.triangles[3 * t])], vi[size_t(mesh.triangles[3 * t + 1])],
-                                                 vi[size_t(mesh.triangles[3 * t + 2])]);
-        if (f == SurfaceMesh::null_face()) {
-            if (region && cut) {   // the cut made a vertex CGAL cannot hold (two fans): the pass in the whole mesh
-                Retiled whole = retile_pass(mesh, tri_surface, target_edge_length, iterations, region, false, pass);
-                whole.whole_mesh_fallbacks += 1;
-                return whole;
-            }
-            throw Error("retile: " + mesh.name + " is not an oriented 2-manifold (triangle " + std::to_string(t) +
-                        " cannot be added); re-tiling needs a manifold mesh");
+using FacePatch = SurfaceMesh::Property_map<FaceIndex, int32_t>;
+using FaceInput = SurfaceMesh::Property_map<FaceIndex, int32_t>;
+using VertexInput = SurfaceMesh::Property_map<VertexIndex, int32_t>;
+using VertexFlag = SurfaceMesh::Property_map<VertexIndex, bool>;
+using EdgeFlag = SurfaceMesh::Property_map<EdgeIndex, bool>;
+
+// An edge the re-tiling keeps in place: on a border, or between two surfaces.
+bool kept_edge(const SurfaceMesh& sm, const FacePatch& patch, SurfaceMesh::Halfedge_index h) {
+    const auto o = sm.opposite(h);
+    return sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)];
+}
+
+// Pass::Slivers on the sub-mesh (retile_pass): CGAL's removal of almost
+// degenerate faces, then the slivers still left and the triangles around
+// them remeshed, then what the remeshing left flattened and removed.
+void remove_slivers(SurfaceMesh& sm, std::vector<FaceIndex>& faces, const FacePatch& patch, const EdgeFlag& constrained,
+                    const VertexFlag& vertex_frozen, double target_edge_length, unsigned rounds) {
+    // Isotropic remeshing flips edges for valence, not angles, and its
+    // relaxation cannot pull a vertex off a fold of the surface it
+    // projects onto: a cap (an angle above kCapDeg) is flipped and a
+    // needle (longest / shortest edge above kNeedleRatio, about
+    // 1 / sin 15°) collapsed first, edges kept by `constrained` untouched.
+    constexpr double kCapDeg = 120.0, kNeedleRatio = 4.0;
+    PMP::experimental::remove_almost_degenerate_faces(faces, sm, std::cos(kCapDeg * M_PI / 180.0), kNeedleRatio,
+                                                      target_edge_length,
+                                                      CGAL::parameters::edge_is_constrained_map(constrained));
+    sm.collect_garbage();
+    // The slivers still left and the triangles within kSliverPassRings
+    // vertex rings of them (none touching the cut), remeshed.
+    const double cos_max = cos_of_deg(kMinRetiledAngleDeg);
+    auto is_sliver = [&](FaceIndex f) {
+        const auto h0 = sm.halfedge(f);
+        const SurfaceMesh::Halfedge_index hs[3] = {h0, sm.next(h0), sm.next(sm.next(h0))};
+        double p[3][3];
+        uint8_t kept[3];
+        for (int k = 0; k < 3; ++k) {   // p[k] = source of hs[k]: corner k lies between hs[k] and hs[k + 2]
+            const Point& q = sm.point(sm.source(hs[k]));
+            p[k][0] = q.x(); p[k][1] = q.y(); p[k][2] = q.z();
+            kept[k] = kept_edge(sm, patch, hs[k]);
         }
-        patch[f] = tri_surface[t];
-        face_input[f] = int32_t(t);
-        if (!region || (*region)[t]) faces.push_back(f);
-    }
-    // Borders between surfaces and open boundaries stay where they are (as
-    // polylines); so do sharp edges (faces meeting at more than
-    // kSharpEdgeDeg) in a remeshing pass: otherwise flips and relaxation
-    // would cut creases and shrink the solid.  A sliver pass releases them
-    // (a crease there rounds off, as wear does).
-    auto constrained = sm.add_property_map<EdgeIndex, bool>("e:constrained", false).first;
-    if (pass == Pass::Remesh) PMP::detect_sharp_edges(sm, kSharpEdgeDeg, constrained);
-    auto kept_edge = [&](SurfaceMesh::Halfedge_index h) {
-        const auto o = sm.opposite(h);
-        return sm.is_border(h) || sm.is_border(o) || patch[sm.face(h)] != patch[sm.face(o)];
+        return is_sliver_triangle(p, kept, cos_max);
     };
-    for (EdgeIndex e : sm.edges())
-        if (kept_edge(sm.halfedge(e))) constrained[e] = true;
-    const unsigned rounds = unsigned(std::max(iterations, 1));
-    if (pass == Pass::Remesh) {
-        remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
-    } else {
-        // Isotropic remeshing flips edges for valence, not angles, and its
-        // relaxation cannot pull a vertex off a fold of the surface it
-        // projects onto: a cap (an angle above kCapDeg) is flipped and a
-        // needle (longest / shortest edge above kNeedleRatio, about
-        // 1 / sin 15°) collapsed first, edges kept by `constrained` untouched.
-        constexpr double kCapDeg = 120.0, kNeedleRatio = 4.0;
-        PMP::experimental::remove_almost_degenerate_faces(faces, sm, std::cos(kCapDeg * M_PI / 180.0), kNeedleRatio,
-                                                          target_edge_length,
-                                                          CGAL::parameters::edge_is_constrained_map(constrained));
+    std::vector<uint8_t> in(sm.num_faces(), 0);
+    for (FaceIndex f : sliver_faces(sm, is_sliver)) in[f.idx()] = 1;
+    for (int ring = 0; ring < kSliverPassRings; ++ring) {
+        std::vector<uint8_t> near(sm.num_vertices(), 0);
+        for (FaceIndex f : sm.faces())
+            if (in[f.idx()])
+                for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) near[x.idx()] = 1;
+        for (FaceIndex f : sm.faces())
+            for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) in[f.idx()] |= near[x.idx()];
+    }
+    faces.clear();
+    for (FaceIndex f : sm.faces()) {
+        if (!in[f.idx()]) continue;
+        bool touches_cut = false;
+        for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) touches_cut = touches_cut || vertex_frozen[x];
+        if (!touches_cut) faces.push_back(f);
+    }
+    if (!faces.empty()) remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
+    // The slivers the remeshing itself left (at a sharp fold its flips
+    // and collapses are refused and its relaxation cannot widen them):
+    // the small pockets at them are flattened first (flatten_pockets: a
+    // spike, or a pit or fin whose 3-edge neck keeps a short edge from
+    // being collapsed), then CGAL's removal of almost-degenerate faces
+    // runs on the slivers with a needle ratio that catches every one
+    // (below kAllSliversNeedleRatio, a triangle with an angle under
+    // kMinRetiledAngleDeg has an angle over kCapDeg), vertices of the
+    // cut held, and once more for caps alone.  Nothing is remeshed
+    // after it.
+    constexpr double kAllSliversNeedleRatio = 3.3;   // < sin(kCapDeg) / sin(kMinRetiledAngleDeg) = 3.35
+    std::vector<FaceIndex> left = sliver_faces(sm, is_sliver);
+    if (!left.empty()) {
+        if (flatten_pockets(sm, constrained, vertex_frozen, is_sliver) > 0) {
+            sm.collect_garbage();
+            left = sliver_faces(sm, is_sliver);
+        }
+        PMP::experimental::remove_almost_degenerate_faces(
+            left, sm, std::cos(kCapDeg * M_PI / 180.0), kAllSliversNeedleRatio, target_edge_length,
+            CGAL::parameters::edge_is_constrained_map(constrained).vertex_is_constrained_map(vertex_frozen));
         sm.collect_garbage();
-        // The slivers still left and the triangles within kSliverPassRings
-        // vertex rings of them (none touching the cut), remeshed.
-        const double cos_max = cos_of_deg(kMinRetiledAngleDeg);
-        auto is_sliver = [&](FaceIndex f) {
-            const auto h0 = sm.halfedge(f);
-            const SurfaceMesh::Halfedge_index hs[3] = {h0, sm.next(h0), sm.next(sm.next(h0))};
-            double p[3][3];
-            uint8_t kept[3];
-            for (int k = 0; k < 3; ++k) {   // p[k] = source of hs[k]: corner k lies between hs[k] and hs[k + 2]
-                const Point& q = sm.point(sm.source(hs[k]));
-                p[k][0] = q.x(); p[k][1] = q.y(); p[k][2] = q.z();
-                kept[k] = kept_edge(hs[k]);
-            }
-            return is_sliver_triangle(p, kept, cos_max);
-        };
-        std::vector<uint8_t> in(sm.num_faces(), 0);
-        for (FaceIndex f : sliver_faces(sm, is_sliver)) in[f.idx()] = 1;
-        for (int ring = 0; ring < kSliverPassRings; ++ring) {
-            std::vector<uint8_t> near(sm.num_vertices(), 0);
-            for (FaceIndex f : sm.faces())
-                if (in[f.idx()])
-                    for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) near[x.idx()] = 1;
-            for (FaceIndex f : sm.faces())
-                for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) in[f.idx()] |= near[x.idx()];
-        }
-        faces.clear();
-        for (FaceIndex f : sm.faces()) {
-            if (!in[f.idx()]) continue;
-            bool touches_cut = false;
-            for (VertexIndex x : sm.vertices_around_face(sm.halfedge(f))) touches_cut = touches_cut || vertex_frozen[x];
-            if (!touches_cut) faces.push_back(f);
-        }
-        if (!faces.empty()) remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
-        // The slivers the remeshing itself left (at a sharp fold its flips
-        // and collapses are refused and its relaxation cannot widen them):
-        // the small pockets at them are flattened first (flatten_pockets: a
-        // spike, or a pit or fin whose 3-edge neck keeps a short edge from
-        // being collapsed), then CGAL's removal of almost-degenerate faces
-        // runs on the slivers with a needle ratio that catches every one
-        // (below kAllSliversNeedleRatio, a triangle with an angle under
-        // kMinRetiledAngleDeg has an angle over kCapDeg), vertices of the
-        // cut held, and once more for caps alone.  Nothing is remeshed
-        // after it.
-        constexpr double kAllSliversNeedleRatio = 3.3;   // < sin(kCapDeg) / sin(kMinRetiledAngleDeg) = 3.35
-        std::vector<FaceIndex> left = sliver_faces(sm, is_sliver);
+        // A sliver that is both a needle and a cap is only ever treated
+        // as a needle; where its collapse would invert a triangle, its
+        // cap is flipped instead (no needle threshold).
+        left = sliver_faces(sm, is_sliver);
         if (!left.empty()) {
-            if (flatten_pockets(sm, constrained, vertex_frozen, is_sliver) > 0) {
-                sm.collect_garbage();
-                left = sliver_faces(sm, is_sliver);
-            }
             PMP::experimental::remove_almost_degenerate_faces(
-                left, sm, std::cos(kCapDeg * M_PI / 180.0), kAllSliversNeedleRatio, target_edge_length,
+                left, sm, std::cos(kCapDeg * M_PI / 180.0), 1e6,
+                target_edge_length,
                 CGAL::parameters::edge_is_constrained_map(constrained).vertex_is_constrained_map(vertex_frozen));
             sm.collect_garbage();
-            // A sliver that is both a needle and a cap is only ever treated
-            // as a needle; where its collapse would invert a triangle, its
-            // cap is flipped instead (no needle threshold).
-            left = sliver_faces(sm, is_sliver);
-            if (!left.empty()) {
-                PMP::experimental::remove_almost_degenerate_faces(
-                    left, sm, std::cos(kCapDeg * M_PI / 180.0), 1e6,
-                    target_edge_length,
-                    CGAL::parameters::edge_is_constrained_map(constrained).vertex_is_constrained_map(vertex_frozen));
-                sm.collect_garbage();
-            }
         }
     }
-    if (region && cut) {   // every vertex of the cut still there, where it was
-        size_t cut_vertices = 0, held = 0;
-        for (size_t i = 0; i < n; ++i) cut_vertices += used[i] && frozen[i];
-        for (VertexIndex x : sm.vertices()) {
-            if (!vertex_frozen[x]) continue;
-            const Point& p = sm.point(x);
-            const float* q = &mesh.vertices[3 * size_t(vertex_input[x])];
-            held += float(p.x()) == q[0] && float(p.y()) == q[1] && float(p.z()) == q[2];
-        }
-        if (held != cut_vertices) {
-            Retiled whole = retile_pass(mesh, tri_surface, target_edge_length, iterations, region, false, pass);
-            whole.whole_mesh_fallbacks += 1;
-            return whole;
-        }
-    }
+}
+
+// retile_pass's result: the input's vertices that were not converted, then
+// the sub-mesh's; the triangles left outside, then the sub-mesh's.
+Retiled sub_mesh_result(const Mesh& mesh, const std::vector<int32_t>& tri_surface, const std::vector<uint8_t>& sub,
+                        const std::vector<uint8_t>& used, const SurfaceMesh& sm, const FacePatch& patch,
+                        const VertexInput& vertex_input, const FaceInput& face_input, const VertexFlag& vertex_frozen) {
+    Retiled out;
+    const size_t m = mesh.num_triangles(), n = mesh.num_vertices();
     // The output: the input's vertices that were not converted, then the
     // sub-mesh's (after collect_garbage its indices are 0 .. k-1 in order);
     // the triangles left outside, then the sub-mesh's.  For the whole mesh
@@ -455,6 +392,94 @@ Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, d
         out.kept[k] = same[size_t(out.mesh.original_triangle[k])];
     }
     return out;
+}
+
+Retiled retile_pass(const Mesh& mesh, const std::vector<int32_t>& tri_surface, double target_edge_length,
+                    int iterations, const std::vector<uint8_t>* region, bool cut, Pass pass) {
+    const size_t m = mesh.num_triangles(), n = mesh.num_vertices();
+    // A pass on a region hands CGAL only the region and a few
+    // vertex rings around it (CGAL's relaxation recomputes the normals of
+    // every vertex of the mesh it is given, each round): `sub` flags the
+    // triangles converted, `frozen` the vertices on the sub-mesh's cut (it
+    // shares them with triangles left outside, so no face touching one is
+    // ever re-tiled).
+    std::vector<uint8_t> sub(m, 1), frozen(n, 0);
+    if (region && cut) {
+        sub = *region;
+        grow_by_rings(mesh, sub, pass == Pass::Remesh ? kRemeshMarginRings : kSliverMarginRings);
+        for (size_t t = 0; t < m; ++t)
+            if (!sub[t])
+                for (int k = 0; k < 3; ++k) frozen[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+    }
+    SurfaceMesh sm;
+    auto patch = sm.add_property_map<FaceIndex, int32_t>("f:surface", 0).first;
+    // Which input vertex / triangle an element was (-1: made by the remeshing;
+    // CGAL resets properties of recycled elements).
+    auto vertex_input = sm.add_property_map<VertexIndex, int32_t>("v:input", -1).first;
+    auto face_input = sm.add_property_map<FaceIndex, int32_t>("f:input", -1).first;
+    auto vertex_frozen = sm.add_property_map<VertexIndex, bool>("v:frozen", false).first;
+    std::vector<VertexIndex> vi(n, SurfaceMesh::null_vertex());
+    std::vector<uint8_t> used(n, region && cut ? 0 : 1);   // the whole mesh: every vertex, isolated ones too
+    for (size_t t = 0; t < m; ++t)
+        if (sub[t])
+            for (int k = 0; k < 3; ++k) used[size_t(mesh.triangles[3 * t + size_t(k)])] = 1;
+    for (size_t i = 0; i < n; ++i) {
+        if (!used[i]) continue;
+        vi[i] = sm.add_vertex(Point(mesh.vertices[3 * i], mesh.vertices[3 * i + 1], mesh.vertices[3 * i + 2]));
+        vertex_input[vi[i]] = int32_t(i);
+        vertex_frozen[vi[i]] = frozen[i] != 0;
+    }
+    std::vector<FaceIndex> faces;
+    const bool refuse = region && cut && take_refusal_for_testing();
+    for (size_t t = 0; t < m; ++t) {
+        if (!sub[t]) continue;
+        const FaceIndex f = refuse ? SurfaceMesh::null_face()
+                                   : sm.add_face(vi[size_t(mesh.triangles[3 * t])], vi[size_t(mesh.triangles[3 * t + 1])],
+                                                 vi[size_t(mesh.triangles[3 * t + 2])]);
+        if (f == SurfaceMesh::null_face()) {
+            if (region && cut) {   // the cut made a vertex CGAL cannot hold (two fans): the pass in the whole mesh
+                Retiled whole = retile_pass(mesh, tri_surface, target_edge_length, iterations, region, false, pass);
+                whole.whole_mesh_fallbacks += 1;
+                return whole;
+            }
+            throw Error("retile: " + mesh.name + " is not an oriented 2-manifold (triangle " + std::to_string(t) +
+                        " cannot be added); re-tiling needs a manifold mesh");
+        }
+        patch[f] = tri_surface[t];
+        face_input[f] = int32_t(t);
+        if (!region || (*region)[t]) faces.push_back(f);
+    }
+    // Borders between surfaces and open boundaries stay where they are (as
+    // polylines); so do sharp edges (faces meeting at more than
+    // kSharpEdgeDeg) in a remeshing pass: otherwise flips and relaxation
+    // would cut creases and shrink the solid.  A sliver pass releases them
+    // (a crease there rounds off, as wear does).
+    auto constrained = sm.add_property_map<EdgeIndex, bool>("e:constrained", false).first;
+    if (pass == Pass::Remesh) PMP::detect_sharp_edges(sm, kSharpEdgeDeg, constrained);
+    for (EdgeIndex e : sm.edges())
+        if (kept_edge(sm, patch, sm.halfedge(e))) constrained[e] = true;
+    const unsigned rounds = unsigned(std::max(iterations, 1));
+    if (pass == Pass::Remesh) {
+        remesh_faces(faces, target_edge_length, rounds, sm, patch, constrained);
+    } else {
+        remove_slivers(sm, faces, patch, constrained, vertex_frozen, target_edge_length, rounds);
+    }
+    if (region && cut) {   // every vertex of the cut still there, where it was
+        size_t cut_vertices = 0, held = 0;
+        for (size_t i = 0; i < n; ++i) cut_vertices += used[i] && frozen[i];
+        for (VertexIndex x : sm.vertices()) {
+            if (!vertex_frozen[x]) continue;
+            const Point& p = sm.point(x);
+            const float* q = &mesh.vertices[3 * size_t(vertex_input[x])];
+            held += float(p.x()) == q[0] && float(p.y()) == q[1] && float(p.z()) == q[2];
+        }
+        if (held != cut_vertices) {
+            Retiled whole = retile_pass(mesh, tri_surface, target_edge_length, iterations, region, false, pass);
+            whole.whole_mesh_fallbacks += 1;
+            return whole;
+        }
+    }
+    return sub_mesh_result(mesh, tri_surface, sub, used, sm, patch, vertex_input, face_input, vertex_frozen);
 }
 
 // The slivers of `mesh` (is_sliver_triangle, one flag per triangle).  Which

@@ -223,7 +223,7 @@ bool false_colour_pixel(const RenderScene& rs, const Camera& cam, const V3& ligh
     *k = I.smooth(I.tri_surface()[rh.hit.primID], q, idx, w);
     V3 ng = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
     if (dot(ng, dir) > 0) ng = ng * -1.0f;
-    const V3 n = shading_normal(rs.corner_normals, rh.hit.primID, rh.hit.u, rh.hit.v, ng);
+    const V3 n = shading_normal(*rs.corner_normals, rh.hit.primID, rh.hit.u, rh.hit.v, ng);
     *shade = 0.25f + 0.75f * std::fabs(dot(n, light));
     return true;
 }
@@ -551,7 +551,7 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
                         V3 n = normalize(V3{rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z});
                         if (dot(n, dir) > 0) n = n * -1.0f;
                         // Shading normal for the sun's cosine; occlusion rays use the geometric one.
-                        const V3 ns = shading_normal(rs.corner_normals, prim, rh.hit.u, rh.hit.v, n);
+                        const V3 ns = shading_normal(*rs.corner_normals, prim, rh.hit.u, rh.hit.v, n);
                         const int surface = tri_surface[prim];
                         float uv[2] = {0.0f, 0.0f};
                         if (has_uvs) {

@@ -49,8 +49,7 @@ constexpr size_t kPruningSurfels = LookupPruning::kNearest;
 // nearest surfel to a sphere's centre searched first within this many
 // spacings, doubled up to kNearestAttempts times (then the kd-tree).
 // (Columns 4 spacings wide rather than 2: a search meets fewer columns, and
-// their points are scanned four at a time -- ~5 % less time for the whole
-// build at 100k surfels on the bunny, measured alternating in one process.)
+// their points are scanned four at a time.)
 constexpr double kColumnSpacings = 4.0, kNearestStartSpacings = 1.0;
 constexpr int kNearestAttempts = 4;
 
@@ -345,6 +344,204 @@ struct LookupBlock {
 };
 }  // namespace
 
+namespace {
+
+// The candidates of lookup spheres (compute_lookup's search): one per thread,
+// its buffers reused from sphere to sphere.
+class SphereCandidates {
+public:
+    explicit SphereCandidates(double spacing) : spacing_(spacing) {}
+
+    // The candidates of sphere L (surface tree): appended to the block,
+    // L.begin block-relative; their number (L left empty) if more than
+    // `limit`.  ball2: the squared radius searched (where L got entries).
+    size_t collect(const PointTree& tree, const PointColumns& cols, SceneIndex::TriangleLookup& L, size_t limit,
+                   float* ball2, LookupBlock& out) {
+        L.begin = 0;
+        L.count = 0;
+        const float c[3] = {L.cx, L.cy, L.cz};
+        // The distance to the nearest surfel: the least of the
+        // surfels closer than rho, if there are any (every
+        // other one is farther); rho grows until some are, then
+        // the kd-tree answers.
+        float q2 = INFINITY;
+        double rho = kNearestStartSpacings * spacing_;
+        for (int attempt = 0; attempt < kNearestAttempts && q2 == INFINITY; ++attempt, rho *= 2.0)
+            cols.within(c, float(rho * rho), [&](uint32_t, float d2) { q2 = std::min(q2, d2); });
+        if (q2 == INFINITY) {
+            uint32_t q = 0;
+            nanoflann::KNNResultSet<float, uint32_t> rs(1);
+            rs.init(&q, &q2);
+            tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
+        }
+        const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
+        const float R2 = float(R * R);
+        found_.clear();
+        cols.append_within(c, R2, found_, [](uint32_t i, float d2) { return distance_key(d2, i); });
+        // Drop the surfels that are never the nearest in the
+        // sphere B(c, r): y loses to x everywhere in B when
+        // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
+        // |p-x|^2 - |p-y|^2 over B), here with a margin far above
+        // float rounding, so the scan's answer (ties included)
+        // is unchanged.  x: the few surfels nearest to c.
+        // Only which surfels are the kPruningSurfels nearest
+        // matters, not their order (a surfel is dropped when any
+        // x beats it; the kept ones are sorted below), and the
+        // keys are distinct: selected, not sorted (the sort of
+        // every sphere's surfels was ~4 % of the setup's CPU).
+        // The nx least, kept sorted while the rest pass by (few
+        // enter once the first are in), are put first, the rest
+        // after them in their order: cheaper than nth_element's
+        // partitions (their order does not matter, as above).
+        const size_t nx = std::min(found_.size(), kPruningSurfels);
+        if (found_.size() > nx) {
+            uint64_t least[kPruningSurfels];
+            for (size_t k = 0; k < nx; ++k) {
+                size_t j = k;
+                for (; j > 0 && least[j - 1] > found_[k]; --j) least[j] = least[j - 1];
+                least[j] = found_[k];
+            }
+            for (size_t p = nx; p < found_.size(); ++p) {
+                const uint64_t f = found_[p];
+                if (!(f < least[nx - 1])) continue;
+                size_t j = nx - 1;
+                for (; j > 0 && least[j - 1] > f; --j) least[j] = least[j - 1];
+                least[j] = f;
+            }
+            const uint64_t cut = least[nx - 1];
+            kept_.resize(found_.size() + 1);   // (+1: the write after the last one past the cut)
+            std::copy(least, least + nx, kept_.begin());
+            size_t m = nx;
+            for (const uint64_t f : found_) {
+                kept_[m] = f;
+                m += f > cut;
+            }
+            kept_.resize(m);
+            found_.swap(kept_);
+        }
+        const double r = std::sqrt(double(L.reach2));
+        LookupPruning::Nearest X;
+        for (size_t k = 0; k < nx; ++k)
+            X.set(k, &tree.pos[3 * size_t(key_index(found_[k]))], key_distance(found_[k]));
+        X.close(nx);
+        kept_.resize(found_.size());
+        kept_.resize(LookupPruning::keep(X, found_.data(), found_.size(), tree.pos.data(), r, kept_.data()));
+        found_.swap(kept_);
+        if (found_.size() > limit || found_.empty()) return found_.size();
+        if (ball2) *ball2 = R2;
+        L.count = uint32_t(found_.size());
+        L.begin = uint32_t(out.cand.size());
+        // entries sorted by (distance from the centre, surfel
+        // index): distinct keys (the indices are), so the order
+        // is fixed.  They are few (at most `limit`): an insertion
+        // sort of (key, point) in place beats std::sort over
+        // pairs and the staging copies it needed.
+        order_.resize(found_.size());
+        for (size_t k = 0; k < found_.size(); ++k) {
+            const uint32_t i = key_index(found_[k]);
+            const float* pp = &tree.pos[3 * size_t(i)];
+            const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
+            const Ordered e{distance_key(std::sqrt(dx * dx + dy * dy + dz * dz), SceneIndex::Trees::surfel(tree, i)), i};
+            size_t j = k;
+            for (; j > 0 && order_[j - 1].key > e.key; --j) order_[j] = order_[j - 1];
+            order_[j] = e;
+        }
+        // appended, not resized and then overwritten (a resize
+        // writes every new entry twice)
+        for (size_t k = 0; k < order_.size(); ++k) {
+            const float* pp = &tree.pos[3 * size_t(order_[k].point)];
+            out.cand.push_back(SceneIndex::Candidate{pp[0], pp[1], pp[2], key_distance(order_[k].key)});
+            out.ids.push_back(key_index(order_[k].key));
+        }
+        return found_.size();
+    }
+
+private:
+    struct Ordered {
+        uint64_t key;    // distance_key(distance from the centre, surfel index)
+        uint32_t point;  // of the tree
+    };
+    double spacing_;
+    // distance_key(d2 from the centre, point of the tree); their allocator
+    // leaves a resize's room unwritten (each search's columns ask for room,
+    // which std::allocator would clear first)
+    std::vector<uint64_t, HugePageAllocator<uint64_t>> found_, kept_;
+    std::vector<Ordered> order_;
+};
+
+// A triangle (corners v, 9 floats) with too many candidates (n_found) cut
+// into cells of about kCellCandidates each: its grid appended to the block
+// and L.grid set (block-relative), or nothing for a degenerate triangle (the
+// kd-tree answers there).
+void cut_into_cells(SphereCandidates& sphere, const PointTree& tree, const PointColumns& cols, const float* v,
+                    SceneIndex::TriangleLookup& L, size_t n_found, LookupBlock& out) {
+    double o[3], e1[3], e2[3];
+    for (int d = 0; d < 3; ++d) {
+        o[d] = v[d];
+        e1[d] = double(v[3 + d]) - v[d];
+        e2[d] = double(v[6 + d]) - v[d];
+    }
+    const double g11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+    const double g12 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2];
+    const double g22 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
+    const double det = g11 * g22 - g12 * g12;
+    if (!(det > 1e-30 * g11 * g22) || !std::isfinite(det)) return;  // degenerate: kd-tree
+    // Side from the count (~kCellCandidates per cell if the
+    // ball were all surface), doubled while a cell overflows.
+    const double cells = std::ceil(std::sqrt(double(n_found) / SceneIndex::kCellCandidates));
+    uint32_t side = uint32_t(std::min<double>(SceneIndex::kMaxGridSide, std::max(2.0, cells)));
+    SceneIndex::TriangleGrid G;
+    G.ox = v[0], G.oy = v[1], G.oz = v[2];
+    G.dux = float((g22 * e1[0] - g12 * e2[0]) / det);
+    G.duy = float((g22 * e1[1] - g12 * e2[1]) / det);
+    G.duz = float((g22 * e1[2] - g12 * e2[2]) / det);
+    G.dvx = float((g11 * e2[0] - g12 * e1[0]) / det);
+    G.dvy = float((g11 * e2[1] - g12 * e1[1]) / det);
+    G.dvz = float((g11 * e2[2] - g12 * e1[2]) / det);
+    G.first = uint32_t(out.cells.size());  // block-relative until the offsets are known
+    const size_t cand_mark = out.cand.size();
+    const double pad = std::sqrt(double(L.reach2)) * 1e-5;
+    for (;;) {
+        auto at = [&](double a, double bb, double* p) {
+            for (int d = 0; d < 3; ++d) p[d] = o[d] + (a * e1[d] + bb * e2[d]) / side;
+        };
+        size_t overflow = 0;
+        for (uint32_t i = 0; i < side; ++i)
+            for (uint32_t j = 0; j < side; ++j)
+                for (int upper = 0; upper < 2; ++upper) {
+                    SceneIndex::TriangleLookup C{0, 0, 0, -1.0f, 0, 0, SceneIndex::kNoGrid};
+                    if (i + j + uint32_t(upper) <= side - 1) {
+                        double p[3][3];
+                        if (!upper) at(i, j, p[0]), at(i + 1, j, p[1]), at(i, j + 1, p[2]);
+                        else at(i + 1, j, p[0]), at(i + 1, j + 1, p[1]), at(i, j + 1, p[2]);
+                        double c[3], r2 = 0;
+                        for (int d = 0; d < 3; ++d) c[d] = (p[0][d] + p[1][d] + p[2][d]) / 3.0;
+                        for (int k = 0; k < 3; ++k) {
+                            const double dx = p[k][0] - c[0], dy = p[k][1] - c[1],
+                                         dz = p[k][2] - c[2];
+                            r2 = std::max(r2, dx * dx + dy * dy + dz * dz);
+                        }
+                        const double reach = std::sqrt(r2) * (1.0 + 1e-5) + pad;
+                        C = SceneIndex::TriangleLookup{float(c[0]), float(c[1]), float(c[2]), float(reach * reach),
+                                                       0, 0, SceneIndex::kNoGrid};
+                        const size_t found = sphere.collect(tree, cols, C, SceneIndex::kMaxCandidates, nullptr, out);
+                        overflow += found > SceneIndex::kMaxCandidates;
+                    }
+                    out.cells.push_back(C);
+                }
+        if (overflow == 0 || side >= SceneIndex::kMaxGridSide) break;
+        out.cand.resize(cand_mark);
+        out.ids.resize(cand_mark);
+        out.cells.resize(G.first);
+        side = std::min(2 * side, SceneIndex::kMaxGridSide);
+    }
+    G.s = side;
+    L.grid = uint32_t(out.grids.size());  // block-relative until the offsets are known
+    out.grids.push_back(G);
+}
+
+}  // namespace
+
 void SceneIndex::build_lookup(int threads) {
     run_with_threads(threads, [&] { compute_lookup(nullptr, nullptr); });
 }
@@ -370,15 +567,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     });
     {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& r) {
-            // distance_key(d2 from the centre, point of the tree); their
-            // allocator leaves a resize's room unwritten (each search's
-            // columns ask for room, which std::allocator would clear first)
-            std::vector<uint64_t, HugePageAllocator<uint64_t>> found, kept;
-            struct Ordered {
-                uint64_t key;    // distance_key(distance from the centre, surfel index)
-                uint32_t point;  // of the tree
-            };
-            std::vector<Ordered> order;
+            SphereCandidates sphere(spacing);
             for (size_t b = r.begin(); b < r.end(); ++b) {
                 LookupBlock& out = blocks[b];
                 // Room for the block's entries up front: grown from empty, its
@@ -390,106 +579,6 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                 // The candidates of sphere L (surface tree): appended to the
                 // block, L.begin block-relative; false if more than `limit`.
                 // ball2: the squared radius searched (where L got entries).
-                auto collect = [&](const PointTree& tree, const PointColumns& cols, TriangleLookup& L, size_t limit,
-                                   float* ball2) {
-                    L.begin = 0;
-                    L.count = 0;
-                    const float c[3] = {L.cx, L.cy, L.cz};
-                    // The distance to the nearest surfel: the least of the
-                    // surfels closer than rho, if there are any (every
-                    // other one is farther); rho grows until some are, then
-                    // the kd-tree answers.
-                    float q2 = INFINITY;
-                    double rho = kNearestStartSpacings * spacing;
-                    for (int attempt = 0; attempt < kNearestAttempts && q2 == INFINITY; ++attempt, rho *= 2.0)
-                        cols.within(c, float(rho * rho), [&](uint32_t, float d2) { q2 = std::min(q2, d2); });
-                    if (q2 == INFINITY) {
-                        uint32_t q = 0;
-                        nanoflann::KNNResultSet<float, uint32_t> rs(1);
-                        rs.init(&q, &q2);
-                        tree.kd->findNeighbors(rs, c, nanoflann::SearchParams());
-                    }
-                    const double R = (2.0 * std::sqrt(double(L.reach2)) + std::sqrt(double(q2))) * (1.0 + 1e-5);
-                    const float R2 = float(R * R);
-                    found.clear();
-                    cols.append_within(c, R2, found, [](uint32_t i, float d2) { return distance_key(d2, i); });
-                    // Drop the surfels that are never the nearest in the
-                    // sphere B(c, r): y loses to x everywhere in B when
-                    // |c-y|^2 - |c-x|^2 > 2 r |y-x| (the largest of
-                    // |p-x|^2 - |p-y|^2 over B), here with a margin far above
-                    // float rounding, so the scan's answer (ties included)
-                    // is unchanged.  x: the few surfels nearest to c.
-                    // Only which surfels are the kPruningSurfels nearest
-                    // matters, not their order (a surfel is dropped when any
-                    // x beats it; the kept ones are sorted below), and the
-                    // keys are distinct: selected, not sorted (the sort of
-                    // every sphere's surfels was ~4 % of the setup's CPU).
-                    // The nx least, kept sorted while the rest pass by (few
-                    // enter once the first are in), are put first, the rest
-                    // after them in their order: cheaper than nth_element's
-                    // partitions (their order does not matter, as above).
-                    const size_t nx = std::min(found.size(), kPruningSurfels);
-                    if (found.size() > nx) {
-                        uint64_t least[kPruningSurfels];
-                        for (size_t k = 0; k < nx; ++k) {
-                            size_t j = k;
-                            for (; j > 0 && least[j - 1] > found[k]; --j) least[j] = least[j - 1];
-                            least[j] = found[k];
-                        }
-                        for (size_t p = nx; p < found.size(); ++p) {
-                            const uint64_t f = found[p];
-                            if (!(f < least[nx - 1])) continue;
-                            size_t j = nx - 1;
-                            for (; j > 0 && least[j - 1] > f; --j) least[j] = least[j - 1];
-                            least[j] = f;
-                        }
-                        const uint64_t cut = least[nx - 1];
-                        kept.resize(found.size() + 1);   // (+1: the write after the last one past the cut)
-                        std::copy(least, least + nx, kept.begin());
-                        size_t m = nx;
-                        for (const uint64_t f : found) {
-                            kept[m] = f;
-                            m += f > cut;
-                        }
-                        kept.resize(m);
-                        found.swap(kept);
-                    }
-                    const double r = std::sqrt(double(L.reach2));
-                    LookupPruning::Nearest X;
-                    for (size_t k = 0; k < nx; ++k)
-                        X.set(k, &tree.pos[3 * size_t(key_index(found[k]))], key_distance(found[k]));
-                    X.close(nx);
-                    kept.resize(found.size());
-                    kept.resize(LookupPruning::keep(X, found.data(), found.size(), tree.pos.data(), r, kept.data()));
-                    found.swap(kept);
-                    if (found.size() > limit || found.empty()) return found.size();
-                    if (ball2) *ball2 = R2;
-                    L.count = uint32_t(found.size());
-                    L.begin = uint32_t(out.cand.size());
-                    // entries sorted by (distance from the centre, surfel
-                    // index): distinct keys (the indices are), so the order
-                    // is fixed.  They are few (at most `limit`): an insertion
-                    // sort of (key, point) in place beats std::sort over
-                    // pairs and the staging copies it needed.
-                    order.resize(found.size());
-                    for (size_t k = 0; k < found.size(); ++k) {
-                        const uint32_t i = key_index(found[k]);
-                        const float* pp = &tree.pos[3 * size_t(i)];
-                        const float dx = pp[0] - c[0], dy = pp[1] - c[1], dz = pp[2] - c[2];
-                        const Ordered e{distance_key(std::sqrt(dx * dx + dy * dy + dz * dz), Trees::surfel(tree, i)), i};
-                        size_t j = k;
-                        for (; j > 0 && order[j - 1].key > e.key; --j) order[j] = order[j - 1];
-                        order[j] = e;
-                    }
-                    // appended, not resized and then overwritten (a resize
-                    // writes every new entry twice)
-                    for (size_t k = 0; k < order.size(); ++k) {
-                        const float* pp = &tree.pos[3 * size_t(order[k].point)];
-                        out.cand.push_back(Candidate{pp[0], pp[1], pp[2], key_distance(order[k].key)});
-                        out.ids.push_back(key_index(order[k].key));
-                    }
-                    return found.size();
-                };
                 for (size_t t = b * kBlock; t < std::min(m, (b + 1) * kBlock); ++t) {
                     TriangleLookup& L = lookup_tri_[t];
                     L.grid = kNoGrid;
@@ -504,72 +593,9 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
                     }
                     const PointTree& tree = T.of(s);
                     const PointColumns& cols = columns[size_t(s)];
-                    const size_t n_found = collect(tree, cols, L, kMaxCandidates, &lookup_ball2_[t]);
+                    const size_t n_found = sphere.collect(tree, cols, L, kMaxCandidates, &lookup_ball2_[t], out);
                     if (L.count || n_found == 0) continue;
-                    // Too many: cut the triangle into cells.
-                    const float* v = &lookup_vertices_[9 * t];
-                    double o[3], e1[3], e2[3];
-                    for (int d = 0; d < 3; ++d) {
-                        o[d] = v[d];
-                        e1[d] = double(v[3 + d]) - v[d];
-                        e2[d] = double(v[6 + d]) - v[d];
-                    }
-                    const double g11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
-                    const double g12 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2];
-                    const double g22 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
-                    const double det = g11 * g22 - g12 * g12;
-                    if (!(det > 1e-30 * g11 * g22) || !std::isfinite(det)) continue;  // degenerate: kd-tree
-                    // Side from the count (~kCellCandidates per cell if the
-                    // ball were all surface), doubled while a cell overflows.
-                    uint32_t side = uint32_t(std::min<double>(
-                        kMaxGridSide, std::max(2.0, std::ceil(std::sqrt(double(n_found) / kCellCandidates)))));
-                    TriangleGrid G;
-                    G.ox = v[0], G.oy = v[1], G.oz = v[2];
-                    G.dux = float((g22 * e1[0] - g12 * e2[0]) / det);
-                    G.duy = float((g22 * e1[1] - g12 * e2[1]) / det);
-                    G.duz = float((g22 * e1[2] - g12 * e2[2]) / det);
-                    G.dvx = float((g11 * e2[0] - g12 * e1[0]) / det);
-                    G.dvy = float((g11 * e2[1] - g12 * e1[1]) / det);
-                    G.dvz = float((g11 * e2[2] - g12 * e1[2]) / det);
-                    G.first = uint32_t(out.cells.size());  // block-relative until the offsets are known
-                    const size_t cand_mark = out.cand.size();
-                    const double pad = std::sqrt(double(L.reach2)) * 1e-5;
-                    for (;;) {
-                        auto at = [&](double a, double bb, double* p) {
-                            for (int d = 0; d < 3; ++d) p[d] = o[d] + (a * e1[d] + bb * e2[d]) / side;
-                        };
-                        size_t overflow = 0;
-                        for (uint32_t i = 0; i < side; ++i)
-                            for (uint32_t j = 0; j < side; ++j)
-                                for (int upper = 0; upper < 2; ++upper) {
-                                    TriangleLookup C{0, 0, 0, -1.0f, 0, 0, kNoGrid};
-                                    if (i + j + uint32_t(upper) <= side - 1) {
-                                        double p[3][3];
-                                        if (!upper) at(i, j, p[0]), at(i + 1, j, p[1]), at(i, j + 1, p[2]);
-                                        else at(i + 1, j, p[0]), at(i + 1, j + 1, p[1]), at(i, j + 1, p[2]);
-                                        double c[3], r2 = 0;
-                                        for (int d = 0; d < 3; ++d) c[d] = (p[0][d] + p[1][d] + p[2][d]) / 3.0;
-                                        for (int k = 0; k < 3; ++k) {
-                                            const double dx = p[k][0] - c[0], dy = p[k][1] - c[1],
-                                                         dz = p[k][2] - c[2];
-                                            r2 = std::max(r2, dx * dx + dy * dy + dz * dz);
-                                        }
-                                        const double reach = std::sqrt(r2) * (1.0 + 1e-5) + pad;
-                                        C = TriangleLookup{float(c[0]), float(c[1]), float(c[2]),
-                                                           float(reach * reach), 0, 0, kNoGrid};
-                                        overflow += collect(tree, cols, C, kMaxCandidates, nullptr) > kMaxCandidates;
-                                    }
-                                    out.cells.push_back(C);
-                                }
-                        if (overflow == 0 || side >= kMaxGridSide) break;
-                        out.cand.resize(cand_mark);
-                        out.ids.resize(cand_mark);
-                        out.cells.resize(G.first);
-                        side = std::min(2 * side, kMaxGridSide);
-                    }
-                    G.s = side;
-                    L.grid = uint32_t(out.grids.size());  // block-relative until the offsets are known
-                    out.grids.push_back(G);
+                    cut_into_cells(sphere, tree, cols, &lookup_vertices_[9 * t], L, n_found, out);
                 }
             }
         });

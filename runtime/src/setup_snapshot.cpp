@@ -59,8 +59,8 @@ struct SectionHeader {
 
 // Writes a snapshot into memory, or straight to a file descriptor (then the
 // CRC-32 of what it wrote is kept, for the cache file's trailer): the cache
-// keeps a 100,000-surfel setup of the bunny (39 MB) without first copying
-// it into fresh memory, which cost ~30 ms of its ~45.
+// keeps a setup (tens of MB) without first copying it into fresh memory,
+// which cost most of the write.
 class Writer {
 public:
     explicit Writer(std::vector<uint8_t>& out) : out_(&out) {}

@@ -315,29 +315,55 @@ std::vector<uint8_t> retiling_region(const Mesh& mesh, const std::vector<uint8_t
     return region;
 }
 
-ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::unique_ptr<SceneIndex>& index,
-                            SceneFrame& frame) {
-    ShapeStats st;
-    if (!active()) return st;
-    auto t0 = std::chrono::steady_clock::now();
-    const Config& c = cfg_;
-    if (before_.size() != state.rows.size()) before_ = state.rows;  // no begin_iteration: no change
-    const std::vector<float> d_surfel = surfel_displacement(c, state, before_, st.nonfinite_surfels);
-    const double spacing = std::sqrt(mesh.area() / double(state.size()));
-    const double target = double(c.retile_edge_factor) * spacing;
-    const double max_step = double(c.max_step_factor) * target;
+namespace {
 
+// No triangle may flip: the moves of the vertices of a triangle whose normal
+// would turn by more than 90 degrees are shortened (halving, up to 8 times,
+// then 0).  Marks the vertices limited.
+void limit_flips(const Mesh& mesh, const std::vector<V3>& direction, std::vector<float>& dv,
+                 std::vector<uint8_t>& limited) {
+    const size_t m = mesh.num_triangles();
+    std::vector<V3> face_normal(m);
+    for (size_t t = 0; t < m; ++t) {
+        const int32_t* tri = &mesh.triangles[3 * t];
+        face_normal[t] = cross(vertex(mesh, size_t(tri[1])) - vertex(mesh, size_t(tri[0])),
+                               vertex(mesh, size_t(tri[2])) - vertex(mesh, size_t(tri[0])));
+    }
+    auto moved = [&](size_t v) { return vertex(mesh, v) + direction[v] * dv[v]; };
+    for (int round = 0; round <= 8; ++round) {
+        bool flipped = false;
+        for (size_t t = 0; t < m; ++t) {
+            const int32_t* tri = &mesh.triangles[3 * t];
+            const V3 a = moved(size_t(tri[0])), b = moved(size_t(tri[1])), cc = moved(size_t(tri[2]));
+            if (dot(cross(b - a, cc - a), face_normal[t]) > 0) continue;
+            flipped = true;
+            for (int k = 0; k < 3; ++k) {
+                const size_t v = size_t(tri[k]);
+                dv[v] = round < 8 ? 0.5f * dv[v] : 0.0f;
+                limited[v] = 1;
+            }
+        }
+        if (!flipped) break;
+    }
+}
+
+// How far each vertex moves along `direction` (SPEC §13.12 steps 1-3): the
+// surfels' displacements smoothed to the vertices, averaged over rings,
+// clamped to max_step, limited by the clearance and so that no triangle
+// flips; the counters in st.
+std::vector<float> vertex_displacements(const Config& c, const Mesh& mesh, const SceneIndex& index,
+                                        const std::vector<float>& d_surfel, const std::vector<V3>& direction,
+                                        double target, double max_step, ShapeStats& st) {
     // Surfel -> vertex: the smoothing of the renders over all surfels
     // (Gaussian, k = 8), along the vertex normal smoothed over a few rings.
     const size_t nv = mesh.num_vertices();
-    const std::vector<V3> direction = move_directions(mesh, kMoveDirectionRings, c.threads);
     std::vector<float> dv(nv, 0.0f);
     run_with_threads(c.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 1024), [&](const tbb::blocked_range<size_t>& r) {
             uint32_t idx[kSmoothingNeighbours];
             double w[kSmoothingNeighbours];
             for (size_t v = r.begin(); v < r.end(); ++v) {
-                const size_t k = index->smooth(-1, &mesh.vertices[3 * v], idx, w);
+                const size_t k = index.smooth(-1, &mesh.vertices[3 * v], idx, w);
                 double acc = 0;
                 for (size_t j = 0; j < k; ++j) acc += w[j] * double(d_surfel[idx[j]]);
                 dv[v] = float(acc);
@@ -358,33 +384,9 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
     }
     // No part may thin through, no gap close (their two sides would cross,
     // and a surface turned inside out there inflates under erosion).
-    st.clearance_limited = limit_to_clearance(*index, mesh, direction, target, dv, c.threads);
-    // No triangle may flip: shorten the moves of the vertices of a triangle
-    // whose normal would turn by more than 90 degrees (halving, up to 8 times, then 0).
-    const size_t m = mesh.num_triangles();
-    std::vector<V3> face_normal(m);
-    for (size_t t = 0; t < m; ++t) {
-        const int32_t* tri = &mesh.triangles[3 * t];
-        face_normal[t] = cross(vertex(mesh, size_t(tri[1])) - vertex(mesh, size_t(tri[0])),
-                               vertex(mesh, size_t(tri[2])) - vertex(mesh, size_t(tri[0])));
-    }
+    st.clearance_limited = limit_to_clearance(index, mesh, direction, target, dv, c.threads);
     std::vector<uint8_t> limited(nv, 0);
-    auto moved = [&](size_t v) { return vertex(mesh, v) + direction[v] * dv[v]; };
-    for (int round = 0; round <= 8; ++round) {
-        bool flipped = false;
-        for (size_t t = 0; t < m; ++t) {
-            const int32_t* tri = &mesh.triangles[3 * t];
-            const V3 a = moved(size_t(tri[0])), b = moved(size_t(tri[1])), cc = moved(size_t(tri[2]));
-            if (dot(cross(b - a, cc - a), face_normal[t]) > 0) continue;
-            flipped = true;
-            for (int k = 0; k < 3; ++k) {
-                const size_t v = size_t(tri[k]);
-                dv[v] = round < 8 ? 0.5f * dv[v] : 0.0f;
-                limited[v] = 1;
-            }
-        }
-        if (!flipped) break;
-    }
+    limit_flips(mesh, direction, dv, limited);
     for (size_t v = 0; v < nv; ++v) {
         st.inversion_limited += limited[v];
         if (dv[v] != 0.0f) {
@@ -392,6 +394,92 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
             st.max_displacement = std::max(st.max_displacement, std::fabs(double(dv[v])));
         }
     }
+    return dv;
+}
+
+// The surfels ride on their triangles to the displaced mesh (no re-tiling):
+// the amounts stay where they are, and the index is updated in place.
+void ride(const Config& c, Mesh& mesh, Mesh&& displaced, double displaced_area, SurfelState& state,
+          SceneIndex& index, ShapeStats& st) {
+    auto t0 = std::chrono::steady_clock::now();
+    const double old_area = mesh.area(), new_area = displaced_area;
+    carry_surfels(mesh, displaced, state.surf, c.threads);
+    // the integral of each property (value x area / N) is kept by scaling
+    // with the change of area
+    const double scale = new_area > 0 ? old_area / new_area : 1.0;
+    const size_t W = size_t(state.width);
+    for (size_t i = 0; i < state.size(); ++i)
+        for (size_t col = GAMMA_ROW_HEADER; col < W; ++col)
+            state.rows[i * W + col] = float(double(state.rows[i * W + col]) * scale);
+    st.resample_seconds = seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    mesh = std::move(displaced);
+    // Same triangles, same surfels: the index is updated in place (SPEC §13.12 step 6).
+    index.move_vertices(mesh);
+    index.move_surfels(state.surf.position.data(), float(std::sqrt(new_area / double(state.size()))), c.threads);
+    st.rebuild_seconds = seconds_since(t0);  // splat, frame and measures are added below
+}
+
+// A local re-tiling of `region` with the triangle lookup of the triangles
+// outside it built beside (in `ahead`, on another core), for the rebuild to
+// take where it still holds (SceneIndex::build_surfels); the same lookup
+// either way.  st.retile_seconds: the re-tiling's wall time from t0 less
+// carry_seconds.
+Retiled retile_with_lookup_ahead(const Config& c, const Mesh& displaced, double displaced_area,
+                                 const std::vector<uint8_t>& region, const SurfelState& state,
+                                 const SceneIndex& index, double target, int threads,
+                                 std::unique_ptr<SceneIndex>& ahead, std::chrono::steady_clock::time_point t0,
+                                 double carry_seconds, ShapeStats& st) {
+    ahead = std::make_unique<SceneIndex>();
+    const float ahead_sigma = float(std::sqrt(displaced_area / double(state.size())));
+    tbb::global_control cap(tbb::global_control::max_allowed_parallelism, size_t(threads));
+    tbb::task_arena arena(threads);
+    tbb::task_group beside;
+    // Waits for the lookup ahead on every way out (it reads this function's locals).
+    struct Join {
+        tbb::task_arena& arena;
+        tbb::task_group& group;
+        ~Join() {
+            try {
+                arena.execute([&] { group.wait(); });
+            } catch (...) {   // only on the way out with the re-tiling's error, which goes on
+            }
+        }
+    } join{arena, beside};
+    // enqueued: a worker takes it while this thread re-tiles outside the arena
+    arena.enqueue(beside.defer([&] {
+        // Near the region the re-tiling and its new surfels change the entries: not built ahead.
+        std::vector<uint8_t> skip = region;
+        grow_by_rings(displaced, skip, kAheadSkipRings);
+        ahead->build_lookup_ahead(displaced, index.tri_surface(), index.n_surfaces(), state.surf.position.data(),
+                                  state.surface.data(), state.size(), ahead_sigma, skip);
+    }));
+    Retiled rt = retile(displaced, index.tri_surface(), target, c.retile_iterations, &region);
+    st.retile_seconds = seconds_since(t0) - carry_seconds;
+    const auto t1 = std::chrono::steady_clock::now();
+    arena.execute([&] { beside.wait(); });
+    st.rebuild_seconds += seconds_since(t1);   // what the lookup ahead took past the re-tiling
+    return rt;
+}
+
+}  // namespace
+
+ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::unique_ptr<SceneIndex>& index,
+                            SceneFrame& frame) {
+    ShapeStats st;
+    if (!active()) return st;
+    auto t0 = std::chrono::steady_clock::now();
+    const Config& c = cfg_;
+    if (before_.size() != state.rows.size()) before_ = state.rows;  // no begin_iteration: no change
+    const std::vector<float> d_surfel = surfel_displacement(c, state, before_, st.nonfinite_surfels);
+    const double spacing = std::sqrt(mesh.area() / double(state.size()));
+    const double target = double(c.retile_edge_factor) * spacing;
+    const double max_step = double(c.max_step_factor) * target;
+
+    const std::vector<V3> direction = move_directions(mesh, kMoveDirectionRings, c.threads);
+    const std::vector<float> dv = vertex_displacements(c, mesh, *index, d_surfel, direction, target, max_step, st);
+    auto moved = [&](size_t v) { return vertex(mesh, v) + direction[v] * dv[v]; };
+    const size_t nv = mesh.num_vertices();
     st.displace_seconds = seconds_since(t0);
     if (st.moved_vertices == 0) {
         st.geometry = measure(mesh, index->tri_surface());
@@ -439,24 +527,7 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
         ++kept_iterations_;
         st.retiled = false;
         st.retile_seconds = seconds_since(t0);
-        t0 = std::chrono::steady_clock::now();
-        const double old_area = mesh.area(), new_area = displaced_area;
-        carry_surfels(mesh, displaced, state.surf, c.threads);
-        // the amounts stay where they are: the integral of each property
-        // (value x area / N) is kept by scaling with the change of area
-        const double scale = new_area > 0 ? old_area / new_area : 1.0;
-        const size_t W = size_t(state.width);
-        for (size_t i = 0; i < state.size(); ++i)
-            for (size_t col = GAMMA_ROW_HEADER; col < W; ++col)
-                state.rows[i * W + col] = float(double(state.rows[i * W + col]) * scale);
-        st.resample_seconds = seconds_since(t0);
-        t0 = std::chrono::steady_clock::now();
-        mesh = std::move(displaced);
-        // Same triangles, same surfels: the index is updated in place (SPEC §13.12 step 6).
-        index->move_vertices(mesh);
-        index->move_surfels(state.surf.position.data(), float(std::sqrt(new_area / double(state.size()))),
-                            c.threads);
-        st.rebuild_seconds = seconds_since(t0);  // splat, frame and measures are added below
+        ride(c, mesh, std::move(displaced), displaced_area, state, *index, st);
     } else {
         kept_iterations_ = 0;
         st.retiled = true;
@@ -481,38 +552,8 @@ ShapeStats ShapeStep::apply(int iteration, Mesh& mesh, SurfelState& state, std::
                 rt = retile(displaced, index->tri_surface(), target, c.retile_iterations, &region);
                 st.retile_seconds = seconds_since(t0) - carry_seconds;
             } else {
-                ahead = std::make_unique<SceneIndex>();
-                const float ahead_sigma = float(std::sqrt(displaced_area / double(state.size())));
-                tbb::global_control cap(tbb::global_control::max_allowed_parallelism, size_t(threads));
-                tbb::task_arena arena(threads);
-                tbb::task_group beside;
-                // Waits for the lookup ahead on every way out (it reads this
-                // function's locals).
-                struct Join {
-                    tbb::task_arena& arena;
-                    tbb::task_group& group;
-                    ~Join() {
-                        try {
-                            arena.execute([&] { group.wait(); });
-                        } catch (...) {   // only on the way out with the re-tiling's error, which goes on
-                        }
-                    }
-                } join{arena, beside};
-                // enqueued: a worker takes it while this thread re-tiles outside the arena
-                arena.enqueue(beside.defer([&] {
-                    // Near the region the re-tiling and its new surfels change
-                    // the entries: not built ahead.
-                    std::vector<uint8_t> skip = region;
-                    grow_by_rings(displaced, skip, kAheadSkipRings);
-                    ahead->build_lookup_ahead(displaced, index->tri_surface(), index->n_surfaces(),
-                                              state.surf.position.data(), state.surface.data(), state.size(),
-                                              ahead_sigma, skip);
-                }));
-                rt = retile(displaced, index->tri_surface(), target, c.retile_iterations, &region);
-                st.retile_seconds = seconds_since(t0) - carry_seconds;
-                t1 = std::chrono::steady_clock::now();
-                arena.execute([&] { beside.wait(); });
-                st.rebuild_seconds += seconds_since(t1);   // what the lookup ahead took past the re-tiling
+                rt = retile_with_lookup_ahead(c, displaced, displaced_area, region, state, *index, target, threads,
+                                              ahead, t0, carry_seconds, st);
             }
         }
         for (int32_t k : rt.kept) st.retiled_triangles += k < 0;

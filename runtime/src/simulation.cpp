@@ -107,7 +107,7 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
     std::unique_ptr<ThreadBeside> geometry;
     if (prepared) {
         index_ = snapshot->take_index();
-        corner_normals_ = snapshot->take_corner_normals();
+        corner_normals_ = std::make_shared<const std::vector<float>>(snapshot->take_corner_normals());
         setup_seconds_.geometry = seconds_since(t0);
     } else {
         index_ = std::make_unique<SceneIndex>();
@@ -298,17 +298,19 @@ void Simulation::bake_prepared(int iteration, int threads, float* rows_out, floa
 
 void Simulation::update_corner_normals() {
     std::lock_guard<std::mutex> lock(corner_normals_mutex_);
-    run_with_threads(cfg_.threads, [&] { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); });
+    refresh_corner_normals();
+}
+
+void Simulation::refresh_corner_normals() const {
+    std::vector<float> fresh;
+    run_with_threads(cfg_.threads, [&] { fresh = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); });
+    corner_normals_ = std::make_shared<const std::vector<float>>(std::move(fresh));
     corner_normals_stale_ = false;
 }
 
-const std::vector<float>& Simulation::corner_normals() const {
+std::shared_ptr<const std::vector<float>> Simulation::corner_normals() const {
     std::lock_guard<std::mutex> lock(corner_normals_mutex_);
-    if (corner_normals_stale_) {
-        run_with_threads(cfg_.threads,
-                         [&] { corner_normals_ = gammart::corner_normals(mesh_, shading_flat_, crease_deg_); });
-        corner_normals_stale_ = false;
-    }
+    if (corner_normals_stale_) refresh_corner_normals();
     return corner_normals_;
 }
 

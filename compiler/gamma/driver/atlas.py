@@ -26,9 +26,9 @@ import numpy as np
 
 #: Largest chart, in triangles of the mesh's mean area.  xatlas grows charts
 #: one triangle at a time and re-flattens and re-checks the whole chart each
-#: time, so its time grows with the chart size: with its default options
-#: (no limit) the 70k-triangle bunny takes about a minute; with 250, in
-#: pieces, about 3 s for 442 charts and 1.31 atlas vertices per position.
+#: time, so its time grows with the chart size: unlimited charts take
+#: minutes on the bunny; this bound keeps charts large enough for few seams
+#: (the figures: bench/RESULTS.md, "Figures behind choices in the code").
 CHART_AREA = 250.0
 #: Triangles per piece handed to xatlas on its own: xatlas scans every
 #: triangle of a piece for each chart it starts (quadratic in the piece), and
@@ -36,8 +36,8 @@ CHART_AREA = 250.0
 PIECE_TRIANGLES = 8000
 #: Packing attempts before the charts are scaled to fit with a thinner gutter.
 PACK_ATTEMPTS = 8
-#: Largest texture xatlas packs at (about 2 s per attempt at 4096² on the
-#: bunny); larger ones get that packing scaled up.
+#: Largest texture xatlas packs at (each attempt's time grows with the
+#: texture); larger ones get that packing scaled up.
 PACK_LIMIT = 4096
 
 

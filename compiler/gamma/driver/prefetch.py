@@ -71,9 +71,8 @@ class _Read:
 
     def _work(self, read_mesh_ahead, surfels, seed, threads, folder):
         # The read, the setup cache's file named, read, checked and prepared: one
-        # runtime call, without the GIL.  As several calls from here, this thread
-        # waited, in a third of the runs, 0.1-0.2 s for the GIL between them while
-        # gammac imported (setup_cache.h).
+        # runtime call, without the GIL, which several calls from here would each
+        # have to wait for while gammac imports (setup_cache.h).
         try:
             mesh, signature, snapshot = read_mesh_ahead(self.path, folder, surfels or 0,
                                                         seed if surfels is not None else 0, threads)

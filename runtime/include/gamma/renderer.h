@@ -7,6 +7,7 @@
 #pragma once
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "gamma/kernel_table.h"
@@ -31,7 +32,7 @@ struct RenderScene {
     const KernelTable& kernels;
     const std::vector<Texture>& textures;
     const Mesh& mesh;
-    const std::vector<float>& corner_normals;  // shading.h; empty: flat shading
+    std::shared_ptr<const std::vector<float>> corner_normals;  // shading.h; empty: flat shading
     const BaseColours& base;                   // the scene's own colours (glTF materials)
 };
 

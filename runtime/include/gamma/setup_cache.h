@@ -6,8 +6,8 @@
 // gammac reads its mesh, and the setup the cache keeps for it, on a thread
 // while its main thread imports the compiler.  Done as several calls from
 // Python (read the mesh, hash it, name the file, read it, prepare it), that
-// thread had to take the GIL between them, and in about a third of the runs
-// waited 0.1-0.2 s for it; `read_mesh_ahead` is the whole chain in C++, so
+// thread had to take the GIL between them, and often waited for it while the
+// main thread imported; `read_mesh_ahead` is the whole chain in C++, so
 // the thread takes the GIL only to start and to hand its result back.  The
 // cache file's name is therefore made here, and setup_cache.py asks for it.
 #pragma once

@@ -131,8 +131,10 @@ public:
     // Throws gammart::Error if flat has the wrong size or crease_deg is not
     // finite.
     void set_shading(std::vector<uint8_t> flat, float crease_deg);
-    // (Computed on first use after a shape step changed the mesh.)
-    const std::vector<float>& corner_normals() const;
+    // (Computed on first use after a shape step changed the mesh.)  Shared, not
+    // referenced: a later set_shading or shape step makes a new vector and
+    // leaves this one to whoever still holds it.
+    std::shared_ptr<const std::vector<float>> corner_normals() const;
 
     // Textures for the appearance kernels (kernel argument `textures`, 3
     // floats per texture in this order).  Throws gammart::Error.
@@ -247,12 +249,14 @@ private:
     float crease_deg_ = kDefaultCreaseDeg;
     // The renders' normals: a shape step only marks them stale (most
     // iterations render nothing), the first render or bake recomputes them.
-    mutable std::vector<float> corner_normals_;
+    mutable std::shared_ptr<const std::vector<float>> corner_normals_ =
+        std::make_shared<const std::vector<float>>();
     mutable bool corner_normals_stale_ = false;
     mutable std::mutex corner_normals_mutex_;
     // Held shared by setup_snapshot, exclusively by reconfigure and shape.
     mutable std::shared_mutex setup_lock_;
     void update_corner_normals();
+    void refresh_corner_normals() const;  // with corner_normals_mutex_ held
     SetupSeconds setup_seconds_;
     FromSnapshot from_snapshot_ = FromSnapshot::Nothing;
     bool setup_made_ahead_ = false;
