@@ -23,48 +23,12 @@ from . import budget
 from ..frontend.ast import Pos
 from ..ir.effect import Effect, Length, Source
 from ..frontend.diagnostics import Diagnostic, GammaError
+from ..options import LIMITS, RunOptions, limit_problem
 from ..records import Record, record
 
 
 class RunError(Exception):
     """A one-line, user-facing error (bad mesh, bad option value)."""
-
-
-@record
-class RunOptions(Record):
-    scene: str
-    out: str
-    assign: list[str] = field(default_factory=list)   # PATTERN=SURFACE or SURFACE
-    down: tuple[float, float, float] | None = None    # None: the scene file's, else -y
-    view: tuple[float, float, float] | None = None    # camera direction from the scene's centre
-    eye: tuple[float, float, float] | None = None     # camera position (overrides view)
-    look_at: tuple[float, float, float] | None = None # the point looked at (None: the scene's centre)
-    up: tuple[float, float, float] | None = None      # camera up (None: against gravity)
-    fov: float = 30.0                                 # vertical field of view, degrees
-    iterations: int = 10
-    surfels: int = 100_000
-    tons: int | None = None
-    seed: int = 1
-    threads: int = 0              # 0 = all cores
-    max_interactions: int = 100
-    show: str | None = None       # property rendered in false colour
-    width: int = 512
-    height: int = 512
-    export: bool | str = False  # texture sets + glTF/OBJ: "last" (or True) or "all" iterations
-    bake_size: int = 1024       # baked texture width and height
-    texel_density: float | None = None   # texels per scene unit (instead of bake_size)
-    preset: str = "gltf"        # the texture set's packing: gltf, unreal or unity
-    float_maps: bool = False    # height and properties as 32-bit OpenEXR instead of 16-bit PNG
-    samples: int = 4            # camera rays per pixel (appearance renders)
-    ao_samples: int = 8         # ambient-occlusion rays per hit
-    progress: bool = True
-    resume: bool = False          # continue the run in ``out`` from its last complete iteration
-    init: object = None           # start from this run's final state: a run folder or a gamma.Result (layered.py)
-    started: float | None = None  # time.perf_counter() when gammac started (start-up time)
-    shading: str = "smooth"       # renders: "smooth" (up to the crease angle) or "flat"
-    crease: float = 60.0          # degrees; sharper edges stay sharp in smooth shading
-    ray: bool = False           # trace on a local Ray (distributed.py)
-    ray_address: str | None = None   # trace on the Ray cluster there
 
 
 def runtime_module():
@@ -82,19 +46,10 @@ def runtime_module():
 DEFAULT_BOUNCE = Length(0.02, relative=True)
 DEFAULT_STEP = Length(0.005, relative=True)
 DEFAULT_DRIP_DEGREES = 10.0  # SPEC §4: water clings to walls and slight overhangs
-#: Upper bounds on options (budget.py).
-LIMITS = budget.LIMITS
-
-
 def check_limits(opts: "RunOptions") -> None:
-    values = {"--iterations": opts.iterations, "--surfels": opts.surfels, "--threads": opts.threads,
-              "--tons": opts.tons or 0, "--max-interactions": opts.max_interactions,
-              "--size": min(opts.width, opts.height), "--seed": opts.seed,
-              "--samples": opts.samples, "--ao": opts.ao_samples, "--bake-size": opts.bake_size}
-    for name, value in values.items():
-        low, high = LIMITS[name]
-        if not low <= value <= high:
-            raise RunError(f"{name} must be between {low} and {high:,}, not {value}")
+    problem = limit_problem(opts)
+    if problem:
+        raise RunError(problem)
 
 
 def split_counts(counts: list[int], total: int) -> list[int]:

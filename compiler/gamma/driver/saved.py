@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import abi
-from .runner import RunError, RunOptions, start
+from ..options import RunOptions
+from .runner import RunError, start
 
 
 def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: float = 30.0,
