@@ -252,15 +252,16 @@ def _text(value) -> str:
     return repr(value) if isinstance(value, float) else str(value)
 
 
-def command_line(opts, skip=("scene", "out")) -> list[str]:
-    """The options of ``opts`` that differ from their defaults as ``gammac
-    run`` arguments (numbers in repr form, so they parse back exactly)."""
+def command_line(opts, skip=("scene", "out"), keep=()) -> list[str]:
+    """The options of ``opts`` that differ from their defaults (and those
+    named in ``keep``) as ``gammac run`` arguments (numbers in repr form, so
+    they parse back exactly)."""
     out = []
     for o in OPTIONS:
         if o.flag is None or o.name in skip:
             continue
         value = getattr(opts, o.name)
-        if value == o.default:
+        if value == o.default and o.name not in keep:
             continue
         if o.action in ("store_true", "store_false"):
             out.append(o.flag)

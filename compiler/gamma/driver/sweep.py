@@ -125,7 +125,7 @@ def plan_cells(effect_path: str, params: list, base, axes: list[Axis], threads: 
         values = dict(zip(names, combo))
         opts = replace(base, **{k: int(v) for k, v in values.items() if k in SWEEPABLE})
         mine = list(params) + [(k, float(v)) for k, v in values.items() if k not in SWEEPABLE]
-        argv = ["run", effect, "--scene", opts.scene, *command_line(opts)]
+        argv = ["run", effect, "--scene", opts.scene, *command_line(opts, keep=values)]
         for name, value in mine:
             argv += ["--param", f"{name}={value!r}"]
         cells.append(Cell(values, argv, opts, mine, cell_name(values), i))
