@@ -92,9 +92,9 @@ def _join_negative_vectors(argv: list[str]) -> list[str]:
 
 
 def _version() -> str:
-    from . import __version__
+    from .version import version
 
-    return f"gammac {__version__}"
+    return f"gammac {version()}"
 
 
 class _VersionAction(argparse.Action):

@@ -40,7 +40,7 @@ import atexit
 import os
 import threading
 
-from . import background
+from .. import background
 
 #: Extensions the runtime's own readers parse (no OpenMesh, no global state).
 SUFFIXES = (".obj", ".ply")

@@ -38,7 +38,7 @@ import zlib
 from pathlib import Path
 
 from ..files import atomic_write, cache_dir
-from . import background
+from .. import background
 
 #: Trailer after the snapshot: CRC-32 of the snapshot, then this mark (the
 #: runtime's SetupSnapshot.load_cached checks both).
