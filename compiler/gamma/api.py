@@ -55,7 +55,8 @@ def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, u
     ``progress(iteration, iterations, record)`` is called after every
     iteration; ``show_progress`` draws ``gammac run``'s progress bar.  With
     ``out`` the standard outputs (maps, renders, summary, ``export=True``
-    for glTF) are written there as by ``gammac run``.
+    for glTF) are written there as by ``gammac run``; ``init`` takes a run
+    folder or a ``Result``.
     SIGINT or SIGTERM (from the main thread) stop it within a fraction of a
     second with ``gamma.RunInterrupted`` (its ``status``: 130 or 143): a
     tracing pass or update that was running is cancelled or waited for; a

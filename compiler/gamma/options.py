@@ -202,7 +202,7 @@ OPTIONS: tuple[Option, ...] = (
            "command; --iterations may grow)", group="run", action="store_true"),
     Option("init", "--init", None, "start from the final surfel state of the run in DIR (same scene, "
            "--surfels and --seed): properties of the same surface and name start at its values, the rest "
-           "at this effect's initial values (the Python API also takes a gamma.Result)", group="run",
+           "at this effect's initial values", group="run",
            metavar="DIR"),
     Option("started", None, None, "time.perf_counter() when gammac started (the start-up time "
            "summary.json reports)", group="api"),
