@@ -16,6 +16,8 @@ import argparse
 import sys
 import time
 
+from .options import LIMITS, OPTIONS, REQUIRED, SWEEPABLE, VECTOR_FLAGS, OptionError, ascii_float, from_args, whole
+
 # Start-up time reported in summary.json runs from here, or from the
 # ``gammac`` command's first line (launch.py), which came before (the
 # interpreter's own start, before the first import of gamma, is not included).
@@ -31,8 +33,6 @@ EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 def _typed(parse):
     """An options.py value parser as an argparse type: its OptionError is
     the one-line message argparse shows."""
-    from .options import OptionError
-
     def convert(text: str):
         try:
             return parse(text)
@@ -45,8 +45,6 @@ def _typed(parse):
 
 def _param(text: str) -> tuple[str, float]:
     import math
-
-    from .options import ascii_float
 
     name, sep, value = text.partition("=")
     try:
@@ -75,8 +73,6 @@ def _join_negative_vectors(argv: list[str]) -> list[str]:
     """``--view -0.6,0.2,1`` as ``--view=-0.6,0.2,1``: argparse would otherwise
     take the value for an option (it knows only plain negative numbers)."""
     import re
-
-    from .options import VECTOR_FLAGS
 
     out, i = [], 0
     while i < len(argv):
@@ -110,8 +106,6 @@ class _VersionAction(argparse.Action):
 
 
 def _parser() -> argparse.ArgumentParser:
-    from .options import SWEEPABLE, whole
-
     p = argparse.ArgumentParser(prog="gammac", description="Compile and run .gamma weathering effects.",
                                 epilog="Exit status: 0 success, 1 an error in the input (effect, mesh, "
                                        "files), 2 a usage error (options, --param, --assign), 130 interrupted.")
@@ -209,8 +203,6 @@ def add_options(p: argparse.ArgumentParser, *groups: str, saved: bool = False) -
     """The run options (options.OPTIONS) of ``groups`` as ``p``'s arguments;
     ``saved``: of a saved run (``gammac render``), whose own values are the
     defaults of the options that say so."""
-    from .options import OPTIONS, REQUIRED
-
     exclusive: dict[str, argparse._MutuallyExclusiveGroup] = {}
     for o in OPTIONS:
         if o.flag is None or o.group not in groups:
@@ -359,7 +351,6 @@ def _watch(args) -> int:
     """The effect's errors are shown in the page (and on stderr), not fatal."""
     from .driver.runner import RunError, RunInterrupted
     from .frontend.checker import UsageError
-    from .options import from_args
     from .viewer.watch import watch
 
     if not 0.0 < args.preview <= 1.0:
@@ -382,7 +373,6 @@ def _saved(args) -> int:
     from .driver.runner import RunError
     from .driver.saved import export_saved, render_saved
     from .frontend.checker import UsageError
-    from .options import LIMITS
 
     try:
         if args.command == "render":
@@ -417,7 +407,6 @@ def _sweep(args) -> int:
     from .driver.cluster import RayUnavailable
     from .driver.sweep import SweepError, parse_grid, sweep
     from .frontend.checker import UsageError
-    from .options import SWEEPABLE, from_args
 
     try:
         axes = [parse_grid(g) for g in args.grid]
@@ -521,7 +510,6 @@ def main(argv=None) -> int:
             return EXIT_USAGE
 
         from .driver.runner import run
-        from .options import from_args
 
         opts = from_args(args, started=_STARTED)
         streams = sys.stdout, sys.stderr

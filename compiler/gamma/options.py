@@ -15,6 +15,8 @@ read use it): ``RunOptions`` is made on first use, with ``dataclasses``.
 
 from __future__ import annotations
 
+import math
+
 #: Direction from the scene's centre toward the camera when --view is not given.
 DEFAULT_VIEW = (-0.6, 0.35, 1.0)   # front-left-above for a +z-facing, y-up model
 
@@ -56,8 +58,6 @@ def number(text: str) -> float:
 
 
 def _three(text: str, what: str, nonzero: bool) -> tuple[float, float, float]:
-    import math
-
     try:
         values = tuple(ascii_float(v) for v in text.split(","))
     except ValueError:
