@@ -1,4 +1,4 @@
-"""gamma.driver.background: one call on a daemon thread, its Outcome (value,
+"""gamma.background: one call on a daemon thread, its Outcome (value,
 error, waits with a timeout), and the calls still running waited for at the
 interpreter's exit; importing it (and the read-ahead that uses it) imports
 neither concurrent.futures nor logging."""
@@ -10,7 +10,7 @@ import threading
 
 import pytest
 
-from gamma.driver import background
+from gamma import background
 
 
 def test_an_outcome_gives_the_calls_value_or_raises_its_error():
@@ -63,7 +63,7 @@ def test_wait_and_pending_wait_for_every_call_without_raising_their_errors():
 # is a call it starts meanwhile.
 UNHELD = textwrap.dedent("""
     import time
-    from gamma.driver import background
+    from gamma import background
     def second():
         time.sleep(0.3)
         print("second", flush=True)
@@ -89,7 +89,7 @@ def test_the_interpreters_exit_waits_for_calls_nobody_holds():
 # only waited for outcomes).
 SETTLED_NOT_ENDED = textwrap.dedent("""
     import atexit, os, threading
-    from gamma.driver import background
+    from gamma import background
     exiting = threading.Event()
     atexit.register(exiting.set)        # (runs before background's handler, registered earlier)
     class Value:
@@ -124,7 +124,7 @@ def test_a_thread_that_cannot_start_leaves_no_call_to_wait_for(monkeypatch):
 
 
 def test_the_read_ahead_imports_neither_concurrent_futures_nor_logging():
-    probe = ("import sys; from gamma.driver import background, prefetch; "
+    probe = ("import sys; from gamma import background; from gamma.driver import prefetch; "
              "print(sorted(m for m in ('concurrent.futures', 'logging', 'typing') if m in sys.modules))")
     r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr

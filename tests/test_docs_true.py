@@ -40,3 +40,19 @@ def test_export_help_names_the_real_paths():
     r = run_gammac("run", "--help")
     text = " ".join(r.stdout.split())
     assert "DIR/export/SCENE_NNNN.glb" in text
+
+
+def test_spec_lists_every_run_option_with_its_default():
+    """SPEC §16.1's table of `run` options has a row per option of
+    options.OPTIONS that `gammac run` takes, with its default."""
+    from gamma.options import OPTIONS, REQUIRED
+
+    cell = r"((?:[^|\\]|\\.)*)"            # a table cell (a pipe in it is written \|)
+    pattern = r"^\| `(--[a-z-]+)" + cell + r"\| " + cell + r" \|"
+    rows = {m.group(1): m.group(3) for m in re.finditer(pattern, SPEC, re.M)}
+    for o in OPTIONS:
+        if o.flag is None or o.group == "api":
+            continue
+        assert o.flag in rows, f"SPEC §16.1 has no row for {o.flag}"
+        if isinstance(o.default, (int, float)) and not isinstance(o.default, bool) and o.default is not REQUIRED:
+            assert rows[o.flag].startswith(f"{o.default:g}"), (o.flag, rows[o.flag])

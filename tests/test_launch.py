@@ -98,11 +98,11 @@ def test_a_run_started_by_gammac_gives_the_outputs_of_one_started_by_the_cli(tmp
 
 def test_the_defaults_read_ahead_are_the_command_lines():
     from gamma import cli
-    from gamma.launch import _READ_OPTIONS
+    from gamma.options import EARLY
 
     args = cli._parser().parse_args(["run", "e.gamma", "--scene", "m.obj", "--out", "o"])
     assert {name: getattr(args, name.removeprefix("--")) for name in ("--surfels", "--seed", "--threads")} == \
-        {name: default for name, default in _READ_OPTIONS.items() if name != "--scene"}
+        {name: default for name, default in EARLY.items() if name != "--scene"}
 
 
 @pytest.mark.parametrize("argv, status", [(["run", "e.gamma", "--scene", "m.obj"], 2),   # no --out

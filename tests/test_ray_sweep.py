@@ -97,8 +97,12 @@ def test_a_failing_cell_is_reported_and_the_others_finish(ray_local, tmp_path, e
 
 def test_a_worker_killed_mid_cell_is_retried_with_the_same_result(ray_local, tmp_path, effect, box_obj):
     marker = tmp_path / "crashed"
-    cells = sweep(str(effect), str(box_obj), [parse_grid("seed=3")], RUN, str(tmp_path / "sweep"),
-                  progress=False, _crash_marker=str(marker))
+    from gamma.options import from_args
+
+    args = cli._parser().parse_args(["sweep", str(effect), "--scene", str(box_obj), "--grid", "seed=3", *RUN,
+                                     "--out", str(tmp_path / "sweep")])
+    cells = sweep(str(effect), [], from_args(args), [parse_grid("seed=3")], progress=False,
+                  _crash_marker=str(marker))
     assert marker.exists()                 # the first attempt's worker did die
     assert [c.status for c in cells] == ["ok"]
     local = local_run(tmp_path, box_obj, tmp_path / "local", "--seed", "3")

@@ -34,35 +34,51 @@ def test_bad_grids_are_named(text, message):
         parse_grid(text)
 
 
-def test_cells_are_every_combination_as_gammac_run_commands(tmp_path):
-    cells = plan_cells("e.gamma", "mesh.obj", [parse_grid("rate=0.1,0.2"), parse_grid("seed=1..3")],
-                       ["--surfels", "500"], threads=1)
+def _options(*argv):
+    """The RunOptions and --param pairs of a ``gammac sweep`` command line."""
+    from gamma.options import from_args
+
+    args = cli._parser().parse_args(["sweep", "e.gamma", "--scene", "m.obj", "--out", "o", "--grid", "seed=1",
+                                     *argv])
+    return from_args(args), args.param
+
+
+def test_cells_are_every_combination_as_options_and_gammac_run_commands(tmp_path):
+    base, params = _options("--surfels", "500")
+    cells = plan_cells("e.gamma", params, base, [parse_grid("rate=0.1,0.2"), parse_grid("seed=1..3")],
+                       threads=1)
     assert [c.name for c in cells] == [f"rate={r}_seed={s}" for r in ("0.1", "0.2") for s in (1, 2, 3)]
     last = cells[-1]
     assert last.parameters() == {"rate": 0.2, "seed": 3}
+    assert last.opts.seed == 3 and last.opts.surfels == 500 and last.opts.threads == 1
+    assert not last.opts.progress and last.params == [("rate", 0.2)]
     assert last.argv[:2] == ["run", str((tmp_path.cwd() / "e.gamma").resolve())]
-    assert last.argv[-4:] == ["--param", "rate=0.2", "--seed", "3"]
-    assert "--surfels" in last.argv and "--quiet" in last.argv
+    assert last.argv[-2:] == ["--param", "rate=0.2"]
+    assert "--surfels" in last.argv and "--quiet" in last.argv and "--seed" in last.argv
+    # the command recorded is the same run
+    again = cli._parser().parse_args([*last.argv, "--out", "o"])
+    from gamma.options import from_args
+
+    assert from_args(again) == last.opts and again.param == last.params
 
 
 def test_a_swept_name_may_not_also_be_a_run_option():
+    base, params = _options("--seed", "4", "--param", "rate=0.3")
     with pytest.raises(SweepError, match="--seed is given and also swept"):
-        check_overlap([parse_grid("seed=1..2")], ["--seed", "4"])
+        check_overlap([parse_grid("seed=1..2")], base, params)
     with pytest.raises(SweepError, match="--param rate=0.3 is given and also swept"):
-        check_overlap([parse_grid("rate=0.1")], ["--param", "rate=0.3"])
-    check_overlap([parse_grid("rate=0.1")], ["--param", "other=0.3", "--seed", "2"])
+        check_overlap([parse_grid("rate=0.1")], base, params)
+    check_overlap([parse_grid("other=0.1"), parse_grid("surfels=10")], base, params)
 
 
 def test_run_options_are_passed_on_exactly():
-    args = cli._parser().parse_args(["sweep", "e.gamma", "--scene", "m.obj", "--out", "o", "--grid", "seed=1",
-                                     "--param", "k=0.1", "--view", "1,0.7,0.9", "--surfels", "123",
-                                     "--export", "--assign", "a=B", "--threads", "2"])
-    again = cli._parser().parse_args(["run", "e.gamma", "--scene", "m.obj", "--out", "o",
-                                      *cli._run_options_text(args)])
-    for name in ("param", "view", "surfels", "export", "assign", "iterations", "fov"):
-        assert getattr(again, name) == getattr(args, name), name
-    assert args.threads == 2
-    assert "--threads" not in cli._run_options_text(args)   # the sweep sets it per cell
+    from gamma.options import command_line, from_args
+
+    base, _ = _options("--param", "k=0.1", "--view", "1,0.7,0.9", "--surfels", "123", "--export",
+                       "--assign", "a=B", "--threads", "2", "--size", "64", "--crease", "0.1")
+    again = cli._parser().parse_args(["run", "e.gamma", "--scene", "m.obj", "--out", "o", *command_line(base)])
+    assert from_args(again) == base
+    assert (base.width, base.height, base.threads) == (64, 64, 2)
 
 
 def test_sweep_without_ray_says_how_to_install_it(tmp_path, monkeypatch, capsys):

@@ -6,30 +6,18 @@
     driver/     the run loop over the C++ runtime (``gamma._runtime``), its
                 writers (maps, renders, summary, export), scene loading
     abi.py      the compiler <-> runtime interface, declared once
+    options.py  the options of a run, declared once (flags, defaults, limits)
     files.py    atomic file writes
-    cli.py      the ``gammac`` command
+    background.py  one call on a daemon thread (caches, read-ahead)
+    version.py  the version, looked up on first use
+    api.py      the Python API (``gamma.compile``, ``gamma.run``)
+    cli.py      the ``gammac`` command (``launch.py``: its entry point)
 
-Dependencies point one way: cli -> driver -> backends -> ir <- frontend; all -> abi.
+Dependencies point one way: cli, api -> driver -> backends -> ir <- frontend;
+all -> abi, options; no cycles, counting imports inside functions
+(tests/test_architecture.py).  Importing ``gamma`` imports none of them: the
+names below are looked up on first use.
 """
-
-
-def _installed_version() -> str:
-    # One version: CMakeLists.txt's project(VERSION), which pyproject.toml reads
-    # (scikit-build-core regex provider) into the package metadata and CMake
-    # compiles into the runtime.  The runtime's copy costs nothing to read (a
-    # run loads it anyway); importlib.metadata costs ~40 ms of start-up.
-    try:
-        from ._runtime import RUNTIME_VERSION
-
-        return RUNTIME_VERSION
-    except ImportError:
-        pass
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("gamma-weathering")
-    except PackageNotFoundError:   # running from a source tree that was never installed
-        return "0+unknown"
 
 
 def __getattr__(name: str):
@@ -37,7 +25,9 @@ def __getattr__(name: str):
     # the Python API pulls in numpy, the driver and LLVM, the version the
     # package metadata.
     if name == "__version__":
-        globals()["__version__"] = value = _installed_version()
+        from .version import version
+
+        globals()["__version__"] = value = version()
         return value
     if name in ("compile", "run", "Result"):
         from . import api

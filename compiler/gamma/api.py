@@ -22,6 +22,8 @@ from typing import Callable
 
 import numpy as np
 
+from .options import keyword_help
+
 __all__ = ["compile", "run", "Result"]
 
 
@@ -45,28 +47,31 @@ def compile(path: str | Path | None = None, *, source: str | None = None, params
 
 
 def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, uvs=None,
-        assign: list[str] | tuple = (), iterations: int = 10, surfels: int = 100_000,
-        tons: int | None = None, seed: int = 1, threads: int = 0, down=None,
-        max_interactions: int = 100, out: str | Path | None = None,
-        progress: Callable[[int, int, dict], None] | None = None, **options) -> "Result":
+        out: str | Path | None = None, progress: Callable[[int, int, dict], None] | None = None,
+        show_progress: bool = False, **options) -> "Result":
     """Simulate ``effect`` (from ``compile``) on a mesh file or JSON scene
     (``scene``) or on arrays: ``vertices`` (n, 3), ``faces`` (m, 3) and
     optional ``uvs`` per vertex (n, 2) or per corner (m, 3, 2).
     ``progress(iteration, iterations, record)`` is called after every
-    iteration.  With ``out`` the standard outputs (maps, renders, summary,
-    ``export=True`` for glTF) are written there as by ``gammac run``; the
-    other keyword options are those of ``gamma.driver.RunOptions``.
+    iteration; ``show_progress`` draws ``gammac run``'s progress bar.  With
+    ``out`` the standard outputs (maps, renders, summary, ``export=True``
+    for glTF) are written there as by ``gammac run``; ``init`` takes a run
+    folder or a ``Result``.
     SIGINT or SIGTERM (from the main thread) stop it within a fraction of a
     second with ``gamma.RunInterrupted`` (its ``status``: 130 or 143): a
     tracing pass or update that was running is cancelled or waited for; a
     surfel set-up that was running ends on its own thread
-    (``abandoned_call``), and the interpreter's exit waits for it."""
+    (``abandoned_call``), and the interpreter's exit waits for it.
+
+    The other keyword options (``gamma.options.OPTIONS``, as ``gammac run``'s), with their defaults:
+"""
     import tempfile
 
     from .driver.events import CallbackWriter, IterationUpdated, SetupDone
-    from .driver.runner import RunError, RunOptions, runtime_module
+    from .driver.runner import RunError, runtime_module
     from .driver.runner import run as drive
     from .driver.scene import SceneError, arrays_scene
+    from .options import RunOptions
 
     if (scene is None) == (vertices is None):
         raise TypeError("run() takes a scene path or vertices= and faces=, not both")
@@ -74,28 +79,31 @@ def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, u
         raise TypeError("run() needs faces= with vertices=")
     # without `out` the run's folder is a temporary one, and only what is asked for is computed
     scratch = None if out else tempfile.TemporaryDirectory(prefix="gamma-run-")
+    if "assign" in options:
+        options["assign"] = list(options["assign"])
+    if options.get("down") is not None:
+        options["down"] = tuple(options["down"])
     opts = RunOptions(scene=str(scene) if scene is not None else "<arrays>",
-                      out=str(out) if out else scratch.name,
-                      assign=list(assign), iterations=iterations, surfels=surfels, tons=tons, seed=seed,
-                      threads=threads, down=tuple(down) if down is not None else None,
-                      max_interactions=max_interactions, progress=options.pop("show_progress", False),
-                      **options)
+                      out=str(out) if out else scratch.name, progress=show_progress, **options)
     built = None
     if vertices is not None:
         try:
-            built = arrays_scene(runtime_module(), vertices, faces, uvs, effect, list(assign), opts.down)
+            built = arrays_scene(runtime_module(), vertices, faces, uvs, effect, opts.assign, opts.down)
         except SceneError as err:
             raise RunError(str(err)) from None
     sessions: list = []
     writers = [CallbackWriter(lambda e: sessions.append(e.run), events=(SetupDone,))]
     if progress is not None:
-        writers.append(CallbackWriter(lambda e: progress(e.iteration, iterations, e.record),
+        writers.append(CallbackWriter(lambda e: progress(e.iteration, opts.iterations, e.record),
                                       events=(IterationUpdated,)))
     history: list[dict] = []
     summary = drive(effect, opts, writers + [_history_writer(history)], scene=built, standard=bool(out))
     result = Result(effect, sessions[0], summary, history)
     result._scratch = scratch
     return result
+
+
+run.__doc__ += keyword_help() + "\n"
 
 
 def _history_writer(keep: list):

@@ -16,6 +16,8 @@ import argparse
 import sys
 import time
 
+from .options import LIMITS, OPTIONS, REQUIRED, SWEEPABLE, VECTOR_FLAGS, OptionError, ascii_float, from_args, whole
+
 # Start-up time reported in summary.json runs from here, or from the
 # ``gammac`` command's first line (launch.py), which came before (the
 # interpreter's own start, before the first import of gamma, is not included).
@@ -28,57 +30,17 @@ _STARTED = getattr(sys.modules.get("gamma.launch"), "STARTED", None) or time.per
 EXIT_OK, EXIT_INPUT, EXIT_USAGE = 0, 1, 2
 
 
-def _float(text: str) -> float:
-    """A number written in ASCII: Python's float() also reads other scripts'
-    digits ('٣'), which no user means on a command line."""
-    if not text.isascii():
-        raise ValueError(text)
-    return float(text)
+def _typed(parse):
+    """An options.py value parser as an argparse type: its OptionError is
+    the one-line message argparse shows."""
+    def convert(text: str):
+        try:
+            return parse(text)
+        except OptionError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
 
-
-def _bounded_int(text: str) -> int:
-    try:
-        if not text.isascii():
-            raise ValueError(text)
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"'{text}' is negative")
-    return value
-
-
-def _bake_size(text: str) -> int:
-    """A texture side in pixels, within budget.LIMITS["--bake-size"]."""
-    from .driver.budget import LIMITS
-
-    value = _bounded_int(text)
-    low, high = LIMITS["--bake-size"]
-    if not low <= value <= high:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a texture size from {low} to {high:,} pixels")
-    return value
-
-
-def _texel_density(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not (value > 0 and value < 1e9):
-        raise argparse.ArgumentTypeError(f"'{text}' is not a positive number of texels per scene unit")
-    return value
-
-
-def _vector3(text: str) -> tuple[float, float, float]:
-    import math
-
-    try:
-        values = tuple(_float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(math.isfinite(v) for v in values) or not any(values):
-        raise argparse.ArgumentTypeError(f"'{text}' is not a direction X,Y,Z")
-    return values
+    convert.__name__ = parse.__name__
+    return convert
 
 
 def _param(text: str) -> tuple[str, float]:
@@ -86,32 +48,13 @@ def _param(text: str) -> tuple[str, float]:
 
     name, sep, value = text.partition("=")
     try:
-        number = _float(value)
+        number = ascii_float(value)
     except ValueError:
         number = math.nan
     parts = name.split(".")
     if not sep or len(parts) > 2 or not all(x.isidentifier() for x in parts) or not math.isfinite(number):
         raise argparse.ArgumentTypeError(f"'{text}' is not NAME=NUMBER or RECIPE.NAME=NUMBER")
     return name, number
-
-
-def _fov(text: str) -> float:
-    try:
-        return _float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-
-
-def _point3(text: str) -> tuple[float, float, float]:
-    import math
-
-    try:
-        values = tuple(_float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"'{text}' is not a point X,Y,Z")
-    return values
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -121,13 +64,9 @@ class _HelpFormatter(argparse.HelpFormatter):
         text = action.help or ""
         default = action.default
         if ("%(default)" in text or not action.option_strings or default in (None, False, [], "")
-                or default is argparse.SUPPRESS):
+                or default is argparse.SUPPRESS or action.nargs == 0):
             return text
         return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"
-
-
-#: Options whose value is a vector and may start with a minus sign.
-VECTOR_OPTIONS = ("--view", "--eye", "--down", "--look-at", "--up")
 
 
 def _join_negative_vectors(argv: list[str]) -> list[str]:
@@ -138,7 +77,7 @@ def _join_negative_vectors(argv: list[str]) -> list[str]:
     out, i = [], 0
     while i < len(argv):
         arg = argv[i]
-        if (arg in VECTOR_OPTIONS and i + 1 < len(argv)
+        if (arg in VECTOR_FLAGS and i + 1 < len(argv)
                 and re.fullmatch(r"-[0-9.][0-9.eE+-]*(,[^,]*)*", argv[i + 1])):
             out.append(f"{arg}={argv[i + 1]}")
             i += 2
@@ -149,9 +88,9 @@ def _join_negative_vectors(argv: list[str]) -> list[str]:
 
 
 def _version() -> str:
-    from . import __version__
+    from .version import version
 
-    return f"gammac {__version__}"
+    return f"gammac {version()}"
 
 
 class _VersionAction(argparse.Action):
@@ -204,21 +143,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="the same as JSON (name, path, summary, doc, params, tons, surfaces, sources), for tools")
     r = sub.add_parser("run", help="simulate an effect on a mesh and write maps, renders and a summary")
     r.add_argument("file")
-    _add_run_options(r)
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
-    where = r.add_mutually_exclusive_group()
-    where.add_argument("--ray", action="store_true",
-                       help="trace each iteration's gamma-tons on Ray workers on this machine "
-                            "(same result; optional extra: pip install '.[ray]')")
-    where.add_argument("--ray-address", metavar="ADDRESS",
-                       help="trace each iteration's gamma-tons on the Ray cluster at ADDRESS")
-    r.add_argument("--resume", action="store_true",
-                   help="continue the run in --out from its last complete iteration (same command; "
-                        "--iterations may grow)")
-    r.add_argument("--init", metavar="DIR",
-                   help="start from the final surfel state of the run in DIR (same scene, --surfels and "
-                        "--seed): properties of the same surface and name start at its values, the rest "
-                        "at this effect's initial values")
+    _add_param(r)
+    add_options(r, *RUN_GROUPS, "run")
     s = sub.add_parser("sweep", help="run every combination of a parameter grid (a Ray task each)",
                        description="Run the effect once per combination of the --grid values (each a "
                                    "'gammac run' with the other options, as a Ray task) into "
@@ -228,125 +154,76 @@ def _parser() -> argparse.ArgumentParser:
                                    "--threads is per cell (default 1: cells run side by side).")
     s.add_argument("file")
     s.add_argument("--grid", action="append", required=True, metavar="NAME=VALUES",
-                   help="a parameter of the effect or one of seed, iterations, surfels, tons, "
-                        "max_interactions, with values V1,V2,... or a range A..B (repeatable)")
-    s.add_argument("--ray-address", metavar="ADDRESS",
+                   help="a parameter of the effect or one of " + ", ".join(SWEEPABLE)
+                        + ", with values V1,V2,... or a range A..B (repeatable)")
+    s.add_argument("--ray-address", dest="cluster", metavar="ADDRESS",
                    help="an existing Ray cluster (default: a local Ray on this machine)")
-    s.add_argument("--quiet", action="store_true", help="no progress")
-    _add_run_options(s)
+    _add_param(s)
+    add_options(s, *RUN_GROUPS)
     s.set_defaults(threads=1)
     v = sub.add_parser("render", help="a picture of a saved run's iteration, without simulating")
     v.add_argument("dir", help="the --out folder of a gammac run")
-    v.add_argument("--iteration", type=_bounded_int, help="iteration to show (default: the last saved)")
-    _camera_options(v)
-    _picture_options(v, saved=True)
+    v.add_argument("--iteration", type=_typed(whole), help="iteration to show (default: the last saved)")
+    add_options(v, "camera", "picture", saved=True)
     v.add_argument("--output", "-o", metavar="FILE",
                    help="PNG to write (default: DIR/renders/view_iter_NNNN[_PROPERTY].png)")
-    v.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
+    v.add_argument("--threads", type=_typed(whole), default=0, help="worker threads (0: all cores)")
     x = sub.add_parser("export", help="glTF/OBJ + baked textures of a saved run, without simulating")
     x.add_argument("dir", help="the --out folder of a gammac run")
     which = x.add_mutually_exclusive_group()
-    which.add_argument("--iteration", type=_bounded_int, help="iteration to export (default: the last saved)")
+    which.add_argument("--iteration", type=_typed(whole), help="iteration to export (default: the last saved)")
     which.add_argument("--all", action="store_true", help="every saved iteration")
-    _bake_options(x)
+    add_options(x, "bake")
     x.add_argument("--format", choices=("gltf", "usd"), default="gltf",
                    help="usd: also an OpenUSD stage DIR/export/SCENE.usdc, the iterations as time samples")
-    x.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
-    x.add_argument("--quiet", action="store_true", help="no progress bar")
+    x.add_argument("--threads", type=_typed(whole), default=0, help="worker threads (0: all cores)")
+    add_options(x, "progress")
     w = sub.add_parser("watch", help="run an effect again on every save and show it in the browser")
     w.add_argument("file")
-    _simulation_options(w)
-    w.add_argument("--port", type=_bounded_int, default=8000, help="port on 127.0.0.1 (0: any free one)")
+    _add_param(w)
+    add_options(w, "simulation", "camera")
+    w.add_argument("--port", type=_typed(whole), default=8000, help="port on 127.0.0.1 (0: any free one)")
     w.add_argument("--preview", type=float, default=0.25,
                    help="fraction of the gamma-tons of the quick first pass after a save (1: none)")
     return p
 
 
-def _add_run_options(r: argparse.ArgumentParser) -> None:
-    """The options of ``gammac run`` that ``gammac sweep`` passes on to each cell."""
-    _simulation_options(r)
-    r.add_argument("--out", required=True, help="output folder")
-    _picture_options(r)
-    r.add_argument("--export", nargs="?", const="last", choices=("last", "all"),
-                   help="write DIR/export/SCENE_NNNN.glb and per object a texture set (DIR/export/OBJECT/) "
-                        "of the last iteration (--export all: of every iteration) once the run is complete")
-    _bake_options(r)
+#: The option groups (options.py) of ``gammac run`` that ``gammac sweep`` passes on to each cell.
+RUN_GROUPS = ("simulation", "camera", "output", "picture", "export", "bake", "progress")
 
 
-def _bake_options(r: argparse.ArgumentParser) -> None:
-    size = r.add_mutually_exclusive_group()
-    size.add_argument("--bake-size", type=_bake_size, default=1024,
-                      help="baked texture width and height in pixels (default 1024)")
-    size.add_argument("--texel-density", type=_texel_density, metavar="TEXELS",
-                      help="texels per scene unit instead of --bake-size: each object's textures get "
-                           "the size that gives it")
-    r.add_argument("--float-maps", action="store_true",
-                   help="the height and every property as 32-bit float OpenEXR images instead of 16-bit PNGs")
-    r.add_argument("--preset", choices=("gltf", "unreal", "unity"), default="gltf",
-                   help="the texture set's packing: gltf (ORM, OpenGL normal map), unreal (ORM, DirectX "
-                        "normal map) or unity (HDRP mask map: metallic, occlusion, detail, smoothness)")
-
-
-def _simulation_options(r: argparse.ArgumentParser) -> None:
-    """What a simulation needs: ``run``, ``sweep`` and ``watch``."""
-    r.add_argument("--threads", type=_bounded_int, default=0, help="worker threads (0: all cores)")
+def _add_param(r: argparse.ArgumentParser) -> None:
+    """``--param``, the effect's overrides (not a run option: they are the effect's)."""
     r.add_argument("--param", type=_param, action="append", default=[], metavar="[RECIPE.]NAME=VALUE",
                    help="override a parameter of the effect, or of an imported recipe "
                         "(RECIPE = its file name without .gamma); repeatable")
-    r.add_argument("--scene", required=True, help="OBJ, PLY, glTF (.gltf, .glb) mesh, or a JSON scene file")
-    r.add_argument("--assign", action="append", default=[], metavar="[PATTERN=]SURFACE",
-                   help="bind the parts whose object, group, material, node or file name matches "
-                        "PATTERN (default *) to SURFACE; repeatable, first match wins")
-    r.add_argument("--down", type=_vector3, metavar="X,Y,Z", help="gravity direction (default: 0,-1,0)")
-    _camera_options(r)
-    r.add_argument("--iterations", type=_bounded_int, default=10, help="iterations to simulate")
-    r.add_argument("--surfels", type=_bounded_int, default=100_000, help="surfels on the scene")
-    r.add_argument("--tons", type=_bounded_int,
-                   help="gamma-tons per iteration (overrides the sources' counts, split in proportion)")
-    r.add_argument("--seed", type=_bounded_int, default=1, help="random seed (same seed, same maps)")
-    r.add_argument("--max-interactions", type=_bounded_int, default=100,
-                   help="bound on interactions per gamma-ton")
 
 
-def _picture_options(r: argparse.ArgumentParser, saved: bool = False) -> None:
-    """Picture options; for a saved run (``saved``), shading defaults to the run's."""
-    r.add_argument("--show", help="property rendered in false colour (default: the surface's first)")
-    r.add_argument("--size", type=_bounded_int, default=512, help="render width and height in pixels")
-    r.add_argument("--samples", type=_bounded_int, default=4,
-                   help="camera rays per pixel of appearance renders (anti-aliasing)")
-    r.add_argument("--ao", type=_bounded_int, default=8, dest="ao_samples",
-                   help="ambient-occlusion rays per pixel sample (0: none)")
-    r.add_argument("--shading", choices=("smooth", "flat"), default=None if saved else "smooth",
-                   help="smooth: normals interpolated across edges gentler than --crease; "
-                        "flat: every triangle's own normal" + (" (default: the run's)" if saved else ""))
-    r.add_argument("--crease", type=_crease, default=None if saved else 60.0, metavar="DEG",
-                   help="edges whose faces meet at more than this angle stay sharp in smooth shading"
-                        + (" (default: the run's)" if saved else ""))
-
-
-def _crease(text: str) -> float:
-    try:
-        value = _float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
-    if not 0 <= value <= 180:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an angle from 0 to 180 degrees")
-    return value
-
-
-def _camera_options(p: argparse.ArgumentParser) -> None:
-    from .driver.camera import DEFAULT_VIEW
-
-    p.add_argument("--view", type=_vector3, metavar="X,Y,Z",
-                   help="direction from the scene's centre toward the camera "
-                        f"(default: {','.join(f'{c:g}' for c in DEFAULT_VIEW)})")
-    p.add_argument("--eye", type=_point3, metavar="X,Y,Z",
-                   help="camera position in scene units (overrides --view)")
-    p.add_argument("--look-at", type=_point3, metavar="X,Y,Z", dest="look_at",
-                   help="point the camera looks at (default: the scene's centre)")
-    p.add_argument("--up", type=_vector3, metavar="X,Y,Z",
-                   help="the camera's up direction (default: against gravity)")
-    p.add_argument("--fov", type=_fov, default=30.0, help="vertical field of view in degrees")
+def add_options(p: argparse.ArgumentParser, *groups: str, saved: bool = False) -> None:
+    """The run options (options.OPTIONS) of ``groups`` as ``p``'s arguments;
+    ``saved``: of a saved run (``gammac render``), whose own values are the
+    defaults of the options that say so."""
+    exclusive: dict[str, argparse._MutuallyExclusiveGroup] = {}
+    for o in OPTIONS:
+        if o.flag is None or o.group not in groups:
+            continue
+        kwargs = {"dest": o.name, "help": o.help}
+        if o.default is REQUIRED:
+            kwargs["required"] = True
+        else:
+            kwargs["default"] = None if saved and o.saved else o.default
+        if saved and o.saved:
+            kwargs["help"] += " (default: the run's)"
+        for key, value in (("action", o.action), ("metavar", o.metavar), ("choices", o.choices)):
+            if value is not None:
+                kwargs[key] = value
+        if o.parse is not None:
+            kwargs["type"] = _typed(o.parse)
+        if o.const is not None:
+            kwargs.update(nargs="?", const=o.const)
+        if o.exclusive is not None and o.exclusive not in exclusive:
+            exclusive[o.exclusive] = p.add_mutually_exclusive_group()
+        (p if o.exclusive is None else exclusive[o.exclusive]).add_argument(o.flag, **kwargs)
 
 
 def _read(path: str) -> str:
@@ -396,27 +273,6 @@ def _load(path: str, params=(), cached: bool = False):
 
 class _Fail(Exception):
     pass
-
-
-def _run_options(args):
-    """RunOptions from the parsed options of ``run`` or ``watch``."""
-    from .driver.runner import RunOptions
-
-    size = getattr(args, "size", 512)
-    return RunOptions(scene=args.scene, out=getattr(args, "out", ""), assign=args.assign, down=args.down,
-                      view=args.view, eye=args.eye, look_at=args.look_at, up=args.up, fov=args.fov,
-                      iterations=args.iterations, surfels=args.surfels, tons=args.tons,
-                      seed=args.seed, threads=args.threads, max_interactions=args.max_interactions,
-                      show=getattr(args, "show", None), width=size, height=size,
-                      progress=not getattr(args, "quiet", False),
-                      samples=getattr(args, "samples", 4), ao_samples=getattr(args, "ao_samples", 8),
-                      export=getattr(args, "export", None) or False, bake_size=getattr(args, "bake_size", 1024),
-                      texel_density=getattr(args, "texel_density", None), preset=getattr(args, "preset", "gltf"),
-                      float_maps=getattr(args, "float_maps", False),
-                      resume=getattr(args, "resume", False), init=getattr(args, "init", None),
-                      started=_STARTED,
-                      ray=getattr(args, "ray", False), ray_address=getattr(args, "ray_address", None),
-                      shading=getattr(args, "shading", "smooth"), crease=getattr(args, "crease", 60.0))
 
 
 class _PipeTolerant:
@@ -505,7 +361,7 @@ def _watch(args) -> int:
             raise UsageError(f"--param {name} is given twice")
         overrides[name] = value
     try:
-        return watch(args.file, overrides, _run_options(args), args.port, args.preview)
+        return watch(args.file, overrides, from_args(args, out="", started=_STARTED), args.port, args.preview)
     except RunError as err:
         raise _Fail(str(err)) from None
     except RunInterrupted as stop:       # ^C while a result is computed (its folder is a scratch one)
@@ -514,16 +370,16 @@ def _watch(args) -> int:
 
 def _saved(args) -> int:
     """``render`` and ``export`` of a saved run's maps."""
-    from .driver.runner import LIMITS, RunError
+    from .driver.runner import RunError
     from .driver.saved import export_saved, render_saved
     from .frontend.checker import UsageError
 
     try:
         if args.command == "render":
             low, high = LIMITS["--size"]
-            if not low <= args.size <= high:
-                raise UsageError(f"--size must be between {low} and {high:,}, not {args.size}")
-            path = render_saved(args.dir, args.iteration, args.show, args.output, args.size, args.samples,
+            if not low <= args.width <= high:
+                raise UsageError(f"--size must be between {low} and {high:,}, not {args.width}")
+            path = render_saved(args.dir, args.iteration, args.show, args.output, args.width, args.samples,
                                 args.ao_samples, view=args.view, eye=args.eye, look_at=args.look_at,
                                 up=args.up, fov=args.fov, threads=args.threads, shading=args.shading,
                                 crease=args.crease)
@@ -536,7 +392,7 @@ def _saved(args) -> int:
                 iterations = sorted(int(p.stem[5:]) for p in Path(args.dir, "maps").glob("iter_[0-9][0-9][0-9][0-9].ply"))
             elif args.iteration is not None:
                 iterations = [args.iteration]
-            done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=not args.quiet,
+            done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=args.progress,
                                 texel_density=args.texel_density, usd=args.format == "usd", preset=args.preset,
                                 float_maps=args.float_maps)
             print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
@@ -546,39 +402,10 @@ def _saved(args) -> int:
     return EXIT_OK
 
 
-_SWEEP_OWN = {"scene", "out", "threads"}   # run options the sweep handles itself
-
-
-def _run_options_text(args) -> list[str]:
-    """The run options of parsed ``args`` that differ from their defaults, as
-    ``gammac run`` arguments (numbers in repr form, so they parse back exactly)."""
-    def text(value) -> str:
-        if isinstance(value, (tuple, list)):
-            return ",".join(map(text, value))
-        return repr(value) if isinstance(value, float) else str(value)
-
-    probe = argparse.ArgumentParser(add_help=False)
-    _add_run_options(probe)
-    out = []
-    for action in probe._actions:
-        value = getattr(args, action.dest)
-        if action.dest in _SWEEP_OWN or value == action.default:
-            continue
-        flag = action.option_strings[0]
-        if isinstance(action, argparse._StoreTrueAction):
-            out.append(flag)
-        elif isinstance(action, argparse._AppendAction):
-            for item in value:
-                out += [flag, f"{item[0]}={text(item[1])}" if action.dest == "param" else text(item)]
-        else:
-            out += [flag, text(value)]
-    return out
-
-
 def _sweep(args) -> int:
     """``gammac sweep``: check the effect and every option here, then run the cells."""
     from .driver.cluster import RayUnavailable
-    from .driver.sweep import RUN_OPTIONS, SweepError, parse_grid, sweep
+    from .driver.sweep import SweepError, parse_grid, sweep
     from .frontend.checker import UsageError
 
     try:
@@ -586,7 +413,7 @@ def _sweep(args) -> int:
     except SweepError as err:
         raise _Fail(str(err)) from None
     # The effect must check with the first value of every parameter swept.
-    first = [(a.name, float(a.values[0])) for a in axes if a.name not in RUN_OPTIONS]
+    first = [(a.name, float(a.values[0])) for a in axes if a.name not in SWEEPABLE]
     swept = {name for name, _ in first}
     try:
         _load(args.file, [p for p in args.param if p[0] not in swept] + first)
@@ -596,8 +423,8 @@ def _sweep(args) -> int:
             text = text.replace(f"--param {name}:", f"--grid {name}:")
         raise UsageError(text) from None
     try:
-        cells = sweep(args.file, args.scene, axes, _run_options_text(args), args.out,
-                      address=args.ray_address, threads=args.threads or 1, progress=not args.quiet)
+        cells = sweep(args.file, args.param, from_args(args, out=args.out), axes, address=args.cluster,
+                      threads=args.threads or 1, progress=args.progress)
     except (SweepError, RayUnavailable) as err:
         raise _Fail(str(err)) from None
     failed = [c for c in cells if c.status != "ok"]
@@ -682,18 +509,13 @@ def main(argv=None) -> int:
             print("gammac: error: --out must name a folder (it is empty)", file=sys.stderr)
             return EXIT_USAGE
 
-        opts = _run_options(args)
-        from dataclasses import asdict
+        from .driver.runner import run
 
-        from . import api
-
-        fields = asdict(opts)
-        scene, out = fields.pop("scene"), fields.pop("out")
-        fields["show_progress"] = fields.pop("progress")
+        opts = from_args(args, started=_STARTED)
         streams = sys.stdout, sys.stderr
         _tolerate_closed_pipes()
         try:
-            summary = api.run(effect, scene, out=out, **fields).summary
+            summary = run(effect, opts)
         except RunError as err:
             raise _Fail(str(err)) from None
         except RunInterrupted as stop:

@@ -5,7 +5,7 @@ line is parsed and the command's modules are imported.
 ``cli.main`` starts the same read once ``argparse`` has parsed the command
 line, ~40 ms into the process: until then the second core idles, and a
 first run's start-up is CPU-bound on both cores from there on.  Here the
-four options the read needs are picked out of ``sys.argv`` by hand, and
+options the read needs (``options.EARLY``) are picked out of ``sys.argv`` by hand, and
 only when that is unambiguous: ``gammac run`` first, each option spelled in
 full (``--scene FILE`` or ``--scene=FILE``), no abbreviation of one of them
 (argparse would take ``--surf 5000`` for ``--surfels``; this scan would not
@@ -25,8 +25,7 @@ import time
 #: When the process reached gamma (the start-up time summary.json reports runs from here).
 STARTED = time.perf_counter()
 
-#: The options the read needs, with their defaults in ``cli._parser`` (None: required).
-_READ_OPTIONS = {"--scene": None, "--surfels": 100_000, "--seed": 1, "--threads": 0}
+from .options import EARLY  # noqa: E402 - after STARTED, which times gamma's own imports too
 
 
 def read_options(argv: list[str]) -> tuple[str, int, int, int] | None:
@@ -44,14 +43,14 @@ def read_options(argv: list[str]) -> tuple[str, int, int, int] | None:
         if not token.startswith("--"):
             continue
         name, eq, value = token.partition("=")
-        if name in _READ_OPTIONS:
+        if name in EARLY:
             if not eq:
                 if k >= len(argv):
                     return None
                 value = argv[k]
                 k += 1
             found[name] = value          # argparse keeps the last one too
-        elif any(full.startswith(name) for full in _READ_OPTIONS):
+        elif any(full.startswith(name) for full in EARLY):
             return None                  # an abbreviation argparse may expand to one of them
     if "--scene" not in found:
         return None
@@ -59,7 +58,7 @@ def read_options(argv: list[str]) -> tuple[str, int, int, int] | None:
     for name in ("--surfels", "--seed", "--threads"):
         text = found.get(name)
         if text is None:
-            numbers.append(_READ_OPTIONS[name])
+            numbers.append(EARLY[name])
         elif text.isascii() and text.isdigit():
             numbers.append(int(text))
         else:

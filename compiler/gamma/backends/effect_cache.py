@@ -45,7 +45,7 @@ import sys
 import threading
 from pathlib import Path
 
-from ..driver import background
+from .. import background
 from ..files import CACHE_FOLDER_MODE, cache_dir, cache_write
 
 #: ``effect-KEY.bin`` starts with this, then the SHA-256 of the pickle after it.

@@ -26,7 +26,7 @@ def _initialise() -> None:
     llvm.initialize_native_asmprinter()
 
 
-def _target_machine():
+def target_machine():
     """A new target machine: an MCJIT engine takes ownership of the one it gets."""
     _initialise()
     target = llvm.Target.from_triple(llvm.get_process_triple())
@@ -39,7 +39,7 @@ def _target_machine():
 def compile_ir(module: ir.Module | str, optimise: bool = True) -> llvm.ModuleRef:
     """Parse (and optimise) a module; as text, it is IR another process
     generated (``gammac run --ray`` workers), retargeted to this machine."""
-    tm = _target_machine()
+    tm = target_machine()
     if isinstance(module, str):
         ref = llvm.parse_assembly(module)
         ref.triple = tm.triple
@@ -71,15 +71,16 @@ def position_independent_object(ir_text: str) -> bytes:
 
 
 def assembly(module: ir.Module) -> str:
-    return _target_machine().emit_assembly(compile_ir(module))
+    return target_machine().emit_assembly(compile_ir(module))
 
 
 def cache_key(ir_text: str) -> str:
     """Everything the machine code depends on: compiler, ABI, LLVM, host CPU, IR."""
-    from .. import __version__, abi
+    from .. import abi
+    from ..version import version
 
     _initialise()
-    parts = [__version__, str(abi.ABI_VERSION), ".".join(map(str, llvm.llvm_version_info)),
+    parts = [version(), str(abi.ABI_VERSION), ".".join(map(str, llvm.llvm_version_info)),
              llvm.get_process_triple(), llvm.get_host_cpu_name(), ir_text]
     return hashlib.sha256("\0".join(parts).encode("utf-8")).hexdigest()
 
@@ -146,7 +147,7 @@ class JitKernels:
     def _build(self, effect: Effect, path: Path | None, key: str, cached: bytes | None) -> None:
         # With cached machine code the IR is only parsed (MCJIT takes the object).
         self.module = compile_ir(self.ir, optimise=cached is None)
-        self.engine = llvm.create_mcjit_compiler(self.module, _target_machine())
+        self.engine = llvm.create_mcjit_compiler(self.module, target_machine())
 
         def store(module, data: bytes) -> None:
             if path is None or cached is not None:

@@ -1,12 +1,14 @@
 """Driver: runs an effect on a scene with the C++ runtime and writes the outputs.
 
-``runner`` sets a run up (scene, kernels, runtime ``Config``) and owns the
-iteration loop; the loop publishes events (``events``) to writers
+``runner`` sets a run up (scene, kernels, runtime ``Config``: ``config``)
+and owns the iteration loop; ``common`` holds what the parts below it share
+(``RunError``, the checked runtime); the loop publishes events (``events``) to writers
 (``writers``: maps, renders, summary, sequence, export, progress; add yours
 with ``run(effect, opts, writers=[...])``).  ``scene`` assembles meshes and
 binds their parts to surfaces; ``export`` bakes textures and encodes glTF/OBJ;
 ``outputs`` encodes PLY, false-colour PNG and JSON; ``camera`` frames the scene.
-``sweep`` runs a parameter grid as Ray tasks (``gammac sweep``) and
+``saved`` renders and exports a saved run, ``reload`` puts a saved
+iteration back into a simulation.  ``sweep`` runs a parameter grid as Ray tasks (``gammac sweep``) and
 ``distributed`` traces iterations on Ray workers (``gammac run --ray``);
 ``cluster`` connects to Ray, the optional extra.
 

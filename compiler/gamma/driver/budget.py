@@ -1,7 +1,8 @@
 """What a run may ask for, checked before anything is allocated: the memory a
 run will need (stated when large, refused when the machine lacks it), the
 scene sizes the tracer handles, and how far from the scene a source or the
-camera may be.  The limits are stated in language/SPEC.md §15 and §16.1.
+camera may be.  The limits are stated in language/SPEC.md §15 and §16.1;
+each option's own range is declared with it (``gamma.options``).
 """
 
 from __future__ import annotations
@@ -19,12 +20,6 @@ MAX_SCENE_DIAGONAL = 1e10
 #: diagonals of the scene's centre (Embree refuses rays starting beyond
 #: ~1.8e18, and nothing that far can be meant).
 MAX_DISTANCE_IN_DIAGONALS = 1000.0
-
-#: Upper bounds on options, so a typo cannot ask for terabytes.
-LIMITS = {"--iterations": (1, 1_000_000), "--surfels": (1, 20_000_000),
-          "--threads": (0, 256), "--tons": (0, 10**12), "--max-interactions": (1, 10**6),
-          "--size": (16, 8192), "--seed": (0, 2**63 - 1), "--samples": (1, 64), "--ao": (0, 256),
-          "--bake-size": (8, 16384)}   # export.MAX_BAKE_SIZE; the memory a bake needs is checked too
 
 #: Memory of a run, calibrated on `gammac run` (peak resident size): a fixed
 #: part (Python, LLVM, Embree), per surfel (surfel arrays, k-d trees, the

@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import math
 
-#: Direction from the scene's centre toward the camera when --view is not given.
-DEFAULT_VIEW = (-0.6, 0.35, 1.0)   # front-left-above for a +z-facing, y-up model
+from ..options import DEFAULT_VIEW
 
 
 class CameraError(ValueError):

@@ -71,7 +71,7 @@ def _from_folder(folder: Path) -> FinalState:
 
 
 def _from_result(result) -> FinalState:
-    from .runner import property_columns
+    from .common import property_columns
 
     session = result.session
     rows = np.asarray(session.sim.rows())

@@ -40,7 +40,7 @@ import atexit
 import os
 import threading
 
-from . import background
+from .. import background
 
 #: Extensions the runtime's own readers parse (no OpenMesh, no global state).
 SUFFIXES = (".obj", ".ply")
@@ -156,10 +156,10 @@ def worth_sampling(surfels: int, seed: int, threads: int) -> bool:
     limits (else the runner refuses the run), and the run's memory for them
     under a quarter of what is free."""
     from . import budget
+    from ..options import LIMITS
 
     if not all(low <= value <= high for value, (low, high) in
-               ((surfels, budget.LIMITS["--surfels"]), (seed, budget.LIMITS["--seed"]),
-                (threads, budget.LIMITS["--threads"]))):
+               ((surfels, LIMITS["--surfels"]), (seed, LIMITS["--seed"]), (threads, LIMITS["--threads"]))):
         return False
     available = budget.available_memory()
     need = budget.run_memory(surfels, 0, 1, history=False)

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, abi
+from .. import abi
+from ..version import version
 
 #: Options that do not change the results (or are what --resume changes).
 _NOT_IN_KEY = {"iterations", "threads", "progress", "resume", "out", "quiet", "started", "ray", "ray_address"}
@@ -28,7 +29,7 @@ _NOT_IN_KEY = {"iterations", "threads", "progress", "resume", "out", "quiet", "s
 
 def run_key(ir_text: str, scene, opts) -> str:
     h = hashlib.sha256()
-    h.update(f"gamma {__version__} abi {abi.ABI_VERSION}\0".encode())
+    h.update(f"gamma {version()} abi {abi.ABI_VERSION}\0".encode())
     h.update(ir_text.encode("utf-8"))
     h.update(np.ascontiguousarray(scene.mesh.vertices(), dtype=np.float32).tobytes())
     h.update(np.ascontiguousarray(scene.mesh.triangles(), dtype=np.int32).tobytes())

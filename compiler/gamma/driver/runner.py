@@ -18,249 +18,22 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import abi, __version__
+from .. import abi
+from ..version import version
 from . import budget
 from ..frontend.ast import Pos
-from ..ir.effect import Effect, Length, Source
+from ..ir.effect import Effect
 from ..frontend.diagnostics import Diagnostic, GammaError
+from ..options import LIMITS, RunOptions, limit_problem
 from ..records import Record, record
-
-
-class RunError(Exception):
-    """A one-line, user-facing error (bad mesh, bad option value)."""
-
-
-@record
-class RunOptions(Record):
-    scene: str
-    out: str
-    assign: list[str] = field(default_factory=list)   # PATTERN=SURFACE or SURFACE
-    down: tuple[float, float, float] | None = None    # None: the scene file's, else -y
-    view: tuple[float, float, float] | None = None    # camera direction from the scene's centre
-    eye: tuple[float, float, float] | None = None     # camera position (overrides view)
-    look_at: tuple[float, float, float] | None = None # the point looked at (None: the scene's centre)
-    up: tuple[float, float, float] | None = None      # camera up (None: against gravity)
-    fov: float = 30.0                                 # vertical field of view, degrees
-    iterations: int = 10
-    surfels: int = 100_000
-    tons: int | None = None
-    seed: int = 1
-    threads: int = 0              # 0 = all cores
-    max_interactions: int = 100
-    show: str | None = None       # property rendered in false colour
-    width: int = 512
-    height: int = 512
-    export: bool | str = False  # texture sets + glTF/OBJ: "last" (or True) or "all" iterations
-    bake_size: int = 1024       # baked texture width and height
-    texel_density: float | None = None   # texels per scene unit (instead of bake_size)
-    preset: str = "gltf"        # the texture set's packing: gltf, unreal or unity
-    float_maps: bool = False    # height and properties as 32-bit OpenEXR instead of 16-bit PNG
-    samples: int = 4            # camera rays per pixel (appearance renders)
-    ao_samples: int = 8         # ambient-occlusion rays per hit
-    progress: bool = True
-    resume: bool = False          # continue the run in ``out`` from its last complete iteration
-    init: object = None           # start from this run's final state: a run folder or a gamma.Result (layered.py)
-    started: float | None = None  # time.perf_counter() when gammac started (start-up time)
-    shading: str = "smooth"       # renders: "smooth" (up to the crease angle) or "flat"
-    crease: float = 60.0          # degrees; sharper edges stay sharp in smooth shading
-    ray: bool = False           # trace on a local Ray (distributed.py)
-    ray_address: str | None = None   # trace on the Ray cluster there
-
-
-def runtime_module():
-    """``gamma._runtime``, checked against ``abi`` (version and binding)."""
-    from .. import _runtime as rt
-
-    problems = abi.check_runtime(rt)
-    if problems:
-        raise RunError(f"the runtime does not match the compiler ({'; '.join(problems)}); "
-                       "reinstall the package")
-    return rt
-
-
-#: Defaults for ton types that do not say, as fractions of the scene diagonal.
-DEFAULT_BOUNCE = Length(0.02, relative=True)
-DEFAULT_STEP = Length(0.005, relative=True)
-DEFAULT_DRIP_DEGREES = 10.0  # SPEC §4: water clings to walls and slight overhangs
-#: Upper bounds on options (budget.py).
-LIMITS = budget.LIMITS
+from .common import RunError, cpu_count, property_columns, runtime_module, shape_changes
+from .config import build_config, load_textures, mass_properties, set_materials
 
 
 def check_limits(opts: "RunOptions") -> None:
-    values = {"--iterations": opts.iterations, "--surfels": opts.surfels, "--threads": opts.threads,
-              "--tons": opts.tons or 0, "--max-interactions": opts.max_interactions,
-              "--size": min(opts.width, opts.height), "--seed": opts.seed,
-              "--samples": opts.samples, "--ao": opts.ao_samples, "--bake-size": opts.bake_size}
-    for name, value in values.items():
-        low, high = LIMITS[name]
-        if not low <= value <= high:
-            raise RunError(f"{name} must be between {low} and {high:,}, not {value}")
-
-
-def split_counts(counts: list[int], total: int) -> list[int]:
-    """Split ``total`` in proportion to ``counts`` (largest remainder; sums exactly)."""
-    whole = sum(counts)
-    exact = [total * c / whole for c in counts]
-    out = [int(math.floor(x)) for x in exact]
-    order = sorted(range(len(counts)), key=lambda i: (out[i] - exact[i], i))
-    for i in order[: total - sum(out)]:
-        out[i] += 1
-    return out
-
-
-def _direction(value, down) -> tuple[float, float, float]:
-    if value == "down":
-        return tuple(down)
-    if value == "up":
-        return tuple(-c for c in down)
-    return tuple(value)
-
-
-def source_arguments(src: Source, lo, hi, diagonal: float, down) -> dict:
-    """The runtime's ``add_source`` keyword arguments, in scene units."""
-    p = src.params
-    args = {"first_iteration": src.first, "last_iteration": src.last, "strength": src.strength or 0.0}
-    if "position" in p:
-        args["position"] = p["position"].resolve(lo, hi)
-    if "direction" in p:
-        args["direction"] = _direction(p["direction"], down)
-    if "normal" in p:
-        args["direction"] = _direction(p["normal"], down)
-    if "angle" in p:
-        args["angle_deg"] = p["angle"]
-        args["falloff"] = p["falloff"]
-    if p.get("size") is not None:
-        args["size"] = tuple(length.resolve(diagonal) for length in p["size"])
-    if p.get("radius") is not None:
-        args["radius"] = p["radius"].resolve(diagonal)
-    if "emission" in p:
-        args["emission"] = p["emission"]
-    if src.kind == "surface":           # the surface's index and the weight kernel's are added by build_config
-        args["along_normal"] = p["direction"] == "normal"
-        if p["direction"] == "normal":
-            del args["direction"]
-    return args
-
-
-def build_config(rt, effect: Effect, kernels, opts: "RunOptions", bounds, down):
-    lo, hi = (np.asarray(b, float) for b in bounds)
-    diagonal = float(np.linalg.norm(hi - lo))
-    cfg = rt.Config()
-    cfg.surfels = opts.surfels
-    cfg.seed = opts.seed
-    cfg.threads = opts.threads or _cpu_count()
-    cfg.max_interactions = opts.max_interactions
-    cfg.row_width = effect.row_width
-    cfg.down = tuple(float(c) for c in down)
-    cfg.surface_rows = [s.initial_row + [0.0] * (effect.row_width - len(s.initial_row))
-                        for s in effect.surfaces.values()]
-    for ton in effect.tons.values():
-        bounce = (ton.bounce or DEFAULT_BOUNCE).resolve(diagonal)
-        step = (ton.step or DEFAULT_STEP).resolve(diagonal)
-        drip = DEFAULT_DRIP_DEGREES if ton.drip is None else ton.drip
-        cfg.add_ton_type(*ton.motion, ton.initial, bounce, step, drip)
-    counts = [s.count for s in effect.sources]
-    if opts.tons is not None:
-        counts = split_counts(counts, opts.tons)
-    for src, count in zip(effect.sources, counts):
-        args = source_arguments(src, lo, hi, diagonal, down)
-        if "position" in args:
-            problem = budget.distance_problem(f"source '{src.name}'", args["position"], (lo + hi) / 2, diagonal)
-            if problem:
-                raise RunError(problem)
-        if src.kind == "surface":
-            args["surface"] = effect.surfaces[src.params["surface"]].index
-            weight = src.params.get("weight")
-            args["weight_kernel"] = kernels.address[weight.symbol] if weight is not None else 0
-        cfg.add_source(src.kind, src.ton, count, **args)
-    for k in effect.transport_kernels():
-        cfg.set_transport(abi.EVENTS[k.event], k.ton.index, k.surface.index,
-                          kernels.address[k.symbol], k.writes_surface)
-    for k in effect.update_kernels():
-        cfg.set_update(k.surface.index, kernels.address[k.symbol])
-    for k in effect.appearance_kernels():
-        cfg.set_appearance(k.surface.index, kernels.address[k.symbol], k.writes_look("displacement"))
-    for surface in effect.surfaces.values():
-        for slot, rate, _ in surface.shape.values():
-            cfg.add_shape_rate(surface.index, slot, rate)
-    # per-surfel measures (SPEC §12) cost setup time: computed only when a rule reads them
-    reads = effect.context_reads()
-    cfg.measure_accessibility = "accessibility" in reads
-    cfg.measure_curvature = "curvature" in reads
-    # mask() in a rule reads the image at the surfel's texture coordinates, at setup (scene_inputs.py)
-    cfg.measure_uv = "uv" in effect.context_reads(("transport", "update")) or \
-        any(item.kind == "mask" for item in effect.inputs)
-    for name in mass_properties(effect):
-        cfg.add_mass_property([s.properties.get(name, -1) for s in effect.surfaces.values()],
-                              [t.carry.get(name, -1) for t in effect.tons.values()])
-    cfg.code_owner = kernels            # the simulation keeps the machine code its addresses point into
-    return cfg
-
-
-#: Largest texture() image, in pixels per side (SPEC §8a); checked from the
-#: image's header, before it is decoded, so a decompression bomb costs nothing.
-MAX_TEXTURE_SIDE = 8192
-
-
-def mass_properties(effect: Effect) -> list[str]:
-    """Properties whose pick-up is accounted (SPEC §19): a name that is both a
-    surface property and an attribute some ton type carries."""
-    carried = {name for t in effect.tons.values() for name in t.carry}
-    names = []
-    for s in effect.surfaces.values():
-        names += [n for n in s.properties if n in carried and n not in names]
-    return names
-
-
-def shape_changes(effect: Effect) -> bool:
-    return any(s.shape for s in effect.surfaces.values())
-
-
-def load_textures(effect: Effect) -> list[np.ndarray]:
-    """Every texture() image as float32 [H, W, 3] in [0, 1] (display values)."""
-    from PIL import Image, UnidentifiedImageError
-
-    from ..files import file_problem
-
-    images = []
-    for path, kind in zip(effect.textures, effect.texture_kinds or ["color"] * len(effect.textures)):
-        problem = file_problem(Path(path))
-        if problem:
-            raise RunError(f"cannot read {'texture' if kind == 'color' else 'mask'} '{path}': {problem}")
-        if kind == "mask":              # luminance at full precision in every channel (scene_inputs.py)
-            from .scene_inputs import MaskError, as_texture
-
-            try:
-                images.append(as_texture(path))
-            except MaskError as err:
-                raise RunError(str(err)) from None
-            continue
-        try:
-            with Image.open(path) as image:
-                w, h = image.size
-                if max(w, h) > MAX_TEXTURE_SIDE:
-                    raise RunError(f"texture '{path}' is {w}x{h} pixels; at most "
-                                   f"{MAX_TEXTURE_SIDE}x{MAX_TEXTURE_SIDE} are supported")
-                images.append(np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0)
-        except (OSError, UnidentifiedImageError, Image.DecompressionBombError, ValueError) as err:
-            raise RunError(f"cannot read texture '{path}': {err}") from None
-    return images
-
-
-def set_materials(sim, triangle_material: np.ndarray, materials: list) -> None:
-    """Hand the scene's own materials (gltf.Material per material) to the
-    runtime: base colour, roughness and metallic, factors and textures."""
-    images = []
-
-    def number(image) -> int:
-        if image is None:
-            return -1
-        images.append(np.ascontiguousarray(image, np.float32))
-        return len(images) - 1
-
-    factors = np.asarray([(*m.base_factor, m.roughness, m.metallic) for m in materials], np.float32)
-    textures = np.asarray([(number(m.base_colour), number(m.rough_metal)) for m in materials], np.int32)
-    sim.set_base_colours(np.asarray(triangle_material, np.int32), factors, textures, images)
+    problem = limit_problem(opts)
+    if problem:
+        raise RunError(problem)
 
 
 def run_camera(scene, opts: "RunOptions"):
@@ -271,19 +44,6 @@ def run_camera(scene, opts: "RunOptions"):
         return choose_camera(scene.bounds, scene.down, opts.view, opts.eye, opts.look_at, opts.up, opts.fov)
     except CameraError as err:
         raise RunError(str(err)) from None
-
-
-def property_columns(effect: Effect, rows: np.ndarray, surfel_surface: np.ndarray) -> dict:
-    """One column per property name of any surface; 0 where a surfel's surface lacks it."""
-    columns: dict[str, np.ndarray] = {}
-    for surface in effect.surfaces.values():
-        mine = surfel_surface == surface.index
-        if not mine.any():
-            continue
-        for name, slot in surface.properties.items():
-            column = columns.setdefault(name, np.zeros(len(rows), np.float32))
-            column[mine] = rows[mine, slot]
-    return columns
 
 
 OUTPUT_FOLDERS = ("maps", "renders", "renders/false_colour", "export", "meshes")
@@ -764,7 +524,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
 
     surfel_surface = np.asarray(sim.surfel_surfaces())
     static = static_columns(sim, surfel_surface)
-    threads = min(opts.threads or _cpu_count(), LIMITS["--threads"][1])
+    threads = min(opts.threads or cpu_count(), LIMITS["--threads"][1])
     summary = {
         "effect": str(effect.path), "scene": str(opts.scene),
         "surfaces": {name: {"triangles": count, "surfels": int(np.sum(surfel_surface == s.index)),
@@ -787,7 +547,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
         # or "effect cache" (the checked effect and a shared object: backends/effect_cache.py)
         "kernels_from": ("effect cache" if isinstance(kernels, SharedKernels)
                          else "kernel cache" if kernels.from_cache else "compiled"),
-        "versions": {"gamma": __version__, "abi": abi.ABI_VERSION,
+        "versions": {"gamma": version(), "abi": abi.ABI_VERSION,
                      "llvm": ".".join(map(str, kernels.llvm_version)),
                      "runtime": getattr(rt, "RUNTIME_VERSION", None),
                      "embree": getattr(rt, "EMBREE_VERSION", None)},
@@ -967,7 +727,3 @@ class NonFiniteReport:
                 self.by_key[key]["count"] += count
 
 
-def _cpu_count() -> int:
-    import os
-
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1

@@ -187,7 +187,7 @@ def columns(effect, scene, sim) -> np.ndarray:
             try:
                 out[:, k] = sample(load_mask(item.key), uv)
             except MaskError as err:
-                from .runner import RunError
+                from .common import RunError
 
                 raise RunError(str(err)) from None
         else:

@@ -37,8 +37,8 @@ import struct
 import zlib
 from pathlib import Path
 
+from .. import background
 from ..files import cache_dir, cache_write
-from . import background
 
 #: Trailer after the snapshot: CRC-32 of the snapshot, then this mark (the
 #: runtime's SetupSnapshot.load_cached checks both).

@@ -1,9 +1,9 @@
 """``gammac sweep``: every combination of a parameter grid run as one
 ``gammac run``, each combination (a *cell*) a Ray task.
 
-A cell is exactly the ``gammac run`` command recorded for it in
-DIR/index.json (effect, scene, the sweep's run options, the cell's values),
-run by ``cli.main`` in a worker into a private temporary folder; its files
+A cell is the sweep's run options (``options.RunOptions``) with the cell's
+values, run by the driver in a worker into a private temporary folder (the
+same run as the ``gammac run`` command DIR/index.json records for it); its files
 come back through Ray as bytes and are moved into DIR/cells/NAME whole (a
 cell folder is complete or absent), so workers need no shared filesystem for
 outputs, only the effect and scene at the same paths.
@@ -31,12 +31,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..files import atomic_write
+from dataclasses import replace
 
-#: Grid names that are options of ``gammac run`` (whole numbers) rather than
-#: parameters of the effect (``--param``).
-RUN_OPTIONS = {"seed": "--seed", "iterations": "--iterations", "surfels": "--surfels",
-               "tons": "--tons", "max_interactions": "--max-interactions"}
+from ..files import atomic_write
+from ..options import BY_NAME, SWEEPABLE, command_line
 
 INDEX_VERSION = 1
 #: Ray re-runs a cell whose worker died (a crash, a lost node) this many times.
@@ -80,8 +78,8 @@ def parse_grid(text: str) -> Axis:
             number = math.nan
         if not math.isfinite(number):
             raise SweepError(f"--grid {text}: '{item}' is not a number")
-        if name in RUN_OPTIONS and number != int(number):
-            raise SweepError(f"--grid {text}: {RUN_OPTIONS[name]} takes whole numbers, not '{item}'")
+        if name in SWEEPABLE and number != int(number):
+            raise SweepError(f"--grid {text}: {SWEEPABLE[name]} takes whole numbers, not '{item}'")
         values.append(item)
     numbers = [float(v) for v in values]
     dup = next((v for i, v in enumerate(values) if float(v) in numbers[:i]), None)
@@ -97,7 +95,9 @@ def cell_name(values: dict[str, str]) -> str:
 @dataclass
 class Cell:
     values: dict[str, str]                 # grid name -> value text
-    argv: list[str]                        # gammac run arguments (without the output folder)
+    argv: list[str]                        # the gammac run arguments (without the output folder)
+    opts: object = None                    # its RunOptions (the output folder set by the worker)
+    params: list = field(default_factory=list)   # its (name, value) overrides of the effect's parameters
     name: str = ""
     index: int = 0
     status: str = "pending"                # pending | ok | failed
@@ -106,53 +106,50 @@ class Cell:
     error: str | None = None
 
     def parameters(self) -> dict:
-        return {k: int(v) if k in RUN_OPTIONS else float(v) for k, v in self.values.items()}
+        return {k: int(v) if k in SWEEPABLE else float(v) for k, v in self.values.items()}
 
     def label(self) -> str:
         return " ".join(f"{k}={v}" for k, v in self.values.items())
 
 
-def plan_cells(effect_path: str, scene: str, axes: list[Axis], run_args: list[str],
-               threads: int) -> list[Cell]:
-    """Every combination of the axes, first axis slowest, as ``gammac run`` argv."""
+def plan_cells(effect_path: str, params: list, base, axes: list[Axis], threads: int) -> list[Cell]:
+    """Every combination of the axes, first axis slowest: ``base`` (RunOptions)
+    and ``params`` with the cell's values."""
     names = [a.name for a in axes]
     if len(set(names)) != len(names):
         raise SweepError(f"--grid {next(n for n in names if names.count(n) > 1)} is given twice")
-    base = ["run", str(Path(effect_path).resolve()), "--scene", str(Path(scene).resolve()),
-            *run_args, "--threads", str(threads), "--quiet"]
+    effect = str(Path(effect_path).resolve())
+    base = replace(base, scene=str(Path(base.scene).resolve()), threads=threads, progress=False)
     cells = []
     for i, combo in enumerate(itertools.product(*(a.values for a in axes))):
         values = dict(zip(names, combo))
-        argv = list(base)
-        for name, value in values.items():
-            argv += [RUN_OPTIONS[name], value] if name in RUN_OPTIONS else ["--param", f"{name}={value}"]
-        cells.append(Cell(values, argv, cell_name(values), i))
+        opts = replace(base, **{k: int(v) for k, v in values.items() if k in SWEEPABLE})
+        mine = list(params) + [(k, float(v)) for k, v in values.items() if k not in SWEEPABLE]
+        argv = ["run", effect, "--scene", opts.scene, *command_line(opts, keep=values)]
+        for name, value in mine:
+            argv += ["--param", f"{name}={value!r}"]
+        cells.append(Cell(values, argv, opts, mine, cell_name(values), i))
     return cells
 
 
-def check_overlap(axes: list[Axis], run_args: list[str]) -> None:
-    """A grid name must not also be fixed by the run options."""
+def check_overlap(axes: list[Axis], base, params: list) -> None:
+    """A grid name must not also be fixed by the run options or a --param."""
     for axis in axes:
-        if axis.name in RUN_OPTIONS:
-            flag = RUN_OPTIONS[axis.name]
-            if any(a == flag or a.startswith(flag + "=") for a in run_args):
-                raise SweepError(f"{flag} is given and also swept by --grid {axis.name}")
+        if axis.name in SWEEPABLE:
+            if getattr(base, axis.name) != BY_NAME[axis.name].default:
+                raise SweepError(f"{SWEEPABLE[axis.name]} is given and also swept by --grid {axis.name}")
         else:
-            for j, a in enumerate(run_args):
-                given = run_args[j + 1] if a == "--param" and j + 1 < len(run_args) else \
-                        a.removeprefix("--param=") if a.startswith("--param=") else None
-                if given is not None and given.partition("=")[0] == axis.name:
-                    raise SweepError(f"--param {given} is given and also swept by --grid {axis.name}")
+            given = next((value for name, value in params if name == axis.name), None)
+            if given is not None:
+                raise SweepError(f"--param {axis.name}={given!r} is given and also swept by --grid {axis.name}")
 
 
-def run_cell(argv: list[str], crash_marker: str | None = None) -> dict:
-    """Run one cell in this process (a Ray worker): ``gammac run`` into a
-    temporary folder; returns its exit status, messages and files.
+def run_cell(effect_path: str, params: list, opts, crash_marker: str | None = None) -> dict:
+    """Run one cell in this process (a Ray worker) into a temporary folder;
+    returns its exit status, messages and files.
 
     ``crash_marker`` is for tests: the first attempt to see that path absent
     creates it and kills its own process, as a lost worker would."""
-    from .. import cli
-
     if crash_marker and not os.path.exists(crash_marker):
         Path(crash_marker).write_text(str(os.getpid()))
         os._exit(1)
@@ -161,16 +158,38 @@ def run_cell(argv: list[str], crash_marker: str | None = None) -> dict:
         out = Path(tmp) / "out"
         messages = io.StringIO()
         with contextlib.redirect_stderr(messages), contextlib.redirect_stdout(messages):
-            try:
-                code = cli.main([*argv, "--out", str(out)])
-            except SystemExit as stop:         # argparse's usage errors
-                code = stop.code if isinstance(stop.code, int) else 2
+            code = _run_cell(effect_path, params, replace(opts, out=str(out)))
         files = {}      # relative path -> bytes, or None for a folder (kept even if empty)
         if code == 0:
             for path in sorted(out.rglob("*")):
                 files[path.relative_to(out).as_posix()] = path.read_bytes() if path.is_file() else None
     return {"exit": code, "messages": messages.getvalue(), "files": files,
             "seconds": time.perf_counter() - t0, "host": os.uname().nodename}
+
+
+def _run_cell(effect_path: str, params: list, opts) -> int:
+    """The run of a cell; its exit status as ``gammac run``'s, its errors on stderr."""
+    from ..backends import effect_cache
+    from ..frontend.diagnostics import GammaError, UsageError, render
+    from .runner import RunError, run
+
+    try:
+        with open(effect_path, encoding="utf-8") as f:
+            source = f.read()
+        effect = effect_cache.check(effect_path, source, dict(params))
+        if effect.warnings:
+            print(render(effect.warnings, effect.path, effect.source), file=sys.stderr)
+        run(effect, opts)
+    except GammaError as err:
+        print(err.render(), file=sys.stderr)
+        return 1
+    except (RunError, OSError) as err:
+        print(f"gammac: error: {err}", file=sys.stderr)
+        return 1
+    except UsageError as err:
+        print(f"gammac: error: {err}", file=sys.stderr)
+        return 2
+    return 0
 
 
 def cell_summary(files: dict) -> dict:
@@ -238,6 +257,8 @@ def read_index(out: Path) -> dict:
 
 def write_index(out: Path, effect: str, scene: str, axes: list[Axis], run_args: list[str],
                 cells: list[Cell]) -> None:
+    """DIR/index.json: the grid, the sweep's run options as ``gammac run``
+    arguments, and per cell its parameters, status, summary and command."""
     index = {
         "version": INDEX_VERSION,
         "effect": effect, "scene": scene,
@@ -321,17 +342,20 @@ def contact_sheet(out: Path, axes: list[Axis], cells: list[Cell], tile: int = 24
     return buffer.getvalue()
 
 
-def sweep(effect_path: str, scene: str, axes: list[Axis], run_args: list[str], out: str,
-          address: str | None = None, threads: int = 1, progress: bool = True,
-          _crash_marker: str | None = None) -> list[Cell]:
-    """Run every cell not already finished; returns all cells with their status."""
+def sweep(effect_path: str, params: list, base, axes: list[Axis], address: str | None = None,
+          threads: int = 1, progress: bool = True, _crash_marker: str | None = None) -> list[Cell]:
+    """Run every cell not already finished into ``base.out``; ``base``: the
+    RunOptions every cell shares, ``params``: the effect's (name, value)
+    overrides.  Returns all cells with their status."""
     from .cluster import connect
 
     if not axes:
         raise SweepError("give at least one --grid NAME=VALUES")
-    check_overlap(axes, run_args)
-    cells = plan_cells(effect_path, scene, axes, run_args, threads)
-    folder = Path(out)
+    check_overlap(axes, base, params)
+    cells = plan_cells(effect_path, params, base, axes, threads)
+    scene = base.scene
+    run_args = command_line(base, skip=("scene", "out", "threads", "progress")) + [a for name, value in params for a in ("--param", f"{name}={value!r}")]
+    folder = Path(base.out)
     try:
         (folder / "cells").mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -356,7 +380,8 @@ def sweep(effect_path: str, scene: str, axes: list[Axis], run_args: list[str], o
             cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
             task = ray.remote(run_cell).options(num_cpus=min(threads, cpus), max_retries=CELL_RETRIES,
                                                 retry_exceptions=False)
-            pending = {task.remote(c.argv, _crash_marker): c for c in todo}
+            effect = str(Path(effect_path).resolve())
+            pending = {task.remote(effect, c.params, c.opts, _crash_marker): c for c in todo}
             try:
                 while pending:
                     ready, _ = ray.wait(list(pending), num_returns=1)

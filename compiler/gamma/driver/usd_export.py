@@ -30,7 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .export import ExportPart
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:    # export.py calls this module: at run time it is a parameter's type only
+    from .export import ExportPart
 
 #: The texture set's images a material reads (the rest are for other tools).
 MATERIAL_CHANNELS = ("BaseColor", "ORM", "Normal")
@@ -115,7 +118,7 @@ class _Stage:
     def __init__(self, path: Path, frames: list, scene_name: str, moving: bool):
         from pxr import Sdf, Usd, UsdGeom, Vt
 
-        from .. import __version__
+        from ..version import version
 
         self.frames, self.moving = frames, moving
         self.iterations = [int(f[0]) for f in frames]
@@ -126,7 +129,7 @@ class _Stage:
         stage = self.stage = Usd.Stage.Open(self.layer)
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
         UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        self.layer.documentation = f"exported by gamma {__version__}"
+        self.layer.documentation = f"exported by gamma {version()}"
         self.layer.customLayerData = {"gamma": {"iterations": Vt.IntArray(self.iterations),
                                                 "scene": str(scene_name)}}
         if self.animated:

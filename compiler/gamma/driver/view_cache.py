@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import background, setup_cache
+from .. import background
+from . import setup_cache
 
 #: The mark after the view's bytes and their CRC-32 (setup_cache.write_with_trailer).
 MARK = b"GMFV"

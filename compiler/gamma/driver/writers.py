@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import abi, __version__
+from .. import abi
+from ..version import version
 from ..files import atomic_write
 from .camera import sun_direction
 from .events import IterationUpdated, RunFinished, Writer
@@ -54,7 +55,7 @@ class MapWriter(Writer):
         columns = dict(run.static_columns, **event.properties)
         for j, name in enumerate(abi.REFLECTANCE_SLOTS):
             columns[f"reflectance_{name}"] = event.rows[:, j]
-        comments = [f"gamma {__version__}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
+        comments = [f"gamma {version()}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
         run.behind.timed("maps", _write_ply, run.out / "maps" / f"iter_{it:04d}.ply", columns, comments)
 
 
@@ -127,7 +128,7 @@ class FalseColourWriter(Writer):
         # An effect that never changes the shape has its final geometry now: the rays of every
         # picture are cast beside the loop (no GIL; on the cores its serial stretches leave),
         # not after it, where a user waits for the pictures.
-        from .runner import shape_changes
+        from .common import shape_changes
 
         if not shape_changes(run.effect):
             self.casting = self._cast(run, keep=True)
@@ -144,7 +145,7 @@ class FalseColourWriter(Writer):
         (view_cache.py), and kept there once cast if not."""
         if run.opts.width * run.opts.height > self.VIEW_PIXELS:
             return None
-        from . import background
+        from .. import background
 
         return background.start(run.behind.timings.call, "renders", _view, run, keep, name="gamma-view-rays")
 
@@ -315,7 +316,7 @@ def write_sequence(frames: list, folder: Path) -> None:
     GIF is made here (Pillow holds the GIL for it): the three took their sum
     one after the other, after the loop.  All three are written, or have
     failed, when this returns; the first error (GIF, MP4, strip) is raised."""
-    from . import background
+    from .. import background
 
     others = [background.start(write_mp4, frames, folder / "sequence.mp4", name="gamma-mp4"),
               background.start(write_strip, frames, folder / "strip.png", name="gamma-strip")]
@@ -374,7 +375,7 @@ class MeshWriter(Writer):
     @_timed_on_loop("meshes")
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         from .export import vertex_normals
-        from .runner import property_columns
+        from .common import property_columns
 
         run, it = event.run, event.iteration
         vertices, triangles = run.sim.mesh_arrays()
@@ -389,7 +390,7 @@ class MeshWriter(Writer):
         columns = {"x": vertices[:, 0], "y": vertices[:, 1], "z": vertices[:, 2],
                    "nx": normals[:, 0], "ny": normals[:, 1], "nz": normals[:, 2]}
         columns.update(property_columns(run.effect, rows, surface))
-        comments = [f"gamma {__version__}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
+        comments = [f"gamma {version()}", f"effect {Path(run.effect.path).name}", f"iteration {it}"]
         run.behind.timed("meshes", _write_mesh, run.out / "meshes" / f"iter_{it:04d}.ply", columns, triangles,
                          comments)
 
@@ -410,7 +411,7 @@ class ExportWriter(Writer):
 
     def on_setup_done(self, event) -> None:
         from .export import memory_problem
-        from .runner import RunError
+        from .common import RunError
 
         run = event.run
         if self.bake_size and not self.texel_density:   # refused before the first iteration
@@ -428,7 +429,7 @@ class ExportWriter(Writer):
         exporter = Exporter(run, self.bake_size, self.texel_density, run.summary.get("ranges") or {}, self.preset,
                             self.float_maps)
         if self.which == "all":
-            from .saved import load_iteration
+            from .reload import load_iteration
 
             run.behind.drain()          # the maps of every iteration are on disk
             for it in range(1, last + 1):

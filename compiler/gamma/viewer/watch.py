@@ -25,7 +25,8 @@ from .. import abi
 from ..frontend.checker import UsageError
 from ..frontend.diagnostics import GammaError
 from ..driver.events import Writer
-from ..driver.runner import RunError, RunOptions, property_columns, run_camera, runtime_module
+from ..driver.runner import RunError, property_columns, run_camera, runtime_module
+from ..options import RunOptions
 from .server import ViewerState, serve
 
 
