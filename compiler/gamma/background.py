@@ -10,7 +10,7 @@ could not skip the interpreter's teardown.  Here the thread is a daemon, and
 its ``Outcome`` offers what gammac uses of a ``concurrent.futures.Future``
 (``result``, ``exception``, ``done``, timeouts) without importing that
 module: ``gamma.launch`` starts the mesh read (prefetch.py) before anything
-else, and ``concurrent.futures``, through ``logging``, cost ~10 ms first.
+else, and ``concurrent.futures``, through ``logging``, would delay it.
 
 A daemon thread still running when the interpreter finalizes cannot come
 back (it would need the GIL) and leaves whatever its frames hold behind
@@ -28,7 +28,7 @@ from __future__ import annotations
 import atexit
 import threading
 
-TYPE_CHECKING = False   # (typing's import is ~3 ms the read ahead would wait for)
+TYPE_CHECKING = False   # (typing's import is time the read ahead would wait for)
 if TYPE_CHECKING:
     from typing import Callable, Iterable
 

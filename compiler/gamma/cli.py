@@ -598,7 +598,7 @@ def entry() -> None:
 
     # gammac's numpy work is on small arrays: OpenBLAS's thread pool (one
     # thread per core, made when numpy is imported) only cost start-up
-    # (~30-50 ms of numpy's import) and woke beside the tracer.  Set before
+    # and woke beside the tracer (bench/RESULTS.md).  Set before
     # numpy is imported; a user's own setting is kept.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:

@@ -3,7 +3,7 @@
 line is parsed and the command's modules are imported.
 
 ``cli.main`` starts the same read once ``argparse`` has parsed the command
-line, ~40 ms into the process: until then the second core idles, and a
+line, well into the process's start: until then the second core idles, and a
 first run's start-up is CPU-bound on both cores from there on.  Here the
 options the read needs (``options.EARLY``) are picked out of ``sys.argv`` by hand, and
 only when that is unambiguous: ``gammac run`` first, each option spelled in

@@ -304,8 +304,8 @@ def _make_run_options():
 
 
 def run_options_class():
-    """``RunOptions``, made on first use: importing dataclasses would cost
-    ``gammac --help`` and the early read ~15 ms."""
+    """``RunOptions``, made on first use: importing dataclasses would slow
+    ``gammac --help`` and the early read (bench/RESULTS.md)."""
     cls = globals().get("RunOptions")
     if cls is None:
         globals()["RunOptions"] = cls = _make_run_options()

@@ -15,7 +15,7 @@ def version() -> str:
 
 def _installed_version() -> str:
     # The runtime's copy costs nothing to read (a run loads it anyway);
-    # importlib.metadata costs ~40 ms of start-up.
+    # importlib.metadata costs start-up time (bench/RESULTS.md).
     try:
         from ._runtime import RUNTIME_VERSION
 
