@@ -16,7 +16,7 @@ update, which would flatter its ratio); the median run's wall
 time is split by the clocks summary.json reports (start-up, scene, compile,
 setup, the loop, after the loop; the remainder is the interpreter's start and
 the process's exit), with the outputs' busy time by kind.  ``gammac run``
-samples the surfels while it starts up (driver/prefetch.py): "setup" is then
+samples the surfels while it starts up (driver/run/prefetch.py): "setup" is then
 what is left of the setup once those are taken (including any wait for them),
 and the sampling's own time is reported beside, overlapping the start-up.
 
@@ -25,7 +25,7 @@ Four kinds of run are reported, each repeat in a cache folder of its own
 checked, the kernels compiled, the setup made), a run of an effect run before
 on a new mesh or surfel count (the effect and its kernels from the effect
 cache, the setup made), the same run again (effect, kernels and setup from
-the caches: backends/effect_cache.py, driver/setup_cache.py), and the effect
+the caches: backends/effect_cache.py, driver/caches/setup_cache.py), and the effect
 edited (a constant changed, the look-development loop: checked and compiled
 again, the setup from the setup cache).
 
@@ -107,7 +107,7 @@ def setup_cpu(surfels: int, threads: int) -> dict:
     """The mesh read and the setup of the bench's run in this process
     (called in a child): wall and process CPU seconds."""
     from gamma.backends.jit import JitKernels
-    from gamma.driver.runner import RunOptions, build_config, runtime_module
+    from gamma.driver.run.runner import RunOptions, build_config, runtime_module
     from gamma.frontend.checker import load
 
     rt = runtime_module()
@@ -161,7 +161,7 @@ def main() -> None:
     # the kernels compiled, the setup made); the effect run before but a new
     # mesh or surfel count (the effect and kernels from the effect cache, the
     # setup made); the same run again (effect, kernels and setup from the
-    # caches: backends/effect_cache.py, driver/setup_cache.py).
+    # caches: backends/effect_cache.py, driver/caches/setup_cache.py).
     # A fourth: the effect edited (a constant changed, as a user tuning a
     # look does) and run on the same mesh: its kernels compiled again, the
     # setup from the setup cache.

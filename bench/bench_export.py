@@ -17,10 +17,10 @@ from pathlib import Path
 from report import LOOK_EFFECT, SCENE, cpu_name, report
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check
-from gamma.driver.export import Exporter, layout, pieces
+from gamma.driver.outputs.export import Exporter, layout, pieces
 from gamma.frontend.parser import parse
-from gamma.driver.runner import RunOptions, build_config, runtime_module
-from gamma.driver.scene import load_scene
+from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+from gamma.driver.run.scene import load_scene
 
 
 
@@ -42,7 +42,7 @@ def main() -> None:
     sim.update(1)
     iteration = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
-        from gamma.driver.events import WriteQueue
+        from gamma.driver.run.events import WriteQueue
 
         class Run:   # what Exporter reads of a run
             shapes = False

@@ -28,9 +28,9 @@ import numpy as np
 from report import ROOT, SCENE, cpu_name, load_average, report
 
 from gamma.backends.jit import JitKernels
-from gamma.driver import cluster, distributed
-from gamma.driver.runner import RunOptions, build_config, runtime_module
-from gamma.driver.scene import load_scene
+from gamma.driver.distributed import cluster, distributed
+from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+from gamma.driver.run.scene import load_scene
 from gamma.frontend.checker import load
 
 

@@ -14,8 +14,8 @@ from report import LOOK_EFFECT, ROOT, SCENE, cpu_name, report
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check
 from gamma.frontend.parser import parse
-from gamma.driver.camera import auto_camera, sun_direction
-from gamma.driver.runner import RunOptions, build_config, runtime_module
+from gamma.driver.run.camera import auto_camera, sun_direction
+from gamma.driver.run.runner import RunOptions, build_config, runtime_module
 
 
 
@@ -47,7 +47,7 @@ def main() -> None:
     # Baking: a 1024 x 1024 texture of Spot (issue 5 goal: under 2 s).
     import numpy as np
 
-    from gamma.driver.export import Piece, bake_texture_set, layout
+    from gamma.driver.outputs.export import Piece, bake_texture_set, layout
 
     spot_mesh = rt.Mesh.load(str(ROOT / "examples" / "scenes" / "spot.obj"))
     spot_cfg = build_config(rt, effect, kernels, RunOptions(scene="", out="", surfels=100_000, threads=2),

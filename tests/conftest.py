@@ -63,7 +63,7 @@ def ray_local():
     """One local Ray (loopback, 2 CPUs) for the whole session: Ray's start-up
     takes seconds, so every test that needs it shares this one.  Skipped, with
     the install command as the reason, where the optional extra is missing."""
-    from gamma.driver import cluster
+    from gamma.driver.distributed import cluster
 
     if not cluster.available():
         pytest.skip(cluster.INSTALL_HINT)

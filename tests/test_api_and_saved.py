@@ -61,7 +61,7 @@ def test_run_on_arrays_matches_the_command_line(tmp_path):
                    "--tons", 30000, "--iterations", 2, "--threads", 2, "--size", 32, "--quiet",
                    "--out", tmp_path / "out")
     assert r.returncode == 0, r.stderr
-    from gamma.driver.outputs import read_ply
+    from gamma.driver.outputs.outputs import read_ply
 
     saved = read_ply(tmp_path / "out" / "maps" / "iter_0002.ply")
     assert np.array_equal(result.surfel_positions[:, 0], saved["x"])

@@ -1,4 +1,4 @@
-"""Chart atlases for meshes without texture coordinates (gamma/driver/atlas.py):
+"""Chart atlases for meshes without texture coordinates (gamma/driver/outputs/atlas.py):
 on the Stanford bunny the atlas shares vertices inside charts (few extra
 vertices, smooth normals), its charts never share a texel and keep a gutter,
 the same mesh gives the same atlas in any process, a colour continuous on
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from gamma.driver.atlas import (Atlas, chart_atlas, chart_of_texels, dilate, flat_fraction, seam_jumps,
+from gamma.driver.outputs.atlas import (Atlas, chart_atlas, chart_of_texels, dilate, flat_fraction, seam_jumps,
                                 texel_hits)
 
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
@@ -143,7 +143,7 @@ def test_the_same_mesh_gives_the_same_atlas_in_any_process():
     faces = faces[:20000]                   # three pieces: xatlas charts them on several threads
     first = digest(chart_atlas(verts, faces, 512))
     assert digest(chart_atlas(verts, faces, 512)) == first
-    script = ("import sys; sys.path.insert(0, sys.argv[1]); import test_atlas as t; from gamma.driver.atlas import chart_atlas; "
+    script = ("import sys; sys.path.insert(0, sys.argv[1]); import test_atlas as t; from gamma.driver.outputs.atlas import chart_atlas; "
               "v, f = t.read_obj(t.BUNNY); print(t.digest(chart_atlas(v, f[:20000], 512)))")
     r = subprocess.run([sys.executable, "-c", script, str(ROOT / "tests")], capture_output=True, text=True,
                        timeout=300, cwd=ROOT / "tests")

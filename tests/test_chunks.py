@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from gamma.backends.jit import JitKernels
-from gamma.driver.runner import RunOptions, build_config, runtime_module
-from gamma.driver.scene import load_scene
+from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+from gamma.driver.run.scene import load_scene
 from gamma.frontend.checker import check
 from gamma.frontend.parser import parse
 

@@ -11,8 +11,8 @@ from conftest import ROOT
 from gamma import abi
 from gamma.driver import (CallbackWriter, IterationUpdated, RunError, RunFinished,
                           RunOptions, SetupDone, Writer, run)
-from gamma.driver.events import WriteQueue
-from gamma.driver.outputs import read_ply
+from gamma.driver.run.events import WriteQueue
+from gamma.driver.outputs.outputs import read_ply
 from gamma.frontend.checker import load
 
 
@@ -122,7 +122,7 @@ def test_the_outputs_are_written_in_order_and_the_summary_says_completed_last(tm
     with ``"completed": true`` last, once every other file is whole."""
     import json
 
-    from gamma.driver import writers
+    from gamma.driver.outputs import writers
 
     written = []
     real = writers.atomic_write
@@ -143,7 +143,7 @@ def test_the_outputs_are_written_in_order_and_the_summary_says_completed_last(tm
 
 def test_a_failure_encoding_the_pictures_after_the_loop_is_a_run_error_and_keeps_the_earlier_run(
         tmp_path, bumpy_obj, monkeypatch):
-    from gamma.driver import outputs
+    from gamma.driver.outputs import outputs
 
     out = tmp_path / "out"
     run(load(str(ROOT / "examples" / "patina.gamma")), _options(bumpy_obj, out))
@@ -165,7 +165,7 @@ def test_the_false_colour_scale_is_the_whole_runs_with_ranges_worked_out_behind_
     the least value of every iteration's finite values.  The property grows
     in the first iteration and wears away after it, so the largest percentile
     is the first iteration's and the least value the last one's."""
-    from gamma.driver import outputs
+    from gamma.driver.outputs import outputs
 
     scales = []
 

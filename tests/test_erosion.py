@@ -55,7 +55,7 @@ def test_each_shape_limit_is_warned_once_and_counted_in_every_iteration(erosion_
 
 
 def test_erosion_writes_meshes_geometry_and_balanced_books(erosion_run):
-    from gamma.driver.outputs import read_mesh_ply
+    from gamma.driver.outputs.outputs import read_mesh_ply
 
     summary = json.loads((erosion_run / "summary.json").read_text())
     first = summary["geometry"]

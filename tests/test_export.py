@@ -13,8 +13,8 @@ from PIL import Image
 from conftest import ROOT, run_gammac
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
-from gamma.driver.export import bake_texture_set, layout, Piece, rasterise_uv
-from gamma.driver.runner import RunOptions, build_config, runtime_module
+from gamma.driver.outputs.export import bake_texture_set, layout, Piece, rasterise_uv
+from gamma.driver.run.runner import RunOptions, build_config, runtime_module
 
 SPOT = ROOT / "examples" / "scenes" / "spot.obj"
 
@@ -275,9 +275,9 @@ def test_a_bake_larger_than_memory_allows_is_refused_before_the_run(monkeypatch)
     iteration (ExportWriter.on_setup_done), and the refusal gives both."""
     from types import SimpleNamespace
 
-    from gamma.driver import export
-    from gamma.driver.runner import RunError
-    from gamma.driver.writers import ExportWriter
+    from gamma.driver.outputs import export
+    from gamma.driver.run.runner import RunError
+    from gamma.driver.outputs.writers import ExportWriter
 
     effect = load(str(ROOT / "examples" / "patina.gamma"))
     run = SimpleNamespace(effect=effect)
@@ -293,7 +293,7 @@ def test_a_bake_larger_than_memory_allows_is_refused_before_the_run(monkeypatch)
 def test_uv_rasteriser_matches_a_texel_by_texel_reference():
     """Every texel centre inside a triangle is found, once, with the first
     triangle that covers it and that triangle's barycentrics."""
-    from gamma.driver.export import rasterise_uv
+    from gamma.driver.outputs.export import rasterise_uv
 
     rng = np.random.default_rng(3)
     size = 40

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import gamma
-from gamma.driver.outputs import FalseColourCanvas
+from gamma.driver.outputs.outputs import FalseColourCanvas
 
 EFFECT = """
 ton Weather { motion straight = 1.0  carry patina = 1.0 }
@@ -85,7 +85,7 @@ def test_the_view_rays_are_cast_at_the_setup_when_the_shape_never_changes():
     from pathlib import Path
     from types import SimpleNamespace
 
-    from gamma.driver.writers import FalseColourWriter
+    from gamma.driver.outputs.writers import FalseColourWriter
 
     calls = []
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from conftest import ROOT
-from gamma.driver.outputs import read_ply
+from gamma.driver.outputs.outputs import read_ply
 
 sys.path.insert(0, str(ROOT / "examples"))
 import gallery  # noqa: E402

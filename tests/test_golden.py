@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from conftest import run_gammac
-from gamma.driver.outputs import read_ply
+from gamma.driver.outputs.outputs import read_ply
 
 GOLDEN = Path(__file__).parent / "golden"
 sys.path.insert(0, str(GOLDEN))

@@ -15,7 +15,7 @@ import pytest
 from conftest import ROOT, run_gammac
 
 import gamma
-from gamma.driver.outputs import read_ply
+from gamma.driver.outputs.outputs import read_ply
 
 DUST = str(ROOT / "stdlib" / "dust.gamma")
 TEAPOT = str(ROOT / "examples" / "scenes" / "teapot.obj")

@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from conftest import ROOT, run_gammac
-from gamma.driver.outputs import read_ply
+from gamma.driver.outputs.outputs import read_ply
 
 
 @pytest.fixture(scope="module")
@@ -139,8 +139,8 @@ def _false_colour_reference(value, shade, vmin, vmax, label, title) -> bytes:
 
     from PIL import ImageDraw, ImageFont
 
-    from gamma.driver.outputs import viridis
-    from gamma.driver.outputs import PNG_COMPRESS_LEVEL
+    from gamma.driver.outputs.outputs import viridis
+    from gamma.driver.outputs.outputs import PNG_COMPRESS_LEVEL
 
     h, w = value.shape
     span = vmax - vmin if vmax > vmin else 1.0
@@ -173,7 +173,7 @@ def test_a_shared_false_colour_frame_gives_the_bytes_of_drawing_everything(size)
     """The run draws the colour bar once and only the picture per iteration:
     the files are byte for byte those of drawing each picture whole, also with
     NaN background, infinite values and an empty scale."""
-    from gamma.driver.outputs import FalseColourCanvas
+    from gamma.driver.outputs.outputs import FalseColourCanvas
 
     rng = np.random.default_rng(7)
     h, w = size
@@ -194,7 +194,7 @@ def test_the_scales_percentile_is_numpys_bit_for_bit():
     """writers.percentile_995 is np.percentile(values, 99.5) to the bit, on
     sizes where (n - 1) * 0.995 is whole, below and above a half, with ties,
     zeros of both signs, subnormals and wide ranges."""
-    from gamma.driver.writers import percentile_995
+    from gamma.driver.outputs.writers import percentile_995
 
     rng = np.random.default_rng(7)
     sizes = [1, 2, 3, 7, 100, 101, 199, 200, 201, 401, 1000, 1001, 4097, 100_000]
@@ -220,7 +220,7 @@ def test_the_scales_percentile_is_numpys_bit_for_bit():
 
 
 def test_unique_rows_is_numpys_unique_over_rows():
-    from gamma.driver.scene import unique_rows
+    from gamma.driver.run.scene import unique_rows
 
     rng = np.random.default_rng(3)
     for n in (0, 1, 5, 300):
@@ -259,7 +259,7 @@ def test_the_sequence_files_are_made_side_by_side_as_one_after_the_other(tmp_pat
     are the bytes of making each alone, the MP4 plays (index first)."""
     import io
 
-    from gamma.driver.writers import write_sequence, write_strip
+    from gamma.driver.outputs.writers import write_sequence, write_strip
 
     frames = _frames()
     write_sequence(frames, tmp_path)
@@ -276,7 +276,7 @@ def test_the_sequence_files_are_made_side_by_side_as_one_after_the_other(tmp_pat
 
 
 def test_a_failing_sequence_file_is_raised_once_the_others_are_whole(tmp_path, monkeypatch):
-    from gamma.driver import writers
+    from gamma.driver.outputs import writers
 
     def no_ffmpeg(frames, path, fps=4):
         raise OSError(2, "ffmpeg not found")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from gamma.driver.outputs import PILLOW_DEFAULT_LEVEL, FalseColourCanvas, encode_pngs
+from gamma.driver.outputs.outputs import PILLOW_DEFAULT_LEVEL, FalseColourCanvas, encode_pngs
 
 
 def pillow_png(pixels: np.ndarray, level: int) -> bytes:
@@ -81,7 +81,7 @@ def test_a_runs_false_colour_pictures_are_written_in_order_as_canvas_png_makes_t
     the runtime's threads) are the files ``FalseColourCanvas.png`` makes one by
     one, each under its own name; that one is Pillow's drawing byte for byte
     (test_outputs)."""
-    from gamma.driver.writers import _write_false_colour_views
+    from gamma.driver.outputs.writers import _write_false_colour_views
 
     canvas = FalseColourCanvas(40, 32, -0.5, 2.0, "rust")
     rng = np.random.default_rng(7)

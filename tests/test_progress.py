@@ -1,11 +1,11 @@
-"""The progress bar (gamma/driver/progress.py): its line, its drawing in
+"""The progress bar (gamma/driver/outputs/progress.py): its line, its drawing in
 place, and a stderr that refuses writes, which must never stop a run."""
 
 import io
 import os
 import re
 
-from gamma.driver.progress import ProgressBar, clock, progress
+from gamma.driver.outputs.progress import ProgressBar, clock, progress
 
 
 def test_clock_is_minutes_and_seconds_then_hours():

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from conftest import GRIMY_COPPER
 from gamma import cli
-from gamma.driver import distributed
+from gamma.driver.distributed import distributed
 
 EFFECT = GRIMY_COPPER.replace("count 30000", "count 5000").replace("count 10000", "count 2500")
 # Flow and parabolic flights, a source strength (weighted deposits), the

@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from gamma import cli
-from gamma.driver.sweep import parse_grid, sweep
+from gamma.driver.distributed.sweep import parse_grid, sweep
 
 EFFECT = """
 param rate = 0.05

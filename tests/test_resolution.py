@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, run_gammac
-from gamma.driver.outputs import read_ply
+from gamma.driver.outputs.outputs import read_ply
 
 EFFECT = """
 ton Rain {

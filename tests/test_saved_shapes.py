@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from conftest import ROOT, run_gammac
-from gamma.driver.outputs import read_mesh_ply, read_ply
+from gamma.driver.outputs.outputs import read_mesh_ply, read_ply
 
 EROSION = ROOT / "examples" / "erosion.gamma"
 VIEW = "-1,0.45,0.9"
@@ -138,7 +138,7 @@ def test_saved_surfels_sit_on_the_runs_triangles(eroded):
     of the saved mesh holding it, with its normal and surface, and each
     triangle's surface that of the run (the arch and the ground are separate
     parts, each of one surface: exact)."""
-    from gamma.driver.reload import place_surfels
+    from gamma.driver.run.reload import place_surfels
 
     for it in (1, 3):
         vertices, faces = saved_vertices(eroded, it)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, run_gammac
-from gamma.driver.outputs import read_ply
+from gamma.driver.outputs.outputs import read_ply
 from meshes import icosphere
 
 TWO_SURFACES = """

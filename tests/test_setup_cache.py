@@ -1,6 +1,6 @@
 """gammac run keeps its setup (surfels, triangle lookup, splat kernel) in the
 setup cache and the next run on the same mesh, count and seed takes it
-(gamma/driver/setup_cache.py): the files written are the same either way,
+(gamma/driver/caches/setup_cache.py): the files written are the same either way,
 a damaged file is never used, another seed is set up again, and the cache
 stays under its limit."""
 
@@ -18,7 +18,8 @@ from conftest import ROOT
 from test_prefetch import folder_hash
 
 from gamma import _runtime as rt
-from gamma.driver import prefetch, setup_cache
+from gamma.driver.run import prefetch
+from gamma.driver.caches import setup_cache
 
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
@@ -227,7 +228,7 @@ def test_the_read_ahead_refuses_what_it_cannot_use_and_never_raises(tmp_path, mo
 
 NO_PREFETCH = textwrap.dedent("""
     import sys
-    from gamma.driver import prefetch
+    from gamma.driver.run import prefetch
     prefetch.worth_sampling = lambda *args: False     # nothing read ahead: the runner loads the cache itself
     sys.argv = ["gammac", *sys.argv[1:]]
     from gamma.cli import entry
@@ -236,7 +237,8 @@ NO_PREFETCH = textwrap.dedent("""
 
 SLOW_WRITE = textwrap.dedent("""
     import sys, time
-    from gamma.driver import prefetch, setup_cache
+    from gamma.driver.run import prefetch
+    from gamma.driver.caches import setup_cache
     write = setup_cache._write
     def slow(*args):
         time.sleep(1.5)                               # still writing when the run is done
@@ -305,7 +307,7 @@ def test_a_setup_taken_behind_the_run_is_the_same_file(tmp_path, monkeypatch):
 
 def test_the_runner_takes_the_setup_behind_the_loop_only_when_nothing_changes_the_shape(tmp_path, monkeypatch):
     from gamma import compile
-    from gamma.driver import runner
+    from gamma.driver.run import runner
 
     monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path / "cache"))
     seen = []

@@ -16,7 +16,7 @@ import pytest
 
 from conftest import ROOT, run_gammac
 
-from gamma.driver.outputs import read_ply
+from gamma.driver.outputs.outputs import read_ply
 
 DRIP = """
 ton Drip {{

@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from gamma import cli
-from gamma.driver.sweep import Axis, SweepError, check_overlap, parse_grid, plan_cells
+from gamma.driver.distributed.sweep import Axis, SweepError, check_overlap, parse_grid, plan_cells
 
 
 def test_grid_values_and_ranges():
@@ -172,7 +172,7 @@ class _FlakyRay:
 
 @pytest.mark.parametrize("failures, started", [(0, True), (2, True), (3, False)])
 def test_a_local_ray_start_is_tried_three_times(monkeypatch, failures, started):
-    from gamma.driver import cluster
+    from gamma.driver.distributed import cluster
 
     fake = _FlakyRay(failures)
     monkeypatch.setattr(cluster, "ray_module", lambda: fake)
@@ -189,7 +189,7 @@ def test_a_local_ray_start_is_tried_three_times(monkeypatch, failures, started):
 
 
 def test_a_cluster_address_is_tried_once(monkeypatch):
-    from gamma.driver import cluster
+    from gamma.driver.distributed import cluster
 
     fake = _FlakyRay(1)
     monkeypatch.setattr(cluster, "ray_module", lambda: fake)

@@ -1,4 +1,4 @@
-"""The USD export (gamma.driver.usd_export) on scenes built by hand: a quad
+"""The USD export (gamma.driver.outputs.usd_export) on scenes built by hand: a quad
 with one material and a triangle strip with two, written as one-frame and
 three-frame stages next to real PNGs.  usd-core's compliance checker must
 pass them (and fail a stage whose texture is missing); pxr reads back the
@@ -14,8 +14,8 @@ import pytest
 from PIL import Image
 
 from clients import blender_script, usd_check, usd_summary
-from gamma.driver.export import ExportPart
-from gamma.driver.usd_export import write_usd
+from gamma.driver.outputs.export import ExportPart
+from gamma.driver.outputs.usd_export import write_usd
 
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade    # usd-core: a test dependency (make test installs it)
 

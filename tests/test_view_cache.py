@@ -1,4 +1,4 @@
-"""The cache of false-colour views (gamma/driver/view_cache.py): a run whose
+"""The cache of false-colour views (gamma/driver/caches/view_cache.py): a run whose
 setup the cache holds reads its view back instead of casting it, and writes
 the same files; a damaged view is refused and cast again; the bytes of a view
 are checked when read back; a view is keyed by everything it depends on."""
@@ -15,7 +15,8 @@ from test_prefetch import folder_hash
 
 from gamma import _runtime as rt
 from gamma import compile
-from gamma.driver import runner, view_cache
+from gamma.driver.run import runner
+from gamma.driver.caches import view_cache
 
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 PATINA = ROOT / "examples" / "patina.gamma"
@@ -50,7 +51,7 @@ def spied(tmp_path, monkeypatch):
 
 
 def views(tmp_path):
-    from gamma.driver import setup_cache
+    from gamma.driver.caches import setup_cache
 
     setup_cache.wait()
     return sorted((tmp_path / "cache").glob("view-*.bin"))
@@ -91,7 +92,7 @@ def test_a_whole_view_of_another_surfel_count_or_unreadable_bytes_cost_only_a_ca
     first = run(tmp_path, "first")
     (path,) = views(tmp_path)
     _, other = cast_view(48, 40)                              # 2000 surfels, not the run's 3000
-    from gamma.driver import setup_cache
+    from gamma.driver.caches import setup_cache
 
     for data in (bytes(other.to_bytes()),
                  struct.pack("<4sIiiQII Q", b"GMFV", 1, 2147418113, 1718039348, 3000, 8, 0, 0) + b"\0" * 4):
@@ -201,7 +202,7 @@ def test_the_key_follows_what_the_view_depends_on(tmp_path, monkeypatch):
 
 
 def test_views_live_as_long_as_their_setup_the_most_recent_few_under_the_limit(tmp_path, monkeypatch):
-    from gamma.driver import setup_cache
+    from gamma.driver.caches import setup_cache
 
     monkeypatch.setenv("GAMMA_SETUP_CACHE_MB", "100")
     setups = {stem: tmp_path / f"setup-{stem}.bin" for stem in ("aaa-100-1", "bbb-100-1")}

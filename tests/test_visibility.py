@@ -16,7 +16,7 @@ import json
 import numpy as np
 
 from conftest import run_gammac
-from gamma.driver.outputs import read_ply
+from gamma.driver.outputs.outputs import read_ply
 
 EFFECT = """
 ton Dust { motion straight = 0.0  carry d = 1.0 }

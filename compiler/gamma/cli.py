@@ -349,7 +349,7 @@ def _fmt(args) -> int:
 
 def _watch(args) -> int:
     """The effect's errors are shown in the page (and on stderr), not fatal."""
-    from .driver.runner import RunError, RunInterrupted
+    from .driver.run.runner import RunError, RunInterrupted
     from .frontend.checker import UsageError
     from .viewer.watch import watch
 
@@ -370,8 +370,8 @@ def _watch(args) -> int:
 
 def _saved(args) -> int:
     """``render`` and ``export`` of a saved run's maps."""
-    from .driver.runner import RunError
-    from .driver.saved import export_saved, render_saved
+    from .driver.run.runner import RunError
+    from .driver.outputs.saved import export_saved, render_saved
     from .frontend.checker import UsageError
 
     try:
@@ -404,8 +404,8 @@ def _saved(args) -> int:
 
 def _sweep(args) -> int:
     """``gammac sweep``: check the effect and every option here, then run the cells."""
-    from .driver.cluster import RayUnavailable
-    from .driver.sweep import SweepError, parse_grid, sweep
+    from .driver.distributed.cluster import RayUnavailable
+    from .driver.distributed.sweep import SweepError, parse_grid, sweep
     from .frontend.checker import UsageError
 
     try:
@@ -450,7 +450,7 @@ def main(argv=None) -> int:
         print(code, file=sys.stderr)
         return EXIT_INPUT
     if args.command == "run":
-        from .driver import prefetch
+        from .driver.run import prefetch
 
         # read, and its surfels sampled, while the effect is read and checked
         prefetch.start(args.scene, args.surfels, args.seed, args.threads)
@@ -474,7 +474,7 @@ def main(argv=None) -> int:
             return _sweep(args)
         effect = _load(args.file, getattr(args, "param", ()), cached=args.command == "run")
         if args.command == "run":
-            from .driver import prefetch
+            from .driver.run import prefetch
 
             prefetch.expect(len(effect.surfaces))   # a setup made ahead is for one surface
         if args.command == "check":
@@ -503,13 +503,13 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .driver.runner import RunError, RunInterrupted
+        from .driver.run.runner import RunError, RunInterrupted
 
         if not args.out.strip():
             print("gammac: error: --out must name a folder (it is empty)", file=sys.stderr)
             return EXIT_USAGE
 
-        from .driver.runner import run
+        from .driver.run.runner import run
 
         opts = from_args(args, started=_STARTED)
         streams = sys.stdout, sys.stderr
@@ -576,7 +576,7 @@ def _leave(status: int) -> None:
     ordinary = (sys.gettrace() is None and sys.getprofile() is None
                 and not any(name in sys.modules for name in ("coverage", "ray"))
                 and all(t.daemon or t is threading.main_thread() for t in threading.enumerate()))
-    setup_cache = sys.modules.get("gamma.driver.setup_cache")
+    setup_cache = sys.modules.get("gamma.driver.caches.setup_cache")
     if setup_cache is not None:
         setup_cache.wait()              # a setup being kept for the next run: whole or not at all
     effect_cache = sys.modules.get("gamma.backends.effect_cache")

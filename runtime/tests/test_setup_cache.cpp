@@ -109,7 +109,7 @@ TEST(SetupCache, TheReadAheadGivesTheMeshAndTheCachedSetupPreparedAndTheSameSetu
     Simulation restored(*ahead.mesh, c, nullptr, ahead.setup.get());
     EXPECT_EQ(restored.from_snapshot(), Simulation::FromSnapshot::Setup);
     gamma_test::expect_same_setup(fresh, restored);
-    EXPECT_EQ(restored.corner_normals(), fresh.corner_normals());
+    EXPECT_EQ(*restored.corner_normals(), *fresh.corner_normals());
     EXPECT_EQ(restored.setup_snapshot(), fresh.setup_snapshot());
     gamma_test::expect_same_iterations(fresh, restored);
 
@@ -126,7 +126,7 @@ TEST(SetupCache, TheReadAheadGivesTheMeshAndTheCachedSetupPreparedAndTheSameSetu
     ASSERT_TRUE(one.mesh && one.setup && one.setup->prepared());
     Simulation from_one(*one.mesh, c, nullptr, one.setup.get());
     EXPECT_EQ(from_one.from_snapshot(), Simulation::FromSnapshot::Setup);
-    EXPECT_EQ(from_one.corner_normals(), fresh.corner_normals());
+    EXPECT_EQ(*from_one.corner_normals(), *fresh.corner_normals());
     EXPECT_EQ(from_one.setup_snapshot(), restored.setup_snapshot());
 
     // no setup looked for: no folder, no count; none kept for another seed or count

@@ -61,7 +61,7 @@ TEST(SetupSnapshot, ASetupFromItsSnapshotIsTheSameSetupAndTracesTheSameRows) {
             EXPECT_TRUE(snap.prepared());
         }
         Simulation restored(bunny.mesh, other, nullptr, &snap);
-        EXPECT_EQ(restored.corner_normals(), fresh.corner_normals());
+        EXPECT_EQ(*restored.corner_normals(), *fresh.corner_normals());
         EXPECT_EQ(restored.from_snapshot(), Simulation::FromSnapshot::Setup);
         EXPECT_TRUE(snap.taken());
         expect_same_setup(fresh, restored);
@@ -93,7 +93,7 @@ TEST(SetupSnapshot, ASetupMadeAheadForOneSurfaceIsTheSimulationsOwnOrGivesOnlyIt
         EXPECT_TRUE(taken.setup_made_ahead());
         EXPECT_GT(taken.setup_seconds().ahead, 0.0);
         expect_same_setup(fresh, taken);
-        EXPECT_EQ(taken.corner_normals(), fresh.corner_normals());
+        EXPECT_EQ(*taken.corner_normals(), *fresh.corner_normals());
         EXPECT_EQ(taken.setup_snapshot(), fresh.setup_snapshot());
         expect_same_iterations(fresh, taken);
         // two surfaces: only the surfels are taken, the rest built for that binding
@@ -106,7 +106,7 @@ TEST(SetupSnapshot, ASetupMadeAheadForOneSurfaceIsTheSimulationsOwnOrGivesOnlyIt
         EXPECT_TRUE(surfels_only.setup_made_ahead());
         Simulation plain(bunny.mesh, two);
         expect_same_setup(surfels_only, plain);
-        EXPECT_EQ(surfels_only.corner_normals(), plain.corner_normals());
+        EXPECT_EQ(*surfels_only.corner_normals(), *plain.corner_normals());
     }
     // a sample without surfels (another mesh's count of zero) is refused
     SurfelSample empty(bunny.mesh, 0, 1, 1);
@@ -144,7 +144,7 @@ TEST(SetupSnapshot, IsTakenOnlyForTheSameMeshCountSeedAndBinding) {
         EXPECT_EQ(snap.taken(), binding) << k.what;
         Simulation plain(k.mesh, k.config);
         expect_same_setup(sim, plain);
-        EXPECT_EQ(sim.corner_normals(), plain.corner_normals());
+        EXPECT_EQ(*sim.corner_normals(), *plain.corner_normals());
     }
 }
 

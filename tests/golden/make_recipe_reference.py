@@ -38,7 +38,7 @@ def run_recipe(stem: str, work: Path) -> subprocess.CompletedProcess:
 
 
 def digest(out: Path) -> dict:
-    from gamma.driver.outputs import read_ply
+    from gamma.driver.outputs.outputs import read_ply
 
     summary = json.loads((out / "summary.json").read_text())
     result = {"iterations": []}

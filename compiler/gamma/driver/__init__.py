@@ -1,24 +1,23 @@
 """Driver: runs an effect on a scene with the C++ runtime and writes the outputs.
 
-``runner`` sets a run up (scene, kernels, runtime ``Config``: ``config``)
-and owns the iteration loop; ``common`` holds what the parts below it share
-(``RunError``, the checked runtime); the loop publishes events (``events``) to writers
-(``writers``: maps, renders, summary, sequence, export, progress; add yours
-with ``run(effect, opts, writers=[...])``).  ``scene`` assembles meshes and
-binds their parts to surfaces; ``export`` bakes textures and encodes glTF/OBJ;
-``outputs`` encodes PLY, false-colour PNG and JSON; ``camera`` frames the scene.
-``saved`` renders and exports a saved run, ``reload`` puts a saved
-iteration back into a simulation.  ``sweep`` runs a parameter grid as Ray tasks (``gammac sweep``) and
-``distributed`` traces iterations on Ray workers (``gammac run --ray``);
-``cluster`` connects to Ray, the optional extra.
+Four parts, each a package:
+- ``run``: setting a run up and its iteration loop (``run.runner``), the
+  scene, the camera, the output folder, resume, events, interruption;
+- ``outputs``: the writers on the run's events, the encoders, export
+  (glTF, OBJ, USD, texture sets) and renders of saved runs;
+- ``caches``: the surfel set-up and the false-colour views kept for reruns;
+- ``distributed``: Ray (tracing on workers, sweeps).
+Imports go one way within the driver's modules (tests/test_architecture.py
+checks that there is no cycle).  Add writers with
+``run(effect, opts, writers=[...])``.
 
 The driver never looks inside rule bodies: it uses the checked effect's
 declarations and the kernels' addresses.
 """
 
-_FROM = {"run": "runner", "RunOptions": "runner", "RunError": "runner", "Writer": "events",
-         "CallbackWriter": "events", "SetupDone": "events", "IterationTraced": "events",
-         "IterationUpdated": "events", "RunFinished": "events"}
+_FROM = {"run": "run.runner", "RunOptions": "run.runner", "RunError": "run.runner", "Writer": "run.events",
+         "CallbackWriter": "run.events", "SetupDone": "run.events", "IterationTraced": "run.events",
+         "IterationUpdated": "run.events", "RunFinished": "run.events"}
 
 
 def __getattr__(name: str):

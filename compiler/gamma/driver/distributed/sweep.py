@@ -33,8 +33,8 @@ from pathlib import Path
 
 from dataclasses import replace
 
-from ..files import atomic_write
-from ..options import BY_NAME, SWEEPABLE, command_line
+from ...files import atomic_write
+from ...options import BY_NAME, SWEEPABLE, command_line
 
 INDEX_VERSION = 1
 #: Ray re-runs a cell whose worker died (a crash, a lost node) this many times.
@@ -169,9 +169,9 @@ def run_cell(effect_path: str, params: list, opts, crash_marker: str | None = No
 
 def _run_cell(effect_path: str, params: list, opts) -> int:
     """The run of a cell; its exit status as ``gammac run``'s, its errors on stderr."""
-    from ..backends import effect_cache
-    from ..frontend.diagnostics import GammaError, UsageError, render
-    from .runner import RunError, run
+    from ...backends import effect_cache
+    from ...frontend.diagnostics import GammaError, UsageError, render
+    from ..run.runner import RunError, run
 
     try:
         with open(effect_path, encoding="utf-8") as f:

@@ -136,7 +136,7 @@ class _WorkerKernels:
     def __init__(self, ir: str, symbols: list):
         import llvmlite.binding as llvm
 
-        from ..backends.jit import target_machine, compile_ir
+        from ...backends.jit import target_machine, compile_ir
 
         self.module = compile_ir(ir)
         self.engine = llvm.create_mcjit_compiler(self.module, target_machine())
@@ -150,7 +150,7 @@ def worker_simulation(job: TraceJob, threads: int):
     if cached is not None:
         return cached[0]
     _WORKER.clear()
-    from .common import runtime_module
+    from ..run.common import runtime_module
 
     rt = runtime_module()
     kernels = _WorkerKernels(job.ir, job.symbols)

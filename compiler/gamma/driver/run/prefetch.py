@@ -40,7 +40,7 @@ import atexit
 import os
 import threading
 
-from .. import background
+from ... import background
 
 #: Extensions the runtime's own readers parse (no OpenMesh, no global state).
 SUFFIXES = (".obj", ".ply")
@@ -63,7 +63,7 @@ class _Read:
             surfels = None
         # The cache's folder found here, on the main thread, which imports gamma.files
         # anyway: the thread goes straight into the runtime.
-        from ..files import cache_dir
+        from ...files import cache_dir
 
         folder = cache_dir() if surfels is not None else None
         self.mesh = background.start(self._work, read_mesh_ahead, surfels, seed, threads,
@@ -129,7 +129,7 @@ def _sample(mesh, surfels: int, seed: int, threads: int):
     Simulation would make for that binding, bit for bit; it takes it whole
     only when its binding is that one, else only the surfels).  The core
     gammac's start-up leaves idle makes most of the setup of a first run."""
-    from .. import _runtime
+    from ... import _runtime
 
     sample = _runtime.SurfelSample(mesh, surfels, seed, threads)
     if not sample.ok or surfels > AHEAD_MAX_SURFELS or _surfaces not in (None, 1):
@@ -156,7 +156,7 @@ def worth_sampling(surfels: int, seed: int, threads: int) -> bool:
     limits (else the runner refuses the run), and the run's memory for them
     under a quarter of what is free."""
     from . import budget
-    from ..options import LIMITS
+    from ...options import LIMITS
 
     if not all(low <= value <= high for value, (low, high) in
                ((surfels, LIMITS["--surfels"]), (seed, LIMITS["--seed"]), (threads, LIMITS["--threads"]))):
@@ -174,7 +174,7 @@ def start(path: str, surfels: int | None = None, seed: int = 1, threads: int = 0
         return
     try:
         # imported here, on the main thread, which imports it anyway (for the run)
-        from .. import _runtime
+        from ... import _runtime
 
         read_mesh_ahead = _runtime.read_mesh_ahead
     except Exception:  # noqa: BLE001 - a runtime that does not load is reported by the runner

@@ -25,17 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..options import RunOptions
-from .common import RunError
-from .reload import load_iteration
-from .runner import start
+from ...options import RunOptions
+from ..run.common import RunError
+from ..run.reload import load_iteration
+from ..run.runner import start
 
 
 def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: float = 30.0,
            threads: int = 0, shading: str | None = None, crease: float | None = None):
     """(run session, summary, the iterations saved) of the run in ``folder``;
     shading and crease (None: the run's) as ``gammac run`` takes them."""
-    from ..frontend.checker import load
+    from ...frontend.checker import load
 
     folder = Path(folder)
     try:
@@ -95,8 +95,8 @@ def render_saved(folder, iteration: int | None, show: str | None, output: str | 
 
     from PIL import Image
 
-    from ..files import atomic_write
-    from .camera import sun_direction
+    from ...files import atomic_write
+    from ..run.camera import sun_direction
     from .outputs import false_colour_png
 
     folder = Path(folder)
@@ -132,7 +132,7 @@ def render_saved(folder, iteration: int | None, show: str | None, output: str | 
 
 
 def _column(session, name: str) -> np.ndarray:
-    from .common import property_columns
+    from ..run.common import property_columns
 
     rows = np.asarray(session.sim.rows())
     return property_columns(session.effect, rows, session.surfel_surface)[name]

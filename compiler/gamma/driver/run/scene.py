@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..ir.effect import Effect
+from ...ir.effect import Effect
 from .budget import scene_size_problem
-from ..files import file_problem
-from ..records import Record, record
+from ...files import file_problem
+from ...records import Record, record
 
 
 class SceneError(Exception):

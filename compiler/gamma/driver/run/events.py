@@ -34,7 +34,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from ..records import Record, record
+from ...records import Record, record
 
 
 # ---- events ------------------------------------------------------------------------

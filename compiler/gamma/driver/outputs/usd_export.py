@@ -118,7 +118,7 @@ class _Stage:
     def __init__(self, path: Path, frames: list, scene_name: str, moving: bool):
         from pxr import Sdf, Usd, UsdGeom, Vt
 
-        from ..version import version
+        from ...version import version
 
         self.frames, self.moving = frames, moving
         self.iterations = [int(f[0]) for f in frames]

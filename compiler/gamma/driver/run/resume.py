@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import abi
-from ..version import version
+from ... import abi
+from ...version import version
 
 #: Options that do not change the results (or are what --resume changes).
 _NOT_IN_KEY = {"iterations", "threads", "progress", "resume", "out", "quiet", "started", "ray", "ray_address"}
@@ -71,7 +71,7 @@ def load(out: Path, key: str, iterations: int) -> tuple[dict, int]:
 
 def rows_from_map(path: Path, effect, surfel_surface: np.ndarray, row_width: int) -> np.ndarray:
     """Every surfel's row as the map of one iteration recorded it."""
-    from .outputs import read_ply
+    from ..outputs.outputs import read_ply
 
     columns = read_ply(path)
     n = len(surfel_surface)

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import abi
-from ..ir.effect import Effect
+from ... import abi
+from ...ir.effect import Effect
 
 
 class RunError(Exception):
@@ -19,7 +19,7 @@ class RunError(Exception):
 
 def runtime_module():
     """``gamma._runtime``, checked against ``abi`` (version and binding)."""
-    from .. import _runtime as rt
+    from ... import _runtime as rt
 
     problems = abi.check_runtime(rt)
     if problems:

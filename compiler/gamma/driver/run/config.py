@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import abi
-from ..ir.effect import Effect, Length, Source
+from ... import abi
+from ...ir.effect import Effect, Length, Source
 from . import budget
 from .common import RunError, cpu_count
 
@@ -140,7 +140,7 @@ def load_textures(effect: Effect) -> list[np.ndarray]:
     """Every texture() image as float32 [H, W, 3] in [0, 1] (display values)."""
     from PIL import Image, UnidentifiedImageError
 
-    from ..files import file_problem
+    from ...files import file_problem
 
     images = []
     for path, kind in zip(effect.textures, effect.texture_kinds or ["color"] * len(effect.textures)):

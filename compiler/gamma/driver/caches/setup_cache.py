@@ -37,8 +37,8 @@ import struct
 import zlib
 from pathlib import Path
 
-from .. import background
-from ..files import cache_dir, cache_write
+from ... import background
+from ...files import cache_dir, cache_write
 
 #: Trailer after the snapshot: CRC-32 of the snapshot, then this mark (the
 #: runtime's SetupSnapshot.load_cached checks both).
@@ -67,7 +67,7 @@ def path_for(mesh, surfels: int, seed: int) -> Path | None:
     folder = cache_dir()
     if folder is None:
         return None
-    from .. import _runtime
+    from ... import _runtime
 
     name = _runtime.setup_cache_name(mesh, int(surfels), int(seed))
     return folder / name if name else None
@@ -80,7 +80,7 @@ def load(mesh, surfels: int, seed: int):
     folder = cache_dir()
     if folder is None:
         return None
-    from .. import _runtime
+    from ... import _runtime
 
     try:
         # read straight into the runtime's arrays, its checksum checked, a file

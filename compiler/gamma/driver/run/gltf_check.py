@@ -24,7 +24,7 @@ import urllib.parse
 import warnings
 from pathlib import Path
 
-from ..files import file_problem
+from ...files import file_problem
 
 #: Largest base-colour texture of a glTF material, in pixels per side (the
 #: same limit as texture() images, SPEC §8a); read from the image's header.

@@ -41,7 +41,7 @@ class FinalState:
 
 
 def _from_folder(folder: Path) -> FinalState:
-    from .outputs import read_ply
+    from ..outputs.outputs import read_ply
 
     where = f"run folder '{folder}'"
     try:

@@ -122,7 +122,7 @@ def _surface_parts(scene, effect, surface: str, where: np.ndarray) -> list[str]:
 def problems(effect, scene) -> list:
     """Diagnostics (errors and warnings, with the calls' positions) of the
     effect's mask() and attribute() calls on this scene."""
-    from ..frontend.diagnostics import Diagnostic
+    from ...frontend.diagnostics import Diagnostic
 
     found = []
     if effect.mask_uses and scene.triangle_has_uv is not None:

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import background
+from ... import background
 from . import setup_cache
 
 #: The mark after the view's bytes and their CRC-32 (setup_cache.write_with_trailer).
@@ -43,7 +43,7 @@ def path_for(run) -> Path | None:
     """The cache file of ``run``'s false-colour view, or None (the cache off,
     or a runtime that does not name its setups)."""
     try:
-        from .. import _runtime
+        from ... import _runtime
 
         setup = setup_cache.path_for(run.scene.mesh, run.opts.surfels, run.opts.seed)
         if setup is None:
@@ -75,7 +75,7 @@ def load(path: Path | None, width: int, height: int, surfels: int):
         data = path.read_bytes()
     except OSError:
         return None
-    from .. import _runtime
+    from ... import _runtime
 
     try:
         body = setup_cache.body_of(data, MARK)

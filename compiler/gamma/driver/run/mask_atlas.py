@@ -67,7 +67,7 @@ def fingerprint(vertices, triangles, bare) -> str:
 
 
 def _bare_uvs(vertices, triangles, bare, size: int) -> np.ndarray:
-    from .atlas import chart_atlas
+    from ..outputs.atlas import chart_atlas
 
     key = (fingerprint(vertices, triangles, bare), size)
     if key not in _cache:
@@ -174,7 +174,7 @@ def texel_points(mesh, has_uv, size: int) -> tuple[np.ndarray, float]:
     triangle is; gutters take their chart's nearest points), and the scene
     units per texel (the atlas's mean), so a brush of r texels is as wide on
     the mesh as in the image."""
-    from .atlas import dilate, texel_hits
+    from ..outputs.atlas import dilate, texel_hits
 
     bare = np.flatnonzero(~np.asarray(has_uv, bool))
     vertices = np.asarray(mesh.vertices(), np.float64)

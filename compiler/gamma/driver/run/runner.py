@@ -18,14 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import abi
-from ..version import version
+from ... import abi
+from ...version import version
 from . import budget
-from ..frontend.ast import Pos
-from ..ir.effect import Effect
-from ..frontend.diagnostics import Diagnostic, GammaError
-from ..options import LIMITS, RunOptions, limit_problem
-from ..records import Record, record
+from ...frontend.ast import Pos
+from ...ir.effect import Effect
+from ...frontend.diagnostics import Diagnostic, GammaError
+from ...options import LIMITS, RunOptions, limit_problem
+from ...records import Record, record
 from .common import RunError, cpu_count, property_columns, runtime_module, shape_changes
 from .config import build_config, load_textures, mass_properties, set_materials
 
@@ -95,7 +95,7 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
     from . import folder
     from .events import IterationTraced, IterationUpdated, RunFinished, SetupDone, publish
     from .interrupt import Interrupted, Interruptions
-    from .writers import standard_writers
+    from ..outputs.writers import standard_writers
 
     with Interruptions() as stop:
         try:
@@ -213,7 +213,7 @@ def _interrupted(session: "Run", sig, done: int, abandoned, dropped_books):
     ``dropped_books``: ``Run.books`` before the update of the iteration
     dropped, or None if none started."""
     from . import folder
-    from ..files import atomic_write
+    from ...files import atomic_write
 
     # a copy, and nothing in it shared with an update that still runs (it appends to
     # the session's summary, and changes its ranges and non-finite counts)
@@ -459,7 +459,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     mesh = scene.mesh
     folder.remove_stale_temporaries(out)
     folder.recover(out)
-    from ..backends.effect_cache import SharedKernels, kernels_for
+    from ...backends.effect_cache import SharedKernels, kernels_for
 
     t0 = time.perf_counter()
     kernels = call(kernels_for, effect)
@@ -499,8 +499,8 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
     camera = run_camera(scene, opts)
     tracer = None
     if opts.ray or opts.ray_address:
-        from . import distributed
-        from .cluster import RayUnavailable
+        from ..distributed import distributed
+        from ..distributed.cluster import RayUnavailable
 
         try:
             tracer = distributed.start(rt, effect, kernels, opts, scene, sim, build_config)
@@ -598,7 +598,8 @@ def _simulation(rt, mesh, cfg, shape_static: bool = False):
     setup not taken whole from the cache is kept there for the next run
     (taken from the simulation behind the loop when ``shape_static``: no
     rule of the effect changes the shape)."""
-    from . import prefetch, setup_cache
+    from . import prefetch
+    from ..caches import setup_cache
 
     ahead = prefetch.sample_for(mesh, cfg.surfels, cfg.seed)
     snapshot = None
@@ -617,7 +618,7 @@ def _check_scene_inputs(effect, scene) -> None:
     the calls' file:line:col; warnings are printed (scene_inputs.py)."""
     if not effect.inputs and not effect.mask_uses:
         return
-    from ..frontend.diagnostics import GammaError, render
+    from ...frontend.diagnostics import GammaError, render
     from .scene_inputs import problems
 
     found = problems(effect, scene)

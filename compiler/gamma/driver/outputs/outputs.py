@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..files import atomic_write
+from ...files import atomic_write
 
 
 def ply_parts(columns: dict[str, np.ndarray], comments: list[str] = ()) -> tuple[bytes, np.ndarray]:
@@ -128,7 +128,7 @@ def encode_pngs(pictures: list, level: int, threads: int = 1) -> list[bytes]:
     images), byte for byte what Pillow's ``save(format="PNG",
     compress_level=level)`` writes, encoded ``threads`` at a time in the
     runtime without the GIL (Pillow's encoder holds it for the whole picture)."""
-    from .. import _runtime
+    from ... import _runtime
 
     arrays = [np.ascontiguousarray(np.asarray(p, dtype=np.uint8)) for p in pictures]
     return _runtime.encode_pngs(arrays, level, threads)

@@ -14,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import abi
+from ... import abi
 from .common import RunError
 
 
 def load_iteration(session, folder: str | Path, iteration: int) -> dict:
     """Put the saved rows of ``iteration`` into the simulation; returns the map's columns."""
-    from .outputs import read_ply
+    from ..outputs.outputs import read_ply
 
     path = Path(folder) / "maps" / f"iter_{iteration:04d}.ply"
     if not path.is_file():
@@ -97,8 +97,8 @@ def shaped_simulation(session, mesh_path: Path, columns: dict, map_path: Path):
     may take the other side's)."""
     import tempfile
 
-    from . import setup_cache
-    from .outputs import read_mesh_ply
+    from ..caches import setup_cache
+    from ..outputs.outputs import read_mesh_ply
     from .config import build_config, load_textures, set_materials
 
     rt, effect, scene, opts = session.rt, session.effect, session.scene, session.opts

@@ -26,8 +26,8 @@ import queue
 import signal
 import threading
 
-from .. import background
-from ..background import Outcome
+from ... import background
+from ...background import Outcome
 
 SIGNAL_NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
 

@@ -21,18 +21,17 @@ from __future__ import annotations
 import copy
 import io
 import os
-import re
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from .. import abi
-from ..version import version
-from ..files import atomic_write
-from .camera import sun_direction
-from .events import IterationUpdated, RunFinished, Writer
+from ... import abi
+from ...version import version
+from ...files import atomic_write
+from ..run.camera import sun_direction
+from ..run.events import IterationUpdated, RunFinished, Writer
 from .outputs import mesh_ply_bytes, ply_parts, write_json
 
 
@@ -128,7 +127,7 @@ class FalseColourWriter(Writer):
         # An effect that never changes the shape has its final geometry now: the rays of every
         # picture are cast beside the loop (no GIL; on the cores its serial stretches leave),
         # not after it, where a user waits for the pictures.
-        from .common import shape_changes
+        from ..run.common import shape_changes
 
         if not shape_changes(run.effect):
             self.casting = self._cast(run, keep=True)
@@ -145,7 +144,7 @@ class FalseColourWriter(Writer):
         (view_cache.py), and kept there once cast if not."""
         if run.opts.width * run.opts.height > self.VIEW_PIXELS:
             return None
-        from .. import background
+        from ... import background
 
         return background.start(run.behind.timings.call, "renders", _view, run, keep, name="gamma-view-rays")
 
@@ -239,7 +238,7 @@ def percentile_995(finite: np.ndarray) -> float:
 def _view(run, keep: bool):
     """``run``'s false-colour view: from the cache of views (``keep``), or cast
     (and then kept, with ``keep``)."""
-    from . import view_cache
+    from ..caches import view_cache
 
     eye, target, up, fov = run.camera
     width, height = run.opts.width, run.opts.height
@@ -316,7 +315,7 @@ def write_sequence(frames: list, folder: Path) -> None:
     GIF is made here (Pillow holds the GIL for it): the three took their sum
     one after the other, after the loop.  All three are written, or have
     failed, when this returns; the first error (GIF, MP4, strip) is raised."""
-    from .. import background
+    from ... import background
 
     others = [background.start(write_mp4, frames, folder / "sequence.mp4", name="gamma-mp4"),
               background.start(write_strip, frames, folder / "strip.png", name="gamma-strip")]
@@ -375,7 +374,7 @@ class MeshWriter(Writer):
     @_timed_on_loop("meshes")
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         from .export import vertex_normals
-        from .common import property_columns
+        from ..run.common import property_columns
 
         run, it = event.run, event.iteration
         vertices, triangles = run.sim.mesh_arrays()
@@ -411,7 +410,7 @@ class ExportWriter(Writer):
 
     def on_setup_done(self, event) -> None:
         from .export import memory_problem
-        from .common import RunError
+        from ..run.common import RunError
 
         run = event.run
         if self.bake_size and not self.texel_density:   # refused before the first iteration
@@ -429,7 +428,7 @@ class ExportWriter(Writer):
         exporter = Exporter(run, self.bake_size, self.texel_density, run.summary.get("ranges") or {}, self.preset,
                             self.float_maps)
         if self.which == "all":
-            from .reload import load_iteration
+            from ..run.reload import load_iteration
 
             run.behind.drain()          # the maps of every iteration are on disk
             for it in range(1, last + 1):

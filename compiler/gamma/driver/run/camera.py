@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from ..options import DEFAULT_VIEW
+from ...options import DEFAULT_VIEW
 
 
 class CameraError(ValueError):
