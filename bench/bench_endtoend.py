@@ -16,7 +16,7 @@ update, which would flatter its ratio); the median run's wall
 time is split by the clocks summary.json reports (start-up, scene, compile,
 setup, the loop, after the loop; the remainder is the interpreter's start and
 the process's exit), with the outputs' busy time by kind.  ``gammac run``
-samples the surfels while it starts up (driver/run/prefetch.py): "setup" is then
+samples the surfels while it starts up (driver/running/prefetch.py): "setup" is then
 what is left of the setup once those are taken (including any wait for them),
 and the sampling's own time is reported beside, overlapping the start-up.
 
@@ -107,7 +107,7 @@ def setup_cpu(surfels: int, threads: int) -> dict:
     """The mesh read and the setup of the bench's run in this process
     (called in a child): wall and process CPU seconds."""
     from gamma.backends.jit import JitKernels
-    from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+    from gamma.driver.running.runner import RunOptions, build_config, runtime_module
     from gamma.frontend.checker import load
 
     rt = runtime_module()

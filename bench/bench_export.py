@@ -19,8 +19,8 @@ from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check
 from gamma.driver.outputs.export import Exporter, layout, pieces
 from gamma.frontend.parser import parse
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.scene import load_scene
 
 
 
@@ -42,7 +42,7 @@ def main() -> None:
     sim.update(1)
     iteration = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
-        from gamma.driver.run.events import WriteQueue
+        from gamma.driver.running.events import WriteQueue
 
         class Run:   # what Exporter reads of a run
             shapes = False

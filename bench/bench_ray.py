@@ -29,8 +29,8 @@ from report import ROOT, SCENE, cpu_name, load_average, report
 
 from gamma.backends.jit import JitKernels
 from gamma.driver.distributed import cluster, distributed
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.scene import load_scene
 from gamma.frontend.checker import load
 
 

@@ -14,8 +14,8 @@ from report import LOOK_EFFECT, ROOT, SCENE, cpu_name, report
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import check
 from gamma.frontend.parser import parse
-from gamma.driver.run.camera import auto_camera, sun_direction
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.camera import auto_camera, sun_direction
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
 
 
 

@@ -56,7 +56,7 @@ def one(surfels: int, subdivisions: int, threads: int, tons: int) -> dict:
     """Measures one configuration in this process (called in a child)."""
     from gamma.backends.jit import JitKernels
     from gamma.frontend.checker import load
-    from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+    from gamma.driver.running.runner import RunOptions, build_config, runtime_module
 
     rt = runtime_module()
     mesh = rt.Mesh.load(str(SCENE))

@@ -24,9 +24,9 @@ import numpy as np
 from report import ROOT, cpu_name, load_average, report
 
 from gamma.backends.jit import JitKernels
-from gamma.driver.run import scene_inputs
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running import scene_inputs
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.scene import load_scene
 from gamma.frontend.checker import check
 from gamma.frontend.parser import parse
 

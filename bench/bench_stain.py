@@ -25,8 +25,8 @@ from pathlib import Path
 from report import ROOT, cpu_name, report
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.scene import load_scene
 
 
 

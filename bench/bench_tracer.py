@@ -35,7 +35,7 @@ from report import SCENE, cpu_name, load_average, report
 
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
 
 
 # One effect per motion mode: patina's rules, the gamma-tons moving one way.

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from report import ROOT, SCENE, cpu_name, report
-from gamma.driver.run.runner import RunOptions
+from gamma.driver.running.runner import RunOptions
 from gamma.viewer.server import ViewerState
 from gamma.viewer.watch import Watcher
 

@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 #: Direction from the scene's centre toward the camera, in glTF axes (+Y up),
-#: like ``gammac --view`` (gamma.driver.run.camera.DEFAULT_VIEW).
+#: like ``gammac --view`` (gamma.driver.running.camera.DEFAULT_VIEW).
 DEFAULT_VIEW = (-0.6, 0.35, 1.0)
 
 #: Principled BSDF inputs whose links a report traces back to image textures.

@@ -390,7 +390,7 @@ def load(path: Path) -> tuple:
     ``gammac run --scene`` reads it (glTF through the driver's reader); any
     other exception propagates (a failure)."""
     import gamma._runtime as rt
-    from gamma.driver.run.scene import SceneError, _file_parts
+    from gamma.driver.running.scene import SceneError, _file_parts
 
     try:
         parts = _file_parts(rt, Path(path))

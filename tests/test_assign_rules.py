@@ -3,7 +3,7 @@ group or material name or its file's name wins; a rule beaten to every
 triangle it names is reported (the file-name trap: 'arch=...' matches every
 part of arch.obj)."""
 
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running.scene import load_scene
 from gamma.frontend.checker import load
 
 EFFECT = """\

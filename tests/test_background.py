@@ -124,7 +124,7 @@ def test_a_thread_that_cannot_start_leaves_no_call_to_wait_for(monkeypatch):
 
 
 def test_the_read_ahead_imports_neither_concurrent_futures_nor_logging():
-    probe = ("import sys; from gamma import background; from gamma.driver.run import prefetch; "
+    probe = ("import sys; from gamma import background; from gamma.driver.running import prefetch; "
              "print(sorted(m for m in ('concurrent.futures', 'logging', 'typing') if m in sys.modules))")
     r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from gamma.backends.jit import JitKernels
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.scene import load_scene
 from gamma.frontend.checker import check
 from gamma.frontend.parser import parse
 

@@ -14,7 +14,7 @@ from conftest import ROOT, run_gammac
 from gamma import __version__
 from gamma.frontend.checker import load
 from gamma.cli import _join_negative_vectors, _parser
-from gamma.driver.run.camera import CameraError, auto_camera, choose_camera
+from gamma.driver.running.camera import CameraError, auto_camera, choose_camera
 
 CMAKE_VERSION = re.search(r"project\(gamma_runtime VERSION ([0-9.]+)",
                           (ROOT / "CMakeLists.txt").read_text()).group(1)

@@ -10,7 +10,7 @@ import numpy as np
 
 import gamma
 from gamma.backends.jit import JitKernels
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
 
 EFFECT = """
 ton Drop { carry wet = 1 }

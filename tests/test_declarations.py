@@ -55,7 +55,7 @@ def test_source_kinds_of_the_language_are_the_runtime_kinds():
 
 
 def test_the_runtime_knows_exactly_the_abi_source_kinds(rt, bumpy_obj):
-    from gamma.driver.run.runner import RunOptions, build_config
+    from gamma.driver.running.runner import RunOptions, build_config
 
     effect = load(str(ROOT / "examples" / "patina.gamma"))
     mesh = rt.Mesh.load(str(bumpy_obj))

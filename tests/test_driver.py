@@ -11,7 +11,7 @@ from conftest import ROOT
 from gamma import abi
 from gamma.driver import (CallbackWriter, IterationUpdated, RunError, RunFinished,
                           RunOptions, SetupDone, Writer, run)
-from gamma.driver.run.events import WriteQueue
+from gamma.driver.running.events import WriteQueue
 from gamma.driver.outputs.outputs import read_ply
 from gamma.frontend.checker import load
 

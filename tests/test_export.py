@@ -14,7 +14,7 @@ from conftest import ROOT, run_gammac
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
 from gamma.driver.outputs.export import bake_texture_set, layout, Piece, rasterise_uv
-from gamma.driver.run.runner import RunOptions, build_config, runtime_module
+from gamma.driver.running.runner import RunOptions, build_config, runtime_module
 
 SPOT = ROOT / "examples" / "scenes" / "spot.obj"
 
@@ -276,7 +276,7 @@ def test_a_bake_larger_than_memory_allows_is_refused_before_the_run(monkeypatch)
     from types import SimpleNamespace
 
     from gamma.driver.outputs import export
-    from gamma.driver.run.runner import RunError
+    from gamma.driver.running.runner import RunError
     from gamma.driver.outputs.writers import ExportWriter
 
     effect = load(str(ROOT / "examples" / "patina.gamma"))

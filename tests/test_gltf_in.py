@@ -9,7 +9,7 @@ from PIL import Image
 
 from conftest import run_gammac
 from gamma.frontend.checker import load
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running.scene import load_scene
 
 EFFECT = """\
 ton T { motion straight = 0.5 carry a = 1 }

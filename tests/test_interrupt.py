@@ -1,4 +1,4 @@
-"""gamma.driver.run.interrupt: Interruptions.call makes a run's calls on one helper
+"""gamma.driver.running.interrupt: Interruptions.call makes a run's calls on one helper
 thread, in order, with their values and errors; a signal abandons the call
 that is running (Interrupted, ``busy``) and a later call gets a new thread.
 (tests/test_run_faults.py signals whole ``gammac run`` processes.)"""
@@ -11,7 +11,7 @@ import weakref
 
 import pytest
 
-from gamma.driver.run.interrupt import Interrupted, Interruptions
+from gamma.driver.running.interrupt import Interrupted, Interruptions
 
 
 def test_calls_run_in_order_on_one_helper_thread_with_their_values_and_errors():

@@ -50,7 +50,7 @@ def test_nothing_is_read_ahead_when_argparse_might_read_it_otherwise(argv):
 PROBE = textwrap.dedent("""
     import sys
     import gamma.cli
-    from gamma.driver.run import prefetch
+    from gamma.driver.running import prefetch
     gamma.cli.entry = lambda: print(sorted(prefetch._pending))
     from gamma.launch import main
     main()
@@ -121,7 +121,7 @@ def test_argparse_exits_are_returned_so_that_gammac_leaves_without_waiting(argv,
 # runtime's objects as leaked).
 DROPPED = textwrap.dedent("""
     import os, shutil, sys
-    from gamma.driver.run import prefetch
+    from gamma.driver.running import prefetch
     path = sys.argv[1]
     shutil.copy(sys.argv[2], path)
     prefetch.start(path, 20000, 1, 1)

@@ -220,7 +220,7 @@ def test_the_scales_percentile_is_numpys_bit_for_bit():
 
 
 def test_unique_rows_is_numpys_unique_over_rows():
-    from gamma.driver.run.scene import unique_rows
+    from gamma.driver.running.scene import unique_rows
 
     rng = np.random.default_rng(3)
     for n in (0, 1, 5, 300):

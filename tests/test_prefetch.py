@@ -1,5 +1,5 @@
 """gammac run reads its mesh file ahead, and samples its surfels, while it
-reads and checks the effect (gamma/driver/run/prefetch.py): the mesh read ahead
+reads and checks the effect (gamma/driver/running/prefetch.py): the mesh read ahead
 is the one reading the file later gives, a file changed in between is read
 again, the surfels sampled ahead give the setup's own state and the same
 output files, and errors stay where they were."""
@@ -16,7 +16,7 @@ import pytest
 
 from conftest import ROOT, run_gammac
 from gamma import _runtime as rt
-from gamma.driver.run import prefetch
+from gamma.driver.running import prefetch
 
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
 
@@ -158,7 +158,7 @@ def test_surfels_are_sampled_ahead_only_for_options_the_run_accepts():
 
 NO_SAMPLE = textwrap.dedent("""
     import sys
-    from gamma.driver.run import prefetch
+    from gamma.driver.running import prefetch
     prefetch.worth_sampling = lambda *args: False
     sys.argv = ["gammac", *sys.argv[1:]]
     from gamma.cli import entry
@@ -245,7 +245,7 @@ def test_an_effect_error_comes_first_while_the_surfels_are_sampled(tmp_path):
 
 EXITS = textwrap.dedent("""
     import sys
-    from gamma.driver.run import prefetch
+    from gamma.driver.running import prefetch
     prefetch.start(sys.argv[1], 400000, 1, 2)
     assert prefetch.take(sys.argv[1]) is not None
     sys.exit(0)                      # the interpreter's own exit, the sampling still running
@@ -260,7 +260,7 @@ def test_a_process_that_exits_while_the_surfels_are_sampled_exits_cleanly():
 
 BEFORE_FRONT_END = textwrap.dedent("""
     import sys
-    from gamma.driver.run import prefetch
+    from gamma.driver.running import prefetch
     seen = []
     prefetch.start = lambda *args: seen.append(sorted(m for m in sys.modules
                                                       if m.startswith(("gamma.frontend", "numpy", "lark"))))

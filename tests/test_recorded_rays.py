@@ -6,8 +6,8 @@ import pytest
 
 from conftest import ROOT
 from gamma.backends.jit import JitKernels
-from gamma.driver.run.runner import RunOptions, build_config
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running.runner import RunOptions, build_config
+from gamma.driver.running.scene import load_scene
 from gamma.frontend.checker import load
 
 SCENE = ROOT / "examples" / "scenes" / "stanford-bunny.obj"

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from gamma.driver.run.events import CallbackWriter, IterationUpdated, SetupDone
-from gamma.driver.run.runner import RunOptions, run, runtime_module
-from gamma.driver.run.scene import load_scene
+from gamma.driver.running.events import CallbackWriter, IterationUpdated, SetupDone
+from gamma.driver.running.runner import RunOptions, run, runtime_module
+from gamma.driver.running.scene import load_scene
 from gamma.frontend.checker import check
 from gamma.frontend.parser import parse
 
@@ -64,7 +64,7 @@ def test_surfels_that_cannot_stay_are_built_afresh(scene):
         assert np.array_equal(reused["rows"], fresh["rows"])
     # the refusal itself, through the binding: nothing changed
     from gamma.backends.jit import JitKernels
-    from gamma.driver.run.runner import build_config
+    from gamma.driver.running.runner import build_config
 
     eff = effect(PATINA)
     bad = build_config(runtime_module(), eff, JitKernels(eff),
@@ -108,7 +108,7 @@ def test_cancel_stops_a_trace_and_leaves_the_rows(scene):
     import time
 
     from gamma.backends.jit import JitKernels
-    from gamma.driver.run.runner import build_config
+    from gamma.driver.running.runner import build_config
 
     eff = effect(PATINA)
     kernels = JitKernels(eff)              # alive as long as the simulation traces

@@ -103,8 +103,8 @@ def test_signal_stops_promptly_with_a_consistent_folder(tmp_path, sig, status):
 def test_a_signal_during_the_setup_keeps_the_earlier_results_and_the_setup_ends_on_its_own(tmp_path,
                                                                                           monkeypatch):
     # (it was a traceback: Interrupted escaped from the setup, the folder's lock left behind)
-    from gamma.driver.run import runner
-    from gamma.driver.run.runner import RunInterrupted, RunOptions, run
+    from gamma.driver.running import runner
+    from gamma.driver.running.runner import RunInterrupted, RunOptions, run
     from gamma.frontend.checker import load
 
     out = tmp_path / "o"
@@ -147,8 +147,8 @@ def test_a_signal_during_the_setup_keeps_the_earlier_results_and_the_setup_ends_
 TRACE_INTERRUPTED = textwrap.dedent("""
     import os, signal, sys, threading, time
     import gamma
-    from gamma.driver.run import runner
-    from gamma.driver.run.runner import RunInterrupted
+    from gamma.driver.running import runner
+    from gamma.driver.running.runner import RunInterrupted
     assert gamma.RunInterrupted is RunInterrupted
     second_trace = threading.Event()
     trace = runner.Run.trace
@@ -184,8 +184,8 @@ def test_an_update_that_ends_after_the_signal_leaves_nothing_of_its_iteration_in
     # the update is waited for (the simulations are left alone): its value
     # ranges and non-finite counts go with its iteration, in a fresh run and in
     # a resumed one (which carries the earlier iterations' ranges)
-    from gamma.driver.run import runner
-    from gamma.driver.run.runner import RunInterrupted, RunOptions, run
+    from gamma.driver.running import runner
+    from gamma.driver.running.runner import RunInterrupted, RunOptions, run
     from gamma.frontend.checker import load
 
     (tmp_path / "nan.gamma").write_text(
@@ -260,8 +260,8 @@ def test_a_signal_while_gammac_watch_computes_a_result_stops_it_without_a_traceb
 
 
 def test_failed_rerun_keeps_the_earlier_results(tmp_path):
-    from gamma.driver.run.events import CallbackWriter, IterationUpdated
-    from gamma.driver.run.runner import RunOptions, run
+    from gamma.driver.running.events import CallbackWriter, IterationUpdated
+    from gamma.driver.running.runner import RunOptions, run
     from gamma.frontend.checker import load
 
     out = tmp_path / "o"
@@ -296,7 +296,7 @@ def test_killed_run_leaves_nothing_stale(tmp_path):
 
 
 def test_one_run_per_folder(tmp_path):
-    from gamma.driver.run.folder import OutputLock
+    from gamma.driver.running.folder import OutputLock
 
     out = tmp_path / "o"
     out.mkdir()

@@ -138,7 +138,7 @@ def test_saved_surfels_sit_on_the_runs_triangles(eroded):
     of the saved mesh holding it, with its normal and surface, and each
     triangle's surface that of the run (the arch and the ground are separate
     parts, each of one surface: exact)."""
-    from gamma.driver.run.reload import place_surfels
+    from gamma.driver.running.reload import place_surfels
 
     for it in (1, 3):
         vertices, faces = saved_vertices(eroded, it)

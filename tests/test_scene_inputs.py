@@ -17,7 +17,7 @@ from PIL import Image
 from conftest import run_gammac
 
 from gamma.driver.outputs.outputs import read_ply
-from gamma.driver.run.scene_inputs import load_mask, sample
+from gamma.driver.running.scene_inputs import load_mask, sample
 
 RAIN = """
 ton Dirt {{
@@ -221,8 +221,8 @@ appearance(s: Ground) {
 
 def _atlas_scene(tmp_path):
     """The bare plane as the run assembles it, with an effect that reads mask.png."""
-    from gamma.driver.run.runner import runtime_module
-    from gamma.driver.run.scene import load_scene
+    from gamma.driver.running.runner import runtime_module
+    from gamma.driver.running.scene import load_scene
     from gamma.frontend.checker import check
     from gamma.frontend.parser import parse
 
@@ -239,7 +239,7 @@ def test_a_mask_painted_in_the_atlas_of_a_mesh_without_uvs_steers_where_it_was_p
     chart atlas; painted white wherever its texels lie at x > 0 (as the
     page's brush paints, by the texels' scene points), dirt falls 20x more
     there than at x < 0, and the painted file keeps its atlas record."""
-    from gamma.driver.run import mask_atlas
+    from gamma.driver.running import mask_atlas
 
     write_obj(tmp_path / "bare.obj", uvs=False)
     effect, scene = _atlas_scene(tmp_path)
@@ -248,8 +248,8 @@ def test_a_mask_painted_in_the_atlas_of_a_mesh_without_uvs_steers_where_it_was_p
                       size=128)
     assert mask_atlas.layout(tmp_path / "mask.png")["size"] == 128
     # the run's scene now reads the mask's atlas: the same coordinates each time
-    from gamma.driver.run.runner import runtime_module
-    from gamma.driver.run.scene import load_scene
+    from gamma.driver.running.runner import runtime_module
+    from gamma.driver.running.scene import load_scene
 
     scene = load_scene(runtime_module(), str(tmp_path / "bare.obj"), effect, [])
     again = load_scene(runtime_module(), str(tmp_path / "bare.obj"), effect, [])
@@ -276,7 +276,7 @@ def test_a_mask_painted_in_the_atlas_of_a_mesh_without_uvs_steers_where_it_was_p
 def test_an_atlas_mask_of_another_mesh_is_refused(tmp_path):
     write_obj(tmp_path / "bare.obj", uvs=False)
     effect, scene = _atlas_scene(tmp_path)
-    from gamma.driver.run import mask_atlas
+    from gamma.driver.running import mask_atlas
 
     vertices = np.asarray(scene.mesh.vertices()) * 2          # the mesh as it was before an edit
     mask_atlas.create(tmp_path / "mask.png", vertices, scene.mesh.triangles(), scene.triangle_has_uv, 64)

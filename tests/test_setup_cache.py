@@ -18,7 +18,7 @@ from conftest import ROOT
 from test_prefetch import folder_hash
 
 from gamma import _runtime as rt
-from gamma.driver.run import prefetch
+from gamma.driver.running import prefetch
 from gamma.driver.caches import setup_cache
 
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"
@@ -228,7 +228,7 @@ def test_the_read_ahead_refuses_what_it_cannot_use_and_never_raises(tmp_path, mo
 
 NO_PREFETCH = textwrap.dedent("""
     import sys
-    from gamma.driver.run import prefetch
+    from gamma.driver.running import prefetch
     prefetch.worth_sampling = lambda *args: False     # nothing read ahead: the runner loads the cache itself
     sys.argv = ["gammac", *sys.argv[1:]]
     from gamma.cli import entry
@@ -237,7 +237,7 @@ NO_PREFETCH = textwrap.dedent("""
 
 SLOW_WRITE = textwrap.dedent("""
     import sys, time
-    from gamma.driver.run import prefetch
+    from gamma.driver.running import prefetch
     from gamma.driver.caches import setup_cache
     write = setup_cache._write
     def slow(*args):
@@ -307,7 +307,7 @@ def test_a_setup_taken_behind_the_run_is_the_same_file(tmp_path, monkeypatch):
 
 def test_the_runner_takes_the_setup_behind_the_loop_only_when_nothing_changes_the_shape(tmp_path, monkeypatch):
     from gamma import compile
-    from gamma.driver.run import runner
+    from gamma.driver.running import runner
 
     monkeypatch.setenv("GAMMA_CACHE_DIR", str(tmp_path / "cache"))
     seen = []

@@ -15,7 +15,7 @@ from test_prefetch import folder_hash
 
 from gamma import _runtime as rt
 from gamma import compile
-from gamma.driver.run import runner
+from gamma.driver.running import runner
 from gamma.driver.caches import view_cache
 
 BUNNY = ROOT / "examples" / "scenes" / "stanford-bunny.obj"

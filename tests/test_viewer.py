@@ -326,9 +326,9 @@ def test_a_mesh_without_uvs_is_painted_in_its_atlas_across_chart_seams(tmp_path,
     brush paints in space, so one stroke lands on several charts of the
     image while on the mesh it stays one spot; the saved file keeps its
     atlas record and the picture follows it."""
-    from gamma.driver.run import mask_atlas
-    from gamma.driver.run.runner import runtime_module
-    from gamma.driver.run.scene import load_scene
+    from gamma.driver.running import mask_atlas
+    from gamma.driver.running.runner import runtime_module
+    from gamma.driver.running.scene import load_scene
     from gamma.frontend.checker import load
 
     effect = tmp_path / "effect.gamma"

@@ -1,5 +1,5 @@
 """gammac run imports what its outputs need while the runtime builds the
-simulation (gamma/driver/run/warmup.py): by the time the first iteration is
+simulation (gamma/driver/running/warmup.py): by the time the first iteration is
 traced, Pillow's drawing is imported (Pillow's image plugins only for a run
 that saves an appearance sequence), and the outputs are those of a run
 without the warm-up.  numpy.ma is imported by nothing: the scale's
@@ -16,8 +16,8 @@ from conftest import ROOT
 SCRIPT = textwrap.dedent("""
     import sys, tempfile, threading
     from gamma import compile
-    from gamma.driver.run import runner
-    from gamma.driver.run.events import CallbackWriter, IterationTraced
+    from gamma.driver.running import runner
+    from gamma.driver.running.events import CallbackWriter, IterationTraced
 
     warm = sys.argv[1] == "warm"
     seen = {}

@@ -39,7 +39,7 @@ def __getattr__(name: str):
         from .frontend.checker import UsageError
         return UsageError
     if name in ("RunError", "RunInterrupted"):
-        from .driver.run import runner
+        from .driver.running import runner
         return getattr(runner, name)
     raise AttributeError(f"module 'gamma' has no attribute '{name}'")
 

@@ -67,10 +67,10 @@ def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, u
 """
     import tempfile
 
-    from .driver.run.events import CallbackWriter, IterationUpdated, SetupDone
-    from .driver.run.runner import RunError, runtime_module
-    from .driver.run.runner import run as drive
-    from .driver.run.scene import SceneError, arrays_scene
+    from .driver.running.events import CallbackWriter, IterationUpdated, SetupDone
+    from .driver.running.runner import RunError, runtime_module
+    from .driver.running.runner import run as drive
+    from .driver.running.scene import SceneError, arrays_scene
     from .options import RunOptions
 
     if (scene is None) == (vertices is None):
@@ -108,7 +108,7 @@ run.__doc__ += keyword_help() + "\n"
 
 def _history_writer(keep: list):
     """A writer that keeps every iteration's property columns (per surfel) in ``keep``."""
-    from .driver.run.events import CallbackWriter, IterationUpdated
+    from .driver.running.events import CallbackWriter, IterationUpdated
 
     return CallbackWriter(lambda e: keep.append({k: v.copy() for k, v in e.properties.items()}),
                           events=(IterationUpdated,))
@@ -166,7 +166,7 @@ class Result:
     def vertex_properties(self) -> dict:
         """Each property at every vertex of the scene's mesh (the surfels'
         values smoothed as in the renders), float32 per vertex."""
-        from .driver.run.runner import property_columns
+        from .driver.running.runner import property_columns
 
         rows, _, owner = self._at_vertices()
         surfaces = np.asarray(self.session.scene.triangle_surface)[owner]
@@ -189,7 +189,7 @@ class Result:
         texture coordinates (or its chart atlas), and "uvs": the layout,
         float32 (triangles, 3, 2)."""
         from .driver.outputs.export import bake_texture_set, layout, pieces
-        from .driver.run.runner import property_columns
+        from .driver.running.runner import property_columns
 
         session = self.session
         out = {}

@@ -349,7 +349,7 @@ def _fmt(args) -> int:
 
 def _watch(args) -> int:
     """The effect's errors are shown in the page (and on stderr), not fatal."""
-    from .driver.run.runner import RunError, RunInterrupted
+    from .driver.running.runner import RunError, RunInterrupted
     from .frontend.checker import UsageError
     from .viewer.watch import watch
 
@@ -370,7 +370,7 @@ def _watch(args) -> int:
 
 def _saved(args) -> int:
     """``render`` and ``export`` of a saved run's maps."""
-    from .driver.run.runner import RunError
+    from .driver.running.runner import RunError
     from .driver.outputs.saved import export_saved, render_saved
     from .frontend.checker import UsageError
 
@@ -450,7 +450,7 @@ def main(argv=None) -> int:
         print(code, file=sys.stderr)
         return EXIT_INPUT
     if args.command == "run":
-        from .driver.run import prefetch
+        from .driver.running import prefetch
 
         # read, and its surfels sampled, while the effect is read and checked
         prefetch.start(args.scene, args.surfels, args.seed, args.threads)
@@ -474,7 +474,7 @@ def main(argv=None) -> int:
             return _sweep(args)
         effect = _load(args.file, getattr(args, "param", ()), cached=args.command == "run")
         if args.command == "run":
-            from .driver.run import prefetch
+            from .driver.running import prefetch
 
             prefetch.expect(len(effect.surfaces))   # a setup made ahead is for one surface
         if args.command == "check":
@@ -503,13 +503,13 @@ def main(argv=None) -> int:
                 text = assembly(module)
             sys.stdout.write(text)
             return EXIT_OK
-        from .driver.run.runner import RunError, RunInterrupted
+        from .driver.running.runner import RunError, RunInterrupted
 
         if not args.out.strip():
             print("gammac: error: --out must name a folder (it is empty)", file=sys.stderr)
             return EXIT_USAGE
 
-        from .driver.run.runner import run
+        from .driver.running.runner import run
 
         opts = from_args(args, started=_STARTED)
         streams = sys.stdout, sys.stderr

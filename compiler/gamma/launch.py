@@ -76,7 +76,7 @@ def main() -> None:
         options = read_options(sys.argv[1:])
         if options is not None:
             try:
-                from .driver.run import prefetch
+                from .driver.running import prefetch
 
                 prefetch.start(*options)
             except Exception:  # noqa: BLE001 - only a head start: cli.main starts (or reports) it again

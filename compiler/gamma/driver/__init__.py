@@ -1,7 +1,7 @@
 """Driver: runs an effect on a scene with the C++ runtime and writes the outputs.
 
 Four parts, each a package:
-- ``run``: setting a run up and its iteration loop (``run.runner``), the
+- ``running``: setting a run up and its iteration loop (``running.runner``), the
   scene, the camera, the output folder, resume, events, interruption;
 - ``outputs``: the writers on the run's events, the encoders, export
   (glTF, OBJ, USD, texture sets) and renders of saved runs;
@@ -15,9 +15,12 @@ The driver never looks inside rule bodies: it uses the checked effect's
 declarations and the kernels' addresses.
 """
 
-_FROM = {"run": "run.runner", "RunOptions": "run.runner", "RunError": "run.runner", "Writer": "run.events",
-         "CallbackWriter": "run.events", "SetupDone": "run.events", "IterationTraced": "run.events",
-         "IterationUpdated": "run.events", "RunFinished": "run.events"}
+# (the loop's package is ``running``, not ``run``: importing a subpackage
+# sets the package's attribute of its name, which would hide ``run``)
+_FROM = {"run": "running.runner", "RunOptions": "running.runner", "RunError": "running.runner",
+         "Writer": "running.events",
+         "CallbackWriter": "running.events", "SetupDone": "running.events", "IterationTraced": "running.events",
+         "IterationUpdated": "running.events", "RunFinished": "running.events"}
 
 
 def __getattr__(name: str):

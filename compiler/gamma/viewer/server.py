@@ -20,7 +20,7 @@ reads it through
   replaces the file (atomically, keeping its atlas record), and the watch loop
   re-runs as after an edit;
 - ``GET /api/mask-points?index=K``  for a mask laid out in the scene's atlas
-  (``atlas`` in its state, driver/run/mask_atlas.py): uint32 size, float32 scene
+  (``atlas`` in its state, driver/running/mask_atlas.py): uint32 size, float32 scene
   units per texel, float32 (size² x 3) the scene point under each texel (NaN
   where there is none), so the brush paints in space, across chart seams.
 """
@@ -214,7 +214,7 @@ class _Handler(BaseHTTPRequestHandler):
             ok = False
         if not ok:
             return self._send(b"not a PNG of the mask's size", "text/plain", HTTPStatus.BAD_REQUEST)
-        from ..driver.run.mask_atlas import keep_record
+        from ..driver.running.mask_atlas import keep_record
 
         try:
             body = keep_record(body, path)

@@ -24,8 +24,8 @@ import numpy as np
 from .. import abi
 from ..frontend.checker import UsageError
 from ..frontend.diagnostics import GammaError
-from ..driver.run.events import Writer
-from ..driver.run.runner import RunError, property_columns, run_camera, runtime_module
+from ..driver.running.events import Writer
+from ..driver.running.runner import RunError, property_columns, run_camera, runtime_module
 from ..options import RunOptions
 from .server import ViewerState, serve
 
@@ -150,7 +150,7 @@ class Watcher:
         # painted in the page too) runs the effect again
         self.files = [self.path] + [str(Path(f)) for f in effect.files if Path(f) != Path(self.path)] \
             + masks + [p for p in effect.textures if p not in masks]
-        from ..driver.run.mask_atlas import LayoutError, atlas_masks
+        from ..driver.running.mask_atlas import LayoutError, atlas_masks
 
         try:
             atlas = frozenset(atlas_masks(effect))
@@ -169,8 +169,8 @@ class Watcher:
     def _make_masks(self, effect, paths: list) -> None:
         """The masks the effect reads that are not there yet, black: in the
         scene's atlas if parts of the scene have no texture coordinates."""
-        from ..driver.run.mask_atlas import DEFAULT_SIZE, create
-        from ..driver.run.scene import SceneError, load_scene
+        from ..driver.running.mask_atlas import DEFAULT_SIZE, create
+        from ..driver.running.scene import SceneError, load_scene
 
         try:
             scene = load_scene(runtime_module(), self.opts.scene, effect, self.opts.assign, self.opts.down)
@@ -185,7 +185,7 @@ class Watcher:
 
     def _texel_points(self, path):
         """Scene points of an atlas mask's texels (for the page's brush), for the scene on show."""
-        from ..driver.run.mask_atlas import texel_points
+        from ..driver.running.mask_atlas import texel_points
         from PIL import Image
 
         scene = self.scene
@@ -218,11 +218,11 @@ class Watcher:
 
     def simulate(self, effect, fraction: float, started: float) -> None:
         """One run on the driver's loop (``driver.runner``), the viewer a writer on it."""
-        from ..driver.run.runner import run
-        from ..driver.run.scene import SceneError, load_scene
+        from ..driver.running.runner import run
+        from ..driver.running.scene import SceneError, load_scene
 
         opts = self.opts
-        from ..driver.run.mask_atlas import LayoutError, atlas_masks
+        from ..driver.running.mask_atlas import LayoutError, atlas_masks
 
         try:   # the atlas masks' records: they give parts without UVs their coordinates
             layouts = tuple(sorted((p, r["mesh"], r["size"]) for p, r in atlas_masks(effect).items()))

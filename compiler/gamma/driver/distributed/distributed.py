@@ -150,7 +150,7 @@ def worker_simulation(job: TraceJob, threads: int):
     if cached is not None:
         return cached[0]
     _WORKER.clear()
-    from ..run.common import runtime_module
+    from ..running.common import runtime_module
 
     rt = runtime_module()
     kernels = _WorkerKernels(job.ir, job.symbols)

@@ -171,7 +171,7 @@ def _run_cell(effect_path: str, params: list, opts) -> int:
     """The run of a cell; its exit status as ``gammac run``'s, its errors on stderr."""
     from ...backends import effect_cache
     from ...frontend.diagnostics import GammaError, UsageError, render
-    from ..run.runner import RunError, run
+    from ..running.runner import RunError, run
 
     try:
         with open(effect_path, encoding="utf-8") as f:

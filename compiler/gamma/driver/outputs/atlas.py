@@ -380,7 +380,7 @@ def dilate(image: np.ndarray, chart_of_texel: np.ndarray, passes: int = 8, threa
     mixed, so bilinear filtering and mip-maps at a chart's edge see only that
     chart's colours.  The runtime's loop (``dilate_charts``, gamma/uv_raster.h)
     on ``threads`` threads (0: all); ``image`` itself is left as it is."""
-    from ..run.common import runtime_module
+    from ..running.common import runtime_module
 
     out = np.array(image, np.float32)
     h, w = out.shape[:2]

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..run.budget import available_memory
+from ..running.budget import available_memory
 
 BLEED_PASSES = 8
 #: Texels come to the baker in tiles of BAKE_TILE x BAKE_TILE: nearby on the
@@ -200,7 +200,7 @@ def rasterise_uv(corner_uvs: np.ndarray, size: int, rows: tuple | None = None, t
     = (first, end): only the texels of those rows (the same ones the whole
     texture has there).  ``tile`` > 1: the texels come tile by tile (tile x
     tile texels), else in increasing order.  The runtime's loop (gamma/uv_raster.h)."""
-    from ..run.common import runtime_module
+    from ..running.common import runtime_module
 
     first, end = rows if rows is not None else (0, size)
     uvs = np.ascontiguousarray(np.asarray(corner_uvs, np.float64).reshape(-1, 3, 2))
@@ -360,7 +360,7 @@ def fill(values: np.ndarray, texels: np.ndarray, shape: tuple, charts: np.ndarra
     channels = values.shape[1] if values.ndim == 2 else 1
     values = values.reshape(len(texels), channels)
     if charts is not None:
-        from ..run.common import runtime_module
+        from ..running.common import runtime_module
 
         return runtime_module().fill_charts(values, texels, shape[0], shape[1], charts, BLEED_PASSES, threads)
     image = np.zeros((shape[0] * shape[1], channels), np.float32)
@@ -473,7 +473,7 @@ def encode_rgb8(images: list, threads: int) -> list[bytes]:
     runtime on ``threads`` threads without the GIL (as Pillow's default level
     writes them)."""
     from .outputs import PILLOW_DEFAULT_LEVEL
-    from ..run.common import runtime_module
+    from ..running.common import runtime_module
 
     pictures = [np.ascontiguousarray(im if im.dtype == np.uint8 else to_bytes(im)) for im in images]
     return list(runtime_module().encode_pngs(pictures, PILLOW_DEFAULT_LEVEL, threads))
@@ -731,7 +731,7 @@ class Exporter:
                         lay = layout(piece, corner, size)
                 problem = memory_problem(lay.size, run.effect.row_width, properties)
                 if problem:
-                    from ..run.common import RunError
+                    from ..running.common import RunError
 
                     raise RunError(f"cannot export '{piece.name}': {problem}")
                 self.layouts.append(lay)
@@ -762,7 +762,7 @@ class Exporter:
 
     def write(self, iteration: int) -> None:
         from ...files import atomic_write
-        from ..run.common import property_columns
+        from ..running.common import property_columns
 
         run = self.run
         effect, sim = run.effect, run.sim

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from ...options import RunOptions
-from ..run.common import RunError
-from ..run.reload import load_iteration
-from ..run.runner import start
+from ..running.common import RunError
+from ..running.reload import load_iteration
+from ..running.runner import start
 
 
 def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: float = 30.0,
@@ -96,7 +96,7 @@ def render_saved(folder, iteration: int | None, show: str | None, output: str | 
     from PIL import Image
 
     from ...files import atomic_write
-    from ..run.camera import sun_direction
+    from ..running.camera import sun_direction
     from .outputs import false_colour_png
 
     folder = Path(folder)
@@ -132,7 +132,7 @@ def render_saved(folder, iteration: int | None, show: str | None, output: str | 
 
 
 def _column(session, name: str) -> np.ndarray:
-    from ..run.common import property_columns
+    from ..running.common import property_columns
 
     rows = np.asarray(session.sim.rows())
     return property_columns(session.effect, rows, session.surfel_surface)[name]

@@ -30,8 +30,8 @@ import numpy as np
 from ... import abi
 from ...version import version
 from ...files import atomic_write
-from ..run.camera import sun_direction
-from ..run.events import IterationUpdated, RunFinished, Writer
+from ..running.camera import sun_direction
+from ..running.events import IterationUpdated, RunFinished, Writer
 from .outputs import mesh_ply_bytes, ply_parts, write_json
 
 
@@ -127,7 +127,7 @@ class FalseColourWriter(Writer):
         # An effect that never changes the shape has its final geometry now: the rays of every
         # picture are cast beside the loop (no GIL; on the cores its serial stretches leave),
         # not after it, where a user waits for the pictures.
-        from ..run.common import shape_changes
+        from ..running.common import shape_changes
 
         if not shape_changes(run.effect):
             self.casting = self._cast(run, keep=True)
@@ -374,7 +374,7 @@ class MeshWriter(Writer):
     @_timed_on_loop("meshes")
     def on_iteration_updated(self, event: IterationUpdated) -> None:
         from .export import vertex_normals
-        from ..run.common import property_columns
+        from ..running.common import property_columns
 
         run, it = event.run, event.iteration
         vertices, triangles = run.sim.mesh_arrays()
@@ -410,7 +410,7 @@ class ExportWriter(Writer):
 
     def on_setup_done(self, event) -> None:
         from .export import memory_problem
-        from ..run.common import RunError
+        from ..running.common import RunError
 
         run = event.run
         if self.bake_size and not self.texel_density:   # refused before the first iteration
@@ -428,7 +428,7 @@ class ExportWriter(Writer):
         exporter = Exporter(run, self.bake_size, self.texel_density, run.summary.get("ranges") or {}, self.preset,
                             self.float_maps)
         if self.which == "all":
-            from ..run.reload import load_iteration
+            from ..running.reload import load_iteration
 
             run.behind.drain()          # the maps of every iteration are on disk
             for it in range(1, last + 1):
