@@ -14,6 +14,7 @@
 
 #include "gamma/config.h"
 #include "gamma/error.h"
+#include "gamma/gmath.h"
 #include "gamma/mesh.h"
 #include "gamma/png_encode.h"
 #include "gamma/sampling.h"
@@ -167,6 +168,17 @@ NB_MODULE(_runtime, m) {
     m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
     m.attr("PARABOLA_EPSILON_FRACTION") = gammart::kParabolaEpsilonFraction;
     m.attr("MAX_FLIGHT_SEGMENTS") = gammart::kMaxFlightSegments;
+    // The project's own math (gmath.h), by C symbol: the addresses the JIT
+    // binds the kernels' calls to and the reference interpreter calls.
+    nb::dict math;
+    math["gamma_sinf"] = uintptr_t(&gamma_sinf);
+    math["gamma_cosf"] = uintptr_t(&gamma_cosf);
+    math["gamma_tanf"] = uintptr_t(&gamma_tanf);
+    math["gamma_atan2f"] = uintptr_t(&gamma_atan2f);
+    math["gamma_expf"] = uintptr_t(&gamma_expf);
+    math["gamma_logf"] = uintptr_t(&gamma_logf);
+    math["gamma_powf"] = uintptr_t(&gamma_powf);
+    m.attr("MATH_FUNCTIONS") = math;
 
     // gammart::Error (bad input or config) -> ValueError with its one-line
     // message.  Anything else is internal; std::runtime_error reaches Python

@@ -6,6 +6,7 @@
 #include <cstdint>
 
 #include "gamma/vec.h"
+#include "gamma/gmath.h"
 
 namespace gammart {
 
@@ -24,7 +25,7 @@ inline V3 uniform_sphere(float u, float v) {
     float z = 1.0f - 2.0f * u;
     float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
     float phi = kTwoPi * v;
-    return {r * std::cos(phi), r * std::sin(phi), z};
+    return {r * gm::cos(phi), r * gm::sin(phi), z};
 }
 
 // Direction at polar cos `z` and azimuth 2*pi*v about unit n.
@@ -33,7 +34,7 @@ inline V3 around(V3 n, float z, float v) {
     float phi = kTwoPi * v;
     V3 t, b;
     onb(n, t, b);
-    return normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * z);
+    return normalize(t * (r * gm::cos(phi)) + b * (r * gm::sin(phi)) + n * z);
 }
 
 // Cosine-weighted direction about unit n.
