@@ -323,9 +323,24 @@ D atan2_core(D y, D x) {
 float sin(float x) { return trig<Trig::Sin>(x); }
 float cos(float x) { return trig<Trig::Cos>(x); }
 float tan(float x) { return trig<Trig::Tan>(x); }
+// sin and cos from one reduction: the same operations as sin(x) and cos(x)
+// apart, so the same bits.
 void sincos(float x, float& s, float& c) {
-    s = sin(x);
-    c = cos(x);
+    const double xd = x;
+    double r;
+    int64_t q;
+    if (fabs(xd) < kSmall) {
+        double k;
+        r = reduce_small(xd, k);
+        q = to_int(k);
+    } else if (!(fabs(xd) < kInf)) {
+        s = c = float(kNaN);
+        return;
+    } else {
+        r = reduce_large(x, q);
+    }
+    s = narrow(keep_zero<Trig::Sin>(xd, trig_from<Trig::Sin>(r, q)));
+    c = narrow(trig_from<Trig::Cos>(r, q));
 }
 float atan2(float y, float x) { return narrow(atan2_core(widen(y), widen(x))); }
 float exp(float x) { return narrow(exp_any(widen(x))); }

@@ -152,6 +152,15 @@ TEST(Gmath, Cos) {
                 [](long double x) { return cosl(x); });
 }
 
+TEST(Gmath, SincosIsSinAndCos) {
+    for (float x : arguments()) {
+        float s, c;
+        gm::sincos(x, s, c);
+        expect_same_bits(s, gm::sin(x), "sincos.sin", x);
+        expect_same_bits(c, gm::cos(x), "sincos.cos", x);
+    }
+}
+
 TEST(Gmath, Tan) {
     check_unary("tan", arguments(), [](float x) { return gm::tan(x); }, [](gm::f8 x) { return gm::tan(x); },
                 [](long double x) { return tanl(x); });
