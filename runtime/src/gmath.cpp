@@ -138,7 +138,9 @@ template <class D>
 D pow_core(D x, D y) {
     const D ax = fabs(x), ay = fabs(y);
     const D e = exp_any(y * log_any(ax));
-    const auto huge = ay >= 16777216.0;  // every float this large is an even integer (or inf)
+    // every float this large is an even integer (or inf); NaN too, so that no
+    // NaN is converted to an integer (its result is NaN through e anyway)
+    const auto huge = invert(ay < 16777216.0);
     const D yr = rint(sel(huge, D{} + 0.0, y));
     const auto integral = either(huge, yr == y);
     const auto is_odd = both(invert(huge), both(yr == y, odd(to_int(yr))));
