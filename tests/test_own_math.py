@@ -59,3 +59,32 @@ def test_interpreter_calls_the_same_functions_as_the_runtime():
     assert powf(float("nan"), 0.0) == 1.0 and powf(1.0, float("nan")) == 1.0
     # correctly rounded where glibc's and numpy's agree on the exact answer
     assert expf(1.0) == pytest.approx(math.e, rel=6e-8)
+
+
+def test_a_cached_shared_object_of_kernels_finds_the_own_math(tmp_path):
+    """The effect cache links kernels into a shared object with the own math
+    undefined; loaded, it resolves to the extension and computes what the JIT does."""
+    import ctypes
+
+    from gamma.backends.effect_cache import SharedKernels
+    from gamma.backends.jit import position_independent_object
+    from test_kernels import TRANSPORT, GammaContext
+
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        pytest.skip("no C compiler")
+    effect = check(parse(HEADER + "on hit(t: T, s: S) { s.p += exp(t.a) + log(s.q) + pow(t.b, 0.5) }", "c.gamma"))
+    jit = JitKernels(effect, cache=None)
+    (tmp_path / "k.o").write_bytes(position_independent_object(jit.ir_text))
+    subprocess.run([compiler, "-shared", "-o", str(tmp_path / "k.so"), str(tmp_path / "k.o")], check=True)
+    assert {"gamma_expf", "gamma_logf", "gamma_powf"} <= undefined_symbols(str(tmp_path / "k.so"))
+    symbol = effect.kernels[0].symbol
+    shared = SharedKernels(tmp_path / "k.so", [symbol], jit.ir_text, ())
+    results = []
+    for address in (jit.address[symbol], shared.address[symbol]):
+        ton = (ctypes.c_float * 8)(0.7, 3.0)
+        surf = (ctypes.c_float * 8)(0.25, 0.0, 0.0, 5.0, 2.5)  # p at slot 3, q at slot 4
+        delta = (ctypes.c_float * 8)()
+        TRANSPORT(address)(ton, surf, delta, ctypes.byref(GammaContext()))
+        results.append(list(delta))
+    assert results[0] == results[1] and results[0] != [0.0] * 8
