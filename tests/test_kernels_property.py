@@ -2,7 +2,7 @@
 bodies with let, if/else, comparisons, boolean operators and every built-in,
 compiled with llvmlite and run through ctypes, against the reference
 interpreter.  Agreement is bit for bit (float32 in source order, no
-fast-math, the same libm for exp/log/pow); only a NaN's payload may differ.
+fast-math, the runtime's own exp/log/pow on both sides); only a NaN's payload may differ.
 Inputs include the IEEE special values (+-0, +-inf, NaN, subnormals)."""
 
 import ctypes

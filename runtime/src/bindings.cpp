@@ -1,6 +1,7 @@
 // nanobind module gamma._runtime: its constants, error translation and free
 // functions; the classes are bound part by part in bind_*.cpp.
 #include "bind_common.h"
+#include "gamma/gmath.h"
 
 using namespace gamma_bind;
 
@@ -12,6 +13,17 @@ NB_MODULE(_runtime, m) {
     m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
     m.attr("PARABOLA_EPSILON_FRACTION") = gammart::kParabolaEpsilonFraction;
     m.attr("MAX_FLIGHT_SEGMENTS") = gammart::kMaxFlightSegments;
+    // The project's own math (gmath.h), by C symbol: the addresses the JIT
+    // binds the kernels' calls to and the reference interpreter calls.
+    nb::dict math;
+    math["gamma_sinf"] = uintptr_t(&gamma_sinf);
+    math["gamma_cosf"] = uintptr_t(&gamma_cosf);
+    math["gamma_tanf"] = uintptr_t(&gamma_tanf);
+    math["gamma_atan2f"] = uintptr_t(&gamma_atan2f);
+    math["gamma_expf"] = uintptr_t(&gamma_expf);
+    math["gamma_logf"] = uintptr_t(&gamma_logf);
+    math["gamma_powf"] = uintptr_t(&gamma_powf);
+    m.attr("MATH_FUNCTIONS") = math;
 
     // gammart::Error (bad input or config) -> ValueError with its one-line
     // message.  Anything else is internal; std::runtime_error reaches Python

@@ -48,7 +48,7 @@ double angle_deg(const float* a, const float* b, const float* c) {  // angle at 
     }
     const double uv = u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
     const double cx = u[1] * v[2] - u[2] * v[1], cy = u[2] * v[0] - u[0] * v[2], cz = u[0] * v[1] - u[1] * v[0];
-    return std::atan2(std::sqrt(cx * cx + cy * cy + cz * cz), uv) * 180.0 / M_PI;
+    return double(gm::atan2(float(std::sqrt(cx * cx + cy * cy + cz * cz)), float(uv))) * 180.0 / M_PI;
 }
 
 // CGAL's isotropic remeshing of `faces` towards `target_edge_length`, as
@@ -249,7 +249,7 @@ void remove_slivers(SurfaceMesh& sm, std::vector<FaceIndex>& faces, const FacePa
     // needle (longest / shortest edge above kNeedleRatio, about
     // 1 / sin 15°) collapsed first, edges kept by `constrained` untouched.
     constexpr double kCapDeg = 120.0, kNeedleRatio = 4.0;
-    PMP::experimental::remove_almost_degenerate_faces(faces, sm, std::cos(kCapDeg * M_PI / 180.0), kNeedleRatio,
+    PMP::experimental::remove_almost_degenerate_faces(faces, sm, cos_of_deg(kCapDeg), kNeedleRatio,
                                                       target_edge_length,
                                                       CGAL::parameters::edge_is_constrained_map(constrained));
     sm.collect_garbage();
@@ -304,7 +304,7 @@ void remove_slivers(SurfaceMesh& sm, std::vector<FaceIndex>& faces, const FacePa
             left = sliver_faces(sm, is_sliver);
         }
         PMP::experimental::remove_almost_degenerate_faces(
-            left, sm, std::cos(kCapDeg * M_PI / 180.0), kAllSliversNeedleRatio, target_edge_length,
+            left, sm, cos_of_deg(kCapDeg), kAllSliversNeedleRatio, target_edge_length,
             CGAL::parameters::edge_is_constrained_map(constrained).vertex_is_constrained_map(vertex_frozen));
         sm.collect_garbage();
         // A sliver that is both a needle and a cap is only ever treated
@@ -313,7 +313,7 @@ void remove_slivers(SurfaceMesh& sm, std::vector<FaceIndex>& faces, const FacePa
         left = sliver_faces(sm, is_sliver);
         if (!left.empty()) {
             PMP::experimental::remove_almost_degenerate_faces(
-                left, sm, std::cos(kCapDeg * M_PI / 180.0), 1e6,
+                left, sm, cos_of_deg(kCapDeg), 1e6,
                 target_edge_length,
                 CGAL::parameters::edge_is_constrained_map(constrained).vertex_is_constrained_map(vertex_frozen));
             sm.collect_garbage();

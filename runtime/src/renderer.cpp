@@ -14,6 +14,7 @@
 #include <string>
 
 #include "gamma/error.h"
+#include "gamma/gmath.h"
 #include "gamma/philox.h"
 #include "gamma/sampling.h"
 #include "gamma/threads.h"
@@ -39,7 +40,7 @@ struct Camera {
             right = t;
         }
         camup = cross(right, fwd);
-        th = std::tan(0.5f * fov_deg * 3.14159265358979f / 180.0f);
+        th = gm::tan(0.5f * fov_deg * 3.14159265358979f / 180.0f);
         w = float(width);
         h = float(std::max(height, 1));
         aspect = float(width) / h;
@@ -160,14 +161,14 @@ Radiance shade_look(const float look[GAMMA_LOOK_WIDTH], V3 n, V3 to_eye, V3 up, 
     const float nv = std::max(dot(n, to_eye), 1e-4f);
     float base[3], f0[3];
     for (int c = 0; c < 3; ++c) {
-        base[c] = std::pow(look[GAMMA_LOOK_COLOR + c], kDisplayGamma);
+        base[c] = gm::pow(look[GAMMA_LOOK_COLOR + c], kDisplayGamma);
         f0[c] = 0.04f + metallic * (base[c] - 0.04f);
     }
     // Karis' fit of the split-sum environment BRDF (scale a, bias b of F0).
     const float c0[4] = {-1.0f, -0.0275f, -0.572f, 0.022f}, c1[4] = {1.0f, 0.0425f, 1.04f, -0.04f};
     float q[4];
     for (int k = 0; k < 4; ++k) q[k] = r * c0[k] + c1[k];
-    const float a004 = std::min(q[0] * q[0], std::exp2(-9.28f * nv)) * q[0] + q[1];
+    const float a004 = std::min(q[0] * q[0], gm::pow(2.0f, -9.28f * nv)) * q[0] + q[1];
     const float env_a = a004 * -1.04f + q[2], env_b = a004 * 1.04f + q[3];
     // The sky seen in the mirror direction: brighter above than below, less
     // so the rougher the surface (the reflection averages the whole sky).
@@ -194,7 +195,7 @@ Radiance shade_look(const float look[GAMMA_LOOK_WIDTH], V3 n, V3 to_eye, V3 up, 
         }
     }
     const float vh = dot(to_eye, h);
-    const float fresnel = std::pow(1.0f - std::min(std::max(vh, 0.0f), 1.0f), 5.0f);
+    const float fresnel = gm::pow(1.0f - std::min(std::max(vh, 0.0f), 1.0f), 5.0f);
     Radiance out;
     for (int c = 0; c < 3; ++c) {
         const float diffuse = base[c] * (1.0f - metallic) * (ambient + kSunIntensity * nl * sun_visible);
@@ -606,7 +607,7 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
                                 sun_visible = 1.0f;
                         }
                         const Radiance L = shade_look(look, shade_n, dir * -1.0f, up, sun, sun_visible, sky);
-                        for (int c = 0; c < 3; ++c) acc[c] += std::pow(clamp01(L.c[c]), inv_gamma);
+                        for (int c = 0; c < 3; ++c) acc[c] += gm::pow(clamp01(L.c[c]), inv_gamma);
                     }
                     float* o = out + 4 * size_t(pix);
                     for (int c = 0; c < 3; ++c) o[c] = float(acc[c] / double(S));

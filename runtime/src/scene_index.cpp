@@ -12,6 +12,7 @@
 
 #include "gamma/error.h"
 #include "gamma/float_points.h"
+#include "gamma/gmath.h"
 #include "gamma/lookup_pruning.h"
 #include "gamma/point_columns.h"
 #include "gamma/threads.h"
@@ -861,7 +862,7 @@ namespace {
 size_t smoothing_weights_of(const float* d2, size_t got, double inv2s2, double* w) {
     double sw = 0;
     for (size_t j = 0; j < got; ++j) {
-        w[j] = std::exp(-double(d2[j]) * inv2s2);
+        w[j] = double(gm::exp(float(-double(d2[j]) * inv2s2)));
         sw += w[j];
     }
     if (sw > 0) {

@@ -6,6 +6,8 @@
 // the sums run in, so the result is that of a serial loop.
 #include "gamma/shading.h"
 
+#include "gamma/gmath.h"
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_sort.h>
@@ -101,7 +103,7 @@ std::vector<float> corner_normals(const Mesh& mesh, const std::vector<uint8_t>& 
         std::vector<uint32_t> cursor(group_start.begin(), group_start.end() - 1);
         for (size_t i = 0; i < 3 * m; ++i) by_position[cursor[position_of[size_t(T[i])]]++] = uint32_t(i);
     }
-    const float cos_crease = std::cos(crease_deg * 3.14159265358979f / 180.0f);
+    const float cos_crease = gm::cos(crease_deg * 3.14159265358979f / 180.0f);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, positions, kGrain / 8), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t g = r.begin(); g < r.end(); ++g) {
             const size_t a = group_start[g], b = group_start[g + 1];

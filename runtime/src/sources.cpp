@@ -1,8 +1,6 @@
 // Sources: validation, precomputation and emission (see gamma/sources.h).
 #include "gamma/sources.h"
 
-#include <immintrin.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -14,7 +12,7 @@
 
 #include "gamma/error.h"
 #include "gamma/kernel_table.h"
-#include "gamma/libm_sincos8.h"
+#include "gamma/gmath.h"
 #include "gamma/sampling.h"
 #include "gamma/threads.h"
 #include "gamma/update_pass.h"
@@ -104,7 +102,7 @@ void precompute_kind(SourceRt& r, const Source& s, const Config& c, const SceneF
                 fail(at + "angle_deg must be in (0, 180] (got " + buf + ")");
             }
             if (s.falloff < 0) fail(at + "falloff must be non-negative");
-            r.cos_a = s.angle_deg >= 180 ? -1.0f : float(std::cos(double(s.angle_deg) * M_PI / 180.0));
+            r.cos_a = s.angle_deg >= 180 ? -1.0f : gm::cos(float(double(s.angle_deg) * M_PI / 180.0));
             r.falloff = s.falloff;
             return;
         case SourceKind::Rect:
@@ -200,7 +198,7 @@ V3 point_near_surfel(const SourceRt& s, size_t i, V3 p, PhiloxStream& rng) {
     const V3 x = normalize(e1), y = cross(n, x);
     for (int k = 0; k < 8; ++k) {
         const float r = R * std::sqrt(rng.next()), phi = 2.0f * float(M_PI) * rng.next();
-        const V3 q = p + x * (r * std::cos(phi)) + y * (r * std::sin(phi));
+        const V3 q = p + x * (r * gm::cos(phi)) + y * (r * gm::sin(phi));
         // inside the triangle: barycentric coordinates in [0, 1]
         const V3 d = q - a;
         const float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
@@ -253,7 +251,7 @@ void emit(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir) {
                 const float inv = 1.0f / (s.falloff + 1.0f);
                 for (int k = 0; k < kSpotMaxRedraws; ++k) {
                     float a = rng.next(), b = rng.next();
-                    const float z = std::pow(1.0f - a, inv);  // in (0, 1]
+                    const float z = gm::pow(1.0f - a, inv);  // in (0, 1]
                     if (z >= s.cos_a) { dir = around(s.dir, z, b); return; }
                 }
             }
@@ -270,7 +268,7 @@ void emit(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir) {
         case SourceKind::Disk: {
             float a = rng.next(), b = rng.next();
             const float r = s.radius * std::sqrt(a), phi = kTwoPi * b;
-            org = s.pos + s.u * (r * std::cos(phi)) + s.v * (r * std::sin(phi));
+            org = s.pos + s.u * (r * gm::cos(phi)) + s.v * (r * gm::sin(phi));
             dir = emit_dir(s, rng);
             return;
         }
@@ -287,148 +285,8 @@ void emit(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir) {
     }
 }
 
-namespace {
-
-// Eight lanes of 32-bit products a * b: their high and low halves.
-__attribute__((target("avx2"))) inline void mul_hi_lo8(__m256i a, __m256i b, __m256i& hi, __m256i& lo) {
-    const __m256i even = _mm256_mul_epu32(a, b);  // lanes 0, 2, 4, 6 as 64-bit products
-    const __m256i odd = _mm256_mul_epu32(_mm256_srli_epi64(a, 32), _mm256_srli_epi64(b, 32));
-    lo = _mm256_blend_epi32(even, _mm256_slli_epi64(odd, 32), 0xAA);
-    hi = _mm256_blend_epi32(_mm256_srli_epi64(even, 32), odd, 0xAA);
-}
-
-// u01 of eight outputs: exact (24-bit integers, a power-of-two scale).
-__attribute__((target("avx2"))) inline __m256 u01_8(__m256i x) {
-    return _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_srli_epi32(x, 8)), _mm256_set1_ps(1.0f / 16777216.0f));
-}
-
-// max(0, x) as std::max(0.0f, x) gives it (+0 for x = -0 or +0).
-__attribute__((target("avx2"))) inline __m256 max0(__m256 x) { return _mm256_max_ps(x, _mm256_setzero_ps()); }
-
-// emit_environment for gamma-tons first .. first + n - 1 (n <= 8): the same
-// IEEE operations in the same order, per lane (the operators on __m256 are
-// GCC's element-wise float operations; the build compiles this file with
-// -ffp-contract=off, so neither this code nor emit fuses a multiply-add even
-// where the target has FMA); sines and cosines as the scalar calls
-// emit_environment makes give them (sincosf8 where it reproduces them).
-__attribute__((target("avx2"))) void emit_environment8(const SourceRt& s, bool upper, uint64_t seed,
-                                                       uint32_t iteration, int64_t first, size_t n,
-                                                       PhiloxStream* rng, V3* org, V3* dir) {
-    // The first block of each stream: counter (iteration, index lo, index hi, 0).
-    alignas(32) uint32_t lo_idx[8], hi_idx[8];
-    for (int j = 0; j < 8; ++j) {
-        const uint64_t g = uint64_t(first) + uint64_t(j);
-        lo_idx[j] = uint32_t(g);
-        hi_idx[j] = uint32_t(g >> 32);
-    }
-    __m256i c0 = _mm256_set1_epi32(int(iteration));
-    __m256i c1 = _mm256_load_si256(reinterpret_cast<const __m256i*>(lo_idx));
-    __m256i c2 = _mm256_load_si256(reinterpret_cast<const __m256i*>(hi_idx));
-    __m256i c3 = _mm256_setzero_si256();
-    uint32_t k0 = uint32_t(seed), k1 = uint32_t(seed >> 32);
-    const __m256i m0 = _mm256_set1_epi32(int(0xD2511F53u)), m1 = _mm256_set1_epi32(int(0xCD9E8D57u));
-    for (int round = 0; round < 10; ++round) {
-        if (round > 0) {
-            k0 += 0x9E3779B9u;
-            k1 += 0xBB67AE85u;
-        }
-        __m256i hi0, lo0, hi1, lo1;
-        mul_hi_lo8(m0, c0, hi0, lo0);
-        mul_hi_lo8(m1, c2, hi1, lo1);
-        const __m256i n0 = _mm256_xor_si256(_mm256_xor_si256(hi1, c1), _mm256_set1_epi32(int(k0)));
-        const __m256i n2 = _mm256_xor_si256(_mm256_xor_si256(hi0, c3), _mm256_set1_epi32(int(k1)));
-        c0 = n0;
-        c1 = lo1;
-        c2 = n2;
-        c3 = lo0;
-    }
-    const __m256 one = _mm256_set1_ps(1.0f), two = _mm256_set1_ps(2.0f), two_pi = _mm256_set1_ps(kTwoPi);
-    // uniform_sphere(u, v)
-    const __m256 u = u01_8(c0), v = u01_8(c1), a = u01_8(c2), b = u01_8(c3);
-    const __m256 z = one - two * u;
-    const __m256 r = _mm256_sqrt_ps(max0(one - z * z));
-    const __m256 phi = two_pi * v;
-    // cosine_hemisphere(-o, a, b) = around(-o, sqrt(max(0, 1 - a)), b)
-    const __m256 zc = _mm256_sqrt_ps(max0(one - a));
-    const __m256 rc = _mm256_sqrt_ps(max0(one - zc * zc));
-    const __m256 phic = two_pi * b;
-    alignas(32) float phi_s[8], phic_s[8], cos1[8], sin1[8], cos2[8], sin2[8];
-    _mm256_store_ps(phi_s, phi);
-    _mm256_store_ps(phic_s, phic);
-    if (sincosf8_matches_libm()) {  // the libm's bits, eight lanes at once
-        sincosf8(phi_s, sin1, cos1);
-        sincosf8(phic_s, sin2, cos2);
-    } else {
-        for (size_t j = 0; j < n; ++j) {
-            cos1[j] = std::cos(phi_s[j]);
-            sin1[j] = std::sin(phi_s[j]);
-            cos2[j] = std::cos(phic_s[j]);
-            sin2[j] = std::sin(phic_s[j]);
-        }
-        for (size_t j = n; j < 8; ++j) cos1[j] = sin1[j] = cos2[j] = sin2[j] = 0.0f;
-    }
-    __m256 ox = r * _mm256_load_ps(cos1), oy = r * _mm256_load_ps(sin1), oz = z;
-    if (upper) {
-        const __m256 upx = _mm256_set1_ps(s.env_up.x), upy = _mm256_set1_ps(s.env_up.y),
-                     upz = _mm256_set1_ps(s.env_up.z);
-        const __m256 ou = (ox * upx + oy * upy) + oz * upz;
-        const __m256 below = _mm256_cmp_ps(ou, _mm256_setzero_ps(), _CMP_LT_OQ);
-        const __m256 t = two * ou;
-        ox = _mm256_blendv_ps(ox, ox - upx * t, below);
-        oy = _mm256_blendv_ps(oy, oy - upy * t, below);
-        oz = _mm256_blendv_ps(oz, oz - upz * t, below);
-    }
-    const __m256 radius = _mm256_set1_ps(s.env_radius);
-    const __m256 orgx = _mm256_set1_ps(s.env_centre.x) + ox * radius;
-    const __m256 orgy = _mm256_set1_ps(s.env_centre.y) + oy * radius;
-    const __m256 orgz = _mm256_set1_ps(s.env_centre.z) + oz * radius;
-    // n = o * -1; onb(n, t, b) (Duff et al.)
-    const __m256 minus_one = _mm256_set1_ps(-1.0f);
-    const __m256 nx = ox * minus_one, ny = oy * minus_one, nz = oz * minus_one;
-    const __m256 sign_bit = _mm256_set1_ps(-0.0f);
-    const __m256 sign = _mm256_or_ps(_mm256_and_ps(nz, sign_bit), one);  // copysign(1, nz)
-    const __m256 aa = minus_one / (sign + nz);
-    const __m256 bb = nx * ny * aa;
-    const __m256 tx = one + sign * nx * nx * aa, ty = sign * bb, tz = _mm256_xor_ps(sign, sign_bit) * nx;
-    const __m256 bx = bb, by = sign + ny * ny * aa, bz = _mm256_xor_ps(ny, sign_bit);
-    const __m256 kc = rc * _mm256_load_ps(cos2), ks = rc * _mm256_load_ps(sin2);
-    const __m256 dx = (tx * kc + bx * ks) + nx * zc;
-    const __m256 dy = (ty * kc + by * ks) + ny * zc;
-    const __m256 dz = (tz * kc + bz * ks) + nz * zc;
-    // normalize: v * (1 / sqrt(dot(v, v))) where dot(v, v) > 0
-    const __m256 len2 = (dx * dx + dy * dy) + dz * dz;
-    const __m256 inv = one / _mm256_sqrt_ps(len2);
-    const __m256 positive = _mm256_cmp_ps(len2, _mm256_setzero_ps(), _CMP_GT_OQ);
-    alignas(32) float out[6][8];
-    _mm256_store_ps(out[0], orgx);
-    _mm256_store_ps(out[1], orgy);
-    _mm256_store_ps(out[2], orgz);
-    _mm256_store_ps(out[3], _mm256_blendv_ps(dx, dx * inv, positive));
-    _mm256_store_ps(out[4], _mm256_blendv_ps(dy, dy * inv, positive));
-    _mm256_store_ps(out[5], _mm256_blendv_ps(dz, dz * inv, positive));
-    for (size_t j = 0; j < n; ++j) {
-        rng[j] = PhiloxStream(seed, iteration, uint64_t(first) + j);
-        rng[j].skip_first_block();
-        org[j] = V3{out[0][j], out[1][j], out[2][j]};
-        dir[j] = V3{out[3][j], out[4][j], out[5][j]};
-    }
-}
-
-bool has_avx2() {
-    static const bool yes = __builtin_cpu_supports("avx2");
-    return yes;
-}
-
-}  // namespace
-
 void emit_run(const SourceRt& s, uint64_t seed, uint32_t iteration, int64_t first, size_t n, PhiloxStream* rng,
               V3* org, V3* dir) {
-    if ((s.kind == SourceKind::Sphere || s.kind == SourceKind::Hemisphere) && has_avx2()) {
-        for (size_t i = 0; i < n; i += 8)
-            emit_environment8(s, s.kind == SourceKind::Hemisphere, seed, iteration, first + int64_t(i),
-                              std::min<size_t>(8, n - i), rng + i, org + i, dir + i);
-        return;
-    }
     for (size_t i = 0; i < n; ++i) {
         rng[i] = PhiloxStream(seed, iteration, uint64_t(first) + i);
         emit(s, rng[i], org[i], dir[i]);

@@ -16,6 +16,7 @@
 
 #include "gamma/error.h"
 #include "gamma/float_points.h"
+#include "gamma/gmath.h"
 #include "gamma/point_columns.h"
 
 namespace gammart {
@@ -69,7 +70,7 @@ void fresh_neighbourhood(const Search& search, size_t s, const float* position, 
     // by target (each target once: its distance never decides)
     std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
     w.resize(out.size());
-    for (size_t i = 0; i < out.size(); ++i) sum += (w[i] = std::exp(-double(out[i].second) * inv2s2));
+    for (size_t i = 0; i < out.size(); ++i) sum += (w[i] = double(gm::exp(float(-double(out[i].second) * inv2s2))));
     for (size_t i = 0; i < out.size(); ++i) out[i].second = float(w[i] / sum);
 }
 
@@ -350,7 +351,7 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
                     const size_t g0 = gn;
                     for (size_t a = 0; a < nh; ++a) {
                         const HoodEntry& h = sorted[a];
-                        const double g = std::exp(-double(h.d2) * inv2s2);
+                        const double g = double(gm::exp(float(-double(h.d2) * inv2s2)));
                         s += (h.in & 1u) ? g : 0.0;  // (adding 0 to a sum of positive terms: the same sum)
                         G.source[gn] = h.id;
                         G.gauss[gn] = g;
@@ -465,7 +466,7 @@ SplatKernel update_splat_kernel(const SplatKernel& old, const float* position, c
             w.resize(e - b);
             double sum = 0;
             for (uint32_t i = b; i < e; ++i)
-                sum += (w[i - b] = std::exp(-double(kernel_distance2(position, s, kept_target[i])) * inv2s2));
+                sum += (w[i - b] = double(gm::exp(float(-double(kernel_distance2(position, s, kept_target[i])) * inv2s2))));
             for (uint32_t i = b; i < e; ++i) kept_weight[i] = float(w[i - b] / sum);
         }
     });
@@ -509,7 +510,7 @@ void reweight_splat_kernel(SplatKernel& k, const float* position, size_t n, floa
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
         for (size_t j = range.begin(); j < range.end(); ++j)
             for (uint32_t e = k.offset[j]; e < k.offset[j + 1]; ++e)
-                w[e] = std::exp(-double(kernel_distance2(position, k.source[e], j)) * inv2s2);
+                w[e] = double(gm::exp(float(-double(kernel_distance2(position, k.source[e], j)) * inv2s2)));
     });
     // Each source's sum over its targets in ascending target order, as at build.
     std::vector<double> sum(n, 0.0);

@@ -105,41 +105,6 @@ inline uint64_t cell_key(uint64_t x, uint64_t y, uint64_t z) {
     return (tile << 3) | ((x & 1) | ((y & 1) << 1) | ((z & 1) << 2));
 }
 
-// philox4x32_10 of four counters at once with SSE2 (the same words: each
-// 32x32-bit product is taken as the 64 bits pmuludq gives), rounds
-// unrolled.  c[w] holds word w of the four counters; the result replaces
-// them.  The scalar function, a loop the compiler keeps, cost ~250
-// instructions a call: half a million calls for the candidates and as many
-// for the disk passes' order.
-inline void philox4x32_10_x4(__m128i c[4], std::array<uint32_t, 2> key) {
-    const __m128i m0 = _mm_set1_epi32(int32_t(0xD2511F53u)), m1 = _mm_set1_epi32(int32_t(0xCD9E8D57u));
-    const __m128i low32 = _mm_set1_epi64x(0xFFFFFFFFll);
-    // The 32-bit halves of a * m per lane, as (low, high) vectors.
-    auto mul_halves = [&](__m128i a, __m128i m, __m128i& lo, __m128i& hi) {
-        const __m128i even = _mm_mul_epu32(a, m);                     // lanes 0, 2 as 64 bits
-        const __m128i odd = _mm_mul_epu32(_mm_srli_epi64(a, 32), m);  // lanes 1, 3
-        lo = _mm_or_si128(_mm_and_si128(even, low32), _mm_slli_epi64(odd, 32));
-        hi = _mm_or_si128(_mm_srli_epi64(even, 32), _mm_andnot_si128(low32, odd));
-    };
-    uint32_t k0 = key[0], k1 = key[1];
-#pragma GCC unroll 10
-    for (int round = 0; round < 10; ++round) {
-        if (round > 0) {
-            k0 += 0x9E3779B9u;
-            k1 += 0xBB67AE85u;
-        }
-        __m128i lo0, hi0, lo1, hi1;
-        mul_halves(c[0], m0, lo0, hi0);
-        mul_halves(c[2], m1, lo1, hi1);
-        const __m128i next0 = _mm_xor_si128(_mm_xor_si128(hi1, c[1]), _mm_set1_epi32(int32_t(k0)));
-        const __m128i next2 = _mm_xor_si128(_mm_xor_si128(hi0, c[3]), _mm_set1_epi32(int32_t(k1)));
-        c[0] = next0;
-        c[1] = lo1;
-        c[2] = next2;
-        c[3] = lo0;
-    }
-}
-
 // A heap array of n trivially copyable values left uninitialised: the
 // parallel loop that fills it is the first to touch its pages (a
 // std::vector would zero them all in one thread first, and the first touch
@@ -1099,16 +1064,7 @@ std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double
     Uninitialised<uint64_t> order_key(m);
     const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
-        size_t a = r.begin();
-        for (; a + 4 <= r.end(); a += 4) {
-            const __m128i i4 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(&grid.original[a]));
-            __m128i c[4] = {_mm_set1_epi32(int32_t(kSamplingIteration)), i4, _mm_set1_epi32(1), _mm_setzero_si128()};
-            philox4x32_10_x4(c, key);
-            // (hash << 32) | index, four at a time
-            _mm_storeu_si128(reinterpret_cast<__m128i*>(&order_key[a]), _mm_unpacklo_epi32(i4, c[0]));
-            _mm_storeu_si128(reinterpret_cast<__m128i*>(&order_key[a + 2]), _mm_unpackhi_epi32(i4, c[0]));
-        }
-        for (; a < r.end(); ++a) {
+        for (size_t a = r.begin(); a < r.end(); ++a) {
             const uint32_t i = grid.original[a];
             order_key[a] = (uint64_t(philox4x32_10({kSamplingIteration, i, 1, 0}, key)[0]) << 32) | i;
         }
@@ -1510,20 +1466,8 @@ double fill_candidates(const Mesh& mesh, size_t n, uint64_t seed, float* cand, i
         uint32_t bucket[kCandidateRun];
         for (size_t run = range.begin(); run < range.end(); run += kCandidateRun) {
             const size_t run_end = std::min(range.end(), run + kCandidateRun);
-            // The draws, four candidates at a time (a few past run_end unused).
-            alignas(16) uint32_t draws[4][kCandidateRun];
-            for (size_t i = run; i < run_end; i += 4) {
-                __m128i c[4] = {_mm_set1_epi32(int32_t(kSamplingIteration)),
-                                _mm_setr_epi32(int32_t(uint32_t(i)), int32_t(uint32_t(i + 1)), int32_t(uint32_t(i + 2)),
-                                               int32_t(uint32_t(i + 3))),
-                                _mm_setr_epi32(int32_t(uint64_t(i) >> 32), int32_t(uint64_t(i + 1) >> 32),
-                                               int32_t(uint64_t(i + 2) >> 32), int32_t(uint64_t(i + 3) >> 32)),
-                                _mm_setzero_si128()};
-                philox4x32_10_x4(c, key);
-                for (int w = 0; w < 4; ++w) _mm_store_si128(reinterpret_cast<__m128i*>(&draws[w][i - run]), c[w]);
-            }
             for (size_t i = run; i < run_end; ++i) {
-                const uint32_t r[4] = {draws[0][i - run], draws[1][i - run], draws[2][i - run], draws[3][i - run]};
+                const Philox4 r = philox4x32_10({kSamplingIteration, uint32_t(i), uint32_t(uint64_t(i) >> 32), 0}, key);
                 // 53-bit uniform for the triangle choice (24 bits are too coarse for
                 // very large meshes), 24-bit floats for the barycentrics.
                 double u = (double(r[0] >> 5) * 67108864.0 + double(r[1] >> 6)) * (1.0 / 9007199254740992.0);

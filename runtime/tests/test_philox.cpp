@@ -62,3 +62,4 @@ TEST(Philox, UniformMean) {
     EXPECT_GE(lo, 0.0f);
     EXPECT_LT(hi, 1.0f);
 }
+

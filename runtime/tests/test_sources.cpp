@@ -91,8 +91,7 @@ TEST(Sources, HemisphereOriginsAreInTheUpperHalf) {
     }
 }
 
-// emit_run (eight environment gamma-tons at a time in AVX2 where the processor
-// has it) against emit, one gamma-ton at a time: the same bits for origins,
+// emit_run against emit, one gamma-ton at a time: the same bits for origins,
 // directions and the streams' next draws, over runs of every length 1..20,
 // at indices whose upper 32 bits are non-zero too, for both environment
 // kinds and a point source (emitted one by one).

@@ -68,8 +68,9 @@ class _KernelBuilder:
     def _intrinsic(self, name: str, arity: int = 2):
         return self.module.declare_intrinsic(name, [F32], ir.FunctionType(F32, [F32] * arity))
 
-    def _libm(self, name: str, arity: int):
-        """A C library function (expf, logf, powf): the interpreter calls the same one."""
+    def _own_math(self, name: str, arity: int):
+        """A function of the runtime's own math (gamma_expf, ...: ``ownmath``);
+        the interpreter calls the same one."""
         try:
             return self.module.get_global(name)
         except KeyError:
@@ -144,8 +145,8 @@ class _KernelBuilder:
     def intrinsic(self, name: str, args: list):
         return self.b.call(self._intrinsic(name, len(args)), args)
 
-    def libm(self, name: str, args: list):
-        return self.b.call(self._libm(name, len(args)), args)
+    def own_math(self, name: str, args: list):
+        return self.b.call(self._own_math(name, len(args)), args)
 
     def texture(self, index: int):
         base = 3 * index

@@ -71,6 +71,9 @@ class SharedKernels:
     def __init__(self, path: Path, symbols: list[str], ir_text: str, llvm_version: tuple):
         import ctypes
 
+        from .. import ownmath
+
+        ownmath.make_global()  # the kernels' calls of gamma_expf, ... resolve to the loaded runtime
         # absolute: a name without a slash would be looked for in the system's folders
         self.library = ctypes.CDLL(os.path.abspath(path))
         self.address = {s: ctypes.cast(getattr(self.library, s), ctypes.c_void_p).value for s in symbols}

@@ -15,6 +15,7 @@ from pathlib import Path
 import llvmlite.binding as llvm
 from llvmlite import ir
 
+from .. import ownmath
 from ..files import cache_dir
 from ..ir.effect import Effect
 from .codegen import generate
@@ -24,6 +25,7 @@ from .codegen import generate
 def _initialise() -> None:
     llvm.initialize_native_target()
     llvm.initialize_native_asmprinter()
+    ownmath.bind_into_llvm()
 
 
 def target_machine():

@@ -10,7 +10,7 @@ equal to ``spec_table()``; adding a built-in is adding one entry.
 
 ``lower(emit, call, args)`` builds the value with the code generator's
 emitter (``backends.codegen``: ``arith``, ``pick``, ``const``, ``intrinsic``,
-``libm``, ``random``, ``texture``); ``reference(state, call, args)``
+``own_math``, ``random``, ``texture``); ``reference(state, call, args)``
 computes it in numpy float32 (``state``: the interpreter's per-call state,
 for ``random()`` and ``texture()``).  The two are written independently on
 purpose: the differential tests compare them.  This module imports neither
@@ -116,27 +116,13 @@ def _ref_smoothstep(state, call, args):
     return f32(f32(t * t) * f32(f32(3) - f32(f32(2) * t)))
 
 
-_LIBM: dict = {}
+def _ref_own_math(symbol):
+    """The runtime's own function (``ownmath``), the one the compiled kernels call."""
+    def reference(state, call, args):
+        from .. import ownmath
 
-
-def libm(name: str) -> Callable:
-    """The C library's expf/logf/powf, which the compiled kernels call too
-    (numpy's own float32 exp/log differ from libm in the last bit)."""
-    if not _LIBM:
-        import ctypes
-        import ctypes.util
-
-        lib = ctypes.CDLL(ctypes.util.find_library("m"))
-        for fname, arity in (("expf", 1), ("logf", 1), ("powf", 2)):
-            fn = getattr(lib, fname)
-            fn.restype = ctypes.c_float
-            fn.argtypes = [ctypes.c_float] * arity
-            _LIBM[fname] = fn
-    return _LIBM[name]
-
-
-def _ref_libm(name):
-    return lambda state, call, args: f32(libm(name)(*[float(a) for a in args]))
+        return f32(ownmath.function(symbol)(*[float(a) for a in args]))
+    return reference
 
 
 # vectors (3-tuples of float32): SPEC §11, "Vectors"
@@ -343,11 +329,13 @@ BUILTINS: tuple[Builtin, ...] = (
             lambda state, call, args: f32(np.sqrt(args[0])),
             ("`sqrt(x)`", "IEEE square root (NaN for `x < 0`, `sqrt(-0) = -0`)")),
     *(Builtin(name, arity, arity, "float",
-              (lambda fname: lambda emit, call, args: emit.libm(fname, args))(name + "f"),
-              _ref_libm(name + "f"),
-              ("`exp(x)`, `log(x)`, `pow(x, y)`", "the C library's `expf`, `logf`, `powf` "
-               "(`log(0) = -inf`, `log(x<0) = NaN`; `pow` per C99 Annex F)"))
-      for name, arity in (("exp", 1), ("log", 1), ("pow", 2))),
+              (lambda symbol: lambda emit, call, args: emit.own_math(symbol, args))(symbol),
+              _ref_own_math(symbol),
+              ("`exp(x)`, `log(x)`, `pow(x, y)`", "gamma's own functions, the correctly rounded "
+               "result but within 2^-20 ulp of a rounding boundary (§11, \"Own math\"); "
+               "`log(0) = -inf`, `log(x<0) = NaN`; `pow` per C99 Annex F"))
+      for name, (symbol, arity) in (("exp", ("gamma_expf", 1)), ("log", ("gamma_logf", 1)),
+                                    ("pow", ("gamma_powf", 2)))),
     Builtin("floor", 1, 1, "float", lambda emit, call, args: emit.intrinsic("llvm.floor", args),
             lambda state, call, args: f32(np.floor(args[0])),
             ("`floor(x)`", "largest integer ≤ `x`")),

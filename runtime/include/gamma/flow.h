@@ -56,7 +56,9 @@ FlowResult flow_move(V3 p, V3 n, V3 arriving, V3 down, float step, float eps, fl
         V3 u, v;
         plane_axes(n, u, v);
         const float phi = 6.2831853f * draw();
-        t = u * std::cos(phi) + v * std::sin(phi);
+        float s, c;
+        gm::sincos(phi, s, c);
+        t = u * c + v * s;
         r.drew = true;
     }
     r.dir = t;

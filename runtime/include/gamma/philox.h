@@ -10,6 +10,7 @@ using Philox4 = std::array<uint32_t, 4>;
 inline Philox4 philox4x32_10(Philox4 ctr, std::array<uint32_t, 2> key) {
     constexpr uint32_t M0 = 0xD2511F53u, M1 = 0xCD9E8D57u;
     constexpr uint32_t W0 = 0x9E3779B9u, W1 = 0xBB67AE85u;
+#pragma GCC unroll 10
     for (int round = 0; round < 10; ++round) {
         if (round > 0) { key[0] += W0; key[1] += W1; }
         const uint64_t p0 = uint64_t(M0) * ctr[0];

@@ -6,6 +6,7 @@
 #include <cstdint>
 
 #include "gamma/vec.h"
+#include "gamma/gmath.h"
 
 namespace gammart {
 
@@ -23,17 +24,20 @@ constexpr int kSpotMaxRedraws = 64;
 inline V3 uniform_sphere(float u, float v) {
     float z = 1.0f - 2.0f * u;
     float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
-    float phi = kTwoPi * v;
-    return {r * std::cos(phi), r * std::sin(phi), z};
+    float phi = kTwoPi * v, s, c;
+    gm::sincos(phi, s, c);
+    return {r * c, r * s, z};
 }
 
 // Direction at polar cos `z` and azimuth 2*pi*v about unit n.
 inline V3 around(V3 n, float z, float v) {
     float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
     float phi = kTwoPi * v;
+    float s, c;
+    gm::sincos(phi, s, c);
     V3 t, b;
     onb(n, t, b);
-    return normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * z);
+    return normalize(t * (r * c) + b * (r * s) + n * z);
 }
 
 // Cosine-weighted direction about unit n.

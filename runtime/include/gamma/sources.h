@@ -75,10 +75,7 @@ void emit(const SourceRt& s, PhiloxStream& rng, V3& org, V3& dir);
 
 // emit() for the n consecutive gamma-tons first .. first + n - 1 of source
 // s, bit for bit: rng[i] = PhiloxStream(seed, iteration, first + i) as emit
-// leaves it, org[i], dir[i].  Environment sources are emitted eight at a
-// time in AVX2 where the processor has it (IEEE operations in emit's order,
-// no fused multiply-add; the sines and cosines the same libm calls give,
-// eight at a time by sincosf8 where it reproduces them).
+// leaves it, org[i], dir[i].
 void emit_run(const SourceRt& s, uint64_t seed, uint32_t iteration, int64_t first, size_t n, PhiloxStream* rng,
               V3* org, V3* dir);
 

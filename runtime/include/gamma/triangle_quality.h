@@ -11,11 +11,12 @@
 #include <vector>
 
 #include "gamma/mesh.h"
+#include "gamma/gmath.h"
 
 namespace gammart {
 
 // cos(min_deg): a corner whose cosine is above it has an angle below min_deg.
-inline double cos_of_deg(double min_deg) { return std::cos(min_deg * 3.14159265358979323846 / 180.0); }
+inline double cos_of_deg(double min_deg) { return gm::cos(float(min_deg * 3.14159265358979323846 / 180.0)); }
 
 // True when the angle at corner a of triangle (a, b, c) is below the angle
 // whose cosine is cos_max, or the corner is degenerate (a zero-length edge).
