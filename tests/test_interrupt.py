@@ -1,84 +1,105 @@
-"""gamma.driver.running.interrupt: Interruptions.call makes a run's calls on one helper
-thread, in order, with their values and errors; a signal abandons the call
-that is running (Interrupted, ``busy``) and a later call gets a new thread.
-(tests/test_run_faults.py signals whole ``gammac run`` processes.)"""
+"""gamma.driver.running.interrupt: Interruptions.call runs a run's calls on
+the calling thread with their values and errors; a signal cancels the run's
+token, a runtime pass given that token stops within a chunk, and the call
+raises Interrupted.  Handlers and the wakeup fd are put back afterwards and
+no thread is left.  (tests/test_run_faults.py signals whole ``gammac run``
+processes.)"""
 
 import os
 import signal
 import threading
 import time
-import weakref
 
 import pytest
 
+from conftest import ROOT
+from gamma.backends.jit import JitKernels
+from gamma.driver.running.common import runtime_module
 from gamma.driver.running.interrupt import Interrupted, Interruptions
+from gamma.driver.running.runner import RunOptions, build_config
+from gamma.driver.running.scene import load_scene
+from gamma.frontend.checker import check
+from gamma.frontend.parser import parse
 
 
-def test_calls_run_in_order_on_one_helper_thread_with_their_values_and_errors():
+def test_calls_run_on_the_calling_thread_with_their_values_and_errors():
     with Interruptions() as stop:
-        threads = [stop.call(lambda: threading.get_ident()) for _ in range(5)]
-        assert len(set(threads)) == 1 and threads[0] != threading.get_ident()
+        assert stop.call(threading.get_ident) == threading.get_ident()
         assert stop.call(lambda a, b=1: a * b, 6, b=7) == 42
         with pytest.raises(ZeroDivisionError):
             stop.call(lambda: 1 / 0)
-        assert stop.call(threading.get_ident) == threads[0]     # an error does not end the helper
-    assert not stop.busy
+        assert not stop.token.cancelled
+        stop.check()
 
 
-def test_a_signal_abandons_the_running_call_and_the_next_call_gets_a_new_thread():
-    release = threading.Event()
+@pytest.fixture(scope="module")
+def busy():
+    """A simulation whose traces take a while (200k γ-tons each), and the
+    kernels it needs alive."""
+    rt = runtime_module()
+    eff = check(parse((ROOT / "examples" / "patina.gamma").read_text(), str(ROOT / "examples" / "x.gamma")))
+    scene = load_scene(rt, str(ROOT / "examples" / "scenes" / "stanford-bunny.obj"), eff, [], None)
+    kernels = JitKernels(eff)
+    cfg = build_config(rt, eff, kernels, RunOptions(scene="b", out="", surfels=5000, tons=200_000, threads=2),
+                       scene.bounds, scene.down)
+    cfg.triangle_surface = scene.triangle_surface
+    return rt.Simulation(scene.mesh, cfg), kernels
+
+
+def test_a_signal_stops_a_runtime_pass_given_the_token_and_the_call_raises_interrupted(busy):
+    sim, _ = busy
     before = signal.getsignal(signal.SIGINT)    # (SIG_IGN in a job a shell started in the background)
+    watchers = {t for t in threading.enumerate() if t.name == "gamma-signal-watcher"}
     with Interruptions() as stop:
-        first = stop.call(threading.get_ident)
-        threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT)).start()
+        threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGINT)).start()
         started = time.perf_counter()
         with pytest.raises(Interrupted) as raised:
-            stop.call(release.wait)
-        assert time.perf_counter() - started < 5 and raised.value.status == 130
-        assert stop.busy
-        stop.signum = None                # (a caller that carries on after an interruption)
-        second = stop.call(threading.get_ident)
-        assert second != first
-        release.set()
+            stop.call(lambda: [sim.trace(i, cancel=stop.token) for i in range(1000)])
+        assert time.perf_counter() - started < 0.2 + 0.5
+        assert raised.value.status == 130 and raised.value.name == "SIGINT"
+        assert stop.token.cancelled
+        with pytest.raises(Interrupted):
+            stop.check()
+        with pytest.raises(Interrupted):
+            stop.call(lambda: "after the signal")
     assert signal.getsignal(signal.SIGINT) is before      # the handlers are put back
+    assert signal.set_wakeup_fd(-1) == -1                  # and the wakeup fd
+    assert {t for t in threading.enumerate() if t.name == "gamma-signal-watcher"} == watchers
 
 
-class _Value:
-    """A call's value (one a weak reference can follow)."""
-
-
-def test_the_helper_holds_no_value_between_calls_and_has_ended_after_the_run():
-    # A daemon thread still running when the interpreter finalizes leaves what
-    # its frames hold behind: the helper held the last call's value (a
-    # false-colour view, which nanobind then reported as leaked in CI) while it
-    # waited for the next call, and the exit did not wait for it.
+def test_sigterm_gives_143():
     with Interruptions() as stop:
-        helper = stop.call(threading.current_thread)
-        value = weakref.ref(stop.call(_Value))
+        os.kill(os.getpid(), signal.SIGTERM)
         deadline = time.monotonic() + 5
-        while value() is not None and time.monotonic() < deadline:
+        while not stop.token.cancelled and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert value() is None and helper.is_alive()
-    assert not helper.is_alive()
+        with pytest.raises(Interrupted) as raised:
+            stop.check()
+    assert raised.value.status == 143
 
 
-def test_an_error_a_signal_handler_raises_abandons_the_call_and_the_exit_does_not_wait_for_it():
-    # (SIGALRM's handler, a test's timeout): leaving the context joins only an idle helper
-    release = threading.Event()
+def test_a_token_cancelled_by_its_owner_is_not_an_interruption(busy):
+    # (the viewer cancels a run an edit has superseded): Cancelled passes through
+    sim, _ = busy
+    rt = runtime_module()
+    with Interruptions() as stop:
+        stop.token.cancel()
+        with pytest.raises(rt.Cancelled):
+            stop.call(sim.trace, 1, cancel=stop.token)
+        assert stop.signum is None
 
-    def alarm(signum, frame):
-        raise TimeoutError("alarm")
 
-    previous = signal.signal(signal.SIGALRM, alarm)
-    try:
-        started = time.perf_counter()
+def test_off_the_main_thread_no_handler_is_installed_and_the_token_still_works():
+    seen = {}
+
+    def body():
         with Interruptions() as stop:
-            signal.setitimer(signal.ITIMER_REAL, 0.1)
-            with pytest.raises(TimeoutError):
-                stop.call(release.wait, 30)
-            assert stop.busy
-        assert time.perf_counter() - started < 20
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
-        release.set()
+            seen["handler"] = signal.getsignal(signal.SIGINT)
+            stop.token.cancel()
+            seen["cancelled"] = stop.token.cancelled
+
+    before = signal.getsignal(signal.SIGINT)
+    t = threading.Thread(target=body)
+    t.start()
+    t.join()
+    assert seen == {"handler": before, "cancelled": True}

@@ -108,9 +108,10 @@ def test_the_defaults_read_ahead_are_the_command_lines():
 @pytest.mark.parametrize("argv, status", [(["run", "e.gamma", "--scene", "m.obj"], 2),   # no --out
                                           (["--version"], 0), (["run", "--help"], 0)])
 def test_argparse_exits_are_returned_so_that_gammac_leaves_without_waiting(argv, status, capsys):
-    """cli.main returns argparse's exit status instead of raising SystemExit:
-    cli.entry then leaves through os._exit (cli._leave), not through the
-    interpreter's exit, which waits for a read launch.py started ahead."""
+    """cli.main returns argparse's exit status instead of raising SystemExit
+    from inside argparse: cli.entry then leaves through cli._leave, and the
+    interpreter's exit stops the sampling launch.py started ahead (prefetch's
+    atexit handler cancels its token) instead of waiting for it whole."""
     from gamma import cli
 
     assert cli.main(argv) == status

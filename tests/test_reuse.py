@@ -102,8 +102,9 @@ def test_prepared_points_bake_like_bake_points(scene):
 
 
 def test_cancel_stops_a_trace_and_leaves_the_rows(scene):
-    """Simulation.cancel() from another thread stops the tracing pass before
-    its end; the rows are untouched and the next trace runs normally."""
+    """A CancelToken cancelled from another thread stops the tracing pass
+    before its end; the rows are untouched and a trace with a fresh token
+    runs normally."""
     import threading
     import time
 
@@ -118,18 +119,21 @@ def test_cancel_stops_a_trace_and_leaves_the_rows(scene):
     sim = runtime_module().Simulation(scene.mesh, cfg)
     sim.trace(1)
     before = np.asarray(sim.rows()).copy()
-    sim.cancel()                                    # before: the next trace stops at once
-    with pytest.raises(ValueError, match="^cancelled:"):
-        sim.trace(2)
+    rt = runtime_module()
+    stopped = rt.CancelToken()
+    stopped.cancel()                                # before: the trace stops at once
+    with pytest.raises(rt.Cancelled, match="^cancelled:"):
+        sim.trace(2, cancel=stopped)
     assert np.array_equal(np.asarray(sim.rows()), before)
-    sim.trace(2)                                    # one request stops one trace
+    sim.trace(2, cancel=rt.CancelToken())
     assert not np.array_equal(np.asarray(sim.rows()), before)
-    timer = threading.Timer(0.3, sim.cancel)        # from another thread, while traces run
+    token = rt.CancelToken()
+    timer = threading.Timer(0.3, token.cancel)      # from another thread, while traces run
     timer.start()
     t0 = time.perf_counter()
-    with pytest.raises(ValueError, match="^cancelled:"):
+    with pytest.raises(rt.Cancelled, match="^cancelled:"):
         for it in range(3, 100000):
-            sim.trace(it)
+            sim.trace(it, cancel=token)
     assert time.perf_counter() - t0 < 30
 
 

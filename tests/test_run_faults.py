@@ -100,8 +100,7 @@ def test_signal_stops_promptly_with_a_consistent_folder(tmp_path, sig, status):
     assert not list(out.rglob(".*"))           # no temporary file, no lock, nothing set aside
 
 
-def test_a_signal_during_the_setup_keeps_the_earlier_results_and_the_setup_ends_on_its_own(tmp_path,
-                                                                                          monkeypatch):
+def test_a_signal_during_the_setup_stops_it_and_keeps_the_earlier_results(tmp_path, monkeypatch):
     # (it was a traceback: Interrupted escaped from the setup, the folder's lock left behind)
     from gamma.driver.running import runner
     from gamma.driver.running.runner import RunInterrupted, RunOptions, run
@@ -110,40 +109,31 @@ def test_a_signal_during_the_setup_keeps_the_earlier_results_and_the_setup_ends_
     out = tmp_path / "o"
     assert run_gammac("run", *args(out, 1)).returncode == 0
     before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
-    started, release = threading.Event(), threading.Event()
     setup = runner._simulation
 
-    def long_setup(*a, **k):
-        started.set()
-        release.wait(60)
+    def signalled_setup(*a, **k):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)                         # noticed before the set-up's first phase
         return setup(*a, **k)
 
-    def signal_once_started():
-        if started.wait(60):
-            os.kill(os.getpid(), signal.SIGINT)
-
-    monkeypatch.setattr(runner, "_simulation", long_setup)
-    threading.Thread(target=signal_once_started, daemon=True).start()
+    monkeypatch.setattr(runner, "_simulation", signalled_setup)
     opts = RunOptions(scene=str(BUNNY), out=str(out), surfels=500, tons=3000, iterations=1,
                       width=16, height=16, progress=False)
-    try:
-        with pytest.raises(RunInterrupted) as raised:
-            run(load(str(PATINA)), opts)
-        stop = raised.value
-        assert stop.status == 130 and "before the first iteration" in str(stop)
-        assert stop.abandoned_call            # the setup still runs (gammac leaves with os._exit)
-    finally:
-        release.set()
-    assert stop.abandoned.wait(60) and not stop.abandoned_call
+    with pytest.raises(RunInterrupted) as raised:
+        run(load(str(PATINA)), opts)
+    stop = raised.value
+    assert stop.status == 130 and "before the first iteration" in str(stop)
+    assert not [t for t in threading.enumerate() if t.name.startswith("gamma-")]
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before
 
 
 # gamma.run interrupted while it traces, in a script that then ends through the
-# interpreter's exit: the trace is cancelled and waited for, so that nothing
-# runs on when the interpreter finalizes (before: the abandoned trace came back
-# into a finalizing interpreter, "terminate called without an active
-# exception" and SIGABRT, or nanobind's report of a leaked Simulation).
+# interpreter's exit: the trace stops at its next chunk and nothing runs on
+# when the interpreter finalizes (before cancellation was cooperative, an
+# abandoned trace came back into a finalizing interpreter: "terminate called
+# without an active exception" and SIGABRT, or nanobind's report of a leaked
+# Simulation).
 TRACE_INTERRUPTED = textwrap.dedent("""
     import os, signal, sys, threading, time
     import gamma
@@ -163,11 +153,10 @@ TRACE_INTERRUPTED = textwrap.dedent("""
             os.kill(os.getpid(), signal.SIGINT)
     threading.Thread(target=signal_in_the_second_trace, daemon=True).start()
     effect = gamma.compile(sys.argv[1])
-    started = time.perf_counter()
     try:
         gamma.run(effect, sys.argv[2], iterations=50, surfels=3000, tons=4_000_000, threads=2)
     except RunInterrupted as stop:
-        print("interrupted", stop.abandoned_call, stop.abandoned is None, flush=True)
+        print("interrupted", stop.status, flush=True)
 """)
 
 
@@ -175,7 +164,7 @@ def test_a_script_whose_run_was_interrupted_while_tracing_ends_cleanly():
     r = subprocess.run([sys.executable, "-c", TRACE_INTERRUPTED, str(PATINA), str(BUNNY)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
-    assert r.stdout.split() == ["interrupted", "False", "True"]
+    assert r.stdout.split() == ["interrupted", "130"]
     assert "leaked" not in r.stderr and "terminate" not in r.stderr
 
 
@@ -213,25 +202,36 @@ def test_an_update_that_ends_after_the_signal_leaves_nothing_of_its_iteration_in
         signal_in[:] = [dropped]
         with pytest.raises(RunInterrupted) as raised:
             run(effect, opts("cut", iterations, resume))
-        assert f"during iteration {dropped}" in str(raised.value) and not raised.value.abandoned_call
+        assert f"during iteration {dropped}" in str(raised.value)
         cut, reference = summary(tmp_path / "cut"), summary(tmp_path / like)
         assert len(cut["iterations"]) == dropped - 1 and cut["completed"] is False
         assert cut["nonfinite"][0]["count"] > 0
         assert cut["ranges"] == reference["ranges"] and cut["nonfinite"] == reference["nonfinite"]
 
 
-def test_a_cancel_no_trace_took_can_be_withdrawn():
-    import gamma
+def test_a_cancelled_token_stops_each_long_pass_and_leaves_the_surfels_as_they_were():
+    import numpy as np
 
+    import gamma
+    from gamma.driver.running.common import runtime_module
+
+    rt = runtime_module()
     result = gamma.run(gamma.compile(PATINA), BUNNY, iterations=1, surfels=500, tons=2000)
-    sim = result.session.sim
-    sim.cancel()
-    sim.clear_cancel()
-    sim.trace(2)                                 # runs whole
-    sim.cancel()
-    with pytest.raises(ValueError, match="cancelled"):
-        sim.trace(3)
-    sim.trace(3)                                 # one cancel stops one trace
+    sim, stopped = result.session.sim, rt.CancelToken()
+    stopped.cancel()
+    rows = np.asarray(sim.rows()).copy()
+    for name, call in (("trace", lambda: sim.trace(2, cancel=stopped)),
+                       ("update", lambda: sim.update(2, cancel=stopped)),
+                       ("render", lambda: sim.render(np.zeros(sim.num_surfels, np.float32), (0, 0, 3), (0, 0, 0),
+                                                     (0, 1, 0), 40.0, 64, 64, 2, cancel=stopped)),
+                       ("view", lambda: sim.false_colour_view((0, 0, 3), (0, 0, 0), (0, 1, 0), 40.0, 64, 64, 2,
+                                                              cancel=stopped))):
+        with pytest.raises(rt.Cancelled, match="^cancelled: "):
+            call()
+        assert np.array_equal(np.asarray(sim.rows()), rows), name
+    sim.trace(2, cancel=rt.CancelToken())         # a token nobody cancelled, or none, runs whole
+    sim.update(2)
+    assert not np.array_equal(np.asarray(sim.rows()), rows)
 
 
 def test_a_signal_while_gammac_watch_computes_a_result_stops_it_without_a_traceback(tmp_path):

@@ -20,7 +20,7 @@ import sys
 
 #: Bumped whenever anything below changes; ``driver.runner.runtime_module``
 #: refuses a runtime built for another version.
-ABI_VERSION = 8
+ABI_VERSION = 9
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -151,7 +151,8 @@ MASS_BOOKS = ("removed", "deposited", "escaped", "in_flight", "emitted", "create
 BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
                "SurfelSample", "SetupSnapshot", "encode_pngs", "RUNTIME_BUILD", "setup_cache_name",
-               "read_mesh_ahead", "FalseColourView", "rasterise_uv"),
+               "read_mesh_ahead", "FalseColourView", "rasterise_uv", "CancelToken", "Cancelled"),
+    "CancelToken": ("cancel", "cancelled"),
     "FalseColourView": ("width", "height", "surfels", "shade", "values", "picture", "to_bytes", "from_bytes"),
     "SurfelSample": ("ok", "matches", "seconds"),
     "SetupSnapshot": ("load_cached", "matches", "prepared", "taken", "surfels", "make_ahead",
@@ -167,7 +168,7 @@ BINDING = {
                    "render_appearance", "shape", "geometry", "mesh_arrays", "triangle_surfaces",
                    "set_rows", "num_chunks", "trace_chunks", "merge_chunks",
                    "set_shading", "corner_normals", "set_base_colours", "reconfigure", "prepare_points",
-                   "num_prepared_points", "bake_prepared", "cancel", "clear_cancel", "surfel_measures", "from_snapshot",
+                   "num_prepared_points", "bake_prepared", "surfel_measures", "from_snapshot",
                    "setup_snapshot", "setup_snapshot_bytes", "setup_made_ahead", "false_colour_view",
                    "write_setup_snapshot"),
 }

@@ -58,10 +58,9 @@ def run(effect, scene: str | Path | None = None, *, vertices=None, faces=None, u
     for glTF) are written there as by ``gammac run``; ``init`` takes a run
     folder or a ``Result``.
     SIGINT or SIGTERM (from the main thread) stop it within a fraction of a
-    second with ``gamma.RunInterrupted`` (its ``status``: 130 or 143): a
-    tracing pass or update that was running is cancelled or waited for; a
-    surfel set-up that was running ends on its own thread
-    (``abandoned_call``), and the interpreter's exit waits for it.
+    second with ``gamma.RunInterrupted`` (its ``status``: 130 or 143): the
+    runtime pass that was running (the set-up, a trace, a render) stops at
+    its next check of the run's cancel token.
 
     The other keyword options (``gamma.options.OPTIONS``, as ``gammac run``'s), with their defaults:
 """

@@ -4,9 +4,9 @@ What ``gammac run`` does beside its main thread (the mesh read and the
 surfels sampled while it starts up, the false-colour view's rays cast while
 the scale is worked out, the cache files written for the next run) is one
 call each, started at once.  ``concurrent.futures.ThreadPoolExecutor`` would
-do, but its threads are not daemons: the interpreter's exit would wait for a
-sampling nobody needs any more (an effect with an error), and ``cli._leave``
-could not skip the interpreter's teardown.  Here the thread is a daemon, and
+do, but its threads are not daemons, and the interpreter's exit would join
+them before any ``atexit`` handler could stop what they run (prefetch.py
+cancels a sampling nobody needs any more).  Here the thread is a daemon, and
 its ``Outcome`` offers what gammac uses of a ``concurrent.futures.Future``
 (``result``, ``exception``, ``done``, timeouts) without importing that
 module: ``gamma.launch`` starts the mesh read (prefetch.py) before anything
@@ -15,10 +15,8 @@ else, and ``concurrent.futures``, through ``logging``, would delay it.
 A daemon thread still running when the interpreter finalizes cannot come
 back (it would need the GIL) and leaves whatever its frames hold behind
 (nanobind then reports the runtime's objects among them as leaked at exit),
-so the threads of calls are joined at exit (``atexit``: only in a process
-that ends through the interpreter's own exit; ``os._exit``, which
-``gammac`` uses, ends them at once), also those whose ``Outcome`` nobody
-holds any more.  Joined, not their outcomes waited for: a thread whose
+so the threads of calls are joined at exit (``atexit``), also those whose
+``Outcome`` nobody holds any more.  Joined, not their outcomes waited for: a thread whose
 outcome is settled still held the call's value until its frames ended, and
 an exit in between left it behind (a false-colour view, seen once in CI).
 """
@@ -108,19 +106,13 @@ def start(fn: Callable, *args, name: str = "gamma-background", **kwargs) -> Outc
         raise
     # added once started (one not started yet is not alive either, and would be
     # dropped), before whoever started it goes on: the main thread, or a thread
-    # that is joined before the exit (a call's, the Interruptions helper, the
-    # WriteQueue's writer), so the exit cannot miss it
-    join_at_exit(thread)
-    return outcome
-
-
-def join_at_exit(thread: threading.Thread) -> None:
-    """Have the interpreter's exit join ``thread`` (started) too: the calls'
-    threads, and the Interruptions helper of a call it abandoned."""
+    # that is joined before the exit (a call's, the WriteQueue's writer), so the
+    # exit cannot miss it
     global _running
     with _lock:
         _running = {t for t in _running if t.is_alive()}
         _running.add(thread)
+    return outcome
 
 
 def wait(outcomes: Iterable[Outcome]) -> None:

@@ -365,7 +365,8 @@ def _watch(args) -> int:
     except RunError as err:
         raise _Fail(str(err)) from None
     except RunInterrupted as stop:       # ^C while a result is computed (its folder is a scratch one)
-        return _leave_interrupted(stop, f"gammac: interrupted by {stop.signal_name}")
+        print(f"gammac: interrupted by {stop.signal_name}", file=sys.stderr)
+        return stop.status
 
 
 def _saved(args) -> int:
@@ -442,8 +443,7 @@ def main(argv=None) -> int:
         args = _parser().parse_args(_join_negative_vectors(list(sys.argv[1:] if argv is None else argv)))
     except SystemExit as done:
         # a usage error, --help or --version (argparse has printed what it had to): returned,
-        # so that entry leaves through _leave, not an interpreter exit that would wait for
-        # a mesh launch.py started reading ahead
+        # so that entry leaves through _leave like every command
         code = done.code
         if code is None or isinstance(code, int):
             return code or 0
@@ -519,7 +519,8 @@ def main(argv=None) -> int:
         except RunError as err:
             raise _Fail(str(err)) from None
         except RunInterrupted as stop:
-            return _leave_interrupted(stop, f"\ngammac: {stop}")
+            print(f"\ngammac: {stop}", file=sys.stderr)
+            return stop.status
         finally:
             if isinstance(sys.stdout, _PipeTolerant) and not sys.stdout.closed_pipe:
                 sys.stdout = streams[0]
@@ -548,47 +549,17 @@ def main(argv=None) -> int:
         return 130
 
 
-def _leave_interrupted(stop, message: str) -> int:
-    """Say ``message`` and return the status of the signal that stopped a run
-    (``RunInterrupted``), or leave at once with it if a runtime call still
-    runs on another thread: the interpreter's exit would wait for it."""
-    print(message, file=sys.stderr)
-    if stop.abandoned_call:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        import os
-
-        os._exit(stop.status)
-    return stop.status
-
-
 def _leave(status: int) -> None:
-    """Exit with ``status``.  Once a command is done, every file it wrote is
-    complete and closed, so the interpreter's teardown (freeing the
-    simulation, the scene's BVH, the JIT's code, every module: 0.1-0.3 s after
-    a run on the bunny) only delays the shell: skip it with ``os._exit``.
-    Not when something still wants the teardown: coverage or a profiler
-    writing its data at exit, Ray shutting its local cluster down, a
-    non-daemon thread."""
-    import os
-    import threading
-
-    ordinary = (sys.gettrace() is None and sys.getprofile() is None
-                and not any(name in sys.modules for name in ("coverage", "ray"))
-                and all(t.daemon or t is threading.main_thread() for t in threading.enumerate()))
+    """Exit with ``status`` through the interpreter's normal exit, once the
+    caches' files being written for the next run are whole (a setup, and
+    after a success a compiled effect: not after a failure or ^C, where it
+    can wait for the next run)."""
     setup_cache = sys.modules.get("gamma.driver.caches.setup_cache")
     if setup_cache is not None:
-        setup_cache.wait()              # a setup being kept for the next run: whole or not at all
+        setup_cache.wait()
     effect_cache = sys.modules.get("gamma.backends.effect_cache")
     if effect_cache is not None and status == EXIT_OK:
-        effect_cache.wait()             # likewise a compiled effect (not after a failure or ^C: it can wait)
-    if ordinary:
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except (OSError, ValueError):   # a reader that went away, a closed stream
-                pass
-        os._exit(status)
+        effect_cache.wait()
     sys.exit(status)
 
 

@@ -83,9 +83,8 @@ def main() -> None:
                 pass
         from .cli import entry
     except KeyboardInterrupt:
-        # ^C before cli.entry's handler: reported as it would, without the interpreter's
-        # exit, which would wait for the read started here
+        # ^C before cli.entry's handler: reported as it would (the exit stops the
+        # sampling started here, prefetch._forget)
         sys.stderr.write("gammac: interrupted\n")
-        sys.stderr.flush()
-        os._exit(130)
+        sys.exit(130)
     entry()

@@ -32,6 +32,7 @@ void bake_points(const RenderScene& rs, size_t k, const float* positions, const 
     const float run_reach2 = rs.index.sigma() * rs.index.sigma();
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, blocks, 16), [&](const tbb::blocked_range<size_t>& r) {
+            rs.cancel.check("the bake");
             std::vector<float> tex(3 * rs.textures.size() + 3, 0.0f);
             std::vector<uint32_t> idx(K * kBakeBlock);
             std::vector<double> w(K * kBakeBlock);
@@ -83,6 +84,7 @@ void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, con
     std::vector<int32_t> triangles(k);
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            rs.cancel.check("the bake");
             for (size_t i = r.begin(); i < r.end(); ++i) {
                 const size_t t = size_t(tris[i]);
                 const double* b = bary + 3 * i;
@@ -130,6 +132,7 @@ BakePoints BakePoints::prepare(const RenderScene& rs, size_t k, const float* pos
     b.count.assign(k, 0);
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 1024), [&](const tbb::blocked_range<size_t>& r) {
+            rs.cancel.check("the bake");
             for (size_t i = r.begin(); i < r.end(); ++i)
                 b.count[i] = uint8_t(rs.index.smooth(tri_surface[size_t(triangles[i])], positions + 3 * i,
                                                      &b.neighbour[K * i], &b.weight[K * i]));
@@ -146,6 +149,7 @@ void bake_prepared(const RenderScene& rs, const BakePoints& points, int iteratio
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 1024),
                           [&](const tbb::blocked_range<size_t>& r) {
+            rs.cancel.check("the bake");
             std::vector<float> tex(3 * rs.textures.size() + 3, 0.0f);
             const float none[3] = {0.0f, 0.0f, 0.0f};
             for (size_t i = r.begin(); i < r.end(); ++i) {

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <cstring>
 
+#include "gamma/cancel.h"
 #include "gamma/config.h"
 #include "gamma/error.h"
 #include "gamma/mesh.h"
@@ -31,6 +32,12 @@ using namespace nb::literals;
 using gammart::Error;
 
 namespace gamma_bind {
+
+// A pass's `cancel` argument: a CancelToken, or None for one never
+// cancelled.  (Python's argument tuple holds the token for the whole call.)
+inline const gammart::CancelToken& token_or_never(const gammart::CancelToken* cancel) {
+    return cancel != nullptr ? *cancel : gammart::CancelToken::never();
+}
 
 
 template <typename T>

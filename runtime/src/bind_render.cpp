@@ -112,7 +112,7 @@ void bind_simulation_render(nb::class_<gammart::Simulation>& simulation) {
              "Embree alone on rays from record_rays (converted before the clock starts): {rays, hits, seconds}.")
         .def("render",
              [](const gammart::Simulation& s, nb::handle values, std::array<float, 3> eye, std::array<float, 3> target,
-                std::array<float, 3> up, float fov_deg, int width, int height, int threads) {
+                std::array<float, 3> up, float fov_deg, int width, int height, int threads, const gammart::CancelToken* cancel) {
                  F32 v = as_f32(values);
                  if (v.ndim() != 1 || v.shape(0) != s.num_surfels())
                      throw Error("render: values must have shape (" + std::to_string(s.num_surfels()) + ",)");
@@ -122,21 +122,23 @@ void bind_simulation_render(nb::class_<gammart::Simulation>& simulation) {
                  std::vector<float> val(npx), shade(npx);
                  {
                      nb::gil_scoped_release nogil;
-                     s.render(v.data(), eye, target, up, fov_deg, width, height, threads, val.data(), shade.data());
+                     s.render(v.data(), eye, target, up, fov_deg, width, height, threads, val.data(), shade.data(),
+                              token_or_never(cancel));
                  }
                  return nb::make_tuple(to_numpy<float>(std::move(val), {size_t(height), size_t(width)}),
                                        to_numpy<float>(std::move(shade), {size_t(height), size_t(width)}));
              },
-             "values"_a, "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a)
+             "values"_a, "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a, "cancel"_a.none() = nb::none())
         .def("false_colour_view",
              [](const gammart::Simulation& s, std::array<float, 3> eye, std::array<float, 3> target,
-                std::array<float, 3> up, float fov_deg, int width, int height, int threads) {
+                std::array<float, 3> up, float fov_deg, int width, int height, int threads, const gammart::CancelToken* cancel) {
                  if (width < 1 || height < 1) throw Error("false_colour_view: width and height must be positive");
                  if (!(fov_deg > 0 && fov_deg < 180)) throw Error("false_colour_view: fov_deg must be in (0, 180)");
                  nb::gil_scoped_release nogil;
-                 return s.false_colour_view(eye, target, up, fov_deg, width, height, threads);
+                 return s.false_colour_view(eye, target, up, fov_deg, width, height, threads, token_or_never(cancel));
              },
              "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a,
+             "cancel"_a.none() = nb::none(),
              "The rays of render() cast once (a FalseColourView): the pictures of many values without "
              "casting again (the geometry must not change in between).")
         .def("set_textures",
@@ -223,7 +225,7 @@ void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
     simulation
         .def("bake_points",
              [](const gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,
-                nb::handle uvs, int iteration, int threads) {
+                nb::handle uvs, int iteration, int threads, const gammart::CancelToken* cancel) {
                  F32 p = as_f32(positions), n = as_f32(normals), uv = as_f32(uvs);
                  I32 t = as_i32(triangles);
                  const size_t k = t.ndim() == 1 ? t.shape(0) : 0;
@@ -235,18 +237,18 @@ void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
                  {
                      nb::gil_scoped_release nogil;
                      s.bake_points(k, p.data(), n.data(), t.data(), uv.data(), iteration, threads, rows.data(),
-                                   look.data());
+                                   look.data(), token_or_never(cancel));
                  }
                  return nb::make_tuple(to_numpy(std::move(rows), {k, W}),
                                        to_numpy(std::move(look), {k, size_t(GAMMA_LOOK_WIDTH)}));
              },
-             "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "iteration"_a, "threads"_a,
+             "positions"_a, "normals"_a, "triangles"_a, "uvs"_a, "iteration"_a, "threads"_a, "cancel"_a.none() = nb::none(),
              "At surface points: (smoothed rows float32[k, W], looks float32[k, L]: colour, roughness, "
              "metallic, displacement, occlusion as abi.APPEARANCE_OUTPUTS).")
         .def("bake_texels",
              [](const gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle corners,
                 nb::handle lookup_uvs, nb::handle scene_triangle, nb::handle tris, nb::handle bary, int iteration,
-                int threads) {
+                int threads, const gammart::CancelToken* cancel) {
                  using F64 = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
                  F32 p = as_f32(positions), n = as_f32(normals);
                  I32 c = as_i32(corners), st = as_i32(scene_triangle), t = as_i32(tris);
@@ -278,13 +280,14 @@ void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
                  std::vector<float> rows(k * W), look(k * GAMMA_LOOK_WIDTH);
                  {
                      nb::gil_scoped_release nogil;
-                     s.bake_texels(layout, k, t.data(), b.data(), iteration, threads, rows.data(), look.data());
+                     s.bake_texels(layout, k, t.data(), b.data(), iteration, threads, rows.data(), look.data(),
+                                   token_or_never(cancel));
                  }
                  return nb::make_tuple(to_numpy(std::move(rows), {k, W}),
                                        to_numpy(std::move(look), {k, size_t(GAMMA_LOOK_WIDTH)}));
              },
              "positions"_a, "normals"_a, "corners"_a, "lookup_uvs"_a.none(), "scene_triangle"_a, "tris"_a, "bary"_a,
-             "iteration"_a, "threads"_a,
+             "iteration"_a, "threads"_a, "cancel"_a.none() = nb::none(),
              "bake_points() at texels of a texture layout, each given by its layout triangle and barycentrics.")
         .def("prepare_points",
              [](gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,
@@ -302,21 +305,21 @@ void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
              "Points bake_prepared() bakes again and again (their smoothing neighbours found once).")
         .def_prop_ro("num_prepared_points", &gammart::Simulation::num_prepared_points)
         .def("bake_prepared",
-             [](const gammart::Simulation& s, int iteration, int threads) {
+             [](const gammart::Simulation& s, int iteration, int threads, const gammart::CancelToken* cancel) {
                  const size_t k = s.num_prepared_points(), W = size_t(s.row_width());
                  std::vector<float> rows(k * W), look(k * GAMMA_LOOK_WIDTH);
                  {
                      nb::gil_scoped_release nogil;
-                     s.bake_prepared(iteration, threads, rows.data(), look.data());
+                     s.bake_prepared(iteration, threads, rows.data(), look.data(), token_or_never(cancel));
                  }
                  return nb::make_tuple(to_numpy(std::move(rows), {k, W}),
                                        to_numpy(std::move(look), {k, size_t(GAMMA_LOOK_WIDTH)}));
              },
-             "iteration"_a, "threads"_a, "bake_points() of the prepared points: (rows float32[k, W], looks float32[k, L]).")
+             "iteration"_a, "threads"_a, "cancel"_a.none() = nb::none(), "bake_points() of the prepared points: (rows float32[k, W], looks float32[k, L]).")
         .def("render_appearance",
              [](gammart::Simulation& s, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads, int samples,
-                std::array<float, 3> sun_direction, int ao_samples, int iteration) {
+                std::array<float, 3> sun_direction, int ao_samples, int iteration, const gammart::CancelToken* cancel) {
                  gammart::AppearanceParams p;
                  p.eye = eye;
                  p.target = target;
@@ -335,13 +338,13 @@ void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
                  {
                      nb::gil_scoped_release nogil;
                      img.resize(size_t(width) * size_t(height) * 4);
-                     st = s.render_appearance(p, img.data());
+                     st = s.render_appearance(p, img.data(), token_or_never(cancel));
                  }
                  s.last_render = std::move(st);
                  return to_numpy<float>(std::move(img), {size_t(height), size_t(width), 4});
              },
              "eye"_a, "target"_a, "up"_a, "fov_deg"_a, "width"_a, "height"_a, "threads"_a, "samples"_a = 4,
-             "sun_direction"_a = std::array<float, 3>{0, 0, 0}, "ao_samples"_a = 8, "iteration"_a = 0,
+             "sun_direction"_a = std::array<float, 3>{0, 0, 0}, "ao_samples"_a = 8, "iteration"_a = 0, "cancel"_a.none() = nb::none(),
              "Appearance preview: float32[H, W, 4] (display RGB in [0, 1], alpha = geometry coverage).")
         .def("last_render_stats",
              [](const gammart::Simulation& s) {

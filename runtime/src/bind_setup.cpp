@@ -8,14 +8,17 @@ void bind_setup(nb::module_& m) {
                                       "Surfels sampled ahead of a Simulation's setup (gamma/surfel_state.h).")
         .def(
             "__init__",
-            [](gammart::SurfelSample* self, const gammart::Mesh& mesh, int64_t surfels, uint64_t seed, int threads) {
+            [](gammart::SurfelSample* self, const gammart::Mesh& mesh, int64_t surfels, uint64_t seed, int threads,
+               const gammart::CancelToken* cancel) {
                 // pure C++: gammac samples on a thread while it starts up
                 nb::gil_scoped_release nogil;
-                new (self) gammart::SurfelSample(mesh, surfels > 0 ? size_t(surfels) : 0, seed, threads);
+                new (self) gammart::SurfelSample(mesh, surfels > 0 ? size_t(surfels) : 0, seed, threads,
+                                                 token_or_never(cancel));
             },
-            "mesh"_a, "surfels"_a, "seed"_a, "threads"_a, nb::keep_alive<1, 2>(),
+            "mesh"_a, "surfels"_a, "seed"_a, "threads"_a, "cancel"_a.none() = nb::none(), nb::keep_alive<1, 2>(),
             "Samples `surfels` surfels on `mesh` with `seed` in an arena of `threads` threads; never raises for a "
-            "bad count or mesh (then `ok` is false and a Simulation samples again, reporting the error).  A "
+            "bad count or mesh (then `ok` is false and a Simulation samples again, reporting the error), nor once "
+            "`cancel` is cancelled (then it stops, and `ok` is false).  A "
             "Simulation that takes the surfels leaves `ok` false.")
         .def_prop_ro("ok", &gammart::SurfelSample::ok)
         .def_prop_ro("seconds", &gammart::SurfelSample::seconds, "Wall time of the sampling.")

@@ -8,14 +8,15 @@ void bind_simulation_state(nb::class_<gammart::Simulation>& simulation) {
         .def(
             "__init__",
             [](gammart::Simulation* self, const gammart::Mesh& mesh, const gammart::Config& cfg,
-               gammart::SurfelSample* ahead, gammart::SetupSnapshot* snapshot) {
+               gammart::SurfelSample* ahead, gammart::SetupSnapshot* snapshot, const gammart::CancelToken* cancel) {
                 nb::gil_scoped_release nogil;
-                new (self) gammart::Simulation(mesh, cfg, ahead, snapshot);
+                new (self) gammart::Simulation(mesh, cfg, ahead, snapshot, token_or_never(cancel));
             },
-            "mesh"_a, "config"_a, "ahead"_a.none() = nb::none(), "snapshot"_a.none() = nb::none(),
+            "mesh"_a, "config"_a, "ahead"_a.none() = nb::none(), "snapshot"_a.none() = nb::none(), "cancel"_a.none() = nb::none(),
             "`ahead`: a SurfelSample, whose surfels are taken when they are those this setup would sample "
             "(same mesh, count and seed); `snapshot`: a SetupSnapshot, taken when it is this setup's (same "
-            "mesh, count, seed and binding of triangles to surfaces).  The simulation is the same either way.")
+            "mesh, count, seed and binding of triangles to surfaces).  The simulation is the same either way.  "
+            "`cancel`: a CancelToken; once cancelled, the setup stops between its phases (Cancelled).")
         .def_prop_ro(
             "from_snapshot",
             [](const gammart::Simulation& s) {
@@ -85,17 +86,19 @@ void bind_simulation_state(nb::class_<gammart::Simulation>& simulation) {
 void bind_simulation_trace(nb::class_<gammart::Simulation>& simulation) {
     simulation
         .def("trace",
-             [](gammart::Simulation& s, int iteration) {
+             [](gammart::Simulation& s, int iteration, const gammart::CancelToken* cancel) {
                  gammart::TraceStats st;
                  {
                      nb::gil_scoped_release nogil;
-                     st = s.trace(iteration);
+                     st = s.trace(iteration, token_or_never(cancel));
                  }
                  return trace_stats_dict(st);
              },
-             "iteration"_a,
+             "iteration"_a, "cancel"_a.none() = nb::none(),
              "Trace one iteration; a dict of counters, timings and `nonfinite`: a list of "
-             "(event, ton_type, surface, statement, count).")
+             "(event, ton_type, surface, statement, count).  Once `cancel` (a CancelToken) is cancelled, "
+             "the trace stops before its next chunk of gamma-tons, raises Cancelled and leaves the rows "
+             "as they were.")
         .def("num_chunks", &gammart::Simulation::num_chunks, "iteration"_a,
              "How many chunks (CHUNK_SIZE gamma-tons each) iteration `iteration` traces.")
         .def(
@@ -166,35 +169,30 @@ void bind_simulation_trace(nb::class_<gammart::Simulation>& simulation) {
 void bind_simulation_shape(nb::class_<gammart::Simulation>& simulation) {
     simulation
         .def("update",
-             [](gammart::Simulation& s, int iteration) {
+             [](gammart::Simulation& s, int iteration, const gammart::CancelToken* cancel) {
                  gammart::UpdateStats st;
                  {
                      nb::gil_scoped_release nogil;
-                     st = s.update(iteration);
+                     st = s.update(iteration, token_or_never(cancel));
                  }
                  nb::dict d;
                  d["seconds"] = st.seconds;
                  d["nonfinite"] = nonfinite_list(st.nonfinite);
                  return d;
              },
-             "iteration"_a,
-             "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).")
-        .def("cancel", &gammart::Simulation::cancel,
-             "Stop the trace running now (or the next) before its next chunk: it raises ValueError "
-             "('cancelled: ...') and leaves the rows as they were.  Callable from any thread.")
-        .def("clear_cancel", &gammart::Simulation::clear_cancel,
-             "Withdraw a cancel() no trace took (it came after the trace's last chunk), so that the next "
-             "trace runs.")
+             "iteration"_a, "cancel"_a.none() = nb::none(),
+             "Run the update rules; a dict {seconds, nonfinite} (event -1 in nonfinite).  Raises Cancelled "
+             "without starting once `cancel` is cancelled.")
         .def("reconfigure", &gammart::Simulation::reconfigure, "config"_a,
              "Take another effect's config for the next run, keeping surfels, scene index and splat kernel "
              "(same surfel count, seed and surface binding, shape never changed; else an error, nothing "
              "changed).")
         .def("shape",
-             [](gammart::Simulation& s, int iteration) {
+             [](gammart::Simulation& s, int iteration, const gammart::CancelToken* cancel) {
                  gammart::ShapeStats st;
                  {
                      nb::gil_scoped_release nogil;
-                     st = s.shape(iteration);
+                     st = s.shape(iteration, token_or_never(cancel));
                  }
                  nb::dict d;
                  d["changed"] = st.changed;
@@ -214,7 +212,9 @@ void bind_simulation_shape(nb::class_<gammart::Simulation>& simulation) {
                  d["geometry"] = geometry_dict(st.geometry);
                  return d;
              },
-             "iteration"_a, "The shape step after the update pass (SPEC §19): a dict of counters, timings and geometry.")
+             "iteration"_a, "cancel"_a.none() = nb::none(),
+             "The shape step after the update pass (SPEC §19): a dict of counters, timings and geometry.  "
+             "Raises Cancelled without starting once `cancel` is cancelled.")
         .def("geometry",
              [](const gammart::Simulation& s) {
                  return geometry_dict(gammart::measure(s.mesh(), s.scene_index().tri_surface()));

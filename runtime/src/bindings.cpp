@@ -5,8 +5,11 @@
 
 using namespace gamma_bind;
 
-NB_MODULE(_runtime, m) {
-    m.doc() = "gamma weathering runtime (gamma-ton tracing)";
+namespace {
+
+// The module's constants, the project's math by address, error translation
+// and cancellation.
+void bind_constants_and_errors(nb::module_& m) {
     m.attr("ABI_VERSION") = GAMMA_ABI_VERSION;
     m.attr("CHUNK_SIZE") = gammart::kChunkSize;
     m.attr("RUNTIME_VERSION") = GAMMA_RUNTIME_VERSION;
@@ -36,18 +39,19 @@ NB_MODULE(_runtime, m) {
             PyErr_SetString(PyExc_ValueError, e.what());
         }
     });
+    // A pass whose CancelToken was cancelled (gamma/cancel.h).
+    nb::exception<gammart::Cancelled>(m, "Cancelled");
+    nb::class_<gammart::CancelToken>(m, "CancelToken",
+                                     "Asks the long passes it is handed to (`cancel=`) to stop between chunks of "
+                                     "their work: they raise Cancelled.  Never reset: one per run.")
+        .def(nb::init<>())
+        .def("cancel", &gammart::CancelToken::cancel, "Callable from any thread, the GIL released or not.")
+        .def_prop_ro("cancelled", &gammart::CancelToken::cancelled);
+}
 
-    m.def(
-        "parabola_landing",
-        [](std::array<float, 3> p0, std::array<float, 3> d, float D, std::array<float, 3> down, float floor_height) {
-            std::array<float, 3> traced{}, analytic{};
-            gammart::parabola_landing(p0, d, D, down, floor_height, traced, analytic);
-            return nb::make_tuple(nb::make_tuple(traced[0], traced[1], traced[2]),
-                                 nb::make_tuple(analytic[0], analytic[1], analytic[2]));
-        },
-        "p0"_a, "d"_a, "D"_a, "down"_a, "floor_height"_a,
-        "Landing on the plane dot(x, up) = floor_height: (piecewise-linear as traced, analytic).");
-
+// Helpers of the texture export (atlas.py, images.py): UV rasterisation,
+// gutter dilation and PNG encoding.
+void bind_image_helpers(nb::module_& m) {
     m.def(
         "rasterise_uv",
         [](nb::handle corner_uvs, int size, int row0, int row1, int tile) {
@@ -144,7 +148,24 @@ NB_MODULE(_runtime, m) {
         "pictures"_a, "level"_a, "threads"_a,
         "The PNG files (bytes) of uint8[height, width, 3] pictures, as Pillow's save(format='PNG', "
         "compress_level=level) writes them (gamma/png_encode.h), encoded `threads` at a time without the GIL.");
+}
 
+}  // namespace
+
+NB_MODULE(_runtime, m) {
+    m.doc() = "gamma weathering runtime (gamma-ton tracing)";
+    bind_constants_and_errors(m);
+    m.def(
+        "parabola_landing",
+        [](std::array<float, 3> p0, std::array<float, 3> d, float D, std::array<float, 3> down, float floor_height) {
+            std::array<float, 3> traced{}, analytic{};
+            gammart::parabola_landing(p0, d, D, down, floor_height, traced, analytic);
+            return nb::make_tuple(nb::make_tuple(traced[0], traced[1], traced[2]),
+                                 nb::make_tuple(analytic[0], analytic[1], analytic[2]));
+        },
+        "p0"_a, "d"_a, "D"_a, "down"_a, "floor_height"_a,
+        "Landing on the plane dot(x, up) = floor_height: (piecewise-linear as traced, analytic).");
+    bind_image_helpers(m);
     bind_mesh(m);
     bind_config(m);
     bind_false_colour_view(m);

@@ -252,6 +252,7 @@ FalseColourView false_colour_view(const RenderScene& rs, std::array<float, 3> ey
     std::vector<std::vector<double>> row_weight(static_cast<size_t>(height));
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
+            rs.cancel.check("the render");
             uint32_t idx[K];
             double w[K];
             for (int y = r.begin(); y < r.end(); ++y) {
@@ -461,6 +462,7 @@ void render_false_colour(const RenderScene& rs, const float* values, std::array<
     constexpr size_t K = kSmoothingNeighbours;
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, height, 1), [&](const tbb::blocked_range<int>& r) {
+            rs.cancel.check("the render");
             for (int y = r.begin(); y < r.end(); ++y)
                 for (int x = 0; x < width; ++x) {
                     const size_t px = size_t(y) * size_t(width) + size_t(x);
@@ -519,6 +521,7 @@ RenderStats render_appearance(const RenderScene& rs, const AppearanceParams& P, 
 
     run_with_threads(P.threads, [&] {
         tbb::parallel_for(tbb::blocked_range<int>(0, P.height, 1), [&](const tbb::blocked_range<int>& r) {
+            rs.cancel.check("the render");
             // Per-task buffers: nothing is allocated per pixel.
             std::vector<float> row(size_t(W), 0.0f), tex(3 * T + 3, 0.0f);
             std::vector<NonFinite> bad_local;

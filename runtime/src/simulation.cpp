@@ -60,8 +60,10 @@ constexpr size_t kSplatBesideMaxSurfels = 500000;
 
 }  // namespace
 
-Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead, SetupSnapshot* snapshot)
+Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead, SetupSnapshot* snapshot,
+                       const CancelToken& cancel)
     : mesh_(mesh), cfg_(config) {
+    cancel.check("the setup");
     const Config& c = cfg_;
     const std::vector<int32_t> tri_surface = validate_config(c, mesh_);
     frame_ = SceneFrame::of(mesh_, c.down);
@@ -132,9 +134,10 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
                 setup_seconds_.sample_ahead = ahead->seconds();
                 state_ = SurfelState::of(ahead->take(), tri_surface, c.surface_rows);
             } else {
-                state_ = SurfelState::sample(mesh_, tri_surface, size_t(c.surfels), c.seed, c.surface_rows);
+                state_ = SurfelState::sample(mesh_, tri_surface, size_t(c.surfels), c.seed, c.surface_rows, cancel);
             }
             setup_seconds_.sample = seconds_since(t0);
+            cancel.check("the setup");
             const float sigma = float(std::sqrt(mesh_.area() / double(state_.size())));
             auto splat = [&] {
                 const auto t = std::chrono::steady_clock::now();
@@ -145,6 +148,7 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
             const bool splat_beside = !whole && state_.size() <= kSplatBesideMaxSurfels;
             if (splat_beside) beside.run(splat);
             if (geometry) geometry->wait();
+            cancel.check("the setup");
             t0 = std::chrono::steady_clock::now();
             if (whole) {
                 if (!prepared)
@@ -156,13 +160,16 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
             }
             setup_seconds_.surfels = seconds_since(t0);
             require_surfels_on_every_surface(mesh_, *index_, c.surfels);
+            cancel.check("the setup");
             if (!splat_beside && !whole) splat();
+            cancel.check("the setup");
             t0 = std::chrono::steady_clock::now();
             state_.measures = measure_surfels({c.measure_accessibility, c.measure_curvature, c.measure_uv}, mesh_,
                                               *index_, state_.surf, kAoLengthFraction * frame_.diag, c.seed,
                                               c.threads);
             setup_seconds_.measures = seconds_since(t0);
             beside.wait();
+            cancel.check("the setup");
         } catch (...) {
             beside.cancel();
             beside.wait();
@@ -171,7 +178,6 @@ Simulation::Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahe
     });
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
     tracer_->set_mesh(&mesh_);
-    tracer_->set_cancel_flag(&cancel_);
 }
 
 Simulation::~Simulation() = default;
@@ -226,8 +232,6 @@ void Simulation::reconfigure(const Config& config) {
     state_.width = W;
     tracer_ = std::make_unique<Tracer>(cfg_, kernels_, sources_);
     tracer_->set_mesh(&mesh_);
-    tracer_->set_cancel_flag(&cancel_);
-    cancel_.store(false);
 }
 
 void Simulation::set_shading(std::vector<uint8_t> flat, float crease_deg) {
@@ -287,13 +291,14 @@ void Simulation::set_base_colours(BaseColours base) {
 }
 
 void Simulation::prepare_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
-                                const float* uvs, int threads) {
-    prepared_ = BakePoints::prepare(render_scene(), k, positions, normals, triangles, uvs, threads);
+                                const float* uvs, int threads, const CancelToken& cancel) {
+    prepared_ = BakePoints::prepare(render_scene(cancel), k, positions, normals, triangles, uvs, threads);
 }
 
-void Simulation::bake_prepared(int iteration, int threads, float* rows_out, float* look_out) const {
+void Simulation::bake_prepared(int iteration, int threads, float* rows_out, float* look_out,
+                               const CancelToken& cancel) const {
     if (prepared_.size() == 0) throw Error("bake_prepared: no points prepared (or the shape changed since)");
-    gammart::bake_prepared(render_scene(), prepared_, iteration, threads, rows_out, look_out);
+    gammart::bake_prepared(render_scene(cancel), prepared_, iteration, threads, rows_out, look_out);
 }
 
 void Simulation::update_corner_normals() {
@@ -321,12 +326,13 @@ void Simulation::set_rows(const float* data) {
 uint32_t Simulation::nearest_surfel(const float p[3]) const { return index_->nearest(p); }
 uint32_t Simulation::nearest_surfel_of(int surface, const float p[3]) const { return index_->nearest_of(surface, p); }
 
-TraceStats Simulation::trace(int iteration) {
+TraceStats Simulation::trace(int iteration, const CancelToken& cancel) {
     shape_.begin_iteration(state_);
-    return tracer_->trace(iteration, *index_, frame_, state_);
+    return tracer_->trace(iteration, *index_, frame_, state_, cancel);
 }
 
-ShapeStats Simulation::shape(int iteration) {
+ShapeStats Simulation::shape(int iteration, const CancelToken& cancel) {
+    cancel.check("the shape step");
     std::unique_lock<std::shared_mutex> changing(setup_lock_);
     ShapeStats st = shape_.apply(iteration, mesh_, state_, index_, frame_);
     if (st.changed) {
@@ -350,7 +356,8 @@ ShapeStats Simulation::shape(int iteration) {
     return st;
 }
 
-UpdateStats Simulation::update(int iteration) {
+UpdateStats Simulation::update(int iteration, const CancelToken& cancel) {
+    cancel.check("the update");
     return run_update_pass(kernels_, frame_, state_, iteration, cfg_.seed, cfg_.threads);
 }
 
@@ -379,15 +386,15 @@ RaycastStats Simulation::cast_rays(const std::vector<RecordedRay>& rays, int thr
 
 void Simulation::render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
                         std::array<float, 3> up, float fov_deg, int width, int height, int threads,
-                        float* out_value, float* out_shade) const {
-    render_false_colour(render_scene(), values, eye, target, up, fov_deg, width, height, threads, out_value,
+                        float* out_value, float* out_shade, const CancelToken& cancel) const {
+    render_false_colour(render_scene(cancel), values, eye, target, up, fov_deg, width, height, threads, out_value,
                         out_shade);
 }
 
 FalseColourView Simulation::false_colour_view(std::array<float, 3> eye, std::array<float, 3> target,
                                               std::array<float, 3> up, float fov_deg, int width, int height,
-                                              int threads) const {
-    return gammart::false_colour_view(render_scene(), eye, target, up, fov_deg, width, height, threads);
+                                              int threads, const CancelToken& cancel) const {
+    return gammart::false_colour_view(render_scene(cancel), eye, target, up, fov_deg, width, height, threads);
 }
 
 size_t Simulation::smoothing_weights(int surface, const float p[3], uint32_t idx[kSmoothingNeighbours],
@@ -408,13 +415,15 @@ int32_t Simulation::look_at(uint32_t triangle, const float p[3], const float n[3
 }
 
 void Simulation::bake_texels(const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
-                             int iteration, int threads, float* rows_out, float* look_out) const {
-    gammart::bake_texels(render_scene(), layout, k, tris, bary, iteration, threads, rows_out, look_out);
+                             int iteration, int threads, float* rows_out, float* look_out,
+                             const CancelToken& cancel) const {
+    gammart::bake_texels(render_scene(cancel), layout, k, tris, bary, iteration, threads, rows_out, look_out);
 }
 
 void Simulation::bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
-                             const float* uvs, int iteration, int threads, float* rows_out, float* look_out) const {
-    gammart::bake_points(render_scene(), k, positions, normals, triangles, uvs, iteration, threads, rows_out,
+                             const float* uvs, int iteration, int threads, float* rows_out, float* look_out,
+                             const CancelToken& cancel) const {
+    gammart::bake_points(render_scene(cancel), k, positions, normals, triangles, uvs, iteration, threads, rows_out,
                          look_out);
 }
 
@@ -423,8 +432,9 @@ void Simulation::set_textures(std::vector<Texture> textures) {
     textures_ = std::move(textures);
 }
 
-RenderStats Simulation::render_appearance(const AppearanceParams& params, float* out_rgba) const {
-    return gammart::render_appearance(render_scene(), params, out_rgba);
+RenderStats Simulation::render_appearance(const AppearanceParams& params, float* out_rgba,
+                                          const CancelToken& cancel) const {
+    return gammart::render_appearance(render_scene(cancel), params, out_rgba);
 }
 
 }  // namespace gammart

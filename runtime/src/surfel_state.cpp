@@ -14,8 +14,8 @@
 namespace gammart {
 
 SurfelState SurfelState::sample(const Mesh& mesh, const std::vector<int32_t>& tri_surface, size_t n, uint64_t seed,
-                                const std::vector<std::vector<float>>& surface_rows) {
-    return of(sample_surfels(mesh, n, seed), tri_surface, surface_rows);
+                                const std::vector<std::vector<float>>& surface_rows, const CancelToken& cancel) {
+    return of(sample_surfels(mesh, n, seed, cancel), tri_surface, surface_rows);
 }
 
 SurfelState SurfelState::of(SurfelSet surf, const std::vector<int32_t>& tri_surface,
@@ -35,13 +35,13 @@ SurfelState SurfelState::of(SurfelSet surf, const std::vector<int32_t>& tri_surf
     return st;
 }
 
-SurfelSample::SurfelSample(const Mesh& mesh, size_t n, uint64_t seed, int threads)
+SurfelSample::SurfelSample(const Mesh& mesh, size_t n, uint64_t seed, int threads, const CancelToken& cancel)
     : mesh_(&mesh), n_(n), seed_(seed) {
     const auto t0 = std::chrono::steady_clock::now();
     try {
-        run_with_threads(threads, [&] { surf_ = sample_surfels(mesh, n, seed); });
+        run_with_threads(threads, [&] { surf_ = sample_surfels(mesh, n, seed, cancel); });
         ok_ = true;
-    } catch (const std::exception&) {  // reported by the Simulation's own sampling
+    } catch (const std::exception&) {  // reported by the Simulation's own sampling (or cancelled: not needed)
         surf_ = SurfelSet{};
     }
 #ifdef __GLIBC__

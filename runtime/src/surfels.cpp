@@ -1564,7 +1564,7 @@ void sort_unique_keys(std::vector<std::pair<uint64_t, uint32_t>>& order) {
 
 }  // namespace
 
-SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
+SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed, const CancelToken& cancel) {
     if (n == 0) throw Error("surfel count must be at least 1");
     const size_t m = mesh.num_triangles();
     Uninitialised<float> tri_normal(3 * m);
@@ -1587,13 +1587,16 @@ SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed) {
     Uninitialised<float> cand(3 * nc);
     Uninitialised<int32_t> cand_tri(nc);
     const double area = fill_candidates(mesh, n, seed, cand.data(), cand_tri.data());
+    cancel.check("the surfel sampling");
     const PointsView cand_points(cand.data(), nc);
     SurfelSet out;
     out.r_max = std::sqrt(area / (2.0 * std::sqrt(3.0) * double(n)));
     // Should the disk passes fall short (very few surfels on a compact
     // mesh), the weighted elimination picks the n.
     std::vector<uint32_t> kept = poisson_disk_sample_in(cand_points, n, out.r_max, seed, kDiskListCapacity, true);
+    cancel.check("the surfel sampling");
     if (kept.size() != n) kept = eliminate_samples_in(cand_points, n, out.r_max);
+    cancel.check("the surfel sampling");
     // The kept candidates in ascending order, so that their Morton keys
     // read the candidates' positions in address order (not 100,000 random
     // reads out of 500,000; the keys' sort below makes the surfels' order

@@ -59,7 +59,9 @@ int64_t Tracer::num_chunks(int iteration, const SurfelState& state, const SceneF
     return (emission(iteration, state, frame).sched.total() + kChunkSize - 1) / kChunkSize;
 }
 
-TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state) {
+TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state,
+                         const CancelToken& cancel) {
+    cancel.check("the trace");   // (also when the pass has no chunk to check it in)
     const auto t0 = std::chrono::steady_clock::now();
     const Emission plan = emission(iteration, state, frame);
     const int64_t nchunks = (plan.sched.total() + kChunkSize - 1) / kChunkSize;
@@ -85,7 +87,7 @@ TraceStats Tracer::trace(int iteration, const SceneIndex& index, const SceneFram
         for (int64_t first = 0; first < nchunks; first += batch) {
             const int64_t last = std::min(nchunks, first + batch);
             run_chunks(iteration, first, last, index, frame, state, reflectance, logs_.data(),
-                       record_rays_ ? ray_logs_.data() + first : nullptr);
+                       record_rays_ ? ray_logs_.data() + first : nullptr, cancel);
             int64_t held = 0;
             for (int64_t k = 0; k < last - first; ++k) {
                 total_st.add(logs_[size_t(k)].st);
@@ -117,7 +119,8 @@ std::vector<ChunkLog> Tracer::trace_chunks(int iteration, int64_t first, int64_t
                     ") are not within the " + std::to_string(nchunks) + " chunks of iteration " +
                     std::to_string(iteration));
     std::vector<ChunkLog> logs(size_t(last - first));
-    run_chunks(iteration, first, last, index, frame, state, uniform_reflectance(index, state), logs.data(), nullptr);
+    run_chunks(iteration, first, last, index, frame, state, uniform_reflectance(index, state), logs.data(), nullptr,
+               CancelToken::never());
     return logs;
 }
 
@@ -230,7 +233,7 @@ Tracer::UniformReflectance Tracer::uniform_reflectance(const SceneIndex& index, 
 
 void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
                         const SceneFrame& frame, const SurfelState& state, const UniformReflectance& reflectance,
-                        ChunkLog* out, std::vector<RecordedRay>* rays_out) const {
+                        ChunkLog* out, std::vector<RecordedRay>* rays_out, const CancelToken& cancel) const {
     const Config& c = cfg_;
     const KernelTable& K = kernels_;
     const int W = state.width;
@@ -282,12 +285,8 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
                              : 1.0f);
     }
 
-    std::atomic<bool> cancelled{false};
     auto run_chunk = [&](int64_t ci) {
-        if (cancel_ != nullptr && cancel_->load(std::memory_order_relaxed)) {
-            cancelled.store(true, std::memory_order_relaxed);
-            return;
-        }
+        cancel.check("the trace");   // (TBB cancels the other chunks and rethrows it to the caller)
         ChunkLog& log = out[size_t(ci - first)];
         log.clear();
         TraceStats st;
@@ -658,11 +657,6 @@ void Tracer::run_chunks(int iteration, int64_t first, int64_t last, const SceneI
             for (int64_t ci = r.begin(); ci < r.end(); ++ci) run_chunk(ci);
         });
     });
-
-    if (cancelled.load()) {
-        cancel_->store(false);   // one request stops one trace (the caller merges nothing)
-        throw Error("cancelled: the iteration was stopped before its end (Simulation.cancel)");
-    }
 }
 
 std::vector<RecordedRay> Tracer::take_recorded_rays() {

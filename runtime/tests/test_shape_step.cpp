@@ -8,6 +8,7 @@
 #include <map>
 #include <string>
 
+#include "gamma/gmath.h"
 #include "gamma/shape_step.h"
 #include "gamma/simulation.h"
 #include "helpers.h"
@@ -470,7 +471,11 @@ AngleCheck check_angles(const Mesh& m) {
                 v[d] = double(m.vertices[3 * size_t(c) + size_t(d)]) - m.vertices[3 * size_t(a) + size_t(d)];
             }
             const double cx = u[1] * v[2] - u[2] * v[1], cy = u[2] * v[0] - u[0] * v[2], cz = u[0] * v[1] - u[1] * v[0];
-            const double deg = std::atan2(std::sqrt(cx * cx + cy * cy + cz * cz), u[0] * v[0] + u[1] * v[1] + u[2] * v[2]) *
+            // in single precision through the project's atan2, as the runtime
+            // measures angles (SPEC §11: no C library math), so that the two agree
+            // bit for bit and the bound is checked on the same number
+            const double deg = double(gm::atan2(float(std::sqrt(cx * cx + cy * cy + cz * cz)),
+                                                float(u[0] * v[0] + u[1] * v[1] + u[2] * v[2]))) *
                                180.0 / M_PI;
             r.min_free_deg = std::min(r.min_free_deg, deg);
         }

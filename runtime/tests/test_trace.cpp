@@ -72,6 +72,48 @@ TEST(Trace, PatinaMeanInteractions) {
     EXPECT_NEAR(mean, 2.5, 0.02);
 }
 
+// A cancelled token stops the set-up and each pass before it changes
+// anything (gamma/cancel.h): Cancelled, not Error, and the rows as they were;
+// a token cancelled from another thread stops a long trace within its chunks.
+TEST(Trace, ACancelledTokenStopsThePassesAndLeavesTheRows) {
+    Mesh m = gamma_test::icosphere(4);
+    Config c = base_config(5, 0.3f);
+    c.threads = 2;
+    const int t = c.add_ton_type(1, 0, 0, {});
+    c.set_transport(GAMMA_EVENT_HIT, t, 0, addr(reinterpret_cast<void*>(&k_hit)), true);
+    c.set_update(0, addr(reinterpret_cast<void*>(&k_update)));
+    c.add_source("point", t, 2'000'000, {0, 0, 0});
+    CancelToken stopped;
+    stopped.cancel();
+    EXPECT_THROW(Simulation(m, c, stopped), Cancelled);
+    Simulation sim(m, c);
+    const std::vector<float> before = sim.rows();
+    EXPECT_THROW(sim.trace(1, stopped), Cancelled);
+    EXPECT_THROW(sim.update(1, stopped), Cancelled);
+    EXPECT_THROW(sim.shape(1, stopped), Cancelled);
+    EXPECT_EQ(sim.rows(), before);
+    try {
+        sim.trace(1, stopped);
+    } catch (const Cancelled& e) {
+        EXPECT_EQ(std::string(e.what()), "cancelled: the trace was stopped before its end");
+    }
+
+    CancelToken later;
+    const auto t0 = std::chrono::steady_clock::now();
+    std::thread canceller([&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        later.cancel();
+    });
+    EXPECT_THROW(
+        {
+            for (int it = 1; it < 1000; ++it) sim.trace(it, later);
+        },
+        Cancelled);
+    canceller.join();
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 30.0);
+    sim.trace(1);   // the token stopped its own passes only
+}
+
 TEST(Trace, CappedAtMaxInteractions) {
     Mesh m = gamma_test::icosphere(3);
     Config c = base_config(3, 0.0f);

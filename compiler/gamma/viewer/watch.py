@@ -4,7 +4,8 @@ file or a file it imports is saved, and show each result in the browser.
 Each save is answered twice: first a preview (the same iterations with a
 fraction of the γ-tons, chosen in the page), published as soon as it is
 done, then the full-quality run, published when it completes.  A save
-during a run abandons it at the next iteration.  The scene is read once per
+during a run cancels it: the runtime pass under way stops at its next chunk
+(the run's CancelToken).  The scene is read once per
 effect whose surfaces or assignment rules change; the kernels of an
 unchanged effect come from the compiler's cache.
 """
@@ -249,10 +250,8 @@ class Watcher:
         try:
             run(effect, replace(opts, tons=tons, out=self.scratch.name, progress=False), [writer],
                 scene=self.scene, standard=False, reuse=self.sim)
-        except ValueError as err:
-            if str(err).startswith("cancelled:"):
-                raise Superseded from None
-            raise
+        except runtime_module().Cancelled:
+            raise Superseded from None
         finally:
             finished.set()
             monitor.join()
@@ -271,14 +270,14 @@ class Watcher:
                  f"({info['seconds_since_save']:.2f} s after the change, {tons:,} γ-tons per iteration)")
 
     def _cancel_when_stale(self, writer: "ViewerWriter", finished: threading.Event) -> None:
-        """Stops the tracing pass running now as soon as a file is saved (or
-        the page asks for another preview), instead of at the iteration's end:
-        with millions of γ-tons an iteration takes seconds."""
+        """Stops the runtime pass running now (the run's CancelToken) as soon as
+        a file is saved (or the page asks for another preview), instead of at
+        the iteration's end: with millions of γ-tons an iteration takes seconds."""
         while not finished.wait(self.CANCEL_POLL):
             if self.stop.is_set() or self.changed() or self.state.preview_changed.is_set():
                 session = getattr(writer, "session", None)
                 if session is not None:      # before the setup is done, on_setup_done stops the run
-                    session.sim.cancel()
+                    session.cancel.cancel()
                     return
 
     def _publish_mesh(self, camera) -> None:
@@ -370,6 +369,6 @@ def watch(path: str, overrides: dict, opts: RunOptions, port: int = 8000, previe
         state.close()
         server.shutdown()
         server.server_close()
-        watcher.scratch.cleanup()       # (gammac may leave with os._exit after ^C)
+        watcher.scratch.cleanup()
     return 0
 

@@ -10,6 +10,7 @@
 #include <memory>
 #include <vector>
 
+#include "gamma/cancel.h"
 #include "gamma/kernel_table.h"
 #include "gamma/mesh.h"
 #include "gamma/render.h"
@@ -34,6 +35,7 @@ struct RenderScene {
     const Mesh& mesh;
     std::shared_ptr<const std::vector<float>> corner_normals;  // shading.h; empty: flat shading
     const BaseColours& base;                   // the scene's own colours (glTF materials)
+    const CancelToken& cancel;                 // checked by the renders and bakes between rows and blocks
 };
 
 // Checks textures (positive size, height*width*3 finite floats); throws

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "gamma/baker.h"
+#include "gamma/cancel.h"
 #include "gamma/config.h"
 #include "gamma/kernel_table.h"
 #include "gamma/mesh.h"
@@ -51,9 +52,9 @@ public:
     // whose surfels, lookup and splat kernel are taken when it matches this
     // mesh, count, seed and binding, and only its surfels when just the
     // binding differs (the result is again the same); it is preferred to
-    // `ahead`.
+    // `ahead`.  `cancel` stops the setup between its phases (Cancelled).
     Simulation(const Mesh& mesh, const Config& config, SurfelSample* ahead = nullptr,
-               SetupSnapshot* snapshot = nullptr);
+               SetupSnapshot* snapshot = nullptr, const CancelToken& cancel = CancelToken::never());
     ~Simulation();
     Simulation(const Simulation&) = delete;
     Simulation& operator=(const Simulation&) = delete;
@@ -75,7 +76,9 @@ public:
     const SurfelMeasures& measures() const { return state_.measures; }
     void set_rows(const float* data);  // N*W floats
 
-    TraceStats trace(int iteration);
+    // `cancel` stops the trace before its next chunk of gamma-tons: it throws
+    // Cancelled and leaves the rows as they were.
+    TraceStats trace(int iteration, const CancelToken& cancel = CancelToken::never());
     // trace() in pieces (see Tracer::trace_chunks): the driver of a
     // distributed run merges the chunks its workers traced.
     int64_t num_chunks(int iteration) const { return tracer_->num_chunks(iteration, state_, frame_); }
@@ -94,16 +97,12 @@ public:
     }
     void merge_add(const std::vector<ChunkLog>& logs) { tracer_->merge_add(logs, state_); }
     TraceStats merge_end() { return tracer_->merge_end(state_); }
-    // Asks the trace running now (or the next one) to stop before its next
-    // chunk of gamma-tons: it throws gammart::Error ("cancelled: ...") and
-    // leaves the rows as they were.  Safe from any thread.
-    void cancel() { cancel_.store(true); }
-    // Withdraws a cancel no trace took (it came after the trace's last chunk).
-    void clear_cancel() { cancel_.store(false); }
-    UpdateStats update(int iteration);
+    // The update and the shape step take `cancel` before they start (they
+    // change the rows and the mesh in place; an update takes milliseconds).
+    UpdateStats update(int iteration, const CancelToken& cancel = CancelToken::never());
     // The shape step (after update): nothing happens unless some surface's
     // shape follows a property (Config::shape_rates).
-    ShapeStats shape(int iteration);
+    ShapeStats shape(int iteration, const CancelToken& cancel = CancelToken::never());
     int shape_rebuilds() const { return shape_.rebuilds(); }
     // The current mesh (deformed and re-tiled once the shape changed).
     const Mesh& mesh() const { return mesh_; }
@@ -116,14 +115,15 @@ public:
     std::vector<RecordedRay> record_rays(int iteration);
     // Embree alone on those rays (the tracer-efficiency baseline).
     RaycastStats cast_rays(const std::vector<RecordedRay>& rays, int threads) const;
-    // Out arrays are height*width.
+    // Out arrays are height*width.  The renders and bakes below check
+    // `cancel` row by row (block by block): Cancelled.
     void render(const float* values, std::array<float, 3> eye, std::array<float, 3> target,
                 std::array<float, 3> up, float fov_deg, int width, int height, int threads,
-                float* out_value, float* out_shade) const;
+                float* out_value, float* out_shade, const CancelToken& cancel = CancelToken::never()) const;
     // The false-colour render's rays cast once, for the pictures of many values (renderer.h).
     FalseColourView false_colour_view(std::array<float, 3> eye, std::array<float, 3> target,
                                       std::array<float, 3> up, float fov_deg, int width, int height,
-                                      int threads) const;
+                                      int threads, const CancelToken& cancel = CancelToken::never()) const;
 
     // Shading of the renders (shading.h): flat[t] != 0 renders triangle t
     // flat (empty: none), crease_deg <= 0 renders every triangle flat.  After
@@ -149,7 +149,8 @@ public:
     // Physically plausible preview: appearance kernels per camera sample,
     // sky ambient x AO + sun with shadows.  out_rgba: height*width*4.
     // Throws gammart::Error on bad parameters.
-    RenderStats render_appearance(const AppearanceParams& params, float* out_rgba) const;
+    RenderStats render_appearance(const AppearanceParams& params, float* out_rgba,
+                                  const CancelToken& cancel = CancelToken::never()) const;
 
     // The property smoothing shared by both renders: the k = 8 nearest
     // surfels of `surface` to p (all surfels if the surface has none; the
@@ -168,19 +169,21 @@ public:
     // For baking and export: at each of k surface points (position, normal,
     // triangle, uv), the smoothed row (k x W) and the look (k x GAMMA_LOOK_WIDTH: abi.py's APPEARANCE_OUTPUTS).
     void bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
-                     const float* uvs, int iteration, int threads, float* rows_out, float* look_out) const;
+                     const float* uvs, int iteration, int threads, float* rows_out, float* look_out,
+                     const CancelToken& cancel = CancelToken::never()) const;
     // bake_points at texels of a texture layout (gammart::bake_texels).
     void bake_texels(const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary, int iteration,
-                     int threads, float* rows_out, float* look_out) const;
+                     int threads, float* rows_out, float* look_out, const CancelToken& cancel = CancelToken::never()) const;
     float smoothing_sigma() const;
     // bake_points for points baked again and again (the live viewer's
     // vertices): prepare_points finds their neighbours once; bake_prepared
     // then gives bake_points' results.  A shape change forgets the points
     // (num_prepared_points() == 0; bake_prepared throws gammart::Error).
     void prepare_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,
-                        const float* uvs, int threads);
+                        const float* uvs, int threads, const CancelToken& cancel = CancelToken::never());
     size_t num_prepared_points() const { return prepared_.size(); }
-    void bake_prepared(int iteration, int threads, float* rows_out, float* look_out) const;
+    void bake_prepared(int iteration, int threads, float* rows_out, float* look_out,
+                       const CancelToken& cancel = CancelToken::never()) const;
 
     // Filled by the Python binding after render_appearance (GIL held).
     RenderStats last_render;
@@ -226,8 +229,8 @@ public:
     const SurfelState& state() const { return state_; }
 
 private:
-    RenderScene render_scene() const {
-        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals(), base_};
+    RenderScene render_scene(const CancelToken& cancel = CancelToken::never()) const {
+        return RenderScene{*index_, frame_, state_, kernels_, textures_, mesh_, corner_normals(), base_, cancel};
     }
 
     Mesh mesh_;
@@ -243,7 +246,6 @@ private:
     std::vector<uint8_t> shading_flat_;   // per triangle of mesh_, or empty
     std::vector<uint8_t> flat_surface_;   // per surface: all its triangles flat
     BaseColours base_;
-    std::atomic<bool> cancel_{false};
     BakePoints prepared_;
     std::vector<int32_t> surface_material_;  // per surface: its one material, else -1
     float crease_deg_ = kDefaultCreaseDeg;

@@ -27,7 +27,8 @@ struct SurfelState {
     // Samples n surfels on `mesh` (seeded) and gives each the initial row of
     // its triangle's surface (surface_rows[s], W floats each).
     static SurfelState sample(const Mesh& mesh, const std::vector<int32_t>& tri_surface, size_t n, uint64_t seed,
-                              const std::vector<std::vector<float>>& surface_rows);
+                              const std::vector<std::vector<float>>& surface_rows,
+                              const CancelToken& cancel = CancelToken::never());
     // The same state from surfels sampled already (sample_surfels' result).
     static SurfelState of(SurfelSet surf, const std::vector<int32_t>& tri_surface,
                           const std::vector<std::vector<float>>& surface_rows);
@@ -46,7 +47,9 @@ struct SurfelState {
 // sample (it is compared, not copied).
 class SurfelSample {
 public:
-    SurfelSample(const Mesh& mesh, size_t n, uint64_t seed, int threads);
+    // `cancel`: the sampling stops, and ok() is false (its owner left).
+    SurfelSample(const Mesh& mesh, size_t n, uint64_t seed, int threads,
+                 const CancelToken& cancel = CancelToken::never());
     bool ok() const { return ok_; }
     bool matches(const Mesh& mesh, size_t n, uint64_t seed) const;
     // The surfels, moved out: afterwards ok() is false.

@@ -2,6 +2,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "gamma/cancel.h"
 #include "gamma/mesh.h"
 
 namespace gammart {
@@ -18,8 +19,10 @@ struct SurfelSet {
 // over them in one random order, the first at 1.40 r_max, the second
 // filling the gaps at 1.28 r_max until N are kept (surfels.cpp).
 // Deterministic in `seed`, the same at any thread count.  Output is sorted
-// along a Morton curve for memory locality.
-SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed);
+// along a Morton curve for memory locality.  `cancel` is checked between
+// the candidates, the disk passes and the ordering (Cancelled).
+SurfelSet sample_surfels(const Mesh& mesh, size_t n, uint64_t seed,
+                         const CancelToken& cancel = CancelToken::never());
 
 // The candidates sample_surfels chooses from (exposed for tests): 5n points
 // uniform by area, the triangle of each, and the mesh's area.

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "gamma/cancel.h"
 #include "gamma/config.h"
 #include "gamma/kernel_table.h"
 #include "gamma/motion.h"
@@ -34,7 +35,8 @@ public:
     // Traces iteration `iteration` (1-based) and adds the rules' deltas to
     // state.rows.  Every surface that has triangles in `index` must have
     // surfels (checked by the caller).
-    TraceStats trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state);
+    TraceStats trace(int iteration, const SceneIndex& index, const SceneFrame& frame, SurfelState& state,
+                     const CancelToken& cancel = CancelToken::never());
 
     // The same work in pieces, for tracing on other processes or machines:
     // the iteration's gamma-tons fall in num_chunks() chunks of kChunkSize;
@@ -69,9 +71,6 @@ public:
     void set_record_rays(bool on) { record_rays_ = on; }
     // The scene's mesh (surface sources start on its triangles); it must outlive the tracer.
     void set_mesh(const Mesh* mesh) { mesh_ = mesh; }
-    // While *flag is set, trace() (and trace_chunks) stops before its next chunk and throws
-    // gammart::Error ("cancelled: ...") without touching the rows.
-    void set_cancel_flag(std::atomic<bool>* flag) { cancel_ = flag; }
     std::vector<RecordedRay> take_recorded_rays();
 
     // Per surface: whether it has surfels that all hold the same reflectance
@@ -98,7 +97,7 @@ private:
     Emission emission(int iteration, const SurfelState& state, const SceneFrame& frame) const;
     void run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index, const SceneFrame& frame,
                     const SurfelState& state, const UniformReflectance& reflectance, ChunkLog* out,
-                    std::vector<RecordedRay>* rays_out) const;
+                    std::vector<RecordedRay>* rays_out, const CancelToken& cancel) const;
 
     const Config& cfg_;
     const KernelTable& kernels_;
@@ -118,7 +117,6 @@ private:
     BatchedMerge batched_;
     const Mesh* mesh_ = nullptr;
     bool record_rays_ = false;
-    std::atomic<bool>* cancel_ = nullptr;
     std::vector<std::vector<RecordedRay>> ray_logs_;  // per chunk
 };
 

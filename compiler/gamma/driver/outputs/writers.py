@@ -193,7 +193,8 @@ class FalseColourWriter(Writer):
                 pictures.append((path, title, values))
                 continue
             with run.behind.timings.timed("renders"):
-                value, shade = run.call(run.sim.render, values, eye, target, up, fov, width, height, run.threads)
+                value, shade = run.call(run.sim.render, values, eye, target, up, fov, width, height, run.threads,
+                                        cancel=run.cancel)
             run.behind.timed("renders", _write_false_colour, path, canvas, value, shade, title)
         if pictures:
             run.behind.timed("renders", _write_false_colour_views, pictures, canvas, view, vmin, vmax, run.threads)
@@ -245,7 +246,7 @@ def _view(run, keep: bool):
     path = view_cache.path_for(run) if keep else None
     view = view_cache.load(path, width, height, run.sim.num_surfels) if path is not None else None
     if view is None:
-        view = run.sim.false_colour_view(eye, target, up, fov, width, height, run.threads)
+        view = run.sim.false_colour_view(eye, target, up, fov, width, height, run.threads, cancel=run.cancel)
         view_cache.store(path, view)
     return view
 
@@ -289,7 +290,8 @@ class AppearanceWriter(Writer):
         opts = run.opts
         with run.behind.timings.timed("renders"):
             image = run.call(run.sim.render_appearance, eye, target, up, fov, opts.width, opts.height,
-                             run.threads, opts.samples, sun_direction(run.camera), opts.ao_samples, it)
+                             run.threads, opts.samples, sun_direction(run.camera), opts.ao_samples, it,
+                             cancel=run.cancel)
         run.nonfinite.add_appearance(it, run.sim.last_render_stats()["nonfinite"])
         rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
         pixels = (rgb * 255 + 0.5).astype(np.uint8)

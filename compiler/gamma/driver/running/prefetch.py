@@ -48,6 +48,9 @@ SUFFIXES = (".obj", ".ply")
 _lock = threading.Lock()
 _pending: dict[str, "_Read"] = {}
 _handed: list["_Read"] = []      # reads whose mesh ``take`` handed out, their samples not yet
+#: Stops the samplings started here (gamma/cancel.h): at the interpreter's
+#: exit, and when the run that waits for one is interrupted.
+_cancel = None
 
 
 class _Read:
@@ -91,8 +94,11 @@ class _Read:
 
 @atexit.register
 def _forget() -> None:
-    """At the interpreter's exit: the reads and samples nobody took are
-    waited for and dropped (the runtime's objects are freed before it)."""
+    """At the interpreter's exit: the samplings still running are stopped, and
+    the reads and samples nobody took waited for and dropped (the runtime's
+    objects are freed before it)."""
+    if _cancel is not None:
+        _cancel.cancel()
     with _lock:
         reads = list(_pending.values()) + _handed
         _pending.clear()
@@ -131,7 +137,7 @@ def _sample(mesh, surfels: int, seed: int, threads: int):
     gammac's start-up leaves idle makes most of the setup of a first run."""
     from ... import _runtime
 
-    sample = _runtime.SurfelSample(mesh, surfels, seed, threads)
+    sample = _runtime.SurfelSample(mesh, surfels, seed, threads, cancel=_cancel)
     if not sample.ok or surfels > AHEAD_MAX_SURFELS or _surfaces not in (None, 1):
         return sample
     try:
@@ -179,7 +185,10 @@ def start(path: str, surfels: int | None = None, seed: int = 1, threads: int = 0
         read_mesh_ahead = _runtime.read_mesh_ahead
     except Exception:  # noqa: BLE001 - a runtime that does not load is reported by the runner
         return
+    global _cancel
     with _lock:
+        if _cancel is None:
+            _cancel = _runtime.CancelToken()
         if _key(path) in _pending:
             return
         _pending[_key(path)] = _Read(path, read_mesh_ahead, surfels, seed, threads)
@@ -203,16 +212,25 @@ def take(path: "os.PathLike | str"):
     return None
 
 
-def sample_for(mesh, surfels: int, seed: int):
+#: Seconds between looks at the run's token while a sampling is waited for.
+CANCEL_STEP = 0.05
+
+
+def sample_for(mesh, surfels: int, seed: int, cancel=None):
     """The surfels sampled ahead on ``mesh`` (a mesh ``take`` handed out), or
     the setup cache's snapshot for it, waiting for them, or None.  The
-    Simulation checks that they fit."""
+    Simulation checks that they fit.  Once ``cancel`` (the run's
+    CancelToken) is cancelled, the samplings stop and None is returned."""
     with _lock:
         read = next((r for r in _handed if r.mesh.result() is mesh), None)
         if read is not None:
             _handed.remove(read)
     if read is None or read.sampled is None:
         return None
+    while cancel is not None and not read.sampled.wait(CANCEL_STEP):
+        if cancel.cancelled:
+            _cancel.cancel()
+            return None
     try:
         sample = read.sampled.result()
     except Exception:  # noqa: BLE001 - sampled again (and reported) by the Simulation

@@ -78,14 +78,9 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
     SIGINT and SIGTERM stop the run within a fraction of a second
     (``interrupt.py``): the iterations completed so far stay written, with
     ``"completed": false`` (before the first: the earlier run's files stay),
-    and ``RunInterrupted`` is raised.  A tracing pass that was running is
-    cancelled, and it or an update that was running is waited for (they end
-    within a fraction of a second), as is a reused simulation's
-    reconfiguration: the simulations a caller holds are left alone when
-    ``run`` raises.  The set-up or compile that was running (seconds for
-    millions of surfels) is not: it ends on its own thread
-    (``RunInterrupted.abandoned_call``), and the interpreter's exit waits for
-    it.  A run that fails
+    and ``RunInterrupted`` is raised.  The runtime pass that was running (the
+    set-up, a trace, a render) stops at its next check of the run's cancel
+    token; an update or shape step that had started ends first.  A run that fails
     puts the earlier run's files back (``folder.py``).  ``scene`` (a
     ``scene.Scene``) replaces ``opts.scene``; ``standard=False`` leaves the
     standard outputs out (the Python API, the viewer).  ``reuse``: the
@@ -102,27 +97,17 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
             session = start(effect, opts, stop, scene, reuse, warm_outputs=standard)
         except Interrupted as sig:
             # before the earlier run's files were set aside (start's runtime calls all are)
-            if reuse is not None:
-                # the call may be the reconfiguration of the caller's simulation (or the
-                # compile, or a setup after a refused one): waited for, 10 s at most
-                _wait_for_abandoned(stop)
             raise RunInterrupted(f"interrupted by {sig.name} before the first iteration; "
-                                 "the earlier results are kept", sig.status, stop.abandoned) from None
+                                 "the earlier results are kept", sig.status) from None
         subscribers = (standard_writers(session) if standard else []) + list(writers)
         done = session.first_iteration - 1
         books = None        # (iteration, what its update adds to the summary besides its record)
-        trace_abandoned = False
         try:
             with session.behind:   # leaving it waits for the writers' queued jobs
                 publish(subscribers, SetupDone(session))
                 loop_started = time.perf_counter()
                 for it in range(session.first_iteration, opts.iterations + 1):
-                    try:
-                        traced = stop.call(session.trace, it)
-                    except BaseException:
-                        trace_abandoned = stop.abandoned is not None
-                        _cancel_abandoned_trace(session, stop)  # now, not after the writer's queue
-                        raise
+                    traced = stop.call(session.trace, it)
                     publish(subscribers, IterationTraced(session, it, traced))
                     books = it, session.books()
                     rows, props, record = stop.call(session.update, it, traced)
@@ -136,12 +121,9 @@ def run(effect: Effect, opts: RunOptions, writers: list | tuple = (), scene=None
                 publish(subscribers, RunFinished(session, session.summary))
             folder.drop(session.out)
         except Interrupted as sig:
-            if not trace_abandoned:         # (a trace was waited for above)
-                _wait_for_abandoned(stop)
-            # the books before an update of the iteration dropped (it ended after the signal,
-            # or still runs)
+            # the books before an update of the iteration dropped (it ended after the signal)
             dropped = books[1] if books is not None and books[0] == done + 1 else None
-            _interrupted(session, sig, done, stop.abandoned, dropped)     # raises RunInterrupted
+            _interrupted(session, sig, done, dropped)     # raises RunInterrupted
         except BaseException as err:
             if not opts.resume:
                 folder.restore(session.out)      # the earlier run's files come back
@@ -159,38 +141,13 @@ def _direct(fn, *args, **kwargs):
     return fn(*args, **kwargs)
 
 
-#: How long an interrupted run waits for the runtime call it abandoned (a
-#: cancelled trace, an update) before it leaves it running.
-ABANDONED_CALL_WAIT = 10.0
-
-
-def _wait_for_abandoned(stop) -> None:
-    if stop.abandoned is not None and stop.abandoned.wait(ABANDONED_CALL_WAIT):
-        stop.abandoned = None
-
-
-def _cancel_abandoned_trace(session: "Run", stop) -> None:
-    """A trace abandoned (a signal) stops before its next chunk of 1,024
-    gamma-tons, and is waited for (once: 10 s at most); a trace that did not
-    take the cancel (it had passed its last chunk, or failed) leaves none for
-    the next.  Ray's workers cannot be cancelled: not waited for."""
-    if stop.abandoned is None or session.tracer is not None:
-        return
-    session.sim.cancel()
-    if stop.abandoned.wait(ABANDONED_CALL_WAIT):
-        session.sim.clear_cancel()      # (after a trace that took it: nothing to withdraw)
-        stop.abandoned = None
-
-
 class RunInterrupted(Exception):
     """The run stopped at a signal; its folder holds its complete iterations
-    (or the earlier run's files).  ``abandoned``: the outcome of a runtime call
-    that still runs on another thread (the set-up), or None."""
+    (or the earlier run's files).  ``status``: 128 + the signal's number."""
 
-    def __init__(self, message: str, status: int, abandoned=None):
+    def __init__(self, message: str, status: int):
         super().__init__(message)
         self.status = status
-        self.abandoned = abandoned
 
     @property
     def signal_name(self) -> str:
@@ -199,14 +156,8 @@ class RunInterrupted(Exception):
         number = self.status - 128
         return next((name for sig, name in SIGNAL_NAMES.items() if sig == number), f"signal {number}")
 
-    @property
-    def abandoned_call(self) -> bool:
-        """A runtime call still runs: gammac leaves with ``os._exit`` instead of
-        the interpreter's exit, which would wait for it."""
-        return self.abandoned is not None and not self.abandoned.done()
 
-
-def _interrupted(session: "Run", sig, done: int, abandoned, dropped_books):
+def _interrupted(session: "Run", sig, done: int, dropped_books):
     """Finish the folder of an interrupted run: complete iterations only (the
     queued writes are done: leaving ``behind`` waited for them), summary.json
     with ``"completed": false``; keep the earlier run's files if none is.
@@ -215,8 +166,6 @@ def _interrupted(session: "Run", sig, done: int, abandoned, dropped_books):
     from . import folder
     from ...files import atomic_write
 
-    # a copy, and nothing in it shared with an update that still runs (it appends to
-    # the session's summary, and changes its ranges and non-finite counts)
     summary = dict(session.summary)
     summary["completed"] = False
     summary["interrupted"] = sig.name
@@ -237,8 +186,7 @@ def _interrupted(session: "Run", sig, done: int, abandoned, dropped_books):
         folder.drop(out)
         kept = (f"'{out}' holds iterations 1 to {done} of {session.opts.iterations} "
                 f"(summary.json: \"completed\": false); add --resume to continue")
-    raise RunInterrupted(f"interrupted by {sig.name} during iteration {done + 1}; {kept}",
-                         sig.status, abandoned)
+    raise RunInterrupted(f"interrupted by {sig.name} during iteration {done + 1}; {kept}", sig.status)
 
 
 @record
@@ -267,7 +215,8 @@ class Run(Record):
     shape_warned: set = field(default_factory=set)  # the shape limits already warned of
     first_iteration: int = 1       # 1, or where --resume continues
     lock: object = None            # folder.OutputLock, held for the run
-    call: object = _direct         # call(fn, *args): a long runtime call a signal can abandon
+    call: object = _direct         # call(fn, *args): a long runtime call, Interrupted by a signal
+    cancel: object = None          # the run's CancelToken (interrupt.py), handed to every long runtime pass
     tracer: object = None          # distributed.RayTracer with --ray / --ray-address
     input_values: object = None    # float32 (surfels, inputs): mask() and attribute() (scene_inputs.py)
     loop_ended: float | None = None  # time.perf_counter() when the last iteration was done
@@ -276,7 +225,7 @@ class Run(Record):
         """Trace iteration ``it``'s gamma-tons; the runtime's statistics."""
         if self.tracer is not None:
             return self.tracer.trace(it)
-        return self.sim.trace(it)
+        return self.sim.trace(it, cancel=self.cancel)
 
     def books(self) -> tuple:
         """A copy of what ``update`` adds to the summary besides its record (the
@@ -289,7 +238,7 @@ class Run(Record):
 
     def update(self, it: int, traced: dict) -> tuple[np.ndarray, dict, dict]:
         """Run the update rules; (rows, property columns, summary record)."""
-        updated = self.sim.update(it)
+        updated = self.sim.update(it, cancel=self.cancel)
         self.nonfinite.add(it, traced["nonfinite"], updated["nonfinite"])
         rows = self.sim.rows()
         props = property_columns(self.effect, rows, self.surfel_surface)
@@ -304,7 +253,7 @@ class Run(Record):
         if names:
             record["mass"] = {name: books for name, books in zip(names, traced["mass"])}
         if self.shapes:
-            shaped = self.sim.shape(it)
+            shaped = self.sim.shape(it, cancel=self.cancel)
             record["geometry"] = shaped["geometry"]
             record["shape"] = {k: v for k, v in shaped.items() if k != "geometry"}
             for key, count in (("clamped_vertices", "was cut to the per-iteration bound"),
@@ -429,13 +378,14 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None, w
     from . import folder
 
     call = stop.call if stop is not None else _direct
+    cancel = stop.token if stop is not None else None
     lock = folder.OutputLock(out)
     try:
         lock.__enter__()
     except folder.FolderError as err:
         raise RunError(str(err)) from None
     try:
-        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse,
+        session = _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, cancel, entered, reuse,
                                 warm_outputs, init)
     except BaseException:
         lock.__exit__()
@@ -450,7 +400,7 @@ def start(effect: Effect, opts: RunOptions, stop=None, scene=None, reuse=None, w
     return session
 
 
-def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, entered, reuse=None,
+def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, cancel, entered, reuse=None,
                   warm_outputs=False, init=None) -> Run:
     """The rest of ``start``, with the output folder locked."""
     from . import folder
@@ -480,7 +430,7 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                 from .warmup import prepare_outputs
 
                 prepare_outputs(shown is not None or looks, bool(looks), opts.height)
-            sim = call(_simulation, rt, mesh, cfg, not shape_changes(effect))
+            sim = call(_simulation, rt, mesh, cfg, not shape_changes(effect), cancel)
     except (ValueError, TypeError, RuntimeError) as err:
         message = str(err).removeprefix("config: ")
         names = list(effect.surfaces)
@@ -587,27 +537,28 @@ def _start_locked(effect, opts, rt, scene, shown, looks, textures, out, call, en
                   surfel_surface, static, summary, report, WriteQueue(), shapes, where, tracer=tracer)
     session.first_iteration = first
     session.call = call
+    session.cancel = cancel
     session.input_values = input_values
     return session
 
 
-def _simulation(rt, mesh, cfg, shape_static: bool = False):
+def _simulation(rt, mesh, cfg, shape_static: bool = False, cancel=None):
     """``Simulation(mesh, cfg)``, with the setup cache's snapshot for it or
     the surfels ``gammac run`` sampled on ``mesh`` while it started up
     (prefetch.py, setup_cache.py: used only if they are this setup's); a
     setup not taken whole from the cache is kept there for the next run
     (taken from the simulation behind the loop when ``shape_static``: no
-    rule of the effect changes the shape)."""
+    rule of the effect changes the shape).  ``cancel``: the run's CancelToken."""
     from . import prefetch
     from ..caches import setup_cache
 
-    ahead = prefetch.sample_for(mesh, cfg.surfels, cfg.seed)
+    ahead = prefetch.sample_for(mesh, cfg.surfels, cfg.seed, cancel)
     snapshot = None
     if isinstance(ahead, rt.SetupSnapshot):
         snapshot, ahead = ahead, None
     elif ahead is None:                 # nothing read ahead (a scene file, a glTF, ...)
         snapshot = setup_cache.load(mesh, cfg.surfels, cfg.seed)
-    sim = rt.Simulation(mesh, cfg, ahead, snapshot)
+    sim = rt.Simulation(mesh, cfg, ahead, snapshot, cancel=cancel)
     if sim.from_snapshot != "setup" or sim.setup_made_ahead:
         setup_cache.store(sim, mesh, cfg.surfels, cfg.seed, behind=shape_static)
     return sim
