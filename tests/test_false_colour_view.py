@@ -90,7 +90,7 @@ def test_the_view_rays_are_cast_at_the_setup_when_the_shape_never_changes():
     calls = []
 
     class Sim:
-        def false_colour_view(self, *args):
+        def false_colour_view(self, *args, cancel=None):
             calls.append(args)
             return "view"
 
@@ -101,7 +101,7 @@ def test_the_view_rays_are_cast_at_the_setup_when_the_shape_never_changes():
 
     def run_of(shape, width=8):
         return SimpleNamespace(first_iteration=1, sim=Sim(), behind=SimpleNamespace(timings=Timings()),
-                               camera=((0, 0, 1), (0, 0, 0), (0, 1, 0), 40.0), threads=2,
+                               camera=((0, 0, 1), (0, 0, 0), (0, 1, 0), 40.0), threads=2, cancel=None,
                                opts=SimpleNamespace(width=width, height=8),
                                effect=SimpleNamespace(surfaces={"S": SimpleNamespace(shape=shape)}))
 

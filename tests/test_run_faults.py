@@ -69,17 +69,13 @@ def test_resume_refuses_another_run(tmp_path):
     assert r.returncode == 1 and "no run to resume" in r.stderr
 
 
-@pytest.mark.parametrize("sig,status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_signal_stops_promptly_with_a_consistent_folder(tmp_path, sig, status):
-    out = tmp_path / "o"
-    cmd = [sys.executable, "-m", "gamma.cli", "run", *map(str, args(out, 50, tons=400_000))]
+def signalled(cmd, sig, ready):
+    """Runs ``cmd``, sends it ``sig`` once ``ready(proc)`` has returned, and
+    returns (the process, its stderr, the seconds it took to end after the
+    signal)."""
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 300
-        while not (out / "maps" / "iter_0001.ply").exists() and time.monotonic() < deadline:
-            assert proc.poll() is None, proc.stderr.read()
-            time.sleep(0.05)
-        time.sleep(0.2)                          # into the next tracing pass
+        ready(proc)
         proc.send_signal(sig)
         sent = time.monotonic()
         proc.wait(timeout=60)
@@ -87,7 +83,22 @@ def test_signal_stops_promptly_with_a_consistent_folder(tmp_path, sig, status):
     finally:
         if proc.poll() is None:
             proc.kill()
-    err = proc.stderr.read()
+    return proc, proc.stderr.read(), waited
+
+
+@pytest.mark.parametrize("sig,status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signal_stops_promptly_with_a_consistent_folder(tmp_path, sig, status):
+    out = tmp_path / "o"
+
+    def in_the_second_iteration(proc):
+        deadline = time.monotonic() + 300
+        while not (out / "maps" / "iter_0001.ply").exists() and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stderr.read()
+            time.sleep(0.05)
+        time.sleep(0.2)                          # into the next tracing pass
+
+    proc, err, waited = signalled([sys.executable, "-m", "gamma.cli", "run", *map(str, args(out, 50, tons=400_000))],
+                                  sig, in_the_second_iteration)
     assert proc.returncode == status, err
     assert waited < 10, waited                   # ~0.3 s unloaded; slack for a busy machine
     assert f"interrupted by {signal.Signals(sig).name}" in err and "Traceback" not in err
@@ -98,6 +109,29 @@ def test_signal_stops_promptly_with_a_consistent_folder(tmp_path, sig, status):
     for name in maps(out):                       # complete maps only
         assert len(read_ply(out / "maps" / name)["x"]) == s["surfels"]
     assert not list(out.rglob(".*"))           # no temporary file, no lock, nothing set aside
+
+
+def test_a_signal_stops_gammac_export_while_it_bakes(tmp_path):
+    """gammac export hands the command's cancel token to the set-up and the
+    bakes: SIGINT in a long bake ends it promptly with 130, no traceback and
+    no temporary file."""
+    out = tmp_path / "o"
+    assert run_gammac("run", *args(out, 1)).returncode == 0
+
+    def in_the_bake(proc):
+        time.sleep(EXPORT_SIGNAL_AFTER)             # past the start-up and the set-up, into the bake
+        assert proc.poll() is None, "the export ended before the signal: make it longer"
+
+    proc, err, waited = signalled([sys.executable, "-m", "gamma.cli", "export", str(out), "--bake-size", "8192"],
+                                  signal.SIGINT, in_the_bake)
+    assert proc.returncode == 130, err
+    assert waited < 10, waited                   # a bake's block of texels; slack for a busy machine
+    assert "export interrupted by SIGINT" in err and "Traceback" not in err
+    assert not list(out.rglob(".*"))
+
+
+#: Seconds from the start of `gammac export --bake-size 8192` to its signal.
+EXPORT_SIGNAL_AFTER = 3.0
 
 
 def test_a_signal_during_the_setup_stops_it_and_keeps_the_earlier_results(tmp_path, monkeypatch):

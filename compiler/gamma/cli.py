@@ -370,36 +370,50 @@ def _watch(args) -> int:
 
 
 def _saved(args) -> int:
-    """``render`` and ``export`` of a saved run's maps."""
+    """``render`` and ``export`` of a saved run's maps.  SIGINT and SIGTERM
+    stop the set-up, render or bake under way at its next chunk; what was
+    written before stays (every file is written whole or not at all)."""
+    from .driver.running.interrupt import Interrupted, Interruptions
     from .driver.running.runner import RunError
+
+    try:
+        with Interruptions() as stop:
+            return stop.call(_saved_command, args, stop)
+    except Interrupted as signal:
+        print(f"gammac: {args.command} interrupted by {signal.name}; the files written before are kept",
+              file=sys.stderr)
+        return signal.status
+    except RunError as err:
+        raise _Fail(str(err)) from None
+
+
+def _saved_command(args, stop) -> int:
+    """The work of ``_saved`` (under its Interruptions ``stop``)."""
     from .driver.outputs.saved import export_saved, render_saved
     from .frontend.checker import UsageError
 
-    try:
-        if args.command == "render":
-            low, high = LIMITS["--size"]
-            if not low <= args.width <= high:
-                raise UsageError(f"--size must be between {low} and {high:,}, not {args.width}")
-            path = render_saved(args.dir, args.iteration, args.show, args.output, args.width, args.samples,
-                                args.ao_samples, view=args.view, eye=args.eye, look_at=args.look_at,
-                                up=args.up, fov=args.fov, threads=args.threads, shading=args.shading,
-                                crease=args.crease)
-            print(f"gammac: wrote {path}", file=sys.stderr)
-        else:
-            iterations = None
-            if args.all:
-                from pathlib import Path
+    if args.command == "render":
+        low, high = LIMITS["--size"]
+        if not low <= args.width <= high:
+            raise UsageError(f"--size must be between {low} and {high:,}, not {args.width}")
+        path = render_saved(args.dir, args.iteration, args.show, args.output, args.width, args.samples,
+                            args.ao_samples, view=args.view, eye=args.eye, look_at=args.look_at,
+                            up=args.up, fov=args.fov, threads=args.threads, shading=args.shading,
+                            crease=args.crease, stop=stop)
+        print(f"gammac: wrote {path}", file=sys.stderr)
+    else:
+        iterations = None
+        if args.all:
+            from pathlib import Path
 
-                iterations = sorted(int(p.stem[5:]) for p in Path(args.dir, "maps").glob("iter_[0-9][0-9][0-9][0-9].ply"))
-            elif args.iteration is not None:
-                iterations = [args.iteration]
-            done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=args.progress,
-                                texel_density=args.texel_density, usd=args.format == "usd", preset=args.preset,
-                                float_maps=args.float_maps)
-            print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
-                  f"{', '.join(map(str, done))} to {args.dir}/export", file=sys.stderr)
-    except RunError as err:
-        raise _Fail(str(err)) from None
+            iterations = sorted(int(p.stem[5:]) for p in Path(args.dir, "maps").glob("iter_[0-9][0-9][0-9][0-9].ply"))
+        elif args.iteration is not None:
+            iterations = [args.iteration]
+        done = export_saved(args.dir, iterations, args.bake_size, args.threads, progress=args.progress,
+                            texel_density=args.texel_density, usd=args.format == "usd", preset=args.preset,
+                            float_maps=args.float_maps, stop=stop)
+        print(f"gammac: exported iteration{'s' if len(done) > 1 else ''} "
+              f"{', '.join(map(str, done))} to {args.dir}/export", file=sys.stderr)
     return EXIT_OK
 
 

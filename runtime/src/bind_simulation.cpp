@@ -103,11 +103,11 @@ void bind_simulation_trace(nb::class_<gammart::Simulation>& simulation) {
              "How many chunks (CHUNK_SIZE gamma-tons each) iteration `iteration` traces.")
         .def(
             "trace_chunks",
-            [](const gammart::Simulation& s, int iteration, int64_t first, int64_t last) {
+            [](const gammart::Simulation& s, int iteration, int64_t first, int64_t last, bool one_at_a_time) {
                 std::vector<gammart::ChunkLog> logs;
                 {
                     nb::gil_scoped_release nogil;
-                    logs = s.trace_chunks(iteration, first, last);
+                    logs = s.trace_chunks(iteration, first, last, one_at_a_time);
                 }
                 const size_t P = size_t(s.row_width() - GAMMA_ROW_HEADER);
                 nb::list out;
@@ -119,9 +119,10 @@ void bind_simulation_trace(nb::class_<gammart::Simulation>& simulation) {
                 }
                 return out;
             },
-            "iteration"_a, "first"_a, "last"_a,
+            "iteration"_a, "first"_a, "last"_a, "one_at_a_time"_a = false,
             "Trace chunks [first, last) against the current rows, leaving them unchanged; per chunk "
-            "(surfel indices uint32[n], property deltas float32[n, P], counters as trace() gives).")
+            "(surfel indices uint32[n], property deltas float32[n, P], counters as trace() gives).  "
+            "one_at_a_time: with the plain tracer that the batched one is checked against (the same logs).")
         .def(
             "merge_chunks",
             [](gammart::Simulation& s, int iteration, nb::list chunks) {

@@ -205,173 +205,199 @@ struct HoodEntry {
     float d2;
     uint32_t in;  // 1: in the target's own neighbourhood; 2: the target is in its
 };
-}  // namespace
 
-// The neighbour relation before the plane test (within the radius by the
-// float metric, same surface, normals within 60 degrees) is symmetric bit
-// for bit: the metric squares differences that only change sign and sums
-// them in axis order, the dot product's products commute (splat.cpp is
-// built without contraction into fused multiply-adds, so both orders round
-// alike on any target); so is the Gaussian of the distance.  So one pass
-// over target t's candidates gives both t's own neighbourhood (the plane
-// test against t's tangent plane: t's sum of weights, in ascending
-// neighbour order as fresh_neighbourhood sums it) and the sources whose
-// neighbourhood holds t (the test against theirs: t's gather list, in
-// ascending source order), and the kernel needs no transposition: once
-// every sum is known, each entry is its Gaussian over its source's sum.
-// Entries, sums and weights are fresh_neighbourhood's bit for bit.
-SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
-                               float sigma) {
-    SplatKernel k;
-    k.offset.assign(n + 1, 0);
-    if (n == 0) return k;
-    const float r = kRadiusInSigmas * sigma;
-    const float r2 = r * r;
-    const double inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
-    const float max_offset = kMaxPlaneOffsetInSigmas * sigma;
-    const bool search = r2 > 0;
-    // |q_k - p_k| <= sqrt(d2) * (1 + 2e-7) for the float metric: a pad of
-    // 1e-5 relative covers it many times over (as PointColumns).
-    const double reach = search ? std::sqrt(double(r2)) * (1.0 + 1e-5) + 1e-30 : 0.0;
-    SweepColumns cols;
-    cols.build(position, normal, surface, n, search ? reach : 1.0);
+// The search radius and plane tests of a kernel of width sigma.
+struct HoodLimits {
+    float r2, max_offset;
+    double inv2s2, reach;
+    bool search;
+    explicit HoodLimits(float sigma) {
+        const float r = kRadiusInSigmas * sigma;
+        r2 = r * r;
+        inv2s2 = sigma > 0 ? 1.0 / (2.0 * double(sigma) * double(sigma)) : 0.0;
+        max_offset = kMaxPlaneOffsetInSigmas * sigma;
+        search = r2 > 0;
+        // |q_k - p_k| <= sqrt(d2) * (1 + 2e-7) for the float metric: a pad of
+        // 1e-5 relative covers it many times over (as PointColumns).
+        reach = search ? std::sqrt(double(r2)) * (1.0 + 1e-5) + 1e-30 : 0.0;
+    }
+};
+
+// Consecutive columns in chunks of about kPointsPerChunk targets.
+std::vector<GatherChunk> gather_chunks(const SweepColumns& cols) {
     std::vector<GatherChunk> chunks;
-    {
-        const size_t ncol = cols.start.size() - 1;
-        size_t first = 0;
-        for (size_t c = 0; c < ncol; ++c)
-            if (cols.start[c + 1] - cols.start[first] >= kPointsPerChunk || c + 1 == ncol) {
-                chunks.emplace_back();
-                chunks.back().first_column = first;
-                chunks.back().end_column = c + 1;
-                first = c + 1;
+    const size_t ncol = cols.start.size() - 1;
+    size_t first = 0;
+    for (size_t c = 0; c < ncol; ++c)
+        if (cols.start[c + 1] - cols.start[first] >= kPointsPerChunk || c + 1 == ncol) {
+            chunks.emplace_back();
+            chunks.back().first_column = first;
+            chunks.back().end_column = c + 1;
+            first = c + 1;
+        }
+    return chunks;
+}
+
+// The candidates of one column's targets: a window into each of the (up to
+// nine) columns around it, sliding forward along the sweep axis as the
+// targets do.
+struct ColumnWindows {
+    uint32_t next[9], last[9], stop[9];
+    int m = 0;
+    ColumnWindows(const SweepColumns& cols, size_t c) {
+        const int ci = int(c / size_t(cols.nv)), cj = int(c % size_t(cols.nv));
+        for (int i = std::max(ci - 1, 0); i <= std::min(ci + 1, cols.nu - 1); ++i)
+            for (int j = std::max(cj - 1, 0); j <= std::min(cj + 1, cols.nv - 1); ++j) {
+                const size_t nc = size_t(i) * size_t(cols.nv) + size_t(j);
+                if (cols.start[nc] == cols.start[nc + 1]) continue;
+                next[m] = last[m] = cols.start[nc];
+                stop[m] = cols.start[nc + 1];
+                ++m;
             }
     }
-    Unzeroed<uint32_t> count(n);  // each target's gather entries
-    Unzeroed<double> sum(n);      // each source's sum of weights
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
-        std::vector<std::pair<uint32_t, float>> found;  // (sorted index, d2)
-        std::vector<HoodEntry> hood, sorted;
-        std::vector<uint32_t> ids;  // the hood's, padded to a multiple of 4
-        for (size_t ch = range.begin(); ch < range.end(); ++ch) {
-            GatherChunk& G = chunks[ch];
-            const size_t points = cols.start[G.end_column] - cols.start[G.first_column];
-            G.target.reserve(points);
-            G.source.resize(points * 16);
-            G.gauss.resize(points * 16);
-            size_t gn = 0;  // entries written
-            for (size_t c = G.first_column; c < G.end_column; ++c) {
-                const uint32_t begin = cols.start[c], end = cols.start[c + 1];
-                if (begin == end) continue;
-                // the neighbouring columns' next candidates and ends
-                uint32_t next[9], last[9], stop[9];
-                int m = 0;
-                const int ci = int(c / size_t(cols.nv)), cj = int(c % size_t(cols.nv));
-                for (int i = std::max(ci - 1, 0); i <= std::min(ci + 1, cols.nu - 1); ++i)
-                    for (int j = std::max(cj - 1, 0); j <= std::min(cj + 1, cols.nv - 1); ++j) {
-                        const size_t nc = size_t(i) * size_t(cols.nv) + size_t(j);
-                        if (cols.start[nc] == cols.start[nc + 1]) continue;
-                        next[m] = last[m] = cols.start[nc];
-                        stop[m] = cols.start[nc + 1];
-                        ++m;
-                    }
-                for (uint32_t t = begin; t < end; ++t) {
-                    const float* q = &cols.pos[3 * size_t(t)];
-                    const float* nq = &cols.nrm[3 * size_t(t)];
-                    const int32_t sq = cols.surf[t];
-                    size_t nh = 0;
-                    if (search && std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) {
-                        const double cw = double(q[cols.w]);
-                        const float c0 = float(cw - reach), c1 = float(cw + reach);
-                        size_t nf = 0;
-                        const float* key = cols.key.data();
-                        const float* pos = cols.pos.data();
-                        for (int b = 0; b < m; ++b) {
-                            // both ends of the window only move forward (c0 and c1 do)
-                            uint32_t x = next[b], y = last[b];
-                            while (x < stop[b] && key[x] < c0) ++x;
-                            y = std::max(x, y);
-                            while (y < stop[b] && !(key[y] > c1)) ++y;
-                            next[b] = x;
-                            last[b] = y;
-                            // every candidate written, the end advanced past those within only
-                            if (found.size() < nf + (y - x)) found.resize(std::max(2 * found.size(), nf + (y - x)));
-                            std::pair<uint32_t, float>* o = found.data();
-                            for (; x < y; ++x) {
-                                // PointColumns::metric (the kd-tree's), spelt out
-                                const float* p = pos + 3 * size_t(x);
-                                const float d0 = q[0] - p[0], d1 = q[1] - p[1], dz = q[2] - p[2];
-                                const float d2 = d0 * d0 + d1 * d1 + dz * dz;
-                                o[nf] = {x, d2};
-                                nf += d2 < r2;
-                            }
-                        }
-                        // every candidate written, the end advanced past those kept only
-                        if (hood.size() < nf + 1) hood.resize(2 * (nf + 1));
-                        for (size_t f = 0; f < nf; ++f) {
-                            const uint32_t x = found[f].first;
-                            const float* nx = &cols.nrm[3 * size_t(x)];
-                            const float* px = &cols.pos[3 * size_t(x)];
-                            // off the target's tangent plane, and the target off x's
-                            const float off_t = (px[0] - q[0]) * nq[0] + (px[1] - q[1]) * nq[1] + (px[2] - q[2]) * nq[2];
-                            const float off_x = (q[0] - px[0]) * nx[0] + (q[1] - px[1]) * nx[1] + (q[2] - px[2]) * nx[2];
-                            const bool pair = (x != t) & (cols.surf[x] == sq) &
-                                              !(nq[0] * nx[0] + nq[1] * nx[1] + nq[2] * nx[2] < kMinNormalDot);
-                            const uint32_t in = ((std::fabs(off_t) > max_offset ? 0u : 1u) |
-                                                 (std::fabs(off_x) > max_offset ? 0u : 2u)) &
-                                                (0u - uint32_t(pair));
-                            hood[nh] = {cols.id[x], found[f].second, in};
-                            nh += in != 0;
-                        }
-                    }
-                    const uint32_t tid = cols.id[t];
-                    if (hood.size() < nh + 1) hood.resize(nh + 1);
-                    hood[nh++] = {tid, 0.0f, 3u};  // always in its own neighbourhood
-                    // by neighbour (each once): each entry placed at its rank
-                    // (a count of smaller ones, no branch on the comparisons)
-                    if (sorted.size() < nh) sorted.resize(hood.size());
-                    if (nh <= kRankedHoodMax) {
-                        const size_t padded = (nh + 3) & ~size_t(3);
-                        if (ids.size() < padded) ids.resize(2 * padded);
-                        for (size_t a = 0; a < nh; ++a) ids[a] = hood[a].id;
-                        for (size_t a = nh; a < padded; ++a) ids[a] = UINT32_MAX;  // never smaller
-                        for (size_t a = 0; a < nh; ++a) sorted[rank_among(ids.data(), padded, ids[a])] = hood[a];
-                    } else {
-                        // ranking is quadratic: a crowd (stacked sheets) is sorted (ids are distinct:
-                        // the same order)
-                        std::copy(hood.begin(), hood.begin() + std::ptrdiff_t(nh), sorted.begin());
-                        std::sort(sorted.begin(), sorted.begin() + std::ptrdiff_t(nh),
-                                  [](const HoodEntry& a, const HoodEntry& b) { return a.id < b.id; });
-                    }
-                    double s = 0;
-                    if (G.source.size() < gn + nh) {
-                        G.source.resize(std::max(2 * G.source.size(), gn + nh));
-                        G.gauss.resize(G.source.size());
-                    }
-                    const size_t g0 = gn;
-                    for (size_t a = 0; a < nh; ++a) {
-                        const HoodEntry& h = sorted[a];
-                        const double g = double(gm::exp(float(-double(h.d2) * inv2s2)));
-                        s += (h.in & 1u) ? g : 0.0;  // (adding 0 to a sum of positive terms: the same sum)
-                        G.source[gn] = h.id;
-                        G.gauss[gn] = g;
-                        gn += h.in >> 1;
-                    }
-                    sum[tid] = s;
-                    count[tid] = uint32_t(gn - g0);
-                    G.target.push_back(tid);
-                }
-            }
-            G.source.resize(gn);
-            G.gauss.resize(gn);
+};
+
+// One thread's work on its chunks of targets, with its scratch.
+class HoodGatherer {
+public:
+    HoodGatherer(const SweepColumns& cols, const HoodLimits& lim, Unzeroed<uint32_t>& count, Unzeroed<double>& sum)
+        : cols_(cols), lim_(lim), count_(count), sum_(sum) {}
+
+    void gather(GatherChunk& G) {
+        const size_t points = cols_.start[G.end_column] - cols_.start[G.first_column];
+        G.target.reserve(points);
+        G.source.resize(points * 16);
+        G.gauss.resize(points * 16);
+        size_t gn = 0;  // entries written
+        for (size_t c = G.first_column; c < G.end_column; ++c) {
+            if (cols_.start[c] == cols_.start[c + 1]) continue;
+            ColumnWindows win(cols_, c);
+            for (uint32_t t = cols_.start[c]; t < cols_.start[c + 1]; ++t) gn = add_target(G, gn, win, t);
         }
-    });
-    // only the order of the targets is needed from here on: the rest of the
-    // columns freed before the kernel's arrays are allocated (a lower peak)
-    Unzeroed<float>().swap(cols.key);
-    Unzeroed<float>().swap(cols.pos);
-    Unzeroed<float>().swap(cols.nrm);
-    Unzeroed<int32_t>().swap(cols.surf);
+        G.source.resize(gn);
+        G.gauss.resize(gn);
+    }
+
+private:
+    // Target t's entries after the first gn of G; returns the new count.
+    size_t add_target(GatherChunk& G, size_t gn, ColumnWindows& win, uint32_t t) {
+        const float* q = &cols_.pos[3 * size_t(t)];
+        size_t nh = 0;
+        if (lim_.search && std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]))
+            nh = plane_tests(t, within_radius(win, q));
+        const uint32_t tid = cols_.id[t];
+        if (hood_.size() < nh + 1) hood_.resize(nh + 1);
+        hood_[nh++] = {tid, 0.0f, 3u};  // always in its own neighbourhood
+        sort_by_neighbour(nh);
+        double s = 0;
+        if (G.source.size() < gn + nh) {
+            G.source.resize(std::max(2 * G.source.size(), gn + nh));
+            G.gauss.resize(G.source.size());
+        }
+        const size_t g0 = gn;
+        for (size_t a = 0; a < nh; ++a) {
+            const HoodEntry& h = sorted_[a];
+            const double g = double(gm::exp(float(-double(h.d2) * lim_.inv2s2)));
+            s += (h.in & 1u) ? g : 0.0;  // (adding 0 to a sum of positive terms: the same sum)
+            G.source[gn] = h.id;
+            G.gauss[gn] = g;
+            gn += h.in >> 1;
+        }
+        sum_[tid] = s;
+        count_[tid] = uint32_t(gn - g0);
+        G.target.push_back(tid);
+        return gn;
+    }
+
+    // The candidates within the radius of q (found_[0, returned)), by the
+    // float metric (PointColumns::metric, the kd-tree's, spelt out).
+    size_t within_radius(ColumnWindows& win, const float* q) {
+        const double cw = double(q[cols_.w]);
+        const float c0 = float(cw - lim_.reach), c1 = float(cw + lim_.reach);
+        size_t nf = 0;
+        const float* key = cols_.key.data();
+        const float* pos = cols_.pos.data();
+        for (int b = 0; b < win.m; ++b) {
+            // both ends of the window only move forward (c0 and c1 do)
+            uint32_t x = win.next[b], y = win.last[b];
+            while (x < win.stop[b] && key[x] < c0) ++x;
+            y = std::max(x, y);
+            while (y < win.stop[b] && !(key[y] > c1)) ++y;
+            win.next[b] = x;
+            win.last[b] = y;
+            // every candidate written, the end advanced past those within only
+            if (found_.size() < nf + (y - x)) found_.resize(std::max(2 * found_.size(), nf + (y - x)));
+            std::pair<uint32_t, float>* o = found_.data();
+            for (; x < y; ++x) {
+                const float* p = pos + 3 * size_t(x);
+                const float d0 = q[0] - p[0], d1 = q[1] - p[1], dz = q[2] - p[2];
+                const float d2 = d0 * d0 + d1 * d1 + dz * dz;
+                o[nf] = {x, d2};
+                nf += d2 < lim_.r2;
+            }
+        }
+        return nf;
+    }
+
+    // Of found_[0, nf): those of t's surface with normals within 60 degrees,
+    // in t's neighbourhood (on its tangent plane) or t in theirs, into
+    // hood_[0, returned).
+    size_t plane_tests(uint32_t t, size_t nf) {
+        const float* q = &cols_.pos[3 * size_t(t)];
+        const float* nq = &cols_.nrm[3 * size_t(t)];
+        const int32_t sq = cols_.surf[t];
+        // every candidate written, the end advanced past those kept only
+        if (hood_.size() < nf + 1) hood_.resize(2 * (nf + 1));
+        size_t nh = 0;
+        for (size_t f = 0; f < nf; ++f) {
+            const uint32_t x = found_[f].first;
+            const float* nx = &cols_.nrm[3 * size_t(x)];
+            const float* px = &cols_.pos[3 * size_t(x)];
+            // off the target's tangent plane, and the target off x's
+            const float off_t = (px[0] - q[0]) * nq[0] + (px[1] - q[1]) * nq[1] + (px[2] - q[2]) * nq[2];
+            const float off_x = (q[0] - px[0]) * nx[0] + (q[1] - px[1]) * nx[1] + (q[2] - px[2]) * nx[2];
+            const bool pair = (x != t) & (cols_.surf[x] == sq) &
+                              !(nq[0] * nx[0] + nq[1] * nx[1] + nq[2] * nx[2] < kMinNormalDot);
+            const uint32_t in = ((std::fabs(off_t) > lim_.max_offset ? 0u : 1u) |
+                                 (std::fabs(off_x) > lim_.max_offset ? 0u : 2u)) &
+                                (0u - uint32_t(pair));
+            hood_[nh] = {cols_.id[x], found_[f].second, in};
+            nh += in != 0;
+        }
+        return nh;
+    }
+
+    // hood_[0, nh) into sorted_ by neighbour (each once): each entry placed
+    // at its rank (a count of smaller ones, no branch on the comparisons);
+    // ranking is quadratic, so a crowd (stacked sheets) is sorted instead
+    // (ids are distinct: the same order).
+    void sort_by_neighbour(size_t nh) {
+        if (sorted_.size() < nh) sorted_.resize(hood_.size());
+        if (nh <= kRankedHoodMax) {
+            const size_t padded = (nh + 3) & ~size_t(3);
+            if (ids_.size() < padded) ids_.resize(2 * padded);
+            for (size_t a = 0; a < nh; ++a) ids_[a] = hood_[a].id;
+            for (size_t a = nh; a < padded; ++a) ids_[a] = UINT32_MAX;  // never smaller
+            for (size_t a = 0; a < nh; ++a) sorted_[rank_among(ids_.data(), padded, ids_[a])] = hood_[a];
+        } else {
+            std::copy(hood_.begin(), hood_.begin() + std::ptrdiff_t(nh), sorted_.begin());
+            std::sort(sorted_.begin(), sorted_.begin() + std::ptrdiff_t(nh),
+                      [](const HoodEntry& a, const HoodEntry& b) { return a.id < b.id; });
+        }
+    }
+
+    const SweepColumns& cols_;
+    const HoodLimits& lim_;
+    Unzeroed<uint32_t>& count_;   // each target's gather entries
+    Unzeroed<double>& sum_;       // each source's sum of weights
+    std::vector<std::pair<uint32_t, float>> found_;  // (sorted index, d2)
+    std::vector<HoodEntry> hood_, sorted_;
+    std::vector<uint32_t> ids_;  // the hood's, padded to a multiple of 4
+};
+
+// The kernel from the chunks' gather lists, once every source's sum is known.
+void write_kernel(SplatKernel& k, const std::vector<GatherChunk>& chunks, const Unzeroed<uint32_t>& count,
+                  const Unzeroed<double>& sum, size_t n) {
     for (size_t j = 0; j < n; ++j) {
         if (uint64_t(k.offset[j]) + count[j] > uint64_t(UINT32_MAX)) throw Error("splat kernel: too many entries");
         k.offset[j + 1] = k.offset[j] + count[j];
@@ -392,6 +418,44 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
         }
     });
     k.mean_neighbours = double(total) / double(n);
+}
+}  // namespace
+
+// The neighbour relation before the plane test (within the radius by the
+// float metric, same surface, normals within 60 degrees) is symmetric bit
+// for bit: the metric squares differences that only change sign and sums
+// them in axis order, the dot product's products commute (splat.cpp is
+// built without contraction into fused multiply-adds, so both orders round
+// alike on any target); so is the Gaussian of the distance.  So one pass
+// over target t's candidates gives both t's own neighbourhood (the plane
+// test against t's tangent plane: t's sum of weights, in ascending
+// neighbour order as fresh_neighbourhood sums it) and the sources whose
+// neighbourhood holds t (the test against theirs: t's gather list, in
+// ascending source order), and the kernel needs no transposition: once
+// every sum is known, each entry is its Gaussian over its source's sum.
+// Entries, sums and weights are fresh_neighbourhood's bit for bit.
+SplatKernel build_splat_kernel(const float* position, const float* normal, const int32_t* surface, size_t n,
+                               float sigma) {
+    SplatKernel k;
+    k.offset.assign(n + 1, 0);
+    if (n == 0) return k;
+    const HoodLimits lim(sigma);
+    SweepColumns cols;
+    cols.build(position, normal, surface, n, lim.search ? lim.reach : 1.0);
+    std::vector<GatherChunk> chunks = gather_chunks(cols);
+    Unzeroed<uint32_t> count(n);
+    Unzeroed<double> sum(n);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
+        HoodGatherer gatherer(cols, lim, count, sum);
+        for (size_t ch = range.begin(); ch < range.end(); ++ch) gatherer.gather(chunks[ch]);
+    });
+    // only the order of the targets is needed from here on: the rest of the
+    // columns freed before the kernel's arrays are allocated (a lower peak)
+    Unzeroed<float>().swap(cols.key);
+    Unzeroed<float>().swap(cols.pos);
+    Unzeroed<float>().swap(cols.nrm);
+    Unzeroed<int32_t>().swap(cols.surf);
+    write_kernel(k, chunks, count, sum, n);
     return k;
 }
 

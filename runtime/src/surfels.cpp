@@ -478,76 +478,113 @@ constexpr size_t kGuideScan = 8;
 
 namespace {
 
-std::vector<uint32_t> eliminate_samples_in(PointsView pts, size_t keep, double r_max) {
-    const size_t m = pts.size() / 3;
-    std::vector<uint32_t> kept;
-    if (keep >= m) {
-        for (size_t i = 0; i < m; ++i) kept.push_back(uint32_t(i));
-        return kept;
-    }
-    SURFEL_TIMING_START;
-    const double r2 = 2.0 * r_max;  // neighbourhood radius
-    // Cells a little larger than the radius also make two tiles (2x2x2 cells)
-    // of one colour farther apart than twice the radius even after rounding.
-    CellGrid grid = sort_into_cells(pts, r2);
-    const std::vector<CellGrid::Cell>& cell_list = grid.cells;
-    const Uninitialised<uint32_t>& original = grid.original;
-    const Uninitialised<float>& sp = grid.sp;
-    SURFEL_TIMEPOINT("sort");
-    // Tiles: runs of cells with the same key >> 3, as [begin, end) of points.
-    std::vector<uint32_t> tile_begin;
-    std::vector<uint8_t> tile_colour;
-    for (size_t c = 0; c < cell_list.size(); ++c) {
-        const uint64_t key = cell_list[c].key;
-        if (c == 0 || (cell_list[c - 1].key >> 3) != (key >> 3)) {
-            tile_begin.push_back(cell_list[c].begin);
-            // The tile's parity in x, y, z: bits 0, 1, 2 of its Morton code.
-            tile_colour.push_back(uint8_t((key >> 3) & 7));
-        }
-    }
-    tile_begin.push_back(uint32_t(m));
-    const size_t n_tiles = tile_colour.size();
-    SURFEL_TIMEPOINT("cells");
+// Yuksel's weighted sample elimination (the fallback of sample_surfels):
+// the heaviest candidate is removed until `keep` are left, each removal
+// lowering its neighbours' weights.  Most removals go in parallel passes
+// over tiles of 2x2x2 cells, one colour of tiles at a time (tiles of one
+// colour share no neighbour); the last by the serial rule on a heap.
+class WeightedElimination {
+public:
+    WeightedElimination(PointsView pts, double r_max);
+    void find_neighbours();
+    void weigh();
+    size_t parallel_passes(size_t keep);
+    void serial_finish();
+    std::vector<uint32_t> kept() const;
 
-    const double r2sq = r2 * r2;
-    const double inv_r2 = 1.0 / r2;
+private:
     // Yuksel's weight (1 - d / 2r_max)^8; symmetric bit for bit in i and j.
-    auto weight = [&](uint32_t i, uint32_t j) {
+    double weight(uint32_t i, uint32_t j) const {
         double d2 = 0;
         for (int k = 0; k < 3; ++k) {
-            double d = double(sp[3 * size_t(i) + k]) - sp[3 * size_t(j) + k];
+            const double d = double(sp_[3 * size_t(i) + k]) - sp_[3 * size_t(j) + k];
             d2 += d * d;
         }
-        double t = 1.0 - std::sqrt(d2) * inv_r2;
+        double t = 1.0 - std::sqrt(d2) * inv_r2_;
         t = t * t;  // ^2
         t = t * t;  // ^4
         return t * t;  // ^8
-    };
-    // Neighbour lists, each pair found once: F(i) = neighbours j > i, searched
-    // in the own cell and the neighbouring cells of larger key, in parallel
-    // over fixed blocks of cells; then each list is completed with B(i) =
-    // {j < i : i in F(j)} (filled with atomic cursors, then sorted, so that
-    // the lists do not depend on the scheduling).  List of i = B(i) then F(i),
-    // ascending, which is the order of the sum of its weights.
-    const size_t nblocks = (cell_list.size() + kCellsPerTask - 1) / kCellsPerTask;
-    std::vector<std::vector<uint32_t>> fwd(nblocks);
-    std::vector<uint32_t> f_count(m);
-    std::vector<uint64_t> f_start(m);  // offset of F(i) in its block's list
-    std::vector<std::atomic<uint32_t>> b_count(m);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 8192), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) b_count[i].store(0, std::memory_order_relaxed);
-    });
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
+    }
+    // (weight, rank) is a strict total order (ranks are unique): which
+    // candidate is removed first never depends on a layout or a schedule.
+    bool above(uint32_t a, uint32_t b) const { return w_[a] > w_[b] || (w_[a] == w_[b] && a > b); }
+    // A removed candidate's weight is kRemoved.
+    void remove(uint32_t i) {
+        w_[i] = kRemoved;
+        for (uint64_t a = offs_[i]; a < offs_[i + 1]; ++a) {
+            const uint32_t j = nbrs_[a];
+            if (w_[j] != kRemoved) w_[j] -= weight(j, i);
+        }
+    }
+    void rescan_max(size_t t) {
+        double mx = kRemoved;
+        for (uint32_t i = tile_begin_[t]; i < tile_begin_[t + 1]; ++i) mx = std::max(mx, w_[i]);
+        tile_max_[t] = mx;
+    }
+    template <class TileWanted, class Wanted>
+    void gather(std::vector<uint32_t>& all, TileWanted&& tile_wanted, Wanted&& wanted);
+    void forward_lists(std::vector<std::vector<uint32_t>>& fwd, std::vector<uint32_t>& f_count,
+                       std::vector<uint64_t>& f_start, std::vector<std::atomic<uint32_t>>& b_count) const;
+    void pass_threshold(size_t k, std::vector<uint32_t>& over, uint32_t& th, double& th_w);
+    size_t remove_above(const std::vector<uint32_t>& over, uint32_t th, double th_w);
+    void remove_in_tiles(const std::vector<uint32_t>& tiles, size_t q_begin, size_t q_end,
+                         const std::vector<uint32_t>& over, uint32_t th, double th_w, size_t& removed);
+
+    static constexpr size_t kTilesPerBlock = 512;   // fixed blocks of tiles for the parallel gathers
+    const size_t m_;
+    const double r2_, r2sq_, inv_r2_;   // neighbourhood radius 2 r_max, its square, its inverse
+    CellGrid grid_;
+    const Uninitialised<float>& sp_;
+    std::vector<uint32_t> tile_begin_;   // tiles: runs of cells with the same key >> 3, as [begin, end) of points
+    std::vector<uint8_t> tile_colour_;
+    size_t n_tiles_ = 0;
+    std::vector<uint64_t> offs_;
+    std::vector<uint32_t> nbrs_;
+    std::vector<double> w_;
+    std::vector<double> tile_max_;   // per tile an upper bound of its weights (weights only decrease)
+    std::vector<std::vector<uint32_t>> tiles_of_colour_ = std::vector<std::vector<uint32_t>>(8);
+    std::vector<uint32_t> over_begin_;   // each tile's candidates above a pass's threshold: a run of its `over`
+    std::vector<std::vector<uint32_t>> block_pool_;
+    size_t to_remove_ = 0, alive_ = 0;
+};
+
+// Cells a little larger than the radius also make two tiles (2x2x2 cells)
+// of one colour farther apart than twice the radius even after rounding.
+WeightedElimination::WeightedElimination(PointsView pts, double r_max)
+    : m_(pts.size() / 3), r2_(2.0 * r_max), r2sq_(r2_ * r2_), inv_r2_(1.0 / r2_), grid_(sort_into_cells(pts, r2_)),
+      sp_(grid_.sp) {
+    const std::vector<CellGrid::Cell>& cells = grid_.cells;
+    for (size_t c = 0; c < cells.size(); ++c) {
+        const uint64_t key = cells[c].key;
+        if (c == 0 || (cells[c - 1].key >> 3) != (key >> 3)) {
+            tile_begin_.push_back(cells[c].begin);
+            // The tile's parity in x, y, z: bits 0, 1, 2 of its Morton code.
+            tile_colour_.push_back(uint8_t((key >> 3) & 7));
+        }
+    }
+    tile_begin_.push_back(uint32_t(m_));
+    n_tiles_ = tile_colour_.size();
+    for (size_t t = 0; t < n_tiles_; ++t) tiles_of_colour_[tile_colour_[t]].push_back(uint32_t(t));
+}
+
+// F(i) = neighbours j > i, searched in the own cell and the neighbouring
+// cells of larger key, in parallel over fixed blocks of cells; and how many
+// lists each point is in (|B(i)|).
+void WeightedElimination::forward_lists(std::vector<std::vector<uint32_t>>& fwd, std::vector<uint32_t>& f_count,
+                                        std::vector<uint64_t>& f_start,
+                                        std::vector<std::atomic<uint32_t>>& b_count) const {
+    const std::vector<CellGrid::Cell>& cells = grid_.cells;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, fwd.size(), 1), [&](const tbb::blocked_range<size_t>& br) {
         std::vector<std::pair<uint32_t, uint32_t>> ranges;  // neighbouring cells of larger key
         std::vector<uint32_t> scratch;
         for (size_t b = br.begin(); b < br.end(); ++b) {
             std::vector<uint32_t>& nbr = fwd[b];
-            const size_t c_begin = b * kCellsPerTask, c_end = std::min(cell_list.size(), c_begin + kCellsPerTask);
-            nbr.reserve(size_t(cell_list[c_end - 1].end - cell_list[c_begin].begin) * 10);
+            const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
+            nbr.reserve(size_t(cells[c_end - 1].end - cells[c_begin].begin) * 10);
             for (size_t ci = c_begin; ci < c_end; ++ci) {
-                const CellGrid::Cell& cl = cell_list[ci];
+                const CellGrid::Cell& cl = cells[ci];
                 ranges.clear();
-                grid.for_each_around(cl, [&](const CellGrid::Cell& nc) {
+                grid_.for_each_around(cl, [&](const CellGrid::Cell& nc) {
                     if (nc.key > cl.key) ranges.emplace_back(nc.begin, nc.end);
                 });
                 std::sort(ranges.begin(), ranges.end());
@@ -555,16 +592,16 @@ std::vector<uint32_t> eliminate_samples_in(PointsView pts, size_t keep, double r
                 for (const auto& rg : ranges) span += rg.second - rg.first;
                 if (scratch.size() < span) scratch.resize(span);
                 for (uint32_t i = cl.begin; i < cl.end; ++i) {
-                    const double px = sp[3 * size_t(i)], py = sp[3 * size_t(i) + 1], pz = sp[3 * size_t(i) + 2];
+                    const double px = sp_[3 * size_t(i)], py = sp_[3 * size_t(i) + 1], pz = sp_[3 * size_t(i) + 2];
                     // Every j is written, the cursor advanced only for the
                     // neighbours: no branch to mispredict.
                     uint32_t* hit = scratch.data();
                     auto scan = [&](uint32_t j0, uint32_t j1) {
                         for (uint32_t j = j0; j < j1; ++j) {
-                            const double dx = px - sp[3 * size_t(j)], dy = py - sp[3 * size_t(j) + 1],
-                                         dz = pz - sp[3 * size_t(j) + 2];
+                            const double dx = px - sp_[3 * size_t(j)], dy = py - sp_[3 * size_t(j) + 1],
+                                         dz = pz - sp_[3 * size_t(j) + 2];
                             *hit = j;
-                            hit += dx * dx + dy * dy + dz * dz < r2sq;
+                            hit += dx * dx + dy * dy + dz * dz < r2sq_;
                         }
                     };
                     scan(i + 1, cl.end);
@@ -578,242 +615,287 @@ std::vector<uint32_t> eliminate_samples_in(PointsView pts, size_t keep, double r
             }
         }
     });
-    SURFEL_TIMEPOINT("forward");
+}
+
+// Neighbour lists, each pair found once (forward_lists), then each list
+// completed with B(i) = {j < i : i in F(j)} (filled with atomic cursors, then
+// sorted, so that the lists do not depend on the scheduling).  List of i =
+// B(i) then F(i), ascending, which is the order of the sum of its weights.
+void WeightedElimination::find_neighbours() {
+    const std::vector<CellGrid::Cell>& cells = grid_.cells;
+    const size_t nblocks = (cells.size() + kCellsPerTask - 1) / kCellsPerTask;
+    std::vector<std::vector<uint32_t>> fwd(nblocks);
+    std::vector<uint32_t> f_count(m_);
+    std::vector<uint64_t> f_start(m_);  // offset of F(i) in its block's list
+    std::vector<std::atomic<uint32_t>> b_count(m_);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m_, 8192), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) b_count[i].store(0, std::memory_order_relaxed);
+    });
+    forward_lists(fwd, f_count, f_start, b_count);
     // Offsets of the whole lists: |B(i)| + |F(i)| each.
-    std::vector<uint64_t> offs(m + 1);
-    offs[0] = 0;
-    for (size_t i = 0; i < m; ++i) offs[i + 1] = offs[i] + b_count[i].load(std::memory_order_relaxed) + f_count[i];
-    std::vector<uint32_t> nbrs(offs[m]);
+    offs_.assign(m_ + 1, 0);
+    for (size_t i = 0; i < m_; ++i) offs_[i + 1] = offs_[i] + b_count[i].load(std::memory_order_relaxed) + f_count[i];
+    nbrs_.assign(offs_[m_], 0);
     // F(i) goes after B(i); B(j) is filled from the front by cursors.
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m_, 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i) b_count[i].store(0, std::memory_order_relaxed);
     });
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
         for (size_t b = br.begin(); b < br.end(); ++b) {
-            const size_t c_begin = b * kCellsPerTask, c_end = std::min(cell_list.size(), c_begin + kCellsPerTask);
-            for (uint32_t i = cell_list[c_begin].begin; i < cell_list[c_end - 1].end; ++i) {
+            const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
+            for (uint32_t i = cells[c_begin].begin; i < cells[c_end - 1].end; ++i) {
                 const uint32_t* f = fwd[b].data() + f_start[i];
-                std::copy(f, f + f_count[i], nbrs.begin() + std::ptrdiff_t(offs[i + 1] - f_count[i]));
+                std::copy(f, f + f_count[i], nbrs_.begin() + std::ptrdiff_t(offs_[i + 1] - f_count[i]));
                 for (uint32_t k = 0; k < f_count[i]; ++k) {
                     const uint32_t j = f[k];
-                    nbrs[offs[j] + b_count[j].fetch_add(1, std::memory_order_relaxed)] = i;
+                    nbrs_[offs_[j] + b_count[j].fetch_add(1, std::memory_order_relaxed)] = i;
                 }
             }
             fwd[b] = {};
         }
     });
-    fwd = {};
-    f_start = {};
-    // B(i) in ascending order, then the initial weights: the sum over the
-    // list in its order.
-    std::vector<double> w(m);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
+    // B(i) in ascending order
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m_, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i)
+            std::sort(nbrs_.begin() + std::ptrdiff_t(offs_[i]), nbrs_.begin() + std::ptrdiff_t(offs_[i + 1] - f_count[i]));
+    });
+}
+
+// The initial weights: the sum over each list in its order; and each
+// tile's largest.
+void WeightedElimination::weigh() {
+    w_.assign(m_, 0.0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m_, 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i) {
-            const uint64_t b0 = offs[i], b1 = offs[i + 1] - f_count[i];
-            std::sort(nbrs.begin() + std::ptrdiff_t(b0), nbrs.begin() + std::ptrdiff_t(b1));
             double sum = 0;
-            for (uint64_t a = b0; a < offs[i + 1]; ++a) sum += weight(uint32_t(i), nbrs[a]);
-            w[i] = sum;
+            for (uint64_t a = offs_[i]; a < offs_[i + 1]; ++a) sum += weight(uint32_t(i), nbrs_[a]);
+            w_[i] = sum;
         }
     });
-    b_count = std::vector<std::atomic<uint32_t>>();
-    f_count = {};
-    SURFEL_TIMEPOINT("lists+weights");
-
-    // (weight, rank) is a strict total order (ranks are unique): which
-    // candidate is removed first never depends on a layout or a schedule.
-    // A removed candidate's weight is kRemoved.
-    auto above = [&](uint32_t a, uint32_t b) { return w[a] > w[b] || (w[a] == w[b] && a > b); };
-    auto remove = [&](uint32_t i) {
-        w[i] = kRemoved;
-        for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) {
-            const uint32_t j = nbrs[a];
-            if (w[j] != kRemoved) w[j] -= weight(j, i);
-        }
-    };
-    std::vector<std::vector<uint32_t>> tiles_of_colour(8);
-    for (size_t t = 0; t < n_tiles; ++t) tiles_of_colour[tile_colour[t]].push_back(uint32_t(t));
-    // Per tile an upper bound of its weights (weights only decrease), so that
-    // a pass skips the tiles with nothing above its threshold.
-    std::vector<double> tile_max(n_tiles);
-    auto rescan_max = [&](size_t t) {
-        double mx = kRemoved;
-        for (uint32_t i = tile_begin[t]; i < tile_begin[t + 1]; ++i) mx = std::max(mx, w[i]);
-        tile_max[t] = mx;
-    };
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tiles, 256), [&](const tbb::blocked_range<size_t>& r) {
+    tile_max_.assign(n_tiles_, 0.0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tiles_, 256), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t t = r.begin(); t < r.end(); ++t) rescan_max(t);
     });
-    // Fixed blocks of tiles for the parallel gathers (results concatenated in
-    // block order, i.e. ascending: independent of the thread count).
-    constexpr size_t kTilesPerBlock = 512;
-    const size_t n_tile_blocks = (n_tiles + kTilesPerBlock - 1) / kTilesPerBlock;
-    std::vector<std::vector<uint32_t>> block_pool(n_tile_blocks);
-    auto gather = [&](std::vector<uint32_t>& all, auto&& tile_wanted, auto&& wanted) {
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tile_blocks, 1), [&](const tbb::blocked_range<size_t>& r) {
-            for (size_t b = r.begin(); b < r.end(); ++b) {
-                std::vector<uint32_t>& out = block_pool[b];
-                out.clear();
-                const size_t t1 = std::min(n_tiles, (b + 1) * kTilesPerBlock);
-                for (size_t t = b * kTilesPerBlock; t < t1; ++t)
-                    if (tile_wanted(t))
-                        for (uint32_t i = tile_begin[t]; i < tile_begin[t + 1]; ++i)
-                            if (wanted(i)) out.push_back(i);
-            }
-        });
-        all.clear();
-        for (const auto& v : block_pool) all.insert(all.end(), v.begin(), v.end());
-    };
-    size_t to_remove = m - keep;
-    size_t alive = m;
+}
+
+// The candidates `wanted` of the tiles `tile_wanted`, ascending (gathered
+// in fixed blocks of tiles, concatenated in block order: independent of the
+// thread count).
+template <class TileWanted, class Wanted>
+void WeightedElimination::gather(std::vector<uint32_t>& all, TileWanted&& tile_wanted, Wanted&& wanted) {
+    const size_t n_blocks = (n_tiles_ + kTilesPerBlock - 1) / kTilesPerBlock;
+    block_pool_.resize(n_blocks);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_blocks, 1), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t b = r.begin(); b < r.end(); ++b) {
+            std::vector<uint32_t>& out = block_pool_[b];
+            out.clear();
+            const size_t t1 = std::min(n_tiles_, (b + 1) * kTilesPerBlock);
+            for (size_t t = b * kTilesPerBlock; t < t1; ++t)
+                if (tile_wanted(t))
+                    for (uint32_t i = tile_begin_[t]; i < tile_begin_[t + 1]; ++i)
+                        if (wanted(i)) out.push_back(i);
+        }
+    });
+    all.clear();
+    for (const auto& v : block_pool_) all.insert(all.end(), v.begin(), v.end());
+}
+
+// A pass's threshold: about the weight of the k-th heaviest candidate left,
+// estimated on every kThresholdStride-th candidate (by rank: spread over the
+// scene), and the candidates above it (`over`).  If the estimate lets
+// through more than the removals left, the exact k-th of those is taken
+// instead.  The threshold is (th_w, th): above it means (weight, rank) above.
+void WeightedElimination::pass_threshold(size_t k, std::vector<uint32_t>& over, uint32_t& th, double& th_w) {
+    auto by_weight = [this](uint32_t a, uint32_t b) { return above(a, b); };
+    std::vector<uint32_t> sub;
+    for (size_t i = 0; i < m_; i += kThresholdStride)
+        if (w_[i] != kRemoved) sub.push_back(uint32_t(i));
+    th = 0;
+    th_w = INFINITY;
+    if (!sub.empty()) {
+        const size_t k_sub =
+            std::min(sub.size(), std::max<size_t>(1, size_t(double(k) * double(sub.size()) / double(alive_))));
+        std::nth_element(sub.begin(), sub.begin() + std::ptrdiff_t(k_sub - 1), sub.end(), by_weight);
+        th = sub[k_sub - 1];
+        th_w = w_[th];
+    }
+    const double est_w = th_w;
+    const uint32_t est = th;
+    gather(over, [&](size_t t) { return tile_max_[t] >= est_w; },
+           [&](uint32_t i) { return w_[i] != kRemoved && (w_[i] > est_w || (w_[i] == est_w && i > est)); });
+    if (over.size() <= to_remove_ && !over.empty()) return;
+    // Too many let through (or none): the exact k-th heaviest.
+    if (over.empty()) gather(over, [](size_t) { return true; }, [&](uint32_t i) { return w_[i] != kRemoved; });
+    std::vector<uint32_t> pick(over);
+    std::nth_element(pick.begin(), pick.begin() + std::ptrdiff_t(k - 1), pick.end(), by_weight);
+    th = pick[k - 1];
+    th_w = w_[th];
+    std::vector<uint32_t> kept_over;
+    for (const uint32_t i : over)
+        if (w_[i] > th_w || (w_[i] == th_w && i >= th)) kept_over.push_back(i);
+    over.swap(kept_over);
+    // th itself is let through: the threshold is just below it.
+    if (th == 0) th_w = std::nextafter(th_w, -INFINITY);
+    else --th;
+}
+
+// The parallel passes, while more than a small remainder is to go: each
+// removes only candidates that were above its threshold at its start.
+// Returns the number of passes.
+size_t WeightedElimination::parallel_passes(size_t keep) {
+    to_remove_ = m_ - keep;
+    alive_ = m_;
     const size_t serial_finish = std::max(kSerialFinishMin, keep / kSerialFinishDivisor);
     size_t passes = 0;
-    std::vector<uint32_t> sub, over;
-    std::vector<uint32_t> over_begin(n_tiles + 1);
-    while (to_remove > serial_finish) {
-        // Threshold: about the weight of the k-th heaviest candidate left, k a
-        // fixed fraction of the removals left, estimated on every
-        // kThresholdStride-th candidate (by rank: spread over the scene).  A pass removes only candidates that were
-        // above the threshold at its start: if the estimate lets through more
-        // than the removals left, the exact k-th of those is taken instead.
-        const size_t k = std::max<size_t>(1, size_t(double(to_remove) * kPassFraction));
-        sub.clear();
-        for (size_t i = 0; i < m; i += kThresholdStride)
-            if (w[i] != kRemoved) sub.push_back(uint32_t(i));
-        uint32_t th = 0;
-        double th_w = INFINITY;
-        if (!sub.empty()) {
-            const size_t k_sub =
-                std::min(sub.size(), std::max<size_t>(1, size_t(double(k) * double(sub.size()) / double(alive))));
-            std::nth_element(sub.begin(), sub.begin() + std::ptrdiff_t(k_sub - 1), sub.end(), above);
-            th = sub[k_sub - 1];
-            th_w = w[th];
-        }
-        gather(over, [&](size_t t) { return tile_max[t] >= th_w; },
-               [&](uint32_t i) { return w[i] != kRemoved && (w[i] > th_w || (w[i] == th_w && i > th)); });
-        if (over.size() > to_remove || over.empty()) {
-            // Too many let through (or none): the exact k-th heaviest.
-            if (over.empty()) gather(over, [](size_t) { return true; }, [&](uint32_t i) { return w[i] != kRemoved; });
-            std::vector<uint32_t> pick(over);
-            std::nth_element(pick.begin(), pick.begin() + std::ptrdiff_t(k - 1), pick.end(), above);
-            th = pick[k - 1];
-            th_w = w[th];
-            std::vector<uint32_t> kept_over;
-            for (const uint32_t i : over)
-                if (w[i] > th_w || (w[i] == th_w && i >= th)) kept_over.push_back(i);
-            over.swap(kept_over);
-            // th itself is let through: the threshold is just below it.
-            if (th == 0) th_w = std::nextafter(th_w, -INFINITY);
-            else --th;
-        }
-        auto is_above = [&](uint32_t i) { return w[i] > th_w || (w[i] == th_w && i > th); };
-        // Each tile's candidates above the threshold: a run of `over`.
-        {
-            size_t a = 0;
-            for (size_t t = 0; t < n_tiles; ++t) {
-                over_begin[t] = uint32_t(a);
-                while (a < over.size() && over[a] < tile_begin[t + 1]) ++a;
-            }
-            over_begin[n_tiles] = uint32_t(a);
-        }
-        std::atomic<size_t> removed{0};
-        for (int colour = 0; colour < 8; ++colour) {
-            const std::vector<uint32_t>& tiles = tiles_of_colour[size_t(colour)];
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, tiles.size(), 64), [&](const tbb::blocked_range<size_t>& r) {
-                // The removals are bound by memory latency, not arithmetic:
-                // tiles go through a pipeline that requests their data ahead
-                // of use (a tile's candidates above the threshold do not
-                // change before it is processed: no other tile of the colour
-                // touches them).
-                //   q + 3: the list offsets of its candidates above the threshold;
-                //   q + 2: their neighbour lists;
-                //   q + 1: their neighbours' weights and positions;
-                //   q:     its removals.
-                size_t removed_here = 0;
-                auto each_active = [&](size_t q, auto&& f) {
-                    const uint32_t t = tiles[q];
-                    for (uint32_t a = over_begin[t]; a < over_begin[t + 1]; ++a) f(over[a]);
-                };
-                auto stage_offsets = [&](size_t q) { each_active(q, [&](uint32_t i) { __builtin_prefetch(&offs[i]); }); };
-                auto stage_lists = [&](size_t q) {
-                    each_active(q, [&](uint32_t i) {
-                        __builtin_prefetch(&nbrs[offs[i]]);
-                        __builtin_prefetch(&nbrs[offs[i]] + 16);
-                    });
-                };
-                auto stage_neighbours = [&](size_t q) {
-                    each_active(q, [&](uint32_t i) {
-                        for (uint64_t a = offs[i]; a < offs[i + 1]; ++a) {
-                            __builtin_prefetch(&w[nbrs[a]], 1);
-                            __builtin_prefetch(&sp[3 * size_t(nbrs[a])]);
-                        }
-                    });
-                };
-                for (size_t q = r.begin(); q < std::min(r.end(), r.begin() + 3); ++q) stage_offsets(q);
-                for (size_t q = r.begin(); q < std::min(r.end(), r.begin() + 2); ++q) stage_lists(q);
-                stage_neighbours(r.begin());
-                std::vector<uint32_t> active;
-                for (size_t q = r.begin(); q < r.end(); ++q) {
-                    if (q + 3 < r.end()) stage_offsets(q + 3);
-                    if (q + 2 < r.end()) stage_lists(q + 2);
-                    if (q + 1 < r.end()) stage_neighbours(q + 1);
-                    const uint32_t t = tiles[q];
-                    if (over_begin[t] == over_begin[t + 1]) continue;
-                    active.assign(over.begin() + over_begin[t], over.begin() + over_begin[t + 1]);
-                    // Candidates of this tile removed heaviest first while above
-                    // the threshold (nothing below it at the start can rise).
-                    while (!active.empty()) {
-                        size_t best = 0;
-                        for (size_t a = 1; a < active.size(); ++a)
-                            if (above(active[a], active[best])) best = a;
-                        const uint32_t i = active[best];
-                        if (!is_above(i)) break;
-                        active[best] = active.back();
-                        active.pop_back();
-                        remove(i);
-                        ++removed_here;
-                    }
-                    rescan_max(t);
-                }
-                removed.fetch_add(removed_here, std::memory_order_relaxed);
-            });
-        }
-        to_remove -= removed.load();
-        alive -= removed.load();
+    std::vector<uint32_t> over;
+    while (to_remove_ > serial_finish) {
+        const size_t k = std::max<size_t>(1, size_t(double(to_remove_) * kPassFraction));
+        uint32_t th;
+        double th_w;
+        pass_threshold(k, over, th, th_w);
+        const size_t removed = remove_above(over, th, th_w);
+        to_remove_ -= removed;
+        alive_ -= removed;
         ++passes;
     }
-    SURFEL_TIMEPOINT("passes");
-    // The last removals by the serial rule, on a heap with lazy updates: an
-    // entry whose weight has dropped since it was pushed is pushed again
-    // with its current weight (weights only decrease, so the top entry that
-    // is current is the heaviest candidate).
-    {
-        using Entry = std::pair<double, uint32_t>;  // (weight, rank): the same order as `above`
-        std::vector<Entry> entries;
-        entries.reserve(alive);
-        for (size_t i = 0; i < m; ++i)
-            if (w[i] != kRemoved) entries.emplace_back(w[i], uint32_t(i));
-        std::priority_queue<Entry> heap(std::less<Entry>(), std::move(entries));
-        while (to_remove > 0) {
-            const Entry e = heap.top();
-            heap.pop();
-            if (w[e.second] == kRemoved) continue;
-            if (e.first != w[e.second]) {
-                heap.emplace(w[e.second], e.second);
-                continue;
-            }
-            remove(e.second);
-            --to_remove;
-        }
+    return passes;
+}
+
+// One pass's removals, colour by colour of tiles, the tiles of a colour in
+// parallel; returns how many.
+size_t WeightedElimination::remove_above(const std::vector<uint32_t>& over, uint32_t th, double th_w) {
+    // Each tile's candidates above the threshold: a run of `over`.
+    over_begin_.assign(n_tiles_ + 1, 0);
+    size_t a = 0;
+    for (size_t t = 0; t < n_tiles_; ++t) {
+        over_begin_[t] = uint32_t(a);
+        while (a < over.size() && over[a] < tile_begin_[t + 1]) ++a;
     }
+    over_begin_[n_tiles_] = uint32_t(a);
+    std::atomic<size_t> removed{0};
+    for (const std::vector<uint32_t>& tiles : tiles_of_colour_)
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, tiles.size(), 64), [&](const tbb::blocked_range<size_t>& r) {
+            size_t removed_here = 0;
+            remove_in_tiles(tiles, r.begin(), r.end(), over, th, th_w, removed_here);
+            removed.fetch_add(removed_here, std::memory_order_relaxed);
+        });
+    return removed.load();
+}
+
+// The removals of tiles[q_begin, q_end), each tile's candidates heaviest
+// first while above the threshold (nothing below it at the start can rise).
+// They are bound by memory latency, not arithmetic: tiles go through a
+// pipeline that requests their data ahead of use (a tile's candidates above
+// the threshold do not change before it is processed: no other tile of the
+// colour touches them).
+//   q + 3: the list offsets of its candidates above the threshold;
+//   q + 2: their neighbour lists;
+//   q + 1: their neighbours' weights and positions;
+//   q:     its removals.
+void WeightedElimination::remove_in_tiles(const std::vector<uint32_t>& tiles, size_t q_begin, size_t q_end,
+                                          const std::vector<uint32_t>& over, uint32_t th, double th_w,
+                                          size_t& removed) {
+    auto each_active = [&](size_t q, auto&& f) {
+        const uint32_t t = tiles[q];
+        for (uint32_t a = over_begin_[t]; a < over_begin_[t + 1]; ++a) f(over[a]);
+    };
+    auto stage_offsets = [&](size_t q) { each_active(q, [&](uint32_t i) { __builtin_prefetch(&offs_[i]); }); };
+    auto stage_lists = [&](size_t q) {
+        each_active(q, [&](uint32_t i) {
+            __builtin_prefetch(&nbrs_[offs_[i]]);
+            __builtin_prefetch(&nbrs_[offs_[i]] + 16);
+        });
+    };
+    auto stage_neighbours = [&](size_t q) {
+        each_active(q, [&](uint32_t i) {
+            for (uint64_t a = offs_[i]; a < offs_[i + 1]; ++a) {
+                __builtin_prefetch(&w_[nbrs_[a]], 1);
+                __builtin_prefetch(&sp_[3 * size_t(nbrs_[a])]);
+            }
+        });
+    };
+    auto is_above = [&](uint32_t i) { return w_[i] > th_w || (w_[i] == th_w && i > th); };
+    for (size_t q = q_begin; q < std::min(q_end, q_begin + 3); ++q) stage_offsets(q);
+    for (size_t q = q_begin; q < std::min(q_end, q_begin + 2); ++q) stage_lists(q);
+    stage_neighbours(q_begin);
+    std::vector<uint32_t> active;
+    for (size_t q = q_begin; q < q_end; ++q) {
+        if (q + 3 < q_end) stage_offsets(q + 3);
+        if (q + 2 < q_end) stage_lists(q + 2);
+        if (q + 1 < q_end) stage_neighbours(q + 1);
+        const uint32_t t = tiles[q];
+        if (over_begin_[t] == over_begin_[t + 1]) continue;
+        active.assign(over.begin() + over_begin_[t], over.begin() + over_begin_[t + 1]);
+        while (!active.empty()) {
+            size_t best = 0;
+            for (size_t a = 1; a < active.size(); ++a)
+                if (above(active[a], active[best])) best = a;
+            const uint32_t i = active[best];
+            if (!is_above(i)) break;
+            active[best] = active.back();
+            active.pop_back();
+            remove(i);
+            ++removed;
+        }
+        rescan_max(t);
+    }
+}
+
+// The last removals by the serial rule, on a heap with lazy updates: an
+// entry whose weight has dropped since it was pushed is pushed again with
+// its current weight (weights only decrease, so the top entry that is
+// current is the heaviest candidate).
+void WeightedElimination::serial_finish() {
+    using Entry = std::pair<double, uint32_t>;  // (weight, rank): the same order as `above`
+    std::vector<Entry> entries;
+    entries.reserve(alive_);
+    for (size_t i = 0; i < m_; ++i)
+        if (w_[i] != kRemoved) entries.emplace_back(w_[i], uint32_t(i));
+    std::priority_queue<Entry> heap(std::less<Entry>(), std::move(entries));
+    while (to_remove_ > 0) {
+        const Entry e = heap.top();
+        heap.pop();
+        if (w_[e.second] == kRemoved) continue;
+        if (e.first != w_[e.second]) {
+            heap.emplace(w_[e.second], e.second);
+            continue;
+        }
+        remove(e.second);
+        --to_remove_;
+    }
+}
+
+std::vector<uint32_t> WeightedElimination::kept() const {
+    std::vector<uint32_t> kept;
+    kept.reserve(alive_);
+    for (size_t a = 0; a < m_; ++a)
+        if (w_[a] != kRemoved) kept.push_back(grid_.original[a]);
+    return kept;
+}
+
+std::vector<uint32_t> eliminate_samples_in(PointsView pts, size_t keep, double r_max) {
+    const size_t m = pts.size() / 3;
+    std::vector<uint32_t> kept;
+    if (keep >= m) {
+        for (size_t i = 0; i < m; ++i) kept.push_back(uint32_t(i));
+        return kept;
+    }
+    SURFEL_TIMING_START;
+    WeightedElimination elimination(pts, r_max);
+    SURFEL_TIMEPOINT("cells");
+    elimination.find_neighbours();
+    elimination.weigh();
+    SURFEL_TIMEPOINT("lists+weights");
+    const size_t passes = elimination.parallel_passes(keep);
+    SURFEL_TIMEPOINT("passes");
+    elimination.serial_finish();
     SURFEL_TIMEPOINT("serial");
 #ifdef GAMMA_SURFEL_TIMING
-    std::fprintf(stderr, "  [%zu tiles, %zu passes]\n", n_tiles, passes);
+    std::fprintf(stderr, "  [%zu passes]\n", passes);
+#else
+    (void)passes;
 #endif
-    kept.reserve(keep);
-    for (size_t a = 0; a < m; ++a)
-        if (w[a] != kRemoved) kept.push_back(original[a]);
-    return kept;
+    return elimination.kept();
 }
 
 }  // namespace
@@ -1048,335 +1130,404 @@ struct WindowFilter {
 // the second pass falls short even at kDiskRadiusMin.
 namespace {
 
-std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double r_max, uint64_t seed,
-                                             size_t list_capacity, bool allow_avx512) {
-    const size_t m = pts.size() / 3;
-    // (sorted positions fit under kNarrowBit: 2^31 candidates are far
-    // beyond the memory of any machine this runs on)
-    if (m >= size_t(kNarrowBit)) throw Error("too many surfel candidates");
-    const double wide = kWideRadius * r_max;
-    SURFEL_TIMING_START;
-    const CellGrid grid = sort_into_cells(pts, wide, true);
-    SURFEL_TIMEPOINT("disk: cells");
-    const Uninitialised<float>& sp = grid.sp;
-    // The order: a Philox hash of the point's index, ties by the index (not
-    // by the sorted position: the answer does not depend on the layout).
-    Uninitialised<uint64_t> order_key(m);
-    const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t a = r.begin(); a < r.end(); ++a) {
-            const uint32_t i = grid.original[a];
-            order_key[a] = (uint64_t(philox4x32_10({kSamplingIteration, i, 1, 0}, key)[0]) << 32) | i;
-        }
-    });
-    SURFEL_TIMEPOINT("order");
-    auto earlier = [&](uint32_t a, uint32_t b) { return order_key[a] < order_key[b]; };
-    auto dist2 = [&](uint32_t a, uint32_t b) {
+// The state of poisson_disk_sample_in: the candidates in cells, their order,
+// each one's earlier neighbours and its state in the pass under way.
+class DiskSampler {
+public:
+    DiskSampler(PointsView pts, double r_max, uint64_t seed);
+    void find_earlier_neighbours(size_t list_capacity, bool allow_avx512);
+    std::vector<uint32_t> first_pass(size_t keep);
+    bool second_pass(std::vector<uint32_t>& chosen, size_t wanted);
+    void to_input_indices(std::vector<uint32_t>& chosen) const;
+
+private:
+    bool earlier(uint32_t a, uint32_t b) const { return order_key_[a] < order_key_[b]; }
+    double dist2(uint32_t a, uint32_t b) const {
         double d2 = 0;
         for (int k = 0; k < 3; ++k) {
-            const double d = double(sp[3 * size_t(a) + k]) - sp[3 * size_t(b) + k];
+            const double d = double(sp_[3 * size_t(a) + k]) - sp_[3 * size_t(b) + k];
             d2 += d * d;
         }
         return d2;
-    };
-    const double wide2 = wide * wide;
-    const double narrow_first = narrow_radius(0, r_max);
-    const double narrow_first2 = narrow_first * narrow_first;
-    // The float filter below passes every pair the exact test can accept
-    // when its error bound holds: coordinates and squared distances of
-    // normal floats, far from overflow.  Otherwise its limit is NaN, which
-    // passes everything (the comparison is "not at or above the limit").
+    }
+    // The scratch of one task's blocks of cells.
+    struct BlockScratch;
+    size_t block_lists(size_t b, BlockScratch& s, bool avx512) const;
+    void store_block(size_t b, const std::vector<uint32_t>& list, size_t used);
+    void pack_spilled();
+    void greedy_pass(double radius);
+    bool decide(uint32_t i, double radius2, bool every_listed, bool flagged);
+    template <class Kept>
+    std::vector<uint32_t> earliest_kept(Kept&& kept, size_t count) const;
+    void narrow_states(const std::vector<uint32_t>& chosen, int step, double narrow2);
+
+    const size_t m_;
+    const double r_max_, wide_, wide2_, narrow_first_, narrow_first2_;
+    const CellGrid grid_;
+    const Uninitialised<float>& sp_;
+    Uninitialised<uint64_t> order_key_;
+    // the float filter's limits (see the constructor)
+    float filter_radius2_, sure_wide2_, sure_narrow2_, not_narrow2_;
+    size_t nblocks_ = 0, capacity_ = 0;
+    Uninitialised<ListSpan> lists_;
+    Uninitialised<uint32_t> nbrs_;
+    std::atomic<size_t> nbrs_used_{0};
+    std::vector<uint64_t> block_at_;   // where a block's lists are in nbrs_, or kSpilled
+    std::vector<std::vector<uint32_t>> spilled_;
+    std::atomic<bool> any_spilled_{false};
+    Uninitialised<std::atomic<uint8_t>> state_;
+    Uninitialised<uint8_t> first_in_;
+};
+
+// The order: a Philox hash of the point's index, ties by the index (not by
+// the sorted position: the answer does not depend on the layout).
+DiskSampler::DiskSampler(PointsView pts, double r_max, uint64_t seed)
+    : m_(pts.size() / 3), r_max_(r_max), wide_(kWideRadius * r_max), wide2_(wide_ * wide_),
+      narrow_first_(narrow_radius(0, r_max)), narrow_first2_(narrow_first_ * narrow_first_),
+      grid_(sort_into_cells(pts, wide_, true)), sp_(grid_.sp), order_key_(m_), lists_(m_), state_(m_),
+      first_in_(m_) {
+    const std::array<uint32_t, 2> key{uint32_t(seed), uint32_t(seed >> 32)};
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m_, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t a = r.begin(); a < r.end(); ++a) {
+            const uint32_t i = grid_.original[a];
+            order_key_[a] = (uint64_t(philox4x32_10({kSamplingIteration, i, 1, 0}, key)[0]) << 32) | i;
+        }
+    });
+    // The float filter passes every pair the exact test can accept when its
+    // error bound holds: coordinates and squared distances of normal floats,
+    // far from overflow.  Otherwise its limit is NaN, which passes
+    // everything (the comparison is "not at or above the limit").
     double extent = 0;
-    for (int k = 0; k < 3; ++k) extent = std::max({extent, std::abs(grid.lo[k]), std::abs(grid.hi[k])});
-    const bool filter_sound = wide2 > 1e-30 && extent < 1e15 && wide2 < 1e30;
-    const float filter_radius2 = filter_sound ? float(wide2 * (1.0 + 1e-5)) : NAN;
+    for (int k = 0; k < 3; ++k) extent = std::max({extent, std::abs(grid_.lo[k]), std::abs(grid_.hi[k])});
+    const bool filter_sound = wide2_ > 1e-30 && extent < 1e15 && wide2_ < 1e30;
+    filter_radius2_ = filter_sound ? float(wide2_ * (1.0 + 1e-5)) : NAN;
     // Float squared distances that decide the exact tests by the same
     // margin: below sure_wide2 is closer than the wide radius; below
     // sure_narrow2 closer than the first narrow radius, from not_narrow2 up
     // not.  In between, and on a tie of the order's hash, the exact test
     // decides.  (Without a sound filter every one takes the exact test.)
-    const float sure_wide2 = filter_sound ? float(wide2 * (1.0 - 1e-5)) : -1.0f;
-    const float sure_narrow2 = float(narrow_first2 * (1.0 - 1e-5)), not_narrow2 = float(narrow_first2 * (1.0 + 1e-5));
-    // Each point's earlier neighbours closer than the wide radius (the same
-    // test in double the passes make), per fixed block of cells.  Only
-    // earlier ones: a point's decision waits on those alone; the list's
-    // order, and where it is stored, do not matter to any decision.  A
-    // neighbour also closer than the first narrow radius has kNarrowBit
-    // set: the second pass reads that instead of computing the distance
-    // again.  A block's lists are made in a scratch array its task reuses,
-    // then copied to the next free place of `nbrs` (fresh memory touched
-    // once; reserved for `list_capacity` entries per point, far more than
-    // the ~4.5 a point has on a surface: a mesh with more, e.g. many sheets
-    // closer than the wide radius, has its lists packed again, below).
-    const std::vector<CellGrid::Cell>& cells = grid.cells;
-    const size_t nblocks = (cells.size() + kCellsPerTask - 1) / kCellsPerTask;
-    Uninitialised<ListSpan> lists(m);   // every point's is written below
-    const size_t capacity = std::min<size_t>(list_capacity * m, UINT32_MAX);
-    Uninitialised<uint32_t> nbrs(capacity);
-    std::atomic<size_t> nbrs_used{0};
-    std::vector<uint64_t> block_at(nblocks);  // where a block's lists are in `nbrs`, or kSpilled
-    std::vector<std::vector<uint32_t>> spilled(nblocks);
-    std::atomic<bool> any_spilled{false};
+    sure_wide2_ = filter_sound ? float(wide2_ * (1.0 - 1e-5)) : -1.0f;
+    sure_narrow2_ = float(narrow_first2_ * (1.0 - 1e-5));
+    not_narrow2_ = float(narrow_first2_ * (1.0 + 1e-5));
+}
+
+struct DiskSampler::BlockScratch {
+    // A row's cells go in clusters (consecutive cells at most 2 apart in x,
+    // whose neighbourhoods overlap).  The points of the 9 rows around a
+    // cluster, over its x range widened by one, are copied side by side in
+    // order of x (then of row): the points of the 27 cells around each of
+    // its cells are then one run of them, and each point is copied about 9
+    // times instead of once per cell around it.
+    struct Run {
+        uint32_t x, begin, end;
+    };
+    std::vector<Run> runs;
+    std::vector<uint32_t> x_start, x_fill;
+    std::vector<float> nx, ny, nz, nd2;  // nd2: the last point's float squared distances
+    std::vector<int32_t> nhash;  // order hash, biased for a signed comparison
+    std::vector<uint32_t> nid, maybe;
+    std::vector<uint32_t> list;  // the block's lists; its size is its capacity
+    CellGrid::RowsAround rows;
+    WindowFilter window;
+};
+
+// Block b's lists into s.list (positions relative to it); returns their
+// length.
+size_t DiskSampler::block_lists(size_t b, BlockScratch& s, bool avx512) const {
+    const std::vector<CellGrid::Cell>& cells = grid_.cells;
+    size_t used = 0;
+    const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
+    for (size_t ci = c_begin; ci < c_end;) {
+        const uint64_t row = cells[ci].key >> 21;
+        size_t cj = ci + 1;
+        while (cj < c_end && (cells[cj].key >> 21) == row && cells[cj].c[0] <= cells[cj - 1].c[0] + 2) ++cj;
+        const uint32_t x_lo = cells[ci].c[0] > 0 ? cells[ci].c[0] - 1 : 0, x_hi = cells[cj - 1].c[0] + 1;
+        const size_t span = x_hi - x_lo + 1;
+        s.runs.clear();
+        s.x_start.assign(span + 1, 0);
+        s.rows.cells_in(cells[ci], x_lo, x_hi, [&](uint32_t x, uint32_t begin, uint32_t end) {
+            s.runs.push_back({x, begin, end});
+            s.x_start[x - x_lo + 1] += end - begin;
+        });
+        for (size_t x = 0; x < span; ++x) s.x_start[x + 1] += s.x_start[x];
+        const size_t count = s.x_start[span];
+        if (s.nid.size() < count + kWindowPad) {
+            // arrays that only grow (no capacity test per point)
+            const size_t grown = std::max(2 * s.nid.size(), count + kWindowPad);
+            s.nx.resize(grown), s.ny.resize(grown), s.nz.resize(grown), s.nhash.resize(grown), s.nid.resize(grown);
+            s.maybe.resize(grown + 4), s.nd2.resize(grown + 4);
+        }
+        s.x_fill.assign(s.x_start.begin(), s.x_start.end() - 1);
+        for (const BlockScratch::Run& run : s.runs) {
+            uint32_t k = s.x_fill[run.x - x_lo];
+            for (uint32_t j = run.begin; j < run.end; ++j, ++k) {
+                s.nx[k] = sp_[3 * size_t(j)];
+                s.ny[k] = sp_[3 * size_t(j) + 1];
+                s.nz[k] = sp_[3 * size_t(j) + 2];
+                s.nhash[k] = int32_t(uint32_t(order_key_[j] >> 32) ^ 0x80000000u);
+                s.nid[k] = j;
+            }
+            s.x_fill[run.x - x_lo] = k;
+        }
+        for (size_t k = count; k < count + kWindowPad; ++k) {  // read past the last run, never passed
+            s.nx[k] = s.ny[k] = s.nz[k] = INFINITY;
+            s.nhash[k] = INT32_MAX;
+            s.nid[k] = 0;
+        }
+        s.window.refresh(s.nx, s.ny, s.nz, s.nhash, s.nid, s.maybe, s.nd2);
+        for (; ci < cj; ++ci) {
+            const uint32_t x = cells[ci].c[0];
+            const size_t w_begin = s.x_start[x > x_lo ? x - 1 - x_lo : 0], w_end = s.x_start[x + 2 - x_lo];
+            // room for every point's list to take its whole window and a vector more
+            const size_t room = used + size_t(cells[ci].end - cells[ci].begin) * (w_end - w_begin + kWindowPad);
+            if (s.list.size() < room) s.list.resize(std::max(2 * s.list.size(), room));
+            used = avx512 ? s.window.cell_lists_avx512(cells[ci].begin, cells[ci].end, w_begin, w_end, s.list.data(), used)
+                          : s.window.cell_lists_sse2(cells[ci].begin, cells[ci].end, w_begin, w_end, s.list.data(), used);
+        }
+    }
+    return used;
+}
+
+// Block b's lists copied to the next free place of nbrs_, or set aside
+// (spilled) when nbrs_ is full.
+void DiskSampler::store_block(size_t b, const std::vector<uint32_t>& list, size_t used) {
+    const std::vector<CellGrid::Cell>& cells = grid_.cells;
+    const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
+    const uint32_t p_begin = cells[c_begin].begin, p_end = cells[c_end - 1].end;
+    const size_t at = nbrs_used_.fetch_add(used, std::memory_order_relaxed);
+    if (at + used <= capacity_) {
+        std::copy(list.data(), list.data() + used, nbrs_.data() + at);
+        for (uint32_t i = p_begin; i < p_end; ++i) lists_[i] = {uint32_t(lists_[i].begin + at), uint32_t(lists_[i].end + at)};
+        block_at_[b] = at;
+    } else {
+        spilled_[b].assign(list.data(), list.data() + used);
+        block_at_[b] = kSpilled;
+        any_spilled_.store(true, std::memory_order_relaxed);
+    }
+}
+
+// Each point's earlier neighbours closer than the wide radius (the same test
+// in double the passes make), per fixed block of cells.  Only earlier ones:
+// a point's decision waits on those alone; the list's order, and where it is
+// stored, do not matter to any decision.  A neighbour also closer than the
+// first narrow radius has kNarrowBit set: the second pass reads that instead
+// of computing the distance again.  A block's lists are made in a scratch
+// array its task reuses, then copied to the next free place of nbrs_ (fresh
+// memory touched once; reserved for `list_capacity` entries per point, far
+// more than the ~4.5 a point has on a surface: a mesh with more, e.g. many
+// sheets closer than the wide radius, has its lists packed again).
+void DiskSampler::find_earlier_neighbours(size_t list_capacity, bool allow_avx512) {
+    nblocks_ = (grid_.cells.size() + kCellsPerTask - 1) / kCellsPerTask;
+    capacity_ = std::min<size_t>(list_capacity * m_, UINT32_MAX);
+    Uninitialised<uint32_t>(capacity_).swap(nbrs_);
+    block_at_.assign(nblocks_, 0);
+    spilled_.assign(nblocks_, {});
     const bool avx512 = allow_avx512 && WindowFilter::has_avx512();
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
-        // A row's cells go in clusters (consecutive cells at most 2 apart
-        // in x, whose neighbourhoods overlap).  The points of the 9 rows
-        // around a cluster, over its x range widened by one, are copied side
-        // by side in order of x (then of row): the points of the 27 cells
-        // around each of its cells are then one run of them, and each point
-        // is copied about 9 times instead of once per cell around it.
-        struct Run {
-            uint32_t x, begin, end;
-        };
-        std::vector<Run> runs;
-        std::vector<uint32_t> x_start, x_fill;
-        std::vector<float> nx, ny, nz, nd2;  // nd2: the last point's float squared distances
-        std::vector<int32_t> nhash;  // order hash, biased for a signed comparison
-        std::vector<uint32_t> nid, maybe;
-        std::vector<uint32_t> list;  // the block's lists; its size is its capacity
-        CellGrid::RowsAround rows(grid);
-        WindowFilter window{sp.data(), order_key.data(), filter_radius2, sure_wide2, sure_narrow2, not_narrow2,
-                            wide2, narrow_first2, lists.data()};
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks_, 1), [&](const tbb::blocked_range<size_t>& br) {
+        BlockScratch s{{}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, CellGrid::RowsAround(grid_),
+                       WindowFilter{sp_.data(), order_key_.data(), filter_radius2_, sure_wide2_, sure_narrow2_,
+                                    not_narrow2_, wide2_, narrow_first2_, lists_.data()}};
+        for (size_t b = br.begin(); b < br.end(); ++b) store_block(b, s.list, block_lists(b, s, avx512));
+    });
+    if (any_spilled_.load()) pack_spilled();
+}
+
+// Every block's lists packed again in block order (a block's last point's
+// list ends its block's lists).
+void DiskSampler::pack_spilled() {
+    const std::vector<CellGrid::Cell>& cells = grid_.cells;
+    std::vector<uint64_t> packed_at(nblocks_ + 1, 0);
+    for (size_t b = 0; b < nblocks_; ++b) {
+        const size_t c_end = std::min(cells.size(), (b + 1) * kCellsPerTask);
+        packed_at[b + 1] = packed_at[b] + (block_at_[b] == kSpilled ? spilled_[b].size()
+                                                                     : lists_[cells[c_end - 1].end - 1].end - block_at_[b]);
+    }
+    if (packed_at[nblocks_] > UINT32_MAX) throw Error("surfel candidates' neighbour lists too long");
+    Uninitialised<uint32_t> packed(packed_at[nblocks_]);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks_, 1), [&](const tbb::blocked_range<size_t>& br) {
         for (size_t b = br.begin(); b < br.end(); ++b) {
-            size_t used = 0;
             const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
-            for (size_t ci = c_begin; ci < c_end;) {
-                const uint64_t row = cells[ci].key >> 21;
-                size_t cj = ci + 1;
-                while (cj < c_end && (cells[cj].key >> 21) == row && cells[cj].c[0] <= cells[cj - 1].c[0] + 2) ++cj;
-                const uint32_t x_lo = cells[ci].c[0] > 0 ? cells[ci].c[0] - 1 : 0, x_hi = cells[cj - 1].c[0] + 1;
-                const size_t span = x_hi - x_lo + 1;
-                runs.clear();
-                x_start.assign(span + 1, 0);
-                rows.cells_in(cells[ci], x_lo, x_hi, [&](uint32_t x, uint32_t begin, uint32_t end) {
-                    runs.push_back({x, begin, end});
-                    x_start[x - x_lo + 1] += end - begin;
-                });
-                for (size_t x = 0; x < span; ++x) x_start[x + 1] += x_start[x];
-                const size_t count = x_start[span];
-                if (nid.size() < count + kWindowPad) {
-                    // arrays that only grow (no capacity test per point)
-                    const size_t grown = std::max(2 * nid.size(), count + kWindowPad);
-                    nx.resize(grown), ny.resize(grown), nz.resize(grown), nhash.resize(grown), nid.resize(grown);
-                    maybe.resize(grown + 4), nd2.resize(grown + 4);
-                }
-                x_fill.assign(x_start.begin(), x_start.end() - 1);
-                for (const Run& run : runs) {
-                    uint32_t k = x_fill[run.x - x_lo];
-                    for (uint32_t j = run.begin; j < run.end; ++j, ++k) {
-                        nx[k] = sp[3 * size_t(j)];
-                        ny[k] = sp[3 * size_t(j) + 1];
-                        nz[k] = sp[3 * size_t(j) + 2];
-                        nhash[k] = int32_t(uint32_t(order_key[j] >> 32) ^ 0x80000000u);
-                        nid[k] = j;
-                    }
-                    x_fill[run.x - x_lo] = k;
-                }
-                for (size_t k = count; k < count + kWindowPad; ++k) {  // read past the last run, never passed
-                    nx[k] = ny[k] = nz[k] = INFINITY;
-                    nhash[k] = INT32_MAX;
-                    nid[k] = 0;
-                }
-                window.refresh(nx, ny, nz, nhash, nid, maybe, nd2);
-                for (; ci < cj; ++ci) {
-                    const uint32_t x = cells[ci].c[0];
-                    const size_t w_begin = x_start[x > x_lo ? x - 1 - x_lo : 0], w_end = x_start[x + 2 - x_lo];
-                    // room for every point's list to take its whole window and a vector more
-                    const size_t room = used + size_t(cells[ci].end - cells[ci].begin) * (w_end - w_begin + kWindowPad);
-                    if (list.size() < room) list.resize(std::max(2 * list.size(), room));
-                    used = avx512 ? window.cell_lists_avx512(cells[ci].begin, cells[ci].end, w_begin, w_end, list.data(), used)
-                                  : window.cell_lists_sse2(cells[ci].begin, cells[ci].end, w_begin, w_end, list.data(), used);
-                }
-            }
-            const uint32_t p_begin = cells[c_begin].begin, p_end = cells[c_end - 1].end;
-            const size_t at = nbrs_used.fetch_add(used, std::memory_order_relaxed);
-            if (at + used <= capacity) {
-                std::copy(list.data(), list.data() + used, nbrs.data() + at);
-                for (uint32_t i = p_begin; i < p_end; ++i)
-                    lists[i] = {uint32_t(lists[i].begin + at), uint32_t(lists[i].end + at)};
-                block_at[b] = at;
-            } else {
-                spilled[b].assign(list.data(), list.data() + used);
-                block_at[b] = kSpilled;
-                any_spilled.store(true, std::memory_order_relaxed);
-            }
+            const uint64_t from = block_at_[b] == kSpilled ? 0 : block_at_[b];
+            const uint32_t* list = block_at_[b] == kSpilled ? spilled_[b].data() : nbrs_.data() + from;
+            std::copy(list, list + (packed_at[b + 1] - packed_at[b]), packed.data() + packed_at[b]);
+            for (uint32_t i = cells[c_begin].begin; i < cells[c_end - 1].end; ++i)
+                lists_[i] = {uint32_t(lists_[i].begin - from + packed_at[b]), uint32_t(lists_[i].end - from + packed_at[b])};
+            spilled_[b] = {};
         }
     });
-    if (any_spilled.load()) {
-        // Packed again, every block's lists in block order (a block's last
-        // point's list ends its block's lists).
-        std::vector<uint64_t> packed_at(nblocks + 1, 0);
-        for (size_t b = 0; b < nblocks; ++b) {
-            const size_t c_end = std::min(cells.size(), (b + 1) * kCellsPerTask);
-            packed_at[b + 1] = packed_at[b] + (block_at[b] == kSpilled ? spilled[b].size()
-                                                                       : lists[cells[c_end - 1].end - 1].end - block_at[b]);
+    nbrs_.swap(packed);
+}
+
+// Whether point i is decided now (and its state stored): out if one of its
+// listed neighbours within the radius is in, else in if none is undecided.
+// The states seen are gathered as bits over the whole list, without
+// branches that depend on them.
+bool DiskSampler::decide(uint32_t i, double radius2, bool every_listed, bool flagged) {
+    uint32_t seen = 0;
+    const uint32_t a_end = lists_[i].end;
+    if (every_listed) {
+        for (uint32_t a = lists_[i].begin; a < a_end; ++a)
+            seen |= 1u << state_[nbrs_[a] & kPositionBits].load(std::memory_order_relaxed);
+    } else if (flagged) {
+        for (uint32_t a = lists_[i].begin; a < a_end; ++a)
+            seen |= (nbrs_[a] >> 31) << state_[nbrs_[a] & kPositionBits].load(std::memory_order_relaxed);
+    } else {
+        for (uint32_t a = lists_[i].begin; a < a_end; ++a) {
+            const uint32_t j = nbrs_[a] & kPositionBits;
+            seen |= uint32_t(dist2(i, j) < radius2) << state_[j].load(std::memory_order_relaxed);
         }
-        if (packed_at[nblocks] > UINT32_MAX) throw Error("surfel candidates' neighbour lists too long");
-        Uninitialised<uint32_t> packed(packed_at[nblocks]);
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, nblocks, 1), [&](const tbb::blocked_range<size_t>& br) {
-            for (size_t b = br.begin(); b < br.end(); ++b) {
-                const size_t c_begin = b * kCellsPerTask, c_end = std::min(cells.size(), c_begin + kCellsPerTask);
-                const uint64_t from = block_at[b] == kSpilled ? 0 : block_at[b];
-                const uint32_t* list = block_at[b] == kSpilled ? spilled[b].data() : nbrs.data() + from;
-                std::copy(list, list + (packed_at[b + 1] - packed_at[b]), packed.data() + packed_at[b]);
-                for (uint32_t i = cells[c_begin].begin; i < cells[c_end - 1].end; ++i)
-                    lists[i] = {uint32_t(lists[i].begin - from + packed_at[b]), uint32_t(lists[i].end - from + packed_at[b])};
-                spilled[b] = {};
+    }
+    if (seen & (1u << kIn)) {
+        state_[i].store(kOut, std::memory_order_relaxed);
+        return true;
+    }
+    if (seen & (1u << kUndecided)) return false;  // wait for that neighbour
+    state_[i].store(kIn, std::memory_order_relaxed);
+    return true;
+}
+
+// One greedy pass at `radius` over the points whose state is kUndecided
+// (the others count as out): afterwards every point is in or out.  The
+// lists hold exactly the earlier points closer than the wide radius, so a
+// pass at it needs no distance.  The first round goes over every point
+// (skipping those decided before the pass), the later ones over the points
+// left waiting.  A fixed block of them sweeps its points, then sweeps again
+// those still waiting while that decides any (their lists are in cache: a
+// point mostly waits on nearby ones, which the block holds); the rest, each
+// block's in block order, wait for the next round.
+void DiskSampler::greedy_pass(double radius) {
+    const double radius2 = radius * radius;
+    const bool every_listed = radius == wide_;
+    const bool flagged = radius == narrow_first_;
+    std::vector<uint32_t> undecided;
+    bool first_round = true;
+    for (size_t left = m_; left > 0; first_round = false) {
+        const size_t n_item = (left + kPointsPerTask - 1) / kPointsPerTask;
+        std::vector<std::vector<uint32_t>> waiting_in(n_item);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, n_item, 1), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t item = r.begin(); item < r.end(); ++item) {
+                std::vector<uint32_t>& waiting = waiting_in[item];
+                const size_t u_end = std::min(left, (item + 1) * kPointsPerTask);
+                for (size_t u = item * kPointsPerTask; u < u_end; ++u) {
+                    const uint32_t i = first_round ? uint32_t(u) : undecided[u];
+                    if (first_round && state_[i].load(std::memory_order_relaxed) != kUndecided) continue;
+                    if (!decide(i, radius2, every_listed, flagged)) waiting.push_back(i);
+                }
+                for (size_t before = 0; !waiting.empty() && waiting.size() != before;) {
+                    before = waiting.size();
+                    size_t still = 0;
+                    for (const uint32_t i : waiting)
+                        if (!decide(i, radius2, every_listed, flagged)) waiting[still++] = i;
+                    waiting.resize(still);
+                }
             }
         });
-        nbrs.swap(packed);
+        undecided.clear();
+        for (const std::vector<uint32_t>& waiting : waiting_in) undecided.insert(undecided.end(), waiting.begin(), waiting.end());
+        left = undecided.size();
     }
-    SURFEL_TIMEPOINT("lists");
+}
 
-    // One greedy pass at `radius` over the points whose state is kUndecided
-    // (the others count as out): afterwards every point is in or out.  The
-    // lists hold exactly the earlier points closer than the wide radius, so
-    // a pass at it needs no distance.
-    Uninitialised<std::atomic<uint8_t>> state(m);  // every state is stored before the first pass
-    auto greedy_pass = [&](double radius) {
-        const double radius2 = radius * radius;
-        const bool every_listed = radius == wide;
-        const bool flagged = radius == narrow_first;
-        // The first round goes over every point (skipping those decided
-        // before the pass), the later ones over the points left waiting.  A
-        // fixed block of them sweeps its points, then sweeps again those
-        // still waiting while that decides any (their lists are in cache: a
-        // point mostly waits on nearby ones, which the block holds); the
-        // rest, each block's in block order, wait for the next round.
-        std::vector<uint32_t> undecided;
-        bool first_round = true;
-        for (size_t left = m; left > 0; first_round = false) {
-            const size_t n_item = (left + kPointsPerTask - 1) / kPointsPerTask;
-            std::vector<std::vector<uint32_t>> waiting_in(n_item);
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, n_item, 1), [&](const tbb::blocked_range<size_t>& r) {
-                // Whether point i is decided now (and its state stored): out
-                // if one of its listed neighbours within the radius is in,
-                // else in if none is undecided.  The states seen are
-                // gathered as bits over the whole list, without branches
-                // that depend on them.
-                auto decide = [&](uint32_t i) {
-                    uint32_t seen = 0;
-                    const uint32_t a_end = lists[i].end;
-                    if (every_listed) {
-                        for (uint32_t a = lists[i].begin; a < a_end; ++a)
-                            seen |= 1u << state[nbrs[a] & kPositionBits].load(std::memory_order_relaxed);
-                    } else if (flagged) {
-                        for (uint32_t a = lists[i].begin; a < a_end; ++a)
-                            seen |= (nbrs[a] >> 31) << state[nbrs[a] & kPositionBits].load(std::memory_order_relaxed);
-                    } else {
-                        for (uint32_t a = lists[i].begin; a < a_end; ++a) {
-                            const uint32_t j = nbrs[a] & kPositionBits;
-                            seen |= uint32_t(dist2(i, j) < radius2) << state[j].load(std::memory_order_relaxed);
-                        }
-                    }
-                    if (seen & (1u << kIn)) {
-                        state[i].store(kOut, std::memory_order_relaxed);
-                        return true;
-                    }
-                    if (seen & (1u << kUndecided)) return false;  // wait for that neighbour
-                    state[i].store(kIn, std::memory_order_relaxed);
-                    return true;
-                };
-                for (size_t item = r.begin(); item < r.end(); ++item) {
-                    std::vector<uint32_t>& waiting = waiting_in[item];
-                    const size_t u_end = std::min(left, (item + 1) * kPointsPerTask);
-                    for (size_t u = item * kPointsPerTask; u < u_end; ++u) {
-                        const uint32_t i = first_round ? uint32_t(u) : undecided[u];
-                        if (first_round && state[i].load(std::memory_order_relaxed) != kUndecided) continue;
-                        if (!decide(i)) waiting.push_back(i);
-                    }
-                    for (size_t before = 0; !waiting.empty() && waiting.size() != before;) {
-                        before = waiting.size();
-                        size_t still = 0;
-                        for (const uint32_t i : waiting)
-                            if (!decide(i)) waiting[still++] = i;
-                        waiting.resize(still);
-                    }
-                }
-            });
-            undecided.clear();
-            for (const std::vector<uint32_t>& waiting : waiting_in) undecided.insert(undecided.end(), waiting.begin(), waiting.end());
-            left = undecided.size();
-        }
-    };
-    // The `count` earliest in the order of the points a pass kept (all of
-    // them if fewer), in no particular order: sample_surfels orders the
-    // surfels by itself, and which are the earliest is unique (the keys
-    // are).
-    auto earliest_kept = [&](auto&& kept, size_t count) {
-        std::vector<uint32_t> out = select_in_order(m, kept);
-        if (out.size() > count) {
-            std::nth_element(out.begin(), out.begin() + std::ptrdiff_t(count), out.end(), earlier);
-            out.resize(count);
-        }
-        return out;
-    };
+// The `count` earliest in the order of the points a pass kept (all of them
+// if fewer), in no particular order: sample_surfels orders the surfels by
+// itself, and which are the earliest is unique (the keys are).
+template <class Kept>
+std::vector<uint32_t> DiskSampler::earliest_kept(Kept&& kept, size_t count) const {
+    std::vector<uint32_t> out = select_in_order(m_, kept);
+    if (out.size() > count) {
+        std::nth_element(out.begin(), out.begin() + std::ptrdiff_t(count), out.end(),
+                         [this](uint32_t a, uint32_t b) { return earlier(a, b); });
+        out.resize(count);
+    }
+    return out;
+}
 
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 8192), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) state[i].store(kUndecided, std::memory_order_relaxed);
+// The first pass at the wide radius over every point: the earliest `keep`
+// of those it keeps.
+std::vector<uint32_t> DiskSampler::first_pass(size_t keep) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m_, 8192), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) state_[i].store(kUndecided, std::memory_order_relaxed);
     });
-    greedy_pass(wide);
-    SURFEL_TIMEPOINT("first pass");
-    Uninitialised<uint8_t> first_in(m);  // filled below
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 8192), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) first_in[i] = state[i].load(std::memory_order_relaxed) == kIn;
+    greedy_pass(wide_);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m_, 8192), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) first_in_[i] = state_[i].load(std::memory_order_relaxed) == kIn;
     });
-    std::vector<uint32_t> chosen = earliest_kept([&](size_t a) { return first_in[a] != 0; }, keep);
-    if (chosen.size() < keep) {
-        const size_t wanted = keep - chosen.size();
-        for (int step = 0;; ++step) {
-            const double narrow = narrow_radius(step, r_max);
-            if (narrow < kDiskRadiusMin * r_max) return {};
-            const double narrow2 = narrow * narrow;
-            // Whether listed entry e of point i is closer than the narrow radius.
-            auto within_narrow = [&](uint32_t i, uint32_t e) {
-                return step == 0 ? (e & kNarrowBit) != 0 : dist2(i, e & kPositionBits) < narrow2;
-            };
-            // The first pass's points are in from the start: a point closer
-            // than the narrow radius to one of them (earlier or later) is
-            // out.  Earlier ones from the point's own list; a kept point
-            // marks its own listed (earlier) points (stores of one value:
-            // the same states at any thread count).
-            // (The whole list read without an early exit, and the kept
-            // points' marks from `chosen`, which holds every one of them
-            // here: no branch on a point's state to mispredict.)
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, m, 4096), [&](const tbb::blocked_range<size_t>& r) {
-                for (size_t i = r.begin(); i < r.end(); ++i) {
-                    uint32_t out = first_in[i];
-                    if (step == 0) {
-                        for (uint32_t a = lists[i].begin; a < lists[i].end; ++a)
-                            out |= uint32_t(first_in[nbrs[a] & kPositionBits]) & (nbrs[a] >> 31);
-                    } else {
-                        for (uint32_t a = lists[i].begin; a < lists[i].end; ++a)
-                            out |= uint32_t(first_in[nbrs[a] & kPositionBits]) &
-                                   uint32_t(within_narrow(uint32_t(i), nbrs[a]));
-                    }
-                    state[i].store(out ? kOut : kUndecided, std::memory_order_relaxed);
-                }
-            });
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, chosen.size(), 1024), [&](const tbb::blocked_range<size_t>& r) {
-                for (size_t c = r.begin(); c < r.end(); ++c) {
-                    const uint32_t j = chosen[c];
-                    for (uint32_t a = lists[j].begin; a < lists[j].end; ++a)
-                        if (within_narrow(j, nbrs[a])) state[nbrs[a] & kPositionBits].store(kOut, std::memory_order_relaxed);
-                }
-            });
-            greedy_pass(narrow);
-            std::vector<uint32_t> second =
-                earliest_kept([&](size_t a) { return state[a].load(std::memory_order_relaxed) == kIn; }, wanted);
-            if (second.size() >= wanted) {
-                chosen.insert(chosen.end(), second.begin(), second.begin() + std::ptrdiff_t(wanted));
-                break;
+    return earliest_kept([&](size_t a) { return first_in_[a] != 0; }, keep);
+}
+
+// The first pass's points are in from the start: a point closer than the
+// narrow radius to one of them (earlier or later) is out.  Earlier ones
+// from the point's own list; a kept point marks its own listed (earlier)
+// points (stores of one value: the same states at any thread count).  (The
+// whole list read without an early exit, and the kept points' marks from
+// `chosen`, which holds every one of them here: no branch on a point's
+// state to mispredict.)
+void DiskSampler::narrow_states(const std::vector<uint32_t>& chosen, int step, double narrow2) {
+    // Whether listed entry e of point i is closer than the narrow radius.
+    auto within_narrow = [&](uint32_t i, uint32_t e) {
+        return step == 0 ? (e & kNarrowBit) != 0 : dist2(i, e & kPositionBits) < narrow2;
+    };
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, m_, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+            uint32_t out = first_in_[i];
+            if (step == 0) {
+                for (uint32_t a = lists_[i].begin; a < lists_[i].end; ++a)
+                    out |= uint32_t(first_in_[nbrs_[a] & kPositionBits]) & (nbrs_[a] >> 31);
+            } else {
+                for (uint32_t a = lists_[i].begin; a < lists_[i].end; ++a)
+                    out |= uint32_t(first_in_[nbrs_[a] & kPositionBits]) & uint32_t(within_narrow(uint32_t(i), nbrs_[a]));
             }
+            state_[i].store(out ? kOut : kUndecided, std::memory_order_relaxed);
+        }
+    });
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, chosen.size(), 1024), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t c = r.begin(); c < r.end(); ++c) {
+            const uint32_t j = chosen[c];
+            for (uint32_t a = lists_[j].begin; a < lists_[j].end; ++a)
+                if (within_narrow(j, nbrs_[a])) state_[nbrs_[a] & kPositionBits].store(kOut, std::memory_order_relaxed);
+        }
+    });
+}
+
+// The second pass over the points left, at the narrow radius, until it
+// gives `wanted` more (added to `chosen`); false if it falls short even at
+// kDiskRadiusMin.
+bool DiskSampler::second_pass(std::vector<uint32_t>& chosen, size_t wanted) {
+    for (int step = 0;; ++step) {
+        const double narrow = narrow_radius(step, r_max_);
+        if (narrow < kDiskRadiusMin * r_max_) return false;
+        narrow_states(chosen, step, narrow * narrow);
+        greedy_pass(narrow);
+        std::vector<uint32_t> second =
+            earliest_kept([&](size_t a) { return state_[a].load(std::memory_order_relaxed) == kIn; }, wanted);
+        if (second.size() >= wanted) {
+            chosen.insert(chosen.end(), second.begin(), second.begin() + std::ptrdiff_t(wanted));
+            return true;
         }
     }
-    SURFEL_TIMEPOINT("second pass");
+}
+
+void DiskSampler::to_input_indices(std::vector<uint32_t>& chosen) const {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, chosen.size(), 8192), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t k = r.begin(); k < r.end(); ++k) chosen[k] = grid.original[chosen[k]];
+        for (size_t k = r.begin(); k < r.end(); ++k) chosen[k] = grid_.original[chosen[k]];
     });
-#ifdef GAMMA_SURFEL_TIMING
-    std::fprintf(stderr, "\n");
-#endif
+}
+
+std::vector<uint32_t> poisson_disk_sample_in(PointsView pts, size_t keep, double r_max, uint64_t seed,
+                                             size_t list_capacity, bool allow_avx512) {
+    // (sorted positions fit under kNarrowBit: 2^31 candidates are far
+    // beyond the memory of any machine this runs on)
+    if (pts.size() / 3 >= size_t(kNarrowBit)) throw Error("too many surfel candidates");
+    SURFEL_TIMING_START;
+    DiskSampler sampler(pts, r_max, seed);
+    SURFEL_TIMEPOINT("disk: cells, order");
+    sampler.find_earlier_neighbours(list_capacity, allow_avx512);
+    SURFEL_TIMEPOINT("lists");
+    std::vector<uint32_t> chosen = sampler.first_pass(keep);
+    SURFEL_TIMEPOINT("first pass");
+    if (chosen.size() < keep && !sampler.second_pass(chosen, keep - chosen.size())) return {};
+    SURFEL_TIMEPOINT("second pass");
+    sampler.to_input_indices(chosen);
     return chosen;
 }
 

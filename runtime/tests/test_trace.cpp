@@ -85,7 +85,7 @@ TEST(Trace, ACancelledTokenStopsThePassesAndLeavesTheRows) {
     c.add_source("point", t, 2'000'000, {0, 0, 0});
     CancelToken stopped;
     stopped.cancel();
-    EXPECT_THROW(Simulation(m, c, stopped), Cancelled);
+    EXPECT_THROW(Simulation(m, c, nullptr, nullptr, stopped), Cancelled);
     Simulation sim(m, c);
     const std::vector<float> before = sim.rows();
     EXPECT_THROW(sim.trace(1, stopped), Cancelled);
@@ -112,6 +112,41 @@ TEST(Trace, ACancelledTokenStopsThePassesAndLeavesTheRows) {
     canceller.join();
     EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 30.0);
     sim.trace(1);   // the token stopped its own passes only
+}
+
+// The batched tracer (groups of gamma-tons cast, looked up and moved ahead
+// of their rules) against the plain one (each gamma-ton to its end before
+// the next): the same chunk logs, record for record, and the same counters,
+// with every motion, rules on hit and settle, and a step budget small enough
+// that paths go on past the group's rounds.
+TEST(Trace, BatchedChunksEqualTheOneAtATimeTracer) {
+    Mesh m = gamma_test::icosphere(3);
+    for (int64_t budget : {int64_t(0), int64_t(7)}) {
+        for (int threads : {1, 2}) {
+            Config c = base_config(5, 0.2f);
+            c.threads = threads;
+            c.trace_step_budget = budget;
+            const int t = c.add_ton_type(0.4f, 0.3f, 0.2f, {1.0f}, 0.3f, 0.2f);
+            c.set_transport(GAMMA_EVENT_HIT, t, 0, addr(reinterpret_cast<void*>(&k_hit)), true);
+            c.set_transport(GAMMA_EVENT_SETTLE, t, 0, addr(reinterpret_cast<void*>(&k_settle)), true);
+            c.add_source("point", t, 9000, {0, 0, 0});
+            Simulation sim(m, c);
+            const int64_t n = sim.num_chunks(1);
+            const std::vector<ChunkLog> batched = sim.trace_chunks(1, 0, n);
+            const std::vector<ChunkLog> plain = sim.trace_chunks(1, 0, n, /*one_at_a_time=*/true);
+            ASSERT_EQ(batched.size(), plain.size());
+            int64_t interactions = 0;
+            for (size_t k = 0; k < batched.size(); ++k) {
+                EXPECT_EQ(batched[k].surfel, plain[k].surfel) << "chunk " << k;
+                EXPECT_EQ(batched[k].delta, plain[k].delta) << "chunk " << k;
+#define GAMMA_EXPECT_SAME_COUNTER(name) EXPECT_EQ(batched[k].st.name, plain[k].st.name) << #name;
+                GAMMA_TRACE_COUNTERS(GAMMA_EXPECT_SAME_COUNTER)
+#undef GAMMA_EXPECT_SAME_COUNTER
+                interactions += batched[k].st.interactions;
+            }
+            EXPECT_GT(interactions, 9000 * 2) << "budget " << budget << ", " << threads << " thread(s)";
+        }
+    }
 }
 
 TEST(Trace, CappedAtMaxInteractions) {

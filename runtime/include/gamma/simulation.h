@@ -82,8 +82,8 @@ public:
     // trace() in pieces (see Tracer::trace_chunks): the driver of a
     // distributed run merges the chunks its workers traced.
     int64_t num_chunks(int iteration) const { return tracer_->num_chunks(iteration, state_, frame_); }
-    std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last) const {
-        return tracer_->trace_chunks(iteration, first, last, *index_, frame_, state_);
+    std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last, bool one_at_a_time = false) const {
+        return tracer_->trace_chunks(iteration, first, last, *index_, frame_, state_, one_at_a_time);
     }
     TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs) {
         shape_.begin_iteration(state_);  // as trace(): the rows before this iteration's deposits

@@ -45,10 +45,13 @@ public:
     // all chunks, in chunk order, exactly as trace() does after tracing.  A
     // chunk's log depends only on (config, scene, rows, iteration, chunk), so
     // the pieces give trace()'s bytes wherever they are traced.  Both throw
-    // gammart::Error on chunks or logs that do not fit.
+    // gammart::Error on chunks or logs that do not fit.  one_at_a_time: the
+    // plain tracer (each gamma-ton followed to its end before the next
+    // starts) instead of the batched one; the same logs, for tests.
     int64_t num_chunks(int iteration, const SurfelState& state, const SceneFrame& frame) const;
     std::vector<ChunkLog> trace_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index,
-                                       const SceneFrame& frame, const SurfelState& state) const;
+                                       const SceneFrame& frame, const SurfelState& state,
+                                       bool one_at_a_time = false) const;
     TraceStats merge_chunks(int iteration, const std::vector<ChunkLog>& logs, SurfelState& state,
                             const SceneFrame& frame);
 
@@ -97,7 +100,7 @@ private:
     Emission emission(int iteration, const SurfelState& state, const SceneFrame& frame) const;
     void run_chunks(int iteration, int64_t first, int64_t last, const SceneIndex& index, const SceneFrame& frame,
                     const SurfelState& state, const UniformReflectance& reflectance, ChunkLog* out,
-                    std::vector<RecordedRay>* rays_out, const CancelToken& cancel) const;
+                    std::vector<RecordedRay>* rays_out, const CancelToken& cancel, bool one_at_a_time) const;
 
     const Config& cfg_;
     const KernelTable& kernels_;

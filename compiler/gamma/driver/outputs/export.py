@@ -180,15 +180,16 @@ def vertex_normals(positions: np.ndarray, tris: np.ndarray) -> np.ndarray:
     return (normals / np.where(length > 0, length, 1)).astype(np.float32)
 
 
-def vertex_looks(sim, lay: Layout, iteration: int, threads: int):
-    """At the layout's vertices: (rows, looks, scene triangle per vertex)."""
+def vertex_looks(sim, lay: Layout, iteration: int, threads: int, cancel=None):
+    """At the layout's vertices: (rows, looks, scene triangle per vertex).
+    ``cancel``: a CancelToken that stops the bake (runtime Cancelled)."""
     local = np.zeros(len(lay.positions), np.int64)     # a triangle each vertex belongs to
     local[lay.faces.reshape(-1)] = np.repeat(np.arange(len(lay.faces)), 3)
     owner = lay.piece.triangles[local].astype(np.int32)
     lookup = np.zeros((len(lay.positions), 2), np.float32)
     if lay.piece.own_uvs is not None:                  # texture() sees the mesh's coordinates
         lookup[lay.faces.reshape(-1)] = lay.piece.own_uvs.reshape(-1, 2)
-    rows, look = sim.bake_points(lay.positions, lay.normals, owner, lookup, iteration, threads)
+    rows, look = sim.bake_points(lay.positions, lay.normals, owner, lookup, iteration, threads, cancel=cancel)
     return np.asarray(rows), np.asarray(look), owner
 
 
@@ -260,14 +261,15 @@ HALO = 2 * BLEED_PASSES + 1
 
 
 def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map=None,
-                     band: int | None = None, as_bytes: bool = False) -> TextureSet:
+                     band: int | None = None, as_bytes: bool = False, cancel=None) -> TextureSet:
     """The layout's texture set, baked in bands of ``band`` rows (default:
     about BAKE_CHUNK texels).  ``columns_of(rows, scene_triangles)`` gives
     the property columns of smoothed rows; ``normal_map(lookup_uvs,
     scene_triangles)``, when given, the asset's own tangent-space normals
     there ((k, 3), or None where it has none).  ``as_bytes``: the base
     colour, ORM and normal map (as (n + 1) / 2) as the 8-bit values their
-    PNGs hold (``to_bytes``), a quarter of the memory of floats."""
+    PNGs hold (``to_bytes``), a quarter of the memory of floats.  ``cancel``:
+    a CancelToken that stops the bake between blocks of texels."""
     size = lay.size
     band = band or max(16, BAKE_CHUNK // size)
     rgb = np.uint8 if as_bytes else np.float32
@@ -280,7 +282,7 @@ def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of,
         top, bottom = max(0, first - HALO), min(size, end + HALO)
         texels, tris, bary = rasterise_uv(corner_uvs, size, rows=(top, bottom), tile=BAKE_TILE)
         images, names = _bake_band(sim, lay, iteration, threads, columns_of, normal_map,
-                                   texels - top * size, tris, bary, (bottom - top, size))
+                                   texels - top * size, tris, bary, (bottom - top, size), cancel)
         keep = slice(first - top, end - top)
         ts.base_color[first:end], ts.orm[first:end] = put(images[0][keep]), put(images[1][keep])
         ts.normal[first:end] = to_bytes((images[2][keep] + 1.0) * 0.5) if as_bytes else images[2][keep]
@@ -291,7 +293,7 @@ def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of,
 
 
 def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map, texels, tris, bary,
-               shape: tuple):
+               shape: tuple, cancel=None):
     """The images of a band of rows (``shape``; ``texels`` numbered in it):
     (base colour, ORM, normal, height, properties (h, w, P)), property names."""
     n_texels = len(texels)
@@ -308,7 +310,7 @@ def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns_of, norma
         part = slice(first, first + BAKE_CHUNK)
         t = np.ascontiguousarray(tris[part], np.int32)
         rows, looks = sim.bake_texels(lay.positions, lay.normals, corners, lookup_uvs, scene_triangle, t,
-                                      np.ascontiguousarray(bary[part]), iteration, threads)
+                                      np.ascontiguousarray(bary[part]), iteration, threads, cancel=cancel)
         looks = np.asarray(looks)
         stack[part, 0:3] = looks[:, 0:3]
         stack[part, 3:6] = looks[:, [6, 3, 4]]
@@ -784,10 +786,10 @@ class Exporter:
                 def columns_of(rows, scene_tris):
                     return property_columns(effect, rows, self.triangle_surface[scene_tris])
 
-                rows, _, owner = vertex_looks(sim, lay, iteration, run.threads)
+                rows, _, owner = vertex_looks(sim, lay, iteration, run.threads, run.cancel)
                 attributes = property_columns(effect, rows, self.triangle_surface[owner])
                 ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of, self._normal_map(piece),
-                                      as_bytes=True)
+                                      as_bytes=True, cancel=run.cancel)
                 part_name = safe_name(piece.name)
                 tile = "" if piece.tile is None else f".{piece.tile}"     # UDIM: NAME.1001.png
                 folder = out / part_name

@@ -32,9 +32,11 @@ from ..running.runner import start
 
 
 def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: float = 30.0,
-           threads: int = 0, shading: str | None = None, crease: float | None = None):
+           threads: int = 0, shading: str | None = None, crease: float | None = None, stop=None):
     """(run session, summary, the iterations saved) of the run in ``folder``;
-    shading and crease (None: the run's) as ``gammac run`` takes them."""
+    shading and crease (None: the run's) as ``gammac run`` takes them.
+    ``stop``: the command's Interruptions (its token stops the set-up, the
+    renders and the bakes)."""
     from ...frontend.checker import load
 
     folder = Path(folder)
@@ -64,7 +66,7 @@ def reopen(folder: str | Path, view=None, eye=None, look_at=None, up=None, fov: 
     import tempfile
 
     scratch = tempfile.TemporaryDirectory(prefix="gamma-saved-")   # start() wants a folder of its own
-    session = start(effect, replace(opts, out=scratch.name))
+    session = start(effect, replace(opts, out=scratch.name), stop)
     session.lock.__exit__()
     session.scratch = scratch
     session.saved_summary = summary
@@ -88,7 +90,7 @@ def run_ranges(summary: dict, folder: Path, saved: list[int], names) -> dict:
 
 
 def render_saved(folder, iteration: int | None, show: str | None, output: str | None, size: int,
-                 samples: int, ao: int, **camera) -> Path:
+                 samples: int, ao: int, stop=None, **camera) -> Path:
     """One picture of a saved iteration: the appearance, or ``show`` in false
     colour on the run's range.  Returns the file written."""
     import io
@@ -100,7 +102,7 @@ def render_saved(folder, iteration: int | None, show: str | None, output: str | 
     from .outputs import false_colour_png
 
     folder = Path(folder)
-    session, summary, saved = reopen(folder, **camera)
+    session, summary, saved = reopen(folder, stop=stop, **camera)
     it = iteration or saved[-1]
     load_iteration(session, folder, it)
     sim, (eye, target, up, fov) = session.sim, session.camera
@@ -118,11 +120,11 @@ def render_saved(folder, iteration: int | None, show: str | None, output: str | 
             high = low + 1.0
         values = np.ascontiguousarray(np.nan_to_num(_column(session, show), nan=low, posinf=high,
                                                     neginf=low), np.float32)
-        value, shade = sim.render(values, eye, target, up, fov, size, size, session.threads)
+        value, shade = sim.render(values, eye, target, up, fov, size, size, session.threads, cancel=session.cancel)
         data = false_colour_png(value, shade, low, high, show, f"{show}, iteration {it}")
     else:
         image = sim.render_appearance(eye, target, up, fov, size, size, session.threads, samples,
-                                      sun_direction(session.camera), ao, it)
+                                      sun_direction(session.camera), ao, it, cancel=session.cancel)
         rgb = np.clip(np.asarray(image)[..., :3], 0.0, 1.0)
         buffer = io.BytesIO()
         Image.fromarray((rgb * 255 + 0.5).astype(np.uint8)).save(buffer, format="PNG")
@@ -140,10 +142,10 @@ def _column(session, name: str) -> np.ndarray:
 
 def export_saved(folder, iterations: list[int] | None, bake_size: int | None, threads: int = 0,
                  progress: bool = False, texel_density: float | None = None, usd: bool = False,
-                 preset: str = "gltf", float_maps: bool = False) -> list[int]:
+                 preset: str = "gltf", float_maps: bool = False, stop=None) -> list[int]:
     """The export (SPEC §16.3) of saved iterations (the last by default),
     every 16-bit property map on the run's range, and with ``usd`` an
-    OpenUSD stage of them.  Returns the iterations."""
+    OpenUSD stage of them.  Returns the iterations.  ``stop``: as for reopen."""
     from .export import Exporter
 
     if usd:
@@ -153,7 +155,7 @@ def export_saved(folder, iterations: list[int] | None, bake_size: int | None, th
             raise RunError("--format usd needs usd-core (pip install 'gamma-weathering[usd]')")
 
     folder = Path(folder)
-    session, summary, saved = reopen(folder, threads=threads)
+    session, summary, saved = reopen(folder, threads=threads, stop=stop)
     chosen = iterations or [saved[-1]]
     for it in chosen:
         if it not in saved:
