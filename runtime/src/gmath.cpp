@@ -58,6 +58,14 @@ D rint(D x) {
     return (x + 0x1.8p52) - 0x1.8p52;
 }
 
+// a / b rounded once at compile time.  The build's -frounding-math keeps an
+// inexact quotient of two literals as a division at run time (it cannot
+// know the rounding mode); as the initializer of a constexpr variable it is
+// folded in round-to-nearest, the mode the runtime always runs in, so the
+// series' coefficients are the same doubles without a division per term.
+template <int64_t A, int64_t B>
+constexpr double kQuotient = double(A) / double(B);
+
 // ---- exp ----
 
 // e^t for finite t in [-200, 200], relative error ~1e-16.
@@ -67,17 +75,17 @@ D exp_core(D t) {
     // ln 2 in two parts, the first with 32 significant bits: k * kLn2Hi is exact
     const D r = (t - k * 0x1.62e42fee00000p-1) - k * 0x1.a39ef35793c76p-33;  // |r| <= 0.347
     // Taylor series to r^13 (the next term is below 2^-57 relative)
-    D p = D{} + (1.0 / 6227020800.0);
-    p = p * r + 1.0 / 479001600.0;
-    p = p * r + 1.0 / 39916800.0;
-    p = p * r + 1.0 / 3628800.0;
-    p = p * r + 1.0 / 362880.0;
-    p = p * r + 1.0 / 40320.0;
-    p = p * r + 1.0 / 5040.0;
-    p = p * r + 1.0 / 720.0;
-    p = p * r + 1.0 / 120.0;
-    p = p * r + 1.0 / 24.0;
-    p = p * r + 1.0 / 6.0;
+    D p = D{} + (kQuotient<1, 6227020800>);
+    p = p * r + kQuotient<1, 479001600>;
+    p = p * r + kQuotient<1, 39916800>;
+    p = p * r + kQuotient<1, 3628800>;
+    p = p * r + kQuotient<1, 362880>;
+    p = p * r + kQuotient<1, 40320>;
+    p = p * r + kQuotient<1, 5040>;
+    p = p * r + kQuotient<1, 720>;
+    p = p * r + kQuotient<1, 120>;
+    p = p * r + kQuotient<1, 24>;
+    p = p * r + kQuotient<1, 6>;
     p = p * r + 0.5;
     p = p * r + 1.0;
     p = p * r + 1.0;
@@ -109,15 +117,15 @@ D log_core(D a) {
     // ln m = 2 atanh(s), s = (m - 1) / (m + 1), |s| <= 0.1716: series to s^19
     const D s = (m - 1.0) / (m + 1.0);
     const D z = s * s;
-    D p = D{} + (2.0 / 19.0);
-    p = p * z + 2.0 / 17.0;
-    p = p * z + 2.0 / 15.0;
-    p = p * z + 2.0 / 13.0;
-    p = p * z + 2.0 / 11.0;
-    p = p * z + 2.0 / 9.0;
-    p = p * z + 2.0 / 7.0;
-    p = p * z + 2.0 / 5.0;
-    p = p * z + 2.0 / 3.0;
+    D p = D{} + (kQuotient<2, 19>);
+    p = p * z + kQuotient<2, 17>;
+    p = p * z + kQuotient<2, 15>;
+    p = p * z + kQuotient<2, 13>;
+    p = p * z + kQuotient<2, 11>;
+    p = p * z + kQuotient<2, 9>;
+    p = p * z + kQuotient<2, 7>;
+    p = p * z + kQuotient<2, 5>;
+    p = p * z + kQuotient<2, 3>;
     p = p * z + 2.0;
     return ed * 0x1.62e42fee00000p-1 + (s * p + ed * 0x1.a39ef35793c76p-33);
 }
@@ -206,22 +214,22 @@ double reduce_large(float x, int64_t& q) {
 template <class D>
 void sincos_poly(D r, D& s, D& c) {
     const D z = r * r;
-    D ps = D{} + (-1.0 / 355687428096000.0);
-    ps = ps * z + 1.0 / 1307674368000.0;
-    ps = ps * z - 1.0 / 6227020800.0;
-    ps = ps * z + 1.0 / 39916800.0;
-    ps = ps * z - 1.0 / 362880.0;
-    ps = ps * z + 1.0 / 5040.0;
-    ps = ps * z - 1.0 / 120.0;
-    ps = ps * z + 1.0 / 6.0;
+    D ps = D{} + (-kQuotient<1, 355687428096000>);
+    ps = ps * z + kQuotient<1, 1307674368000>;
+    ps = ps * z - kQuotient<1, 6227020800>;
+    ps = ps * z + kQuotient<1, 39916800>;
+    ps = ps * z - kQuotient<1, 362880>;
+    ps = ps * z + kQuotient<1, 5040>;
+    ps = ps * z - kQuotient<1, 120>;
+    ps = ps * z + kQuotient<1, 6>;
     s = r - (r * z) * ps;  // r - r^3/6 + ...; exact sign of zero kept (r = -0 gives -0)
-    D pc = D{} + (1.0 / 20922789888000.0);
-    pc = pc * z - 1.0 / 87178291200.0;
-    pc = pc * z + 1.0 / 479001600.0;
-    pc = pc * z - 1.0 / 3628800.0;
-    pc = pc * z + 1.0 / 40320.0;
-    pc = pc * z - 1.0 / 720.0;
-    pc = pc * z + 1.0 / 24.0;
+    D pc = D{} + (kQuotient<1, 20922789888000>);
+    pc = pc * z - kQuotient<1, 87178291200>;
+    pc = pc * z + kQuotient<1, 479001600>;
+    pc = pc * z - kQuotient<1, 3628800>;
+    pc = pc * z + kQuotient<1, 40320>;
+    pc = pc * z - kQuotient<1, 720>;
+    pc = pc * z + kQuotient<1, 24>;
     pc = pc * z - 0.5;
     c = 1.0 + z * pc;
 }
@@ -289,19 +297,19 @@ D atan_unit(D t) {
     const D base = sel(high, D{} + 0.78539816339744830962, sel(mid, D{} + 0.46364760900080611621, D{} + 0.0));
     const D w = (t - c) / (1.0 + t * c);
     const D z = w * w;
-    D p = D{} + (-1.0 / 27.0);
-    p = p * z + 1.0 / 25.0;
-    p = p * z - 1.0 / 23.0;
-    p = p * z + 1.0 / 21.0;
-    p = p * z - 1.0 / 19.0;
-    p = p * z + 1.0 / 17.0;
-    p = p * z - 1.0 / 15.0;
-    p = p * z + 1.0 / 13.0;
-    p = p * z - 1.0 / 11.0;
-    p = p * z + 1.0 / 9.0;
-    p = p * z - 1.0 / 7.0;
-    p = p * z + 1.0 / 5.0;
-    p = p * z - 1.0 / 3.0;
+    D p = D{} + (-kQuotient<1, 27>);
+    p = p * z + kQuotient<1, 25>;
+    p = p * z - kQuotient<1, 23>;
+    p = p * z + kQuotient<1, 21>;
+    p = p * z - kQuotient<1, 19>;
+    p = p * z + kQuotient<1, 17>;
+    p = p * z - kQuotient<1, 15>;
+    p = p * z + kQuotient<1, 13>;
+    p = p * z - kQuotient<1, 11>;
+    p = p * z + kQuotient<1, 9>;
+    p = p * z - kQuotient<1, 7>;
+    p = p * z + kQuotient<1, 5>;
+    p = p * z - kQuotient<1, 3>;
     return base + (w + (w * z) * p);
 }
 
@@ -341,8 +349,17 @@ void sincos(float x, float& s, float& c) {
     } else {
         r = reduce_large(x, q);
     }
-    s = narrow(keep_zero<Trig::Sin>(xd, trig_from<Trig::Sin>(r, q)));
-    c = narrow(trig_from<Trig::Cos>(r, q));
+    // trig_from's selections without branches (the quadrant is random in the
+    // tracer's azimuths, so branches on it were mispredicted half the time),
+    // and the series evaluated once for both: the same values bit for bit.
+    double ps, pc;
+    sincos_poly(r, ps, pc);
+    const int64_t swap = -(q & 1);                              // all ones in odd quadrants
+    const int64_t sin_sign = ((q >> 1) & 1) << 63, cos_sign = (((q + 1) >> 1) & 1) << 63;
+    const int64_t sin_bits = ((bits(ps) & ~swap) | (bits(pc) & swap)) ^ sin_sign;
+    const int64_t cos_bits = ((bits(pc) & ~swap) | (bits(ps) & swap)) ^ cos_sign;
+    s = narrow(keep_zero<Trig::Sin>(xd, from_bits(sin_bits)));
+    c = narrow(from_bits(cos_bits));
 }
 float atan2(float y, float x) { return narrow(atan2_core(widen(y), widen(x))); }
 float exp(float x) { return narrow(exp_any(widen(x))); }
