@@ -26,7 +26,10 @@ inline double from_bits(int64_t b) {
 }
 inline d8 from_bits(l8 b) { return reinterpret_cast<d8>(b); }
 inline int64_t to_int(double x) { return int64_t(x); }  // x integral, |x| < 2^52
-inline l8 to_int(d8 x) { return __builtin_convertvector(x, l8); }
+// (by the bits of x + 1.5 * 2^52, whose low bits are then the integer: a
+// conversion instruction for 64-bit lanes needs AVX-512, and without it GCC
+// converts lane by lane)
+inline l8 to_int(d8 x) { return reinterpret_cast<l8>(x + 0x1.8p52) - reinterpret_cast<l8>(d8{} + 0x1.8p52); }
 inline double to_double(int64_t x) { return double(x); }
 inline d8 to_double(l8 x) { return __builtin_convertvector(x, d8); }
 inline double sel(bool m, double a, double b) { return m ? a : b; }
@@ -260,6 +263,20 @@ D keep_zero(D x, D v) {
     return sel(x == 0.0, x, v);
 }
 
+// sin and cos from the reduced argument r and quadrant q: trig_from's
+// selections done without branches (the quadrant is random in the tracer's
+// azimuths, so branches on it were mispredicted half the time), and the
+// series evaluated once for both: the same values bit for bit.
+template <class D, class L, class F>
+void sincos_from(D xd, D r, L q, F& s, F& c) {
+    D ps, pc;
+    sincos_poly(r, ps, pc);
+    const L swap = -(q & 1);                              // all ones in odd quadrants
+    const L sin_sign = ((q >> 1) & 1) << 63, cos_sign = (((q + 1) >> 1) & 1) << 63;
+    s = narrow(keep_zero<Trig::Sin>(xd, from_bits(((bits(ps) & ~swap) | (bits(pc) & swap)) ^ sin_sign)));
+    c = narrow(from_bits(((bits(pc) & ~swap) | (bits(ps) & swap)) ^ cos_sign));
+}
+
 template <Trig F>
 float trig(float x) {
     const double xd = x;
@@ -284,6 +301,23 @@ f8 trig(f8 x) {
     for (int j = 0; j < 8; ++j)
         if (!small[j]) out[j] = trig<F>(x[j]);  // large, inf or NaN: the scalar form
     return out;
+}
+
+// sin and cos of eight lanes from one reduction and one series each
+// (large, infinite or NaN lanes by the scalar form).
+void sincos8(f8 x, f8& s, f8& c) {
+    const d8 xd = widen(x);
+    const l8 small = fabs(xd) < kSmall;
+    d8 k;
+    const d8 r = reduce_small(sel(small, xd, d8{}), k);
+    sincos_from(xd, r, to_int(k), s, c);
+    for (int j = 0; j < 8; ++j)
+        if (!small[j]) {
+            float sj, cj;
+            sincos(x[j], sj, cj);
+            s[j] = sj;
+            c[j] = cj;
+        }
 }
 
 // ---- atan2 (C99 F.10.1.4) ----
@@ -349,17 +383,7 @@ void sincos(float x, float& s, float& c) {
     } else {
         r = reduce_large(x, q);
     }
-    // trig_from's selections without branches (the quadrant is random in the
-    // tracer's azimuths, so branches on it were mispredicted half the time),
-    // and the series evaluated once for both: the same values bit for bit.
-    double ps, pc;
-    sincos_poly(r, ps, pc);
-    const int64_t swap = -(q & 1);                              // all ones in odd quadrants
-    const int64_t sin_sign = ((q >> 1) & 1) << 63, cos_sign = (((q + 1) >> 1) & 1) << 63;
-    const int64_t sin_bits = ((bits(ps) & ~swap) | (bits(pc) & swap)) ^ sin_sign;
-    const int64_t cos_bits = ((bits(pc) & ~swap) | (bits(ps) & swap)) ^ cos_sign;
-    s = narrow(keep_zero<Trig::Sin>(xd, from_bits(sin_bits)));
-    c = narrow(from_bits(cos_bits));
+    sincos_from(xd, r, q, s, c);
 }
 float atan2(float y, float x) { return narrow(atan2_core(widen(y), widen(x))); }
 float exp(float x) { return narrow(exp_any(widen(x))); }
@@ -369,9 +393,36 @@ float pow(float x, float y) { return narrow(pow_core(widen(x), widen(y))); }
 f8 sin(f8 x) { return trig<Trig::Sin>(x); }
 f8 cos(f8 x) { return trig<Trig::Cos>(x); }
 f8 tan(f8 x) { return trig<Trig::Tan>(x); }
-void sincos(f8 x, f8& s, f8& c) {
-    s = sin(x);
-    c = cos(x);
+void sincos(f8 x, f8& s, f8& c) { sincos8(x, s, c); }
+
+namespace {
+// The eight-lane form compiled for AVX2 (four doubles to a register; no
+// fused multiply-add: -ffp-contract=off, and FMA is not enabled): the same
+// operations in the same order as every other form, so the same bits.
+__attribute__((target("avx2"), flatten)) void sincos8_avx2(const float* x, float* s, float* c) {
+    f8 xv, sv, cv;
+    std::memcpy(&xv, x, sizeof xv);
+    sincos8(xv, sv, cv);
+    std::memcpy(s, &sv, sizeof sv);
+    std::memcpy(c, &cv, sizeof cv);
+}
+}  // namespace
+
+void sincos_n(const float* x, float* s, float* c, size_t n) {
+    static const bool avx2 = __builtin_cpu_supports("avx2");
+    size_t i = 0;
+    if (avx2) {
+        for (; i + 8 <= n; i += 8) sincos8_avx2(x + i, s + i, c + i);
+        if (i < n) {
+            float xs[8] = {}, ss[8], cs[8];
+            std::memcpy(xs, x + i, (n - i) * sizeof(float));
+            sincos8_avx2(xs, ss, cs);
+            std::memcpy(s + i, ss, (n - i) * sizeof(float));
+            std::memcpy(c + i, cs, (n - i) * sizeof(float));
+        }
+        return;
+    }
+    for (; i < n; ++i) sincos(x[i], s[i], c[i]);
 }
 f8 atan2(f8 y, f8 x) { return narrow(atan2_core(widen(y), widen(x))); }
 f8 exp(f8 x) { return narrow(exp_any(widen(x))); }

@@ -463,9 +463,7 @@ private:
         uint32_t point;  // of the tree
     };
     double spacing_;
-    // distance_key(d2 from the centre, point of the tree); their allocator
-    // leaves a resize's room unwritten (each search's columns ask for room,
-    // which std::allocator would clear first)
+    // distance_key(d2 from the centre, point of the tree)
     std::vector<uint64_t, HugePageAllocator<uint64_t>> found_, kept_;
     std::vector<Ordered> order_;
 };
@@ -632,8 +630,7 @@ void SceneIndex::compute_lookup(const Reuse* reuse, const std::vector<uint8_t>* 
     lookup_grids_.resize(at[nblocks].grids);
     lookup_cells_.resize(at[nblocks].cells);
     lookup_cell_at_.assign(at[nblocks].cells, kNoBlock);
-    // (both left unwritten by their allocator: the loop below writes every
-    // head and entry, in parallel)
+    // (the loop below writes every head and entry, in parallel)
     decltype(lookup_packed_) packed(entries);
     if (lookup_head_.size() != m) lookup_head_.resize(m);
     tbb::parallel_for(size_t(0), nblocks, [&](size_t b) {

@@ -22,9 +22,9 @@
 namespace gammart {
 
 namespace {
-// Arrays written whole before they are read: not zeroed first (huge_pages.h).
+// Large arrays, on huge pages (huge_pages.h).
 template <class T>
-using Unzeroed = std::vector<T, HugePageAllocator<T>>;
+using HugeArray = std::vector<T, HugePageAllocator<T>>;
 
 constexpr float kRadiusInSigmas = 2.0f;
 constexpr float kMinNormalDot = 0.5f;  // cos 60°
@@ -101,10 +101,10 @@ struct SweepColumns {
     int nu = 1, nv = 1;
     double lo_u = 0, lo_v = 0, inv_side = 1;
     std::vector<uint32_t> start;  // per column (u major), then the end
-    Unzeroed<uint32_t> id;        // sorted: original index
-    Unzeroed<float> key;          // sorted: the w coordinate (NaN as +inf: never within reach)
-    Unzeroed<float> pos, nrm;     // sorted positions and normals
-    Unzeroed<int32_t> surf;       // sorted surfaces
+    HugeArray<uint32_t> id;        // sorted: original index
+    HugeArray<float> key;          // sorted: the w coordinate (NaN as +inf: never within reach)
+    HugeArray<float> pos, nrm;     // sorted positions and normals
+    HugeArray<int32_t> surf;       // sorted surfaces
 
 
     void build(const float* p, const float* normal, const int32_t* surface, size_t n, double reach) {
@@ -169,8 +169,8 @@ struct SweepColumns {
 struct GatherChunk {
     size_t first_column = 0, end_column = 0;
     std::vector<uint32_t> target;
-    Unzeroed<uint32_t> source;
-    Unzeroed<double> gauss;
+    HugeArray<uint32_t> source;
+    HugeArray<double> gauss;
 };
 constexpr size_t kPointsPerChunk = 2048;
 
@@ -260,7 +260,7 @@ struct ColumnWindows {
 // One thread's work on its chunks of targets, with its scratch.
 class HoodGatherer {
 public:
-    HoodGatherer(const SweepColumns& cols, const HoodLimits& lim, Unzeroed<uint32_t>& count, Unzeroed<double>& sum)
+    HoodGatherer(const SweepColumns& cols, const HoodLimits& lim, HugeArray<uint32_t>& count, HugeArray<double>& sum)
         : cols_(cols), lim_(lim), count_(count), sum_(sum) {}
 
     void gather(GatherChunk& G) {
@@ -388,16 +388,16 @@ private:
 
     const SweepColumns& cols_;
     const HoodLimits& lim_;
-    Unzeroed<uint32_t>& count_;   // each target's gather entries
-    Unzeroed<double>& sum_;       // each source's sum of weights
+    HugeArray<uint32_t>& count_;   // each target's gather entries
+    HugeArray<double>& sum_;       // each source's sum of weights
     std::vector<std::pair<uint32_t, float>> found_;  // (sorted index, d2)
     std::vector<HoodEntry> hood_, sorted_;
     std::vector<uint32_t> ids_;  // the hood's, padded to a multiple of 4
 };
 
 // The kernel from the chunks' gather lists, once every source's sum is known.
-void write_kernel(SplatKernel& k, const std::vector<GatherChunk>& chunks, const Unzeroed<uint32_t>& count,
-                  const Unzeroed<double>& sum, size_t n) {
+void write_kernel(SplatKernel& k, const std::vector<GatherChunk>& chunks, const HugeArray<uint32_t>& count,
+                  const HugeArray<double>& sum, size_t n) {
     for (size_t j = 0; j < n; ++j) {
         if (uint64_t(k.offset[j]) + count[j] > uint64_t(UINT32_MAX)) throw Error("splat kernel: too many entries");
         k.offset[j + 1] = k.offset[j] + count[j];
@@ -443,18 +443,18 @@ SplatKernel build_splat_kernel(const float* position, const float* normal, const
     SweepColumns cols;
     cols.build(position, normal, surface, n, lim.search ? lim.reach : 1.0);
     std::vector<GatherChunk> chunks = gather_chunks(cols);
-    Unzeroed<uint32_t> count(n);
-    Unzeroed<double> sum(n);
+    HugeArray<uint32_t> count(n);
+    HugeArray<double> sum(n);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks.size(), 1), [&](const tbb::blocked_range<size_t>& range) {
         HoodGatherer gatherer(cols, lim, count, sum);
         for (size_t ch = range.begin(); ch < range.end(); ++ch) gatherer.gather(chunks[ch]);
     });
     // only the order of the targets is needed from here on: the rest of the
     // columns freed before the kernel's arrays are allocated (a lower peak)
-    Unzeroed<float>().swap(cols.key);
-    Unzeroed<float>().swap(cols.pos);
-    Unzeroed<float>().swap(cols.nrm);
-    Unzeroed<int32_t>().swap(cols.surf);
+    HugeArray<float>().swap(cols.key);
+    HugeArray<float>().swap(cols.pos);
+    HugeArray<float>().swap(cols.nrm);
+    HugeArray<int32_t>().swap(cols.surf);
     write_kernel(k, chunks, count, sum, n);
     return k;
 }

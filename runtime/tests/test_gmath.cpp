@@ -161,6 +161,33 @@ TEST(Gmath, SincosIsSinAndCos) {
     }
 }
 
+// The eight-lane sincos (f8) and sincos_n (eight at a time compiled for AVX2
+// where the CPU has it, in runs of every length so the padded tail is
+// used too) give the scalar sincos's bits.
+TEST(Gmath, SincosOfEightLanesAndOfArraysIsSincos) {
+    const std::vector<float>& xs = arguments();
+    std::vector<float> s(xs.size()), c(xs.size());
+    size_t at = 0;
+    for (size_t run = 1; at < xs.size(); run = run % 19 + 1) {
+        const size_t n = std::min(run, xs.size() - at);
+        gm::sincos_n(xs.data() + at, s.data() + at, c.data() + at, n);
+        at += n;
+    }
+    for (size_t i = 0; i + 8 <= xs.size(); i += 8) {
+        gm::f8 x, s8, c8;
+        for (size_t j = 0; j < 8; ++j) x[j] = xs[i + j];
+        gm::sincos(x, s8, c8);
+        for (size_t j = 0; j < 8; ++j) {
+            float s1, c1;
+            gm::sincos(xs[i + j], s1, c1);
+            expect_same_bits(s8[j], s1, "sincos(f8).sin", xs[i + j]);
+            expect_same_bits(c8[j], c1, "sincos(f8).cos", xs[i + j]);
+            expect_same_bits(s[i + j], s1, "sincos_n.sin", xs[i + j]);
+            expect_same_bits(c[i + j], c1, "sincos_n.cos", xs[i + j]);
+        }
+    }
+}
+
 TEST(Gmath, Tan) {
     check_unary("tan", arguments(), [](float x) { return gm::tan(x); }, [](gm::f8 x) { return gm::tan(x); },
                 [](long double x) { return tanl(x); });

@@ -1,7 +1,6 @@
 // HugePageAllocator: blocks of 2 MiB or more on 2 MiB boundaries, smaller
-// ones from operator new; a value-initialising resize leaves the elements
-// unwritten, while every construction with a value (assign, insert, the
-// copies of a growing vector) still writes it.
+// ones from operator new; every element it hands out is constructed (a
+// resize value-initialises: no garbage, not even what the same block held).
 #include <gtest/gtest.h>
 
 #include <cstdint>
@@ -33,6 +32,22 @@ TEST(HugePageAllocator, LargeBlocksOnHugePageBoundariesSmallOnesAligned) {
         for (size_t i = 0; i < n; ++i) v[i] = Entry{float(i), -float(i), uint32_t(i)};
         for (size_t i = 0; i < n; i += 1 + n / 97) ASSERT_EQ(v[i].id, uint32_t(i));
     }
+}
+
+TEST(HugePageAllocator, AResizeConstructsTheNewElementsEvenInTheBlockItHad) {
+    const size_t n = kHugePageBytes / sizeof(Entry) + 3;   // a huge-page block
+    HugeVector<Entry> v;
+    v.assign(n, Entry{5.0f, 6.0f, 9});
+    const Entry* block = v.data();
+    v.resize(0);
+    v.resize(n);                                           // the same block again
+    ASSERT_EQ(v.data(), block);
+    for (size_t i = 0; i < n; ++i) ASSERT_TRUE(v[i].x == 1.0f && v[i].y == 2.0f && v[i].id == 7u) << i;
+    HugeVector<uint64_t> counts;
+    counts.assign(1000, ~uint64_t(0));
+    counts.resize(0);
+    counts.resize(1000);
+    for (uint64_t c : counts) ASSERT_EQ(c, 0u);
 }
 
 TEST(HugePageAllocator, ConstructionWithAValueStillWritesIt) {

@@ -26,6 +26,7 @@
 // Payne-Hanek (96 bits of 2/pi from the right place, scalar; vector lanes
 // with large arguments take the scalar function).
 #pragma once
+#include <cstddef>
 #include <cstdint>
 #include <cstring>
 
@@ -52,6 +53,11 @@ f8 atan2(f8 y, f8 x);
 f8 exp(f8 x);
 f8 log(f8 x);
 f8 pow(f8 x, f8 y);
+
+// sincos of x[0, n) into s and c: eight at a time where the CPU has AVX2
+// (the eight-lane form compiled for it), else one at a time; the same bits
+// either way.
+void sincos_n(const float* x, float* s, float* c, size_t n);
 
 }  // namespace gammart::gm
 

@@ -5,19 +5,13 @@
 // read otherwise: the lookup of the bunny at 100k surfels spans ~10,000 of
 // them).  Smaller blocks come from operator new.  Where transparent huge
 // pages are off or unsupported the advice is ignored: same contents, 4 KiB
-// pages.
-// A vector's resize, count constructor or argument-less emplace leaves the
-// new elements unwritten here (no value-initialisation): these arrays are
-// written whole by parallel loops before anything reads them, and a
-// value-initialisation would first write them all in one thread (the first
-// touch of their pages included).  Hence only for trivially copyable,
-// trivially destructible elements.
+// pages.  Elements are constructed as std::allocator constructs them (a
+// resize value-initialises): leaving them unwritten, as this allocator once
+// did, saved no measurable set-up time (bench/RESULTS.md, 2026-12-04).
 #pragma once
 #include <cstddef>
 #include <cstdlib>
 #include <new>
-#include <type_traits>
-#include <utility>
 
 #if defined(__linux__)
 #include <sys/mman.h>
@@ -34,9 +28,6 @@ struct HugePageAllocator {
     template <class U>
     HugePageAllocator(const HugePageAllocator<U>&) noexcept {}
 
-    static_assert(std::is_trivially_copyable_v<T> && std::is_trivially_destructible_v<T>,
-                  "elements left unwritten by resize must need no construction");
-
     T* allocate(size_t n) {
         if (n > size_t(-1) / sizeof(T)) throw std::bad_alloc();
         const size_t bytes = n * sizeof(T);
@@ -52,13 +43,6 @@ struct HugePageAllocator {
     void deallocate(T* p, size_t n) noexcept {
         if (n * sizeof(T) < kHugePageBytes) ::operator delete(p, std::align_val_t(alignof(T)));
         else std::free(p);
-    }
-    // Value-initialisation (no arguments): nothing written.
-    template <class U>
-    void construct(U*) noexcept {}
-    template <class U, class... Args>
-    void construct(U* p, Args&&... args) {
-        ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
     }
 };
 

@@ -118,8 +118,7 @@ public:
     // within's order.  Every point scanned is written and the end advanced
     // only past the ones inside: no branch on each point's outcome (taken
     // or not at random, those branches cost more than the writes).
-    // (`out`: a std::vector of any allocator; one that leaves a resize's new
-    // elements unwritten saves clearing the room each column asks for.)
+    // (`out`: a std::vector of any allocator.)
     template <class Vector, class Make>
     void append_within(const float q[3], float r2, Vector& out, Make&& make) const {
         using T = typename Vector::value_type;

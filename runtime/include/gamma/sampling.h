@@ -21,23 +21,34 @@ constexpr int64_t kMaxFlightSegments = 100000;
 // Spot sources with falloff: cos^n lobe draws before falling back to uniform-in-cone.
 constexpr int kSpotMaxRedraws = 64;
 
-inline V3 uniform_sphere(float u, float v) {
+// The point of the unit sphere at height 1 - 2u and azimuth phi, given
+// sin phi and cos phi.
+inline V3 uniform_sphere_sc(float u, float s, float c) {
     float z = 1.0f - 2.0f * u;
     float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
-    float phi = kTwoPi * v, s, c;
-    gm::sincos(phi, s, c);
     return {r * c, r * s, z};
+}
+
+inline V3 uniform_sphere(float u, float v) {
+    float s, c;
+    gm::sincos(kTwoPi * v, s, c);
+    return uniform_sphere_sc(u, s, c);
+}
+
+// Direction at polar cos `z` about unit n, at the azimuth whose sine and
+// cosine are s and c.
+inline V3 around_sc(V3 n, float z, float s, float c) {
+    float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    V3 t, b;
+    onb(n, t, b);
+    return normalize(t * (r * c) + b * (r * s) + n * z);
 }
 
 // Direction at polar cos `z` and azimuth 2*pi*v about unit n.
 inline V3 around(V3 n, float z, float v) {
-    float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
-    float phi = kTwoPi * v;
     float s, c;
-    gm::sincos(phi, s, c);
-    V3 t, b;
-    onb(n, t, b);
-    return normalize(t * (r * c) + b * (r * s) + n * z);
+    gm::sincos(kTwoPi * v, s, c);
+    return around_sc(n, z, s, c);
 }
 
 // Cosine-weighted direction about unit n.

@@ -19,8 +19,8 @@ struct SplatKernel {
     // Gather form: the deltas reaching surfel j come from the surfels
     // source[offset[j] .. offset[j+1]) with those weights, in ascending
     // source order (a fixed summation order: bit-identical at any thread
-    // count).  Large arrays written whole by the build (huge_pages.h: not
-    // zeroed first, and on 2 MiB pages: a few page faults, not thousands).
+    // count).  Large arrays (huge_pages.h: on 2 MiB pages, a few page
+    // faults, not thousands).
     std::vector<uint32_t, HugePageAllocator<uint32_t>> offset, source;
     std::vector<float, HugePageAllocator<float>> weight;
     double mean_neighbours = 0;  // average neighbourhood size (for reports and tests)
