@@ -55,7 +55,11 @@ FlightEnd bounce_step(Walker& w, PhiloxStream& rng, const TonType& tt) {
 
 FlightEnd flow_step(Walker& w, PhiloxStream& rng, const TonType& tt) {
     ++w.st.flow_steps;
-    const float sin_drip = gm::sin(tt.drip_angle_deg * 0.017453292519943295f);
+    if (w.drip_of != &tt) {
+        w.sin_drip = gm::sin(tt.drip_angle_deg * 0.017453292519943295f);
+        w.drip_of = &tt;
+    }
+    const float sin_drip = w.sin_drip;
     auto probe = [&](V3 org, V3 d, float tfar, FlowHit& h) {
         if (w.record) w.record->push_back(RecordedRay{{org.x, org.y, org.z}, {d.x, d.y, d.z}, 0.0f, tfar});
         w.index.cast(w.rh, org, d, 0.0f, tfar);

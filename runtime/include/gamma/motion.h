@@ -49,6 +49,10 @@ struct Walker {
     uint32_t prim = 0;  // triangle of the interaction point
     RTCRayHit rh;
     std::vector<RecordedRay>* record = nullptr;  // if set, every cast ray is appended
+    // sin of the drip angle of the ton type last flowed (flow_step: worked out
+    // once per walker and ton type, not at every step)
+    const TonType* drip_of = nullptr;
+    float sin_drip = 0;
 
     Walker(const SceneIndex& i, const SceneFrame& f, TraceStats& s) : index(i), frame(f), st(s) {}
 
