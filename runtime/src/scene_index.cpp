@@ -388,8 +388,8 @@ public:
         // Only which surfels are the kPruningSurfels nearest
         // matters, not their order (a surfel is dropped when any
         // x beats it; the kept ones are sorted below), and the
-        // keys are distinct: selected, not sorted (the sort of
-        // every sphere's surfels was ~4 % of the setup's CPU).
+        // keys are distinct: selected, not sorted (sorting every
+        // sphere's surfels is work nobody reads; bench/RESULTS.md).
         // The nx least, kept sorted while the rest pass by (few
         // enter once the first are in), are put first, the rest
         // after them in their order: cheaper than nth_element's

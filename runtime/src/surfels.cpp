@@ -5,9 +5,8 @@
 // The mesh sampler used to be the weighted elimination alone: remove, one at
 // a time, the candidate of largest weight (the sum of (1 - d / 2r_max)^8
 // over its neighbours closer than 2 r_max) until N are left.  Its tiled
-// parallel form (below) still cost ~0.6 s of CPU for 100,000 surfels on the
-// bunny, bound by memory latency (41 passes over ~18 neighbours of each of
-// 500,000 candidates).  The disk passes look at each candidate's ~9
+// parallel form (below) is bound by memory latency: tens of passes over
+// ~18 neighbours of each of 5N candidates (its cost: bench/RESULTS.md).  The disk passes look at each candidate's ~9
 // neighbours closer than 1.40 r_max a few times, and on the same candidates
 // give a larger closest pair (1.28 r_max, by construction, against ~1.26), a
 // larger mean nearest-neighbour distance (+0.5-0.8 %) and much smaller holes
@@ -108,11 +107,10 @@ inline uint64_t cell_key(uint64_t x, uint64_t y, uint64_t z) {
 // A heap array of n trivially copyable values left uninitialised: the
 // parallel loop that fills it is the first to touch its pages (a
 // std::vector would zero them all in one thread first, and the first touch
-// of fresh memory, the kernel's page faults included, costs about half a
-// millisecond per MB here).  Not advised as transparent huge pages: at 1.6M
-// surfels (arrays of hundreds of MB, freed and made again pass after pass)
-// that raised the setup's kernel time from ~1.2 to ~3.5 s, the huge pages
-// being found by compaction.
+// of fresh memory costs the kernel's page faults).  Not advised as
+// transparent huge pages: at 1.6M surfels (arrays of hundreds of MB, freed
+// and made again pass after pass) the kernel spent far longer finding huge
+// pages by compaction than it saved (bench/RESULTS.md).
 template <class T>
 class Uninitialised {
 public:
@@ -1680,8 +1678,8 @@ namespace {
 // that are ever set (counted, then moved), each bucket then sorted by
 // itself, in parallel.  The sorted order is unique, so it is the one a
 // sort of the whole array gives; the buckets of a surface's Morton keys
-// hold a few dozen pairs each, and a comparison sort of the whole array
-// cost ~3 % of the sampling.  Keys crowded into few buckets (a mesh with a
+// hold a few dozen pairs each, so sorting them bucket by bucket is cheaper
+// than a comparison sort of the whole array (bench/RESULTS.md).  Keys crowded into few buckets (a mesh with a
 // far outlier) take the parallel sort of the whole array.
 void sort_unique_keys(std::vector<std::pair<uint64_t, uint32_t>>& order) {
     constexpr int kBucketBits = 16;

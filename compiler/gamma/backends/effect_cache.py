@@ -1,8 +1,8 @@
 """The compiled-effect cache: ``gammac run`` of an effect it ran before
 imports neither the parser (lark) nor LLVM (llvmlite).
 
-Of a rerun's start-up (~0.16 s, all of it imports on one core) about half
-was lark, the checker and llvmlite: the kernel cache (jit.py) kept the
+Most of a rerun's start-up (all of it imports on one core) was lark, the
+checker and llvmlite: the kernel cache (jit.py) kept the
 machine code, but MCJIT, and so LLVM's 100 MB library, was still needed to
 link it, and the effect was parsed and checked again.  After a run has
 compiled an effect, this module keeps in ``cache_dir()``:

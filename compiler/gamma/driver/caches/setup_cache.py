@@ -2,9 +2,8 @@
 disk, so that the next run on the same mesh, with the same surfel count and
 seed, skips most of its setup (SPEC §16.1).
 
-The setup of 100,000 surfels on the bunny takes ~0.35 s on two cores, of
-1.6M surfels on a 1M-triangle mesh ~8 s; an artist runs one effect after
-another on the same mesh.  ``Simulation.setup_snapshot`` gives the setup as
+The setup is a run's longest step before the first trace, and an artist
+runs one effect after another on the same mesh.  ``Simulation.setup_snapshot`` gives the setup as
 bytes (runtime/include/gamma/setup_snapshot.h); they are kept in
 ``cache_dir()`` as ``setup-BUILD-MESH-COUNT-SEED.bin``: BUILD the runtime
 build (the linker's build ID of its module, ``_runtime.RUNTIME_BUILD``), MESH
@@ -94,9 +93,9 @@ def store(sim, mesh, surfels: int, seed: int, behind: bool = False) -> None:
     """Keep ``sim``'s setup (just made, not taken from the cache) for the
     next run, written on a thread of their own.  The bytes are taken now,
     or with ``behind`` on that thread too: only for a simulation whose
-    shape no rule changes (the runtime's reconfigure waits for it).  Taking them (~30 ms and 39 MB
-    copied for 100,000 surfels on the bunny) was the last step between the
-    setup and the first trace.  Never raises: a setup not kept only costs
+    shape no rule changes (the runtime's reconfigure waits for it): taking
+    them (a copy of the whole setup) was the last step between the setup and
+    the first trace.  Never raises: a setup not kept only costs
     the next run time."""
     try:
         path = path_for(mesh, surfels, seed)

@@ -8,10 +8,9 @@ holds the runtime's build), the mesh itself (its vertices and triangles,
 hashed: the setup's name only fingerprints them), Embree (a shared library
 the runtime's build does not name), the binding of triangles to surfaces
 (which surfels a pixel may take), the shading (flat parts, crease angle) and
-the camera and picture size: the key covers all of them.  Casting them cost
-~80 ms of CPU for a 512 x 512 picture of the bunny at 100,000 surfels (most
-of it the 8-nearest search), beside the loop of every run; reading them
-back, ~7 MB, a few.
+the camera and picture size: the key covers all of them.  Casting them
+(mostly the 8-nearest search) took CPU beside the loop of every run;
+reading them back takes a small part of that.
 
 Only views of runs whose shape never changes are kept (the writer casts
 those from the setup on).  A file is the view's bytes

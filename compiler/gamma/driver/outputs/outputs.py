@@ -137,8 +137,8 @@ def encode_pngs(pictures: list, level: int, threads: int = 1) -> list[bytes]:
 def canvas_font(height: int):
     """The font of a false-colour picture ``height`` pixels high: Pillow's
     default font, scaled (its bitmap font where Pillow lacks FreeType); a new
-    one each time (loading it costs ~0.2 ms; a FreeType face is not shared
-    between threads)."""
+    one each time (a FreeType face is not shared between threads, and
+    loading one is cheap beside drawing)."""
     from PIL import ImageFont
 
     try:
@@ -210,9 +210,9 @@ class FalseColourCanvas:
         top left of the frame, ``title`` written over it.  The two are put
         side by side in numpy and Pillow writes the title on the few rows it
         covers only: its glyphs land on whole pixels (the corner is whole), so
-        the bytes are those of writing it on the whole canvas (one ~3 ms
-        picture copied through Pillow three times, five times after a run's
-        loop, where a user waits).  (``textbbox`` of a bitmap font, Pillow
+        the bytes are those of writing it on the whole canvas, without copying
+        the whole picture through Pillow (five pictures after a run's loop,
+        where a user waits).  (``textbbox`` of a bitmap font, Pillow
         without FreeType, needs Pillow 9.2: pyproject.toml asks for it.)"""
         from PIL import Image, ImageDraw
 

@@ -3,8 +3,8 @@
     label:  40%|████      | 2/5 iteration [00:01<00:02], 0.61 s trace, 397k hitting γ-tons/s
 
 It replaces tqdm, whose import alone (``tqdm.version`` reads the installed
-distributions' metadata through ``importlib.metadata``) cost ~50 ms of CPU on
-the main thread of every run, about a twentieth of a rerun's whole trace.
+distributions' metadata through ``importlib.metadata``) delayed the main
+thread of every run.
 A run updates its bar once per iteration, so this draws on every update and
 needs none of tqdm's rate limiting, nesting or notebook support.
 

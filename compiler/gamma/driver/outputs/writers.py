@@ -219,8 +219,8 @@ def percentile_995(finite: np.ndarray) -> float:
     array, bit for bit (its "linear" method: the two order statistics around
     (n - 1) * 0.995 found by a partition, and numpy's ``_lerp`` of them in
     float32, the weight a weak Python float), without ``np.percentile``:
-    that imports numpy's masked arrays (~15 ms of CPU, through ``np.unique``)
-    in every run with pictures.  tests/test_outputs.py compares the two (the
+    that imports numpy's masked arrays (through ``np.unique``) in every run
+    with pictures.  tests/test_outputs.py compares the two (the
     same bits as numpy 2.4.1 and later, whose weak-``q`` arithmetic this is;
     earlier numpy rounded the float32 case otherwise)."""
     n = finite.size

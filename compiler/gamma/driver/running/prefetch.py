@@ -1,10 +1,9 @@
 """The mesh file of ``gammac run --scene FILE`` read, and its surfels sampled,
 while the command starts up.
 
-Reading the bunny's OBJ takes the runtime ~0.1 s and sampling 100,000 surfels
-on it ~0.75 s (two threads); the command spends ~0.35 s before it needs
-either, importing the compiler, reading and checking the effect, all on one
-core.  ``start`` reads the file on a background thread from the moment the
+Reading a mesh and sampling its surfels are among the longest steps of a
+run's start, and the command needs neither until it has imported the
+compiler and read and checked the effect, all on one core.  ``start`` reads the file on a background thread from the moment the
 command line is parsed (``Mesh.load`` releases the GIL) and then samples the
 surfels on it (``SurfelSample``: the sampling needs only the mesh, the surfel
 count and the seed, not the effect), and then makes the rest of the setup

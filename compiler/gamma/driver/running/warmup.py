@@ -7,9 +7,9 @@ only waits.  ``prepare_outputs`` starts a daemon thread that imports, during
 that wait, what the writers would otherwise import on the loop's thread or
 after the last iteration: Pillow's drawing and FreeType, its image plugins
 only for a run whose appearance sequence Pillow saves (a GIF).  Pillow's plugins are left out
-otherwise: its PNGs are encoded in the runtime now, and the plugins cost
-~20 ms of CPU, which a rerun (its setup read from the cache) would spend
-beside the loop's first trace.  It only warms caches:
+otherwise: its PNGs are encoded in the runtime now, and a rerun (its setup
+read from the cache) would spend the plugins' import beside the loop's first
+trace.  It only warms caches:
 nothing it does changes an output, and a failure here is ignored (the writer
 that needs the module imports it again and reports the error there, as it
 always did).
