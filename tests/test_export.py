@@ -13,7 +13,7 @@ from PIL import Image
 from conftest import ROOT, run_gammac
 from gamma.backends.jit import JitKernels
 from gamma.frontend.checker import load
-from gamma.driver.outputs.export import bake_texture_set, layout, Piece, rasterise_uv
+from gamma.driver.outputs.export import bake_texture_set, layout, Piece, PropertySlots, rasterise_uv
 from gamma.driver.running.runner import RunOptions, build_config, runtime_module
 
 SPOT = ROOT / "examples" / "scenes" / "spot.obj"
@@ -145,6 +145,12 @@ def _simulation(effect_path, mesh_path, surfels=40000):
     return effect, mesh, rt.Simulation(mesh, cfg), kernels
 
 
+def _slots(mesh, **slots):
+    """PropertySlots baking each named property from the same row slot on every surface."""
+    return PropertySlots(list(slots), np.array([list(slots.values())] * 4, np.int32).reshape(4, len(slots)),
+                         np.zeros(mesh.num_triangles, np.int32))
+
+
 def _piece(mesh):
     corner_uvs = np.asarray(mesh.triangle_uvs()) if mesh.has_uvs else None
     return Piece("mesh", np.arange(mesh.num_triangles), np.asarray(mesh.vertices()),
@@ -160,7 +166,7 @@ def test_baked_texels_hold_the_values_of_their_surface_points():
     sim.set_rows(rows)
     size = 128
     lay = layout(_piece(mesh), None, size)
-    ts = bake_texture_set(sim, lay, 1, 2, lambda rows, tris: {"patina": rows[:, 3]})
+    ts = bake_texture_set(sim, lay, 1, 2, _slots(mesh, patina=3))
     texels, tris, bary = rasterise_uv(np.asarray(mesh.triangle_uvs()), size)
     assert len(texels) > 0.3 * size * size
     verts = np.asarray(mesh.vertices(), np.float64)
@@ -209,7 +215,7 @@ def test_the_looks_outputs_reach_the_orm_and_normal_maps(tmp_path):
     effect, mesh, sim, kernels = _simulation(tmp_path / "look.gamma", plane_with_uvs(tmp_path / "plane.obj"), 4000)
     size = 64
     lay = layout(_piece(mesh), None, size)
-    ts = bake_texture_set(sim, lay, 1, 2, lambda rows, tris: {})
+    ts = bake_texture_set(sim, lay, 1, 2, _slots(mesh))
     assert np.allclose(ts.orm[..., 0], 0.5) and np.allclose(ts.orm[..., 1], 0.25) and np.allclose(ts.orm[..., 2], 1)
     want = np.array([-0.1, 0.0, 1.0]) / np.sqrt(1.01)
     inner = ts.normal[4:-4, 4:-4].reshape(-1, 3)     # away from the border's one-sided slopes
@@ -416,7 +422,7 @@ def test_a_texture_set_baked_in_bands_is_the_whole_textures(tmp_path, bumpy_obj)
     size = 128
     lay = layout(_piece(mesh), np.asarray(sim.corner_normals()), size)
     assert lay.chart is not None
-    columns = lambda rows, tris: {"p": rows[:, 3]}
+    columns = _slots(mesh, p=3)
     whole = bake_texture_set(sim, lay, 1, 2, columns, band=size)
     banded = bake_texture_set(sim, lay, 1, 2, columns, band=7)
     assert np.abs(whole.height).max() > 0 and whole.properties["p"].max() > 0
@@ -481,3 +487,75 @@ def test_gammac_export_format_usd_writes_a_compliant_stage(tmp_path, bumpy_obj):
     summary = usd_summary(stage)
     assert (summary["start_time_code"], summary["end_time_code"]) == (1.0, 2.0)
     assert "bumpy_BaseColor_0002.png" in json.dumps(summary)
+
+
+def _bake_both(sim, lay, size):
+    """bake_texels over the whole texture with its lattice and without: (texels, exact rows, exact looks,
+    lattice rows, lattice looks, the analytic field's x at each texel)."""
+    texels, tris, bary = rasterise_uv(lay.corner_uvs, size, tile=8)
+    piece = lay.piece
+    args = (lay.positions, lay.normals, np.ascontiguousarray(lay.faces, np.int32),
+            None if piece.own_uvs is None else np.ascontiguousarray(piece.own_uvs, np.float32),
+            np.ascontiguousarray(piece.triangles, np.int32), np.ascontiguousarray(tris, np.int32),
+            np.ascontiguousarray(bary), 1, 2)
+    rows, looks = map(np.asarray, sim.bake_texels(*args))
+    lat_rows, lat_looks = map(np.asarray, sim.bake_texels(*args, texels=texels, band_width=size, band_rows=size,
+                                                          first_row=0))
+    x = np.einsum("kc,kc->k", bary, lay.positions[lay.faces[tris]][:, :, 0].astype(np.float64))
+    return texels, rows, looks, lat_rows, lat_looks, x
+
+
+def test_texels_between_lattice_points_are_as_faithful_as_their_own_smoothing():
+    """A bake fine enough for the lattice (Spot at 1024², 2000 surfels: texels
+    about a sixteenth of a surfel spacing apart): lattice points are smoothed
+    exactly as without it, most other texels are interpolated, and against
+    the analytic field the surfels sample the interpolated bake errs no more
+    than the texel-by-texel smoothing does."""
+    effect, mesh, sim, kernels = _simulation(ROOT / "examples" / "patina-spot.gamma", SPOT, 2000)
+    rows = sim.rows()
+    rows[:, 3] = np.sin(20 * sim.surfel_positions()[:, 0]) + 1
+    sim.set_rows(rows)
+    size = 1024
+    lay = layout(_piece(mesh), None, size)
+    texels, exact, looks, lattice, lattice_looks, x = _bake_both(sim, lay, size)
+    on_lattice = (texels // size % 4 == 0) & (texels % size % 4 == 0)
+    assert np.array_equal(exact[on_lattice], lattice[on_lattice])
+    interpolated = ~np.all(exact == lattice, axis=1)
+    assert interpolated.mean() > 0.7
+    truth = np.sin(20 * x) + 1
+    e_exact, e_lattice = np.abs(exact[:, 3] - truth), np.abs(lattice[:, 3] - truth)
+    assert e_lattice.mean() <= 1.01 * e_exact.mean()
+    assert np.percentile(e_lattice, 99) <= 1.01 * np.percentile(e_exact, 99)
+    # the looks follow the rows: the interpolated texels' colours stay within the exact ones' spread
+    assert np.abs(lattice_looks[:, :3] - looks[:, :3]).mean() < 0.01
+
+
+def test_a_coarse_bake_takes_no_lattice():
+    """Texels about a surfel spacing apart (Spot at 64², 20,000 surfels) are
+    too far apart to interpolate: every one is smoothed itself."""
+    effect, mesh, sim, kernels = _simulation(ROOT / "examples" / "patina-spot.gamma", SPOT, 20000)
+    size = 64
+    lay = layout(_piece(mesh), None, size)
+    texels, exact, looks, lattice, lattice_looks, x = _bake_both(sim, lay, size)
+    assert np.array_equal(exact, lattice) and np.array_equal(looks, lattice_looks)
+
+
+def test_bands_of_a_texture_baked_on_the_lattice_are_the_whole_textures(tmp_path, bumpy_obj):
+    """As test_a_texture_set_baked_in_bands_is_the_whole_textures, with few
+    surfels, so that most texels take the lattice: the lattice is aligned to
+    the whole texture, whatever the bands."""
+    (tmp_path / "look.gamma").write_text(PLANE_LOOK.replace("0.1 * position.x", "0.05 * s.p + 0.02 * position.y"))
+    effect, mesh, sim, kernels = _simulation(tmp_path / "look.gamma", bumpy_obj, 200)
+    rows = sim.rows()
+    rows[:, 3] = np.sin(7 * sim.surfel_positions()[:, 0]) + 1
+    sim.set_rows(rows)
+    size = 256
+    lay = layout(_piece(mesh), np.asarray(sim.corner_normals()), size)
+    columns = _slots(mesh, p=3)
+    whole = bake_texture_set(sim, lay, 1, 2, columns, band=size)
+    banded = bake_texture_set(sim, lay, 1, 2, columns, band=9)
+    for name in ("base_color", "orm", "normal", "height"):
+        assert np.array_equal(getattr(whole, name), getattr(banded, name)), name
+    assert np.array_equal(whole.properties["p"], banded.properties["p"])
+    texels, exact, looks, lattice, lattice_looks, x = _bake_both(sim, lay, size)
+    assert (~np.all(exact == lattice, axis=1)).mean() > 0.5          # the lattice was taken

@@ -20,7 +20,7 @@ import sys
 
 #: Bumped whenever anything below changes; ``driver.runner.runtime_module``
 #: refuses a runtime built for another version.
-ABI_VERSION = 9
+ABI_VERSION = 10
 
 #: A surfel's state is one row of floats.  The first three slots are its
 #: gamma-reflectance, then the properties of its surface in declaration order.
@@ -151,7 +151,7 @@ MASS_BOOKS = ("removed", "deposited", "escaped", "in_flight", "emitted", "create
 BINDING = {
     "module": ("ABI_VERSION", "RUNTIME_VERSION", "EMBREE_VERSION", "Mesh", "Config", "Simulation",
                "SurfelSample", "SetupSnapshot", "encode_pngs", "RUNTIME_BUILD", "setup_cache_name",
-               "read_mesh_ahead", "FalseColourView", "rasterise_uv", "CancelToken", "Cancelled"),
+               "read_mesh_ahead", "FalseColourView", "rasterise_uv", "CancelToken", "Cancelled", "LATTICE_STRIDE"),
     "CancelToken": ("cancel", "cancelled"),
     "FalseColourView": ("width", "height", "surfels", "shade", "values", "picture", "to_bytes", "from_bytes"),
     "SurfelSample": ("ok", "matches", "seconds"),

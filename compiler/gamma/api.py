@@ -187,8 +187,7 @@ class Result:
         "height": (size, size), PROPERTY: (size, size)} in the object's
         texture coordinates (or its chart atlas), and "uvs": the layout,
         float32 (triangles, 3, 2)."""
-        from .driver.outputs.export import bake_texture_set, layout, pieces
-        from .driver.running.runner import property_columns
+        from .driver.outputs.export import bake_texture_set, layout, pieces, property_slots
 
         session = self.session
         out = {}
@@ -196,8 +195,9 @@ class Result:
         corner = np.asarray(session.sim.corner_normals())
         for piece in pieces(session.scene):
             lay = layout(piece, corner, size)
+            present = set(np.unique(surfaces[piece.triangles]).tolist())
             ts = bake_texture_set(session.sim, lay, max(1, self.iterations), session.threads,
-                                  lambda rows, tris: property_columns(self.effect, rows, surfaces[tris]))
+                                  property_slots(self.effect, surfaces, present))
             out[piece.name] = {"color": ts.base_color, "orm": ts.orm, "normal": ts.normal, "height": ts.height,
                                **ts.properties, "uvs": lay.corner_uvs}
         return out

@@ -14,20 +14,28 @@
 
 namespace gammart {
 
-void bake_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
-                 const int32_t* triangles, const float* uvs, int iteration, int threads, float* rows_out,
-                 float* look_out) {
+namespace {
+
+void check_triangles(const RenderScene& rs, size_t k, const int32_t* triangles, const char* what) {
+    const size_t count = rs.index.tri_surface().size();
+    for (size_t i = 0; i < k; ++i)
+        if (triangles[i] < 0 || size_t(triangles[i]) >= count)
+            throw Error(std::string(what) + ": triangle " + std::to_string(triangles[i]) + " out of range");
+}
+
+// The smoothed rows (interpolate_row's sums) of the points at[0..n) (all k
+// points, in order, when `at` is null), and with look_out their looks too.
+// Runs of up to kBakeBlock consecutive points of one surface share one
+// neighbour search (SceneIndex::smooth_block): texels come in rows, so a run
+// is a few texels wide.  Runs are cut at fixed places, so the result does not
+// depend on the thread count.
+void smooth_points(const RenderScene& rs, size_t n, const uint32_t* at, const float* positions, const float* normals,
+                   const int32_t* triangles, const float* uvs, int iteration, int threads, float* rows_out,
+                   float* look_out) {
     constexpr size_t K = kSmoothingNeighbours;
     const int W = rs.state.width;
     const std::vector<int32_t>& tri_surface = rs.index.tri_surface();
-    for (size_t i = 0; i < k; ++i)
-        if (triangles[i] < 0 || size_t(triangles[i]) >= tri_surface.size())
-            throw Error("bake_points: triangle " + std::to_string(triangles[i]) + " out of range");
-    // Runs of up to kBakeBlock consecutive points of one surface share one
-    // neighbour search (SceneIndex::smooth_block): texels come in rows, so a
-    // run is a few texels wide.  Runs are cut at fixed places, so the result
-    // does not depend on the thread count.
-    const size_t blocks = (k + kBakeBlock - 1) / kBakeBlock;
+    const size_t blocks = (n + kBakeBlock - 1) / kBakeBlock;
     const float* state_rows = rs.state.rows.data();
     const float run_reach2 = rs.index.sigma() * rs.index.sigma();
     run_with_threads(threads, [&] {
@@ -37,26 +45,34 @@ void bake_points(const RenderScene& rs, size_t k, const float* positions, const 
             std::vector<uint32_t> idx(K * kBakeBlock);
             std::vector<double> w(K * kBakeBlock);
             std::vector<uint8_t> count(kBakeBlock);
+            std::vector<float> run_points(3 * kBakeBlock);
             const float none[3] = {0.0f, 0.0f, 0.0f};
             for (size_t b = r.begin(); b < r.end(); ++b) {
-                const size_t end = std::min(k, (b + 1) * kBakeBlock);
+                const size_t end = std::min(n, (b + 1) * kBakeBlock);
                 for (size_t start = b * kBakeBlock; start < end;) {
+                    auto point = [&](size_t i) { return at ? size_t(at[i]) : i; };
                     // A run is one surface's points within a surfel spacing of its first:
                     // consecutive texels of a row can lie on charts far apart.
-                    const int surface = tri_surface[size_t(triangles[start])];
-                    const float* p0 = positions + 3 * start;
+                    const int surface = tri_surface[size_t(triangles[point(start)])];
+                    const float* p0 = positions + 3 * point(start);
                     auto near_first = [&](size_t i) {
-                        const float* p = positions + 3 * i;
+                        const float* p = positions + 3 * point(i);
                         const float dx = p[0] - p0[0], dy = p[1] - p0[1], dz = p[2] - p0[2];
                         return dx * dx + dy * dy + dz * dz <= run_reach2;
                     };
                     size_t stop = start + 1;
-                    while (stop < end && tri_surface[size_t(triangles[stop])] == surface && near_first(stop)) ++stop;
-                    rs.index.smooth_block(surface, positions + 3 * start, stop - start, idx.data(), w.data(),
-                                          count.data());
+                    while (stop < end && tri_surface[size_t(triangles[point(stop)])] == surface && near_first(stop))
+                        ++stop;
+                    const float* run = positions + 3 * start;
+                    if (at) {
+                        for (size_t i = start; i < stop; ++i)
+                            std::copy_n(positions + 3 * point(i), 3, &run_points[3 * (i - start)]);
+                        run = run_points.data();
+                    }
+                    rs.index.smooth_block(surface, run, stop - start, idx.data(), w.data(), count.data());
                     for (size_t i = start; i < stop; ++i) {
-                        const size_t q = i - start;
-                        float* row = rows_out + i * size_t(W);
+                        const size_t q = i - start, p = point(i);
+                        float* row = rows_out + p * size_t(W);
                         // interpolate_row's sum, in its order
                         for (int c = 0; c < W; ++c) {
                             double acc = 0;
@@ -64,9 +80,10 @@ void bake_points(const RenderScene& rs, size_t k, const float* positions, const 
                                 acc += w[K * q + j] * state_rows[size_t(idx[K * q + j]) * size_t(W) + size_t(c)];
                             row[c] = float(acc);
                         }
-                        look_of_row(rs, uint32_t(triangles[i]), positions + 3 * i, normals + 3 * i, none, uvs + 2 * i,
-                                    iteration, mix64(kRenderKey ^ uint64_t(i)), row, tex.data(),
-                                    look_out + size_t(GAMMA_LOOK_WIDTH) * i);
+                        if (look_out)
+                            look_of_row(rs, uint32_t(triangles[p]), positions + 3 * p, normals + 3 * p, none,
+                                        uvs + 2 * p, iteration, mix64(kRenderKey ^ uint64_t(p)), row, tex.data(),
+                                        look_out + size_t(GAMMA_LOOK_WIDTH) * p);
                     }
                     start = stop;
                 }
@@ -75,8 +92,128 @@ void bake_points(const RenderScene& rs, size_t k, const float* positions, const 
     });
 }
 
+// The looks of k points whose rows are known.
+void look_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
+                 const int32_t* triangles, const float* uvs, int iteration, int threads, const float* rows,
+                 float* look_out) {
+    const size_t W = size_t(rs.state.width);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            rs.cancel.check("the bake");
+            std::vector<float> tex(3 * rs.textures.size() + 3, 0.0f);
+            const float none[3] = {0.0f, 0.0f, 0.0f};
+            for (size_t i = r.begin(); i < r.end(); ++i)
+                look_of_row(rs, uint32_t(triangles[i]), positions + 3 * i, normals + 3 * i, none, uvs + 2 * i,
+                            iteration, mix64(kRenderKey ^ uint64_t(i)), rows + i * W, tex.data(),
+                            look_out + size_t(GAMMA_LOOK_WIDTH) * i);
+        });
+    });
+}
+
+// bake_texels' lattice (see baker.h): which texels take their rows from the
+// lattice points around them, and with what weights.
+class TexelLattice {
+public:
+    static constexpr uint32_t kOwn = ~uint32_t(0);   // corner[4 * i]: the texel is smoothed itself
+
+    TexelLattice(const RenderScene& rs, size_t k, const TexelGrid& grid, const float* positions,
+                 const int32_t* triangles, int threads)
+        : corner_(4 * k, kOwn), weight_(4 * k, 0.0f), smoothed_(k, 1) {
+        std::vector<int32_t> slot(grid.width * grid.rows, -1);
+        for (size_t i = 0; i < k; ++i) {
+            if (grid.texel[i] < 0 || size_t(grid.texel[i]) >= slot.size())
+                throw Error("bake_texels: texel " + std::to_string(grid.texel[i]) + " outside its band");
+            slot[size_t(grid.texel[i])] = int32_t(i);
+        }
+        run_with_threads(threads, [&] {
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
+                for (size_t i = r.begin(); i < r.end(); ++i) find_corners(rs, grid, slot, positions, triangles, i);
+            });
+        });
+    }
+
+    // The texels smoothed themselves (lattice points in use and texels
+    // without near ones), in texel order.
+    std::vector<uint32_t> smoothed() const {
+        std::vector<uint32_t> at;
+        for (size_t i = 0; i < smoothed_.size(); ++i)
+            if (smoothed_[i]) at.push_back(uint32_t(i));
+        return at;
+    }
+
+    // Rows of the other texels from their lattice points' (rows of W floats).
+    void interpolate(const RenderScene& rs, int threads, size_t W, float* rows) const {
+        const size_t k = smoothed_.size();
+        run_with_threads(threads, [&] {
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
+                rs.cancel.check("the bake");
+                for (size_t i = r.begin(); i < r.end(); ++i) {
+                    if (smoothed_[i]) continue;
+                    for (size_t c = 0; c < W; ++c) {
+                        double acc = 0;
+                        for (size_t q = 0; q < 4; ++q)
+                            if (corner_[4 * i + q] != kOwn)
+                                acc += double(weight_[4 * i + q]) * double(rows[size_t(corner_[4 * i + q]) * W + c]);
+                        rows[i * W + c] = float(acc);
+                    }
+                }
+            });
+        });
+    }
+
+private:
+    // Texel i's lattice points and weights, if they are all near enough;
+    // the lattice points themselves (and texels without near ones) keep
+    // kOwn and are smoothed themselves.
+    void find_corners(const RenderScene& rs, const TexelGrid& grid, const std::vector<int32_t>& slot,
+                      const float* positions, const int32_t* triangles, size_t i) {
+        const std::vector<int32_t>& tri_surface = rs.index.tri_surface();
+        const float reach = kLatticeReach * rs.index.sigma();
+        constexpr size_t S = size_t(kLatticeStride);
+        const size_t row = size_t(grid.texel[i]) / grid.width, column = size_t(grid.texel[i]) % grid.width;
+        const size_t dy = (row + grid.first_row) % S, dx = column % S;
+        if (dx == 0 && dy == 0) return;                             // a lattice point
+        const double fy = double(dy) / double(S), fx = double(dx) / double(S);
+        // multiples of 1 / S², exact in float
+        const float w[4] = {float((1 - fy) * (1 - fx)), float((1 - fy) * fx), float(fy * (1 - fx)), float(fy * fx)};
+        uint32_t c[4] = {kOwn, kOwn, kOwn, kOwn};
+        for (int q = 0; q < 4; ++q) {
+            if (w[q] == 0.0f) continue;
+            if (row < dy) return;
+            const size_t r = row - dy + (q >= 2 ? S : 0), col = column - dx + ((q & 1) ? S : 0);
+            if (r >= grid.rows || col >= grid.width || slot[r * grid.width + col] < 0) return;
+            const size_t j = size_t(slot[r * grid.width + col]);
+            const float* a = positions + 3 * i;
+            const float* b = positions + 3 * j;
+            const float ex = a[0] - b[0], ey = a[1] - b[1], ez = a[2] - b[2];
+            if (tri_surface[size_t(triangles[j])] != tri_surface[size_t(triangles[i])] ||
+                !(ex * ex + ey * ey + ez * ez <= reach * reach))
+                return;
+            c[q] = uint32_t(j);
+        }
+        for (int q = 0; q < 4; ++q) {
+            corner_[4 * i + size_t(q)] = c[q];
+            weight_[4 * i + size_t(q)] = w[q];
+        }
+        smoothed_[i] = 0;
+    }
+
+    std::vector<uint32_t> corner_;   // 4 per texel: its lattice points (kOwn: none, or weight 0)
+    std::vector<float> weight_;      // 4 per texel: their bilinear weights
+    std::vector<uint8_t> smoothed_;  // per texel: its row comes from its own neighbour search
+};
+
+}  // namespace
+
+void bake_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
+                 const int32_t* triangles, const float* uvs, int iteration, int threads, float* rows_out,
+                 float* look_out) {
+    check_triangles(rs, k, triangles, "bake_points");
+    smooth_points(rs, k, nullptr, positions, normals, triangles, uvs, iteration, threads, rows_out, look_out);
+}
+
 void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
-                 int iteration, int threads, float* rows_out, float* look_out) {
+                 const TexelGrid* grid, int iteration, int threads, float* rows_out, float* look_out) {
     for (size_t i = 0; i < k; ++i)
         if (tris[i] < 0 || size_t(tris[i]) >= layout.faces)
             throw Error("bake_texels: layout triangle " + std::to_string(tris[i]) + " out of range");
@@ -111,8 +248,43 @@ void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, con
             }
         });
     });
-    bake_points(rs, k, positions.data(), normals.data(), triangles.data(), uvs.data(), iteration, threads, rows_out,
+    check_triangles(rs, k, triangles.data(), "bake_texels");
+    if (!grid) {
+        smooth_points(rs, k, nullptr, positions.data(), normals.data(), triangles.data(), uvs.data(), iteration,
+                      threads, rows_out, look_out);
+        return;
+    }
+    const TexelLattice lattice(rs, k, *grid, positions.data(), triangles.data(), threads);
+    const std::vector<uint32_t> at = lattice.smoothed();
+    smooth_points(rs, at.size(), at.data(), positions.data(), normals.data(), triangles.data(), uvs.data(), iteration,
+                  threads, rows_out, nullptr);
+    lattice.interpolate(rs, threads, size_t(rs.state.width), rows_out);
+    look_points(rs, k, positions.data(), normals.data(), triangles.data(), uvs.data(), iteration, threads, rows_out,
                 look_out);
+}
+
+void texture_channels(size_t k, size_t W, const float* rows, const float* looks, const int32_t* scene_triangles,
+                      const int32_t* surface_of_triangle, const int32_t* slots, size_t surfaces, size_t P,
+                      int threads, float* out) {
+    const size_t C = kTextureChannels + P;
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 16384), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i < r.end(); ++i) {
+                const float* look = looks + size_t(GAMMA_LOOK_WIDTH) * i;
+                float* o = out + C * i;
+                for (int c = 0; c < 3; ++c) o[c] = look[GAMMA_LOOK_COLOR + c];
+                o[3] = look[GAMMA_LOOK_OCCLUSION];
+                o[4] = look[GAMMA_LOOK_ROUGHNESS];
+                o[5] = look[GAMMA_LOOK_METALLIC];
+                o[6] = look[GAMMA_LOOK_DISPLACEMENT];
+                const size_t s = size_t(surface_of_triangle[size_t(scene_triangles[i])]);
+                for (size_t p = 0; p < P; ++p) {
+                    const int32_t slot = s < surfaces ? slots[s * P + p] : -1;
+                    o[kTextureChannels + p] = slot >= 0 && size_t(slot) < W ? rows[W * i + size_t(slot)] : 0.0f;
+                }
+            }
+        });
+    });
 }
 
 BakePoints BakePoints::prepare(const RenderScene& rs, size_t k, const float* positions, const float* normals,

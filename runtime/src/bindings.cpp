@@ -1,6 +1,7 @@
 // nanobind module gamma._runtime: its constants, error translation and free
 // functions; the classes are bound part by part in bind_*.cpp.
 #include "bind_common.h"
+#include "gamma/baker.h"
 #include "gamma/gmath.h"
 
 using namespace gamma_bind;
@@ -16,6 +17,7 @@ void bind_constants_and_errors(nb::module_& m) {
     m.attr("EMBREE_VERSION") = RTC_VERSION_STRING;
     m.attr("PARABOLA_EPSILON_FRACTION") = gammart::kParabolaEpsilonFraction;
     m.attr("MAX_FLIGHT_SEGMENTS") = gammart::kMaxFlightSegments;
+    m.attr("LATTICE_STRIDE") = gammart::kLatticeStride;
     // The project's own math (gmath.h), by C symbol: the addresses the JIT
     // binds the kernels' calls to and the reference interpreter calls.
     nb::dict math;

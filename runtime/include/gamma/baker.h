@@ -34,11 +34,50 @@ struct TexelLayout {
     size_t faces = 0;
 };
 
+// Where k texels lie in a band of a texture, for bake_texels' lattice:
+// texel[i] = row * width + column within the band (rows rows of width
+// texels), first_row the band's first row in the whole texture (the lattice
+// is aligned to the whole texture's rows and columns, so a texel's rows do
+// not depend on how the texture is cut into bands).
+struct TexelGrid {
+    const int64_t* texel = nullptr;
+    size_t width = 0, rows = 0, first_row = 0;
+};
+
+// Texels between lattice points (every kLatticeStride-th row and column).
+constexpr int kLatticeStride = 4;
+// A texel takes its smoothed row from the lattice points around it when they
+// all lie within this many smoothing lengths (SceneIndex::sigma, about a
+// surfel spacing) of it, on its surface: the lattice is then about a quarter
+// of a surfel spacing apart or closer.  The interpolated rows are as close to
+// the field the surfels sample as the smoothing at every texel is (tested
+// against an analytic field in tests/test_export.py); where the smoothing
+// itself jumps (a point's 8 nearest surfels change) they spread the jump
+// over a lattice cell.
+constexpr float kLatticeReach = 0.375f;
+
 // bake_points at k texels of a layout, each given by its layout triangle and
 // barycentrics (double): the point, the normal (the vertices' interpolated,
-// normalised) and the lookup uv interpolated in double, then rounded.
+// normalised) and the lookup uv interpolated in double, then rounded.  With
+// a grid, a texel whose lattice points around it are near enough (see
+// kLatticeReach) takes the bilinear interpolation of their smoothed rows
+// (in double, rounded once) instead of a neighbour search of its own; the
+// look is still the appearance kernel's at the texel.  Lattice points and
+// the other texels are smoothed as bake_points smooths them.
 void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
-                 int iteration, int threads, float* rows_out, float* look_out);
+                 const TexelGrid* grid, int iteration, int threads, float* rows_out, float* look_out);
+
+// The channels of a texture set at k baked texels (rows k x W, looks k x
+// GAMMA_LOOK_WIDTH, scene triangles k) as export.py stacks them, C = 7 + P
+// floats per texel: base colour (3), occlusion, roughness, metallic, the
+// displacement, then P properties: property p of a texel on surface s is
+// its row's slot slots[s * P + p], or 0 where slots holds -1 (the surface
+// has no such property).  surface_of_triangle: the surface of each scene
+// triangle (surfaces entries below `surfaces`).
+constexpr size_t kTextureChannels = 7;
+void texture_channels(size_t k, size_t W, const float* rows, const float* looks, const int32_t* scene_triangles,
+                      const int32_t* surface_of_triangle, const int32_t* slots, size_t surfaces, size_t P,
+                      int threads, float* out);
 
 // Surface points baked again and again while the surfels stay (the live
 // viewer's vertices, every iteration): their smoothing neighbours and

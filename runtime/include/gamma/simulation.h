@@ -172,8 +172,9 @@ public:
                      const float* uvs, int iteration, int threads, float* rows_out, float* look_out,
                      const CancelToken& cancel = CancelToken::never()) const;
     // bake_points at texels of a texture layout (gammart::bake_texels).
-    void bake_texels(const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary, int iteration,
-                     int threads, float* rows_out, float* look_out, const CancelToken& cancel = CancelToken::never()) const;
+    void bake_texels(const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
+                     const TexelGrid* grid, int iteration, int threads, float* rows_out, float* look_out,
+                     const CancelToken& cancel = CancelToken::never()) const;
     float smoothing_sigma() const;
     // bake_points for points baked again and again (the live viewer's
     // vertices): prepare_points finds their neighbours once; bake_prepared

@@ -39,7 +39,8 @@ BLEED_PASSES = 8
 #: Texels come to the baker in tiles of BAKE_TILE x BAKE_TILE: nearby on the
 #: surface, so runs of them share a neighbour search (kBakeBlock in baker.h).
 BAKE_TILE = 8
-#: Texels baked per call of the runtime (its rows are W floats each).
+#: Texels of a band's own rows, baked in one call of the runtime with its
+#: margins (its rows are W floats each).
 BAKE_CHUNK = 1 << 20
 #: The texture set's images: file suffix -> what it holds (SPEC §16.3).
 CHANNELS = {"BaseColor": "base colour, sRGB", "ORM": "occlusion (R), roughness (G), metallic (B)",
@@ -260,71 +261,94 @@ def surface_frames(lay: Layout) -> tuple[np.ndarray, np.ndarray]:
 HALO = 2 * BLEED_PASSES + 1
 
 
-def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map=None,
+@dataclass
+class PropertySlots:
+    """Where each exported property lies in the surfels' rows: ``names``
+    (P), ``slots`` (surfaces, P) int32, the row slot of each property on
+    each surface (-1: that surface has none, baked as 0), and
+    ``surface_of_triangle``, the surface of each scene triangle."""
+    names: list
+    slots: np.ndarray
+    surface_of_triangle: np.ndarray
+
+
+def property_slots(effect, surface_of_triangle: np.ndarray, present=None) -> PropertySlots:
+    """The effect's properties as ``property_columns`` names them (surface by
+    surface, first seen first), of the surfaces in ``present`` (default: all)."""
+    surfaces = [s for s in effect.surfaces.values() if present is None or s.index in present]
+    names = list(dict.fromkeys(name for s in surfaces for name in s.properties))
+    slots = np.full((max((s.index for s in effect.surfaces.values()), default=-1) + 1, len(names)), -1, np.int32)
+    for s in surfaces:
+        for name, slot in s.properties.items():
+            slots[s.index, names.index(name)] = slot
+    return PropertySlots(names, slots, np.ascontiguousarray(surface_of_triangle, np.int32))
+
+
+def bake_texture_set(sim, lay: Layout, iteration: int, threads: int, columns: PropertySlots, normal_map=None,
                      band: int | None = None, as_bytes: bool = False, cancel=None) -> TextureSet:
     """The layout's texture set, baked in bands of ``band`` rows (default:
-    about BAKE_CHUNK texels).  ``columns_of(rows, scene_triangles)`` gives
-    the property columns of smoothed rows; ``normal_map(lookup_uvs,
-    scene_triangles)``, when given, the asset's own tangent-space normals
-    there ((k, 3), or None where it has none).  ``as_bytes``: the base
-    colour, ORM and normal map (as (n + 1) / 2) as the 8-bit values their
-    PNGs hold (``to_bytes``), a quarter of the memory of floats.  ``cancel``:
-    a CancelToken that stops the bake between blocks of texels."""
+    about BAKE_CHUNK texels).  ``columns``: the properties to bake, one map
+    each; ``normal_map(lookup_uvs, scene_triangles)``, when given, the
+    asset's own tangent-space normals there ((k, 3), or None where it has
+    none).  ``as_bytes``: the base colour, ORM and normal map (as (n + 1) /
+    2) as the 8-bit values their PNGs hold (``to_bytes``), a quarter of the
+    memory of floats.  ``cancel``: a CancelToken that stops the bake between
+    blocks of texels."""
     size = lay.size
     band = band or max(16, BAKE_CHUNK // size)
     rgb = np.uint8 if as_bytes else np.float32
     ts = TextureSet(size, np.zeros((size, size, 3), rgb), np.zeros((size, size, 3), rgb),
                     np.zeros((size, size, 3), rgb), np.zeros((size, size), np.float32))
+    for name in columns.names:
+        ts.properties[name] = np.zeros((size, size), np.float32)
     put = to_bytes if as_bytes else (lambda image: image)
     corner_uvs = lay.corner_uvs
+    from ..running.common import runtime_module
+
+    stride = runtime_module().LATTICE_STRIDE
     for first in range(0, size, band):
         end = min(size, first + band)
         top, bottom = max(0, first - HALO), min(size, end + HALO)
+        # and the lattice rows around them (the runtime's bake_texels: aligned to the whole texture)
+        top, bottom = top - top % stride, min(size, (bottom - 1) // stride * stride + stride + 1)
         texels, tris, bary = rasterise_uv(corner_uvs, size, rows=(top, bottom), tile=BAKE_TILE)
-        images, names = _bake_band(sim, lay, iteration, threads, columns_of, normal_map,
-                                   texels - top * size, tris, bary, (bottom - top, size), cancel)
+        images = _bake_band(sim, lay, iteration, threads, columns, normal_map,
+                            texels - top * size, tris, bary, (bottom - top, size), top, cancel)
         keep = slice(first - top, end - top)
         ts.base_color[first:end], ts.orm[first:end] = put(images[0][keep]), put(images[1][keep])
         ts.normal[first:end] = to_bytes((images[2][keep] + 1.0) * 0.5) if as_bytes else images[2][keep]
         ts.height[first:end] = images[3][keep]
-        for k, name in enumerate(names):
-            ts.properties.setdefault(name, np.zeros((size, size), np.float32))[first:end] = images[4][keep, :, k]
+        for k, name in enumerate(columns.names):
+            ts.properties[name][first:end] = images[4][keep, :, k]
     return ts
 
 
-def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns_of, normal_map, texels, tris, bary,
-               shape: tuple, cancel=None):
-    """The images of a band of rows (``shape``; ``texels`` numbered in it):
-    (base colour, ORM, normal, height, properties (h, w, P)), property names."""
-    n_texels = len(texels)
-    # Every channel but the normal map in one stack, filled into the gutters
-    # at once: base colour 0-2, ORM 3-5, height 6, then the properties.
-    names: list = []
-    stack = np.zeros((n_texels, 7), np.float32)
-    own = np.zeros((n_texels, 3), np.float32) if normal_map is not None else None
+def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns: PropertySlots, normal_map, texels, tris,
+               bary, shape: tuple, top: int, cancel=None):
+    """The images of a band of rows (``shape``, from row ``top`` of the
+    texture; ``texels`` numbered in it): (base colour, ORM, normal, height,
+    properties (h, w, P)).  The runtime bakes the band in one call, every
+    channel but the normal map in one stack (base colour 0-2, ORM 3-5,
+    height 6, then the properties), filled into the gutters at once:
+    texels between lattice points near enough on the surface take their
+    rows from them (gamma/baker.h)."""
     piece = lay.piece
     corners = np.ascontiguousarray(lay.faces, np.int32)
     scene_triangle = np.ascontiguousarray(piece.triangles, np.int32)
     lookup_uvs = None if piece.own_uvs is None else np.ascontiguousarray(piece.own_uvs, np.float32)
-    for first in range(0, n_texels, BAKE_CHUNK):
-        part = slice(first, first + BAKE_CHUNK)
-        t = np.ascontiguousarray(tris[part], np.int32)
-        rows, looks = sim.bake_texels(lay.positions, lay.normals, corners, lookup_uvs, scene_triangle, t,
-                                      np.ascontiguousarray(bary[part]), iteration, threads, cancel=cancel)
-        looks = np.asarray(looks)
-        stack[part, 0:3] = looks[:, 0:3]
-        stack[part, 3:6] = looks[:, [6, 3, 4]]
-        stack[part, 6] = looks[:, 5]
-        scene_tris = scene_triangle[t]
-        columns = columns_of(np.asarray(rows), scene_tris)
-        if not names and columns:
-            names = list(columns)
-            stack = np.concatenate([stack, np.zeros((n_texels, len(names)), np.float32)], axis=1)
-        for k, name in enumerate(names):
-            stack[part, 7 + k] = columns[name]
-        if own is not None:
+    tris = np.ascontiguousarray(tris, np.int32)
+    stack = np.asarray(sim.bake_texels(lay.positions, lay.normals, corners, lookup_uvs, scene_triangle, tris,
+                                       np.ascontiguousarray(bary), iteration, threads, cancel=cancel, texels=texels,
+                                       band_width=shape[1], band_rows=shape[0], first_row=top,
+                                       surface_of_triangle=columns.surface_of_triangle, slots=columns.slots))
+    own = None
+    if normal_map is not None:
+        own = np.zeros((len(texels), 3), np.float32)
+        for first in range(0, len(texels), BAKE_CHUNK):
+            part = slice(first, first + BAKE_CHUNK)
+            t = tris[part]
             lookup = np.einsum("kc,kcd->kd", bary[part], lookup_uvs.astype(np.float64)[t]).astype(np.float32)
-            mine = normal_map(lookup, scene_tris)
+            mine = normal_map(lookup, scene_triangle[t])
             if mine is not None:
                 own[part] = mine
     charts = None if lay.chart is None else np.ascontiguousarray(lay.chart[tris], np.int32)
@@ -333,7 +357,7 @@ def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns_of, norma
     height = image[..., 6]
     tangent = tangent_normals(lay, height, texels, tris, own)
     return (image[..., 0:3], image[..., 3:6], fill(tangent, texels, shape, charts, threads), height,
-            image[..., 7:]), names
+            image[..., 7:])
 
 
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -423,9 +447,12 @@ def png_bytes(pixels: np.ndarray) -> bytes:
     return out.getvalue()
 
 
-#: zlib level of the 16-bit maps: much faster to write than Pillow's default
-#: 6, for files a little larger (bench/RESULTS.md).
+#: zlib level and strategy (Z_RLE) of the 16-bit maps: much faster to write
+#: than Pillow's default (level 6, Z_DEFAULT_STRATEGY) for files a little
+#: larger: a property's low bits are noise that matching strings do not find
+#: (bench/RESULTS.md).
 PNG16_LEVEL = 3
+PNG16_STRATEGY = 3
 
 
 def png16(values: np.ndarray, span: tuple[float, float] | None = None) -> tuple[bytes, float, float]:
@@ -455,7 +482,8 @@ def png16_encode(grey: np.ndarray) -> bytes:
     from PIL import Image
 
     out = io.BytesIO()
-    Image.fromarray(grey).save(out, format="PNG", compress_level=PNG16_LEVEL)  # uint16 -> 16-bit grey
+    Image.fromarray(grey).save(out, format="PNG", compress_level=PNG16_LEVEL,  # uint16 -> 16-bit grey
+                               compress_type=PNG16_STRATEGY)
     return out.getvalue()
 
 
@@ -661,18 +689,22 @@ MAX_BAKE_SIZE = 16384
 #: GiB for the whole gammac process, bench/RESULTS.md): per texel the 8-bit
 #: base colour, ORM and normal map, the float height and their PNGs being
 #: made; per texel and property its float image and its 16-bit (or EXR)
-#: copy; and a band's working set (about BAKE_CHUNK texels of points,
-#: looks, rows and images), whatever the size.
+#: copy; and a band's working set (its texels with their margins: points,
+#: lattice, looks, rows and images), whatever the size.
 BYTES_PER_TEXEL = 32
 BYTES_PER_TEXEL_AND_PROPERTY = 8
 BAND_BYTES = 300 << 20
+#: The runtime's own per texel of a band: point, normal, uv, triangle,
+#: lattice corners and weights, looks.
+BAND_BYTES_PER_TEXEL = 96
 
 
 def bake_memory(size: int, row_width: int, properties: int) -> int:
     """An estimate of the peak memory of baking one ``size``² texture set."""
     texels = size * size
+    band = min(size, max(16, BAKE_CHUNK // size) + 2 * HALO + 8) * size
     return (texels * (BYTES_PER_TEXEL + BYTES_PER_TEXEL_AND_PROPERTY * properties) + BAND_BYTES
-            + min(texels, BAKE_CHUNK) * 4 * row_width)
+            + band * (4 * row_width + BAND_BYTES_PER_TEXEL))
 
 
 
@@ -763,105 +795,31 @@ class Exporter:
         return sample
 
     def write(self, iteration: int) -> None:
+        """Export ``iteration``: per part its texture set, OBJ, MTL and
+        sidecar, then the glb.  A part's images are encoded on worker threads
+        (the runtime's encoder and Pillow, without the GIL) while the next
+        part bakes; its files are written once they are done."""
         from ...files import atomic_write
-        from ..running.common import property_columns
+        from concurrent.futures import ThreadPoolExecutor
 
         run = self.run
-        effect, sim = run.effect, run.sim
-        names = list(effect.surfaces)
+        effect = run.effect
         surface_parts: dict = {}
         layouts = self._layouts()
         for lay in layouts:
             for s in np.unique(self.triangle_surface[lay.piece.triangles]):
                 surface_parts.setdefault(int(s), []).append(piece_label(lay.piece))
-        out = run.out / "export"
         parts, stem, usd_files = [], f"{iteration:04d}", {}
-        from concurrent.futures import ThreadPoolExecutor
-
         with ThreadPoolExecutor(2) as pool:
+            pending = None
             for lay in layouts:
-                piece = lay.piece
-                surfaces = self.triangle_surface[piece.triangles]
-
-                def columns_of(rows, scene_tris):
-                    return property_columns(effect, rows, self.triangle_surface[scene_tris])
-
-                rows, _, owner = vertex_looks(sim, lay, iteration, run.threads, run.cancel)
-                attributes = property_columns(effect, rows, self.triangle_surface[owner])
-                ts = bake_texture_set(sim, lay, iteration, run.threads, columns_of, self._normal_map(piece),
-                                      as_bytes=True, cancel=run.cancel)
-                part_name = safe_name(piece.name)
-                tile = "" if piece.tile is None else f".{piece.tile}"     # UDIM: NAME.1001.png
-                folder = out / part_name
-                files, sidecar = {}, {"iteration": iteration, "object": piece.name, "udim": piece.tile, "size": lay.size,
-                                      "preset": self.preset, "images": {}, "properties": {}}
-
-                def image(channel: str, data: bytes, **about) -> None:
-                    file = f"{part_name}_{channel}_{stem}{tile}.png"
-                    atomic_write(folder / file, data)
-                    files[channel] = file
-                    sidecar["images"][channel] = {"file": file, "holds": CHANNELS.get(channel, channel), **about}
-
-                # the 16-bit maps compress on worker threads (Pillow, without the GIL) while the
-                # runtime encodes the 8-bit ones; their files are written below in the same order
-                reach = float(np.max(np.abs(ts.height))) if ts.height.size else 0.0
-                spans = {prop: self.ranges.get(prop, (float(np.min(values)), float(np.max(values))))
-                         for prop, values in ts.properties.items()}
-                grey = {} if self.float_maps else {"Height": pool.submit(png16_encode, grey16(ts.height, -reach, reach))}
-                if not self.float_maps:
-                    for prop, values in ts.properties.items():
-                        grey[prop] = pool.submit(png16_encode, grey16(values, *spans[prop]))
-                base, orm, normal = encode_rgb8([ts.base_color, ts.orm, ts.normal], run.threads)
-                # glTF's ORM and OpenGL normal map always (the glb, the OBJ and the USD stage read
-                # them); a preset adds its engine's own packing beside them
-                image("BaseColor", base, colour_space="sRGB")
-                image("ORM", orm, colour_space="linear")
-                image("Normal", normal, colour_space="linear")
-                if self.preset == "unity":      # HDRP's mask map: metallic, occlusion, detail mask, smoothness
-                    mask = np.stack([ts.orm[..., 2], ts.orm[..., 0], np.full_like(ts.orm[..., 0], 255),
-                                     255 - ts.orm[..., 1]], axis=-1)
-                    image("MaskMap", png_bytes(mask), colour_space="linear",
-                          holds="metallic (R), occlusion (G), detail mask (B), smoothness = 1 - roughness (A)")
-                if self.preset == "unreal":     # DirectX convention: green points down the image
-                    flipped = ts.normal.copy()
-                    flipped[..., 1] = 255 - flipped[..., 1]
-                    image("NormalDX", encode_rgb8([flipped], run.threads)[0], colour_space="linear",
-                          holds="tangent-space normal map (DirectX: +Y down), for Unreal")
-                if self.float_maps:
-                    file = f"{part_name}_Height_{stem}{tile}.exr"
-                    atomic_write(folder / file, exr32(ts.height))
-                    sidecar["images"]["Height"] = {"file": file, "holds": CHANNELS["Height"], "min": -reach,
-                                                   "max": reach, "unit": "scene units along the normal (32-bit float)"}
-                else:
-                    image("Height", grey["Height"].result(), min=-reach, max=reach,
-                          unit="scene units along the normal (0 is mid-grey)")
-                for prop, values in ts.properties.items():
-                    low, high = spans[prop]
-                    if self.float_maps:
-                        file = f"{part_name}_{prop}_{stem}{tile}.exr"
-                        atomic_write(folder / file, exr32(values))
-                        scale = "the values themselves (32-bit float); min..max over the whole run"
-                    else:
-                        file = f"{part_name}_{prop}_{stem}{tile}.png"
-                        atomic_write(folder / file, grey[prop].result())
-                        scale = "0..65535 spans min..max over the whole run"
-                    sidecar["properties"][prop] = {"file": file, "min": low, "max": high, "scale": scale}
-                primitives = []
-                for s in np.unique(surfaces):
-                    surface = names[int(s)]
-                    material = surface if len(surface_parts[int(s)]) == 1 else f"{surface}_{part_name}{tile}"
-                    primitives.append((material, np.flatnonzero(surfaces == s)))
-                part = ExportPart(piece_label(piece), lay.positions, lay.normals, lay.uvs,
-                                  lay.faces.astype(np.uint32), primitives, attributes,
-                                  {"BaseColor": (f"{part_name}_BaseColor_{stem}{tile}", base),
-                                   "ORM": (f"{part_name}_ORM_{stem}{tile}", orm),
-                                   "Normal": (f"{part_name}_Normal_{stem}{tile}", normal)})
-                parts.append(part)
-                usd_files[part.name] = {channel: f"{part_name}/{file}" for channel, file in files.items()}
-                atomic_write(folder / f"{part_name}_{stem}{tile}.obj", write_obj(part, f"{part_name}_{stem}{tile}.mtl"))
-                atomic_write(folder / f"{part_name}_{stem}{tile}.mtl", write_mtl(part, files))
-                atomic_write(folder / f"{part_name}_{stem}{tile}.json",
-                             (json.dumps(sidecar, indent=1) + "\n").encode("utf-8"))
+                finish = self._bake_part(lay, iteration, stem, surface_parts, pool)
+                if pending is not None:
+                    pending(parts, usd_files)
+                pending = finish
+            if pending is not None:
+                pending(parts, usd_files)
+        out = run.out / "export"
         extras = {"gamma": {"iteration": iteration, "effect": str(effect.path),
                             "properties": {p: {"min": lo, "max": hi} for p, (lo, hi) in self.ranges.items()}}}
         atomic_write(out / f"{self.scene_name}_{stem}.glb", write_glb(parts, self.scene_name, extras))
@@ -869,3 +827,101 @@ class Exporter:
             for part in parts:
                 part.images = {}          # the stage refers to the files: the PNG bytes are not kept
             self.usd_frames.append((iteration, parts, usd_files))
+
+    def _bake_part(self, lay: Layout, iteration: int, stem: str, surface_parts: dict, pool):
+        """Bake one part and set its images encoding on ``pool``; returns
+        finish(parts, usd_files), which waits for them and writes the part's
+        files.  Only what the files need is kept until then (the encoders'
+        inputs; the texture set itself for a preset or float maps)."""
+        from ...files import atomic_write
+        from ..running.common import property_columns
+
+        run = self.run
+        effect, sim = run.effect, run.sim
+        piece = lay.piece
+        surfaces = self.triangle_surface[piece.triangles]
+        columns = property_slots(effect, self.triangle_surface, set(np.unique(surfaces).tolist()))
+        rows, _, owner = vertex_looks(sim, lay, iteration, run.threads, run.cancel)
+        attributes = property_columns(effect, rows, self.triangle_surface[owner])
+        ts = bake_texture_set(sim, lay, iteration, run.threads, columns, self._normal_map(piece),
+                              as_bytes=True, cancel=run.cancel)
+        reach = float(np.max(np.abs(ts.height))) if ts.height.size else 0.0
+        spans = {prop: self.ranges.get(prop, (float(np.min(values)), float(np.max(values))))
+                 for prop, values in ts.properties.items()}
+        rgb = pool.submit(encode_rgb8, [ts.base_color, ts.orm, ts.normal], 1)
+        grey = {}
+        if not self.float_maps:
+            grey["Height"] = pool.submit(png16_encode, grey16(ts.height, -reach, reach))
+            for prop, values in ts.properties.items():
+                grey[prop] = pool.submit(png16_encode, grey16(values, *spans[prop]))
+        keep = ts if (self.float_maps or self.preset in ("unity", "unreal")) else None
+        properties = list(ts.properties)
+        del ts
+
+        def finish(parts: list, usd_files: dict) -> None:
+            names = list(effect.surfaces)
+            part_name = safe_name(piece.name)
+            tile = "" if piece.tile is None else f".{piece.tile}"     # UDIM: NAME.1001.png
+            folder = run.out / "export" / part_name
+            files, sidecar = {}, {"iteration": iteration, "object": piece.name, "udim": piece.tile, "size": lay.size,
+                                  "preset": self.preset, "images": {}, "properties": {}}
+
+            def image(channel: str, data: bytes, **about) -> None:
+                file = f"{part_name}_{channel}_{stem}{tile}.png"
+                atomic_write(folder / file, data)
+                files[channel] = file
+                sidecar["images"][channel] = {"file": file, "holds": CHANNELS.get(channel, channel), **about}
+
+            base, orm, normal = rgb.result()
+            # glTF's ORM and OpenGL normal map always (the glb, the OBJ and the USD stage read
+            # them); a preset adds its engine's own packing beside them
+            image("BaseColor", base, colour_space="sRGB")
+            image("ORM", orm, colour_space="linear")
+            image("Normal", normal, colour_space="linear")
+            if self.preset == "unity":      # HDRP's mask map: metallic, occlusion, detail mask, smoothness
+                mask = np.stack([keep.orm[..., 2], keep.orm[..., 0], np.full_like(keep.orm[..., 0], 255),
+                                 255 - keep.orm[..., 1]], axis=-1)
+                image("MaskMap", png_bytes(mask), colour_space="linear",
+                      holds="metallic (R), occlusion (G), detail mask (B), smoothness = 1 - roughness (A)")
+            if self.preset == "unreal":     # DirectX convention: green points down the image
+                flipped = keep.normal.copy()
+                flipped[..., 1] = 255 - flipped[..., 1]
+                image("NormalDX", encode_rgb8([flipped], run.threads)[0], colour_space="linear",
+                      holds="tangent-space normal map (DirectX: +Y down), for Unreal")
+            if self.float_maps:
+                file = f"{part_name}_Height_{stem}{tile}.exr"
+                atomic_write(folder / file, exr32(keep.height))
+                sidecar["images"]["Height"] = {"file": file, "holds": CHANNELS["Height"], "min": -reach,
+                                               "max": reach, "unit": "scene units along the normal (32-bit float)"}
+            else:
+                image("Height", grey["Height"].result(), min=-reach, max=reach,
+                      unit="scene units along the normal (0 is mid-grey)")
+            for prop in properties:
+                low, high = spans[prop]
+                if self.float_maps:
+                    file = f"{part_name}_{prop}_{stem}{tile}.exr"
+                    atomic_write(folder / file, exr32(keep.properties[prop]))
+                    scale = "the values themselves (32-bit float); min..max over the whole run"
+                else:
+                    file = f"{part_name}_{prop}_{stem}{tile}.png"
+                    atomic_write(folder / file, grey[prop].result())
+                    scale = "0..65535 spans min..max over the whole run"
+                sidecar["properties"][prop] = {"file": file, "min": low, "max": high, "scale": scale}
+            primitives = []
+            for s in np.unique(surfaces):
+                surface = names[int(s)]
+                material = surface if len(surface_parts[int(s)]) == 1 else f"{surface}_{part_name}{tile}"
+                primitives.append((material, np.flatnonzero(surfaces == s)))
+            part = ExportPart(piece_label(piece), lay.positions, lay.normals, lay.uvs,
+                              lay.faces.astype(np.uint32), primitives, attributes,
+                              {"BaseColor": (f"{part_name}_BaseColor_{stem}{tile}", base),
+                               "ORM": (f"{part_name}_ORM_{stem}{tile}", orm),
+                               "Normal": (f"{part_name}_Normal_{stem}{tile}", normal)})
+            parts.append(part)
+            usd_files[part.name] = {channel: f"{part_name}/{file}" for channel, file in files.items()}
+            atomic_write(folder / f"{part_name}_{stem}{tile}.obj", write_obj(part, f"{part_name}_{stem}{tile}.mtl"))
+            atomic_write(folder / f"{part_name}_{stem}{tile}.mtl", write_mtl(part, files))
+            atomic_write(folder / f"{part_name}_{stem}{tile}.json",
+                         (json.dumps(sidecar, indent=1) + "\n").encode("utf-8"))
+
+        return finish
