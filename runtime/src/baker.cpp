@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -23,8 +24,9 @@ void check_triangles(const RenderScene& rs, size_t k, const int32_t* triangles, 
             throw Error(std::string(what) + ": triangle " + std::to_string(triangles[i]) + " out of range");
 }
 
-// The smoothed rows (interpolate_row's sums) of the points at[0..n) (all k
-// points, in order, when `at` is null), and with look_out their looks too.
+// The smoothed rows (interpolate_row's sums) of the points at[0..n) (the
+// first n points, in order, when `at` is null), and with look_out their
+// looks too: the i-th of them written i-th.
 // Runs of up to kBakeBlock consecutive points of one surface share one
 // neighbour search (SceneIndex::smooth_block): texels come in rows, so a run
 // is a few texels wide.  Runs are cut at fixed places, so the result does not
@@ -72,7 +74,7 @@ void smooth_points(const RenderScene& rs, size_t n, const uint32_t* at, const fl
                     rs.index.smooth_block(surface, run, stop - start, idx.data(), w.data(), count.data());
                     for (size_t i = start; i < stop; ++i) {
                         const size_t q = i - start, p = point(i);
-                        float* row = rows_out + p * size_t(W);
+                        float* row = rows_out + i * size_t(W);
                         // interpolate_row's sum, in its order
                         for (int c = 0; c < W; ++c) {
                             double acc = 0;
@@ -83,29 +85,11 @@ void smooth_points(const RenderScene& rs, size_t n, const uint32_t* at, const fl
                         if (look_out)
                             look_of_row(rs, uint32_t(triangles[p]), positions + 3 * p, normals + 3 * p, none,
                                         uvs + 2 * p, iteration, mix64(kRenderKey ^ uint64_t(p)), row, tex.data(),
-                                        look_out + size_t(GAMMA_LOOK_WIDTH) * p);
+                                        look_out + size_t(GAMMA_LOOK_WIDTH) * i);
                     }
                     start = stop;
                 }
             }
-        });
-    });
-}
-
-// The looks of k points whose rows are known.
-void look_points(const RenderScene& rs, size_t k, const float* positions, const float* normals,
-                 const int32_t* triangles, const float* uvs, int iteration, int threads, const float* rows,
-                 float* look_out) {
-    const size_t W = size_t(rs.state.width);
-    run_with_threads(threads, [&] {
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
-            rs.cancel.check("the bake");
-            std::vector<float> tex(3 * rs.textures.size() + 3, 0.0f);
-            const float none[3] = {0.0f, 0.0f, 0.0f};
-            for (size_t i = r.begin(); i < r.end(); ++i)
-                look_of_row(rs, uint32_t(triangles[i]), positions + 3 * i, normals + 3 * i, none, uvs + 2 * i,
-                            iteration, mix64(kRenderKey ^ uint64_t(i)), rows + i * W, tex.data(),
-                            look_out + size_t(GAMMA_LOOK_WIDTH) * i);
         });
     });
 }
@@ -132,34 +116,10 @@ public:
         });
     }
 
-    // The texels smoothed themselves (lattice points in use and texels
-    // without near ones), in texel order.
-    std::vector<uint32_t> smoothed() const {
-        std::vector<uint32_t> at;
-        for (size_t i = 0; i < smoothed_.size(); ++i)
-            if (smoothed_[i]) at.push_back(uint32_t(i));
-        return at;
-    }
-
-    // Rows of the other texels from their lattice points' (rows of W floats).
-    void interpolate(const RenderScene& rs, int threads, size_t W, float* rows) const {
-        const size_t k = smoothed_.size();
-        run_with_threads(threads, [&] {
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
-                rs.cancel.check("the bake");
-                for (size_t i = r.begin(); i < r.end(); ++i) {
-                    if (smoothed_[i]) continue;
-                    for (size_t c = 0; c < W; ++c) {
-                        double acc = 0;
-                        for (size_t q = 0; q < 4; ++q)
-                            if (corner_[4 * i + q] != kOwn)
-                                acc += double(weight_[4 * i + q]) * double(rows[size_t(corner_[4 * i + q]) * W + c]);
-                        rows[i * W + c] = float(acc);
-                    }
-                }
-            });
-        });
-    }
+    bool smoothed(size_t i) const { return smoothed_[i] != 0; }
+    // Texel i's q-th lattice point (kOwn: none) and its weight.
+    uint32_t corner(size_t i, size_t q) const { return corner_[4 * i + q]; }
+    float weight(size_t i, size_t q) const { return weight_[4 * i + q]; }
 
 private:
     // Texel i's lattice points and weights, if they are all near enough;
@@ -212,12 +172,27 @@ void bake_points(const RenderScene& rs, size_t k, const float* positions, const 
     smooth_points(rs, k, nullptr, positions, normals, triangles, uvs, iteration, threads, rows_out, look_out);
 }
 
+namespace {
+
+// Where each texel's row lies among the smoothed ones (`at`, increasing).
+std::vector<uint32_t> row_numbers(size_t k, const std::vector<uint32_t>& at) {
+    std::vector<uint32_t> number(k, 0);
+    for (size_t r = 0; r < at.size(); ++r) number[at[r]] = uint32_t(r);
+    return number;
+}
+
+}  // namespace
+
 void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
-                 const TexelGrid* grid, int iteration, int threads, float* rows_out, float* look_out) {
+                 const TexelGrid* grid, const ChannelSlots& slots, int iteration, int threads, float* channels_out) {
     for (size_t i = 0; i < k; ++i)
         if (tris[i] < 0 || size_t(tris[i]) >= layout.faces)
             throw Error("bake_texels: layout triangle " + std::to_string(tris[i]) + " out of range");
-    std::vector<float> positions(3 * k), normals(3 * k), uvs(2 * k, 0.0f);
+    for (size_t t = 0; t < layout.faces; ++t)
+        if (layout.scene_triangle[t] < 0 || size_t(layout.scene_triangle[t]) >= slots.triangles)
+            throw Error("bake_texels: scene triangle " + std::to_string(layout.scene_triangle[t]) + " has no surface");
+    // the texels' points and scene triangles (the lattice needs every point first)
+    std::vector<float> positions(3 * k);
     std::vector<int32_t> triangles(k);
     run_with_threads(threads, [&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
@@ -225,62 +200,84 @@ void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, con
             for (size_t i = r.begin(); i < r.end(); ++i) {
                 const size_t t = size_t(tris[i]);
                 const double* b = bary + 3 * i;
-                double n[3];
                 for (int d = 0; d < 3; ++d) {
-                    double p = 0, m = 0;
-                    for (int c = 0; c < 3; ++c) {
-                        const size_t v = size_t(layout.corners[3 * t + size_t(c)]);
-                        p += b[c] * double(layout.positions[3 * v + size_t(d)]);
-                        m += b[c] * double(layout.normals[3 * v + size_t(d)]);
-                    }
+                    double p = 0;
+                    for (int c = 0; c < 3; ++c)
+                        p += b[c] * double(layout.positions[3 * size_t(layout.corners[3 * t + size_t(c)]) + size_t(d)]);
                     positions[3 * i + size_t(d)] = float(p);
-                    n[d] = m;
                 }
-                const double length = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-                for (int d = 0; d < 3; ++d) normals[3 * i + size_t(d)] = float(n[d] / std::max(length, 1e-30));
-                if (layout.lookup_uvs)
-                    for (int d = 0; d < 2; ++d) {
-                        double u = 0;
-                        for (int c = 0; c < 3; ++c) u += b[c] * double(layout.lookup_uvs[6 * t + 2 * size_t(c) + size_t(d)]);
-                        uvs[2 * i + size_t(d)] = float(u);
-                    }
                 triangles[i] = layout.scene_triangle[t];
             }
         });
     });
     check_triangles(rs, k, triangles.data(), "bake_texels");
-    if (!grid) {
-        smooth_points(rs, k, nullptr, positions.data(), normals.data(), triangles.data(), uvs.data(), iteration,
-                      threads, rows_out, look_out);
-        return;
+    std::optional<TexelLattice> lattice;
+    std::vector<uint32_t> at;
+    if (grid) {
+        lattice.emplace(rs, k, *grid, positions.data(), triangles.data(), threads);
+        for (size_t i = 0; i < k; ++i)
+            if (lattice->smoothed(i)) at.push_back(uint32_t(i));
+    } else {
+        at.resize(k);
+        for (size_t i = 0; i < k; ++i) at[i] = uint32_t(i);
     }
-    const TexelLattice lattice(rs, k, *grid, positions.data(), triangles.data(), threads);
-    const std::vector<uint32_t> at = lattice.smoothed();
-    smooth_points(rs, at.size(), at.data(), positions.data(), normals.data(), triangles.data(), uvs.data(), iteration,
-                  threads, rows_out, nullptr);
-    lattice.interpolate(rs, threads, size_t(rs.state.width), rows_out);
-    look_points(rs, k, positions.data(), normals.data(), triangles.data(), uvs.data(), iteration, threads, rows_out,
-                look_out);
-}
-
-void texture_channels(size_t k, size_t W, const float* rows, const float* looks, const int32_t* scene_triangles,
-                      const int32_t* surface_of_triangle, const int32_t* slots, size_t surfaces, size_t P,
-                      int threads, float* out) {
-    const size_t C = kTextureChannels + P;
+    const size_t W = size_t(rs.state.width);
+    std::vector<float> rows(at.size() * W);
+    smooth_points(rs, at.size(), grid ? at.data() : nullptr, positions.data(), nullptr, triangles.data(), nullptr,
+                  iteration, threads, rows.data(), nullptr);
+    const std::vector<uint32_t> number = row_numbers(k, at);
+    // Then per texel its row (its own, or its lattice points'), its look and its channels.
+    const size_t P = slots.properties, C = kTextureChannels + P;
     run_with_threads(threads, [&] {
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 16384), [&](const tbb::blocked_range<size_t>& r) {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, k, 4096), [&](const tbb::blocked_range<size_t>& r) {
+            rs.cancel.check("the bake");
+            std::vector<float> tex(3 * rs.textures.size() + 3, 0.0f), row(W);
+            const float none[3] = {0.0f, 0.0f, 0.0f};
+            float look[GAMMA_LOOK_WIDTH];
             for (size_t i = r.begin(); i < r.end(); ++i) {
-                const float* look = looks + size_t(GAMMA_LOOK_WIDTH) * i;
-                float* o = out + C * i;
+                if (!lattice || lattice->smoothed(i)) {
+                    std::copy_n(&rows[size_t(number[i]) * W], W, row.begin());
+                } else {
+                    for (size_t c = 0; c < W; ++c) {
+                        double acc = 0;
+                        for (size_t q = 0; q < 4; ++q) {
+                            const uint32_t j = lattice->corner(i, q);
+                            if (j != TexelLattice::kOwn)
+                                acc += double(lattice->weight(i, q)) * double(rows[size_t(number[j]) * W + c]);
+                        }
+                        row[c] = float(acc);
+                    }
+                }
+                const size_t t = size_t(tris[i]);
+                const double* b = bary + 3 * i;
+                double n[3];
+                for (int d = 0; d < 3; ++d) {
+                    double m = 0;
+                    for (int c = 0; c < 3; ++c)
+                        m += b[c] * double(layout.normals[3 * size_t(layout.corners[3 * t + size_t(c)]) + size_t(d)]);
+                    n[d] = m;
+                }
+                const double length = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+                float normal[3], uv[2] = {0.0f, 0.0f};
+                for (int d = 0; d < 3; ++d) normal[d] = float(n[d] / std::max(length, 1e-30));
+                if (layout.lookup_uvs)
+                    for (int d = 0; d < 2; ++d) {
+                        double u = 0;
+                        for (int c = 0; c < 3; ++c) u += b[c] * double(layout.lookup_uvs[6 * t + 2 * size_t(c) + size_t(d)]);
+                        uv[d] = float(u);
+                    }
+                look_of_row(rs, uint32_t(triangles[i]), &positions[3 * i], normal, none, uv, iteration,
+                            mix64(kRenderKey ^ uint64_t(i)), row.data(), tex.data(), look);
+                float* o = channels_out + C * i;
                 for (int c = 0; c < 3; ++c) o[c] = look[GAMMA_LOOK_COLOR + c];
                 o[3] = look[GAMMA_LOOK_OCCLUSION];
                 o[4] = look[GAMMA_LOOK_ROUGHNESS];
                 o[5] = look[GAMMA_LOOK_METALLIC];
                 o[6] = look[GAMMA_LOOK_DISPLACEMENT];
-                const size_t s = size_t(surface_of_triangle[size_t(scene_triangles[i])]);
+                const size_t s = size_t(slots.surface_of_triangle[size_t(triangles[i])]);
                 for (size_t p = 0; p < P; ++p) {
-                    const int32_t slot = s < surfaces ? slots[s * P + p] : -1;
-                    o[kTextureChannels + p] = slot >= 0 && size_t(slot) < W ? rows[W * i + size_t(slot)] : 0.0f;
+                    const int32_t slot = s < slots.surfaces ? slots.slots[s * P + p] : -1;
+                    o[kTextureChannels + p] = slot >= 0 && size_t(slot) < W ? row[size_t(slot)] : 0.0f;
                 }
             }
         });

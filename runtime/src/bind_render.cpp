@@ -247,10 +247,10 @@ void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
              "metallic, displacement, occlusion as abi.APPEARANCE_OUTPUTS).")
         .def("bake_texels",
              [](const gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle corners,
-                nb::handle lookup_uvs, nb::handle scene_triangle, nb::handle tris, nb::handle bary, int iteration,
-                int threads, const gammart::CancelToken* cancel, nb::handle texels, size_t band_width,
-                size_t band_rows, size_t first_row, nb::handle surface_of_triangle,
-                nb::handle slots) -> nb::object {
+                nb::handle lookup_uvs, nb::handle scene_triangle, nb::handle tris, nb::handle bary,
+                nb::handle surface_of_triangle, nb::handle slots, int iteration, int threads,
+                const gammart::CancelToken* cancel, nb::handle texels, size_t band_width, size_t band_rows,
+                size_t first_row) {
                  using F64 = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
                  F32 p = as_f32(positions), n = as_f32(normals);
                  I32 c = as_i32(corners), st = as_i32(scene_triangle), t = as_i32(tris);
@@ -287,47 +287,28 @@ void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
                          throw Error("bake_texels: texels (k,) and a band width expected");
                      grid = {where.data(), band_width, band_rows, first_row};
                  }
-                 I32 surface_of, slot;
-                 if (!slots.is_none()) {
-                     surface_of = as_i32(surface_of_triangle);
-                     slot = as_i32(slots);
-                     if (slot.ndim() != 2 || surface_of.ndim() != 1)
-                         throw Error("bake_texels: slots (surfaces, P) and surface_of_triangle (n,) expected");
-                     for (size_t i = 0; i < m; ++i)
-                         if (st.data()[i] < 0 || size_t(st.data()[i]) >= surface_of.shape(0))
-                             throw Error("bake_texels: a scene triangle has no surface");
-                 }
-                 const size_t W = size_t(s.row_width());
-                 std::vector<float> rows(k * W), look(k * GAMMA_LOOK_WIDTH), channels;
+                 I32 surface_of = as_i32(surface_of_triangle), slot = as_i32(slots);
+                 if (slot.ndim() != 2 || surface_of.ndim() != 1)
+                     throw Error("bake_texels: slots (surfaces, P) and surface_of_triangle (n,) expected");
+                 const gammart::ChannelSlots channel_slots{surface_of.data(), surface_of.shape(0), slot.data(),
+                                                           slot.shape(0), slot.shape(1)};
+                 std::vector<float> channels(k * (gammart::kTextureChannels + slot.shape(1)));
                  {
                      nb::gil_scoped_release nogil;
-                     s.bake_texels(layout, k, t.data(), b.data(), texels.is_none() ? nullptr : &grid, iteration,
-                                   threads, rows.data(), look.data(), token_or_never(cancel));
-                     if (!slots.is_none()) {
-                         const size_t P = slot.shape(1);
-                         std::vector<int32_t> scene_tris(k);
-                         for (size_t i = 0; i < k; ++i) scene_tris[i] = st.data()[t.data()[i]];
-                         channels.resize(k * (gammart::kTextureChannels + P));
-                         gammart::texture_channels(k, W, rows.data(), look.data(), scene_tris.data(),
-                                                   surface_of.data(), slot.data(), slot.shape(0), P, threads,
-                                                   channels.data());
-                     }
+                     s.bake_texels(layout, k, t.data(), b.data(), texels.is_none() ? nullptr : &grid, channel_slots,
+                                   iteration, threads, channels.data(), token_or_never(cancel));
                  }
-                 if (!slots.is_none())
-                     return nb::cast(to_numpy(std::move(channels), {k, gammart::kTextureChannels + slot.shape(1)}));
-                 return nb::make_tuple(to_numpy(std::move(rows), {k, W}),
-                                       to_numpy(std::move(look), {k, size_t(GAMMA_LOOK_WIDTH)}));
+                 return to_numpy(std::move(channels), {k, gammart::kTextureChannels + slot.shape(1)});
              },
              "positions"_a, "normals"_a, "corners"_a, "lookup_uvs"_a.none(), "scene_triangle"_a, "tris"_a, "bary"_a,
-             "iteration"_a, "threads"_a, "cancel"_a.none() = nb::none(), "texels"_a.none() = nb::none(),
-             "band_width"_a = 0, "band_rows"_a = 0, "first_row"_a = 0, "surface_of_triangle"_a.none() = nb::none(),
-             "slots"_a.none() = nb::none(),
-             "bake_points() at texels of a texture layout, each given by its layout triangle and barycentrics. "
-             "With texels (row * band_width + column in a band of band_rows rows starting at first_row of the "
-             "texture), texels near enough to the lattice points around them take their interpolated rows "
-             "(gamma/baker.h).  With slots (surfaces x P: a property's row slot per surface, -1: none) and "
-             "surface_of_triangle (per scene triangle), the texture channels float32[k, 7 + P] instead "
-             "(gammart::texture_channels): base colour, occlusion, roughness, metallic, displacement, properties.")
+             "surface_of_triangle"_a, "slots"_a, "iteration"_a, "threads"_a, "cancel"_a.none() = nb::none(),
+             "texels"_a.none() = nb::none(), "band_width"_a = 0, "band_rows"_a = 0, "first_row"_a = 0,
+             "The texture channels float32[k, 7 + P] (base colour, occlusion, roughness, metallic, "
+             "displacement, P properties) at texels of a texture layout, each given by its layout triangle and "
+             "barycentrics, smoothed and looked at as bake_points() does; slots (surfaces x P): a property's row "
+             "slot per surface (-1: none), surface_of_triangle: per scene triangle.  With texels (row * "
+             "band_width + column in a band of band_rows rows starting at first_row of the texture), texels "
+             "near enough to the lattice points around them take their interpolated rows (gamma/baker.h).")
         .def("prepare_points",
              [](gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle triangles,
                 nb::handle uvs, int threads) {

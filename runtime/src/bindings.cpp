@@ -56,7 +56,7 @@ void bind_constants_and_errors(nb::module_& m) {
 void bind_image_helpers(nb::module_& m) {
     m.def(
         "rasterise_uv",
-        [](nb::handle corner_uvs, int size, int row0, int row1, int tile) {
+        [](nb::handle corner_uvs, int size, int row0, int row1, int tile, int threads) {
             using F64 = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
             F64 uv = nb::cast<F64>(numpy_asarray(corner_uvs, "float64"));
             if (uv.ndim() != 3 || uv.shape(1) != 3 || uv.shape(2) != 2)
@@ -64,13 +64,13 @@ void bind_image_helpers(nb::module_& m) {
             gammart::UvRaster r;
             {
                 nb::gil_scoped_release nogil;
-                r = gammart::rasterise_uv(uv.data(), uv.shape(0), size, row0, row1, tile);
+                r = gammart::rasterise_uv(uv.data(), uv.shape(0), size, row0, row1, tile, threads);
             }
             const size_t k = r.tris.size();
             return nb::make_tuple(to_numpy(std::move(r.texels), {k}), to_numpy(std::move(r.tris), {k}),
                                   to_numpy(std::move(r.bary), {k, 3}));
         },
-        "corner_uvs"_a, "size"_a, "row0"_a, "row1"_a, "tile"_a = 1,
+        "corner_uvs"_a, "size"_a, "row0"_a, "row1"_a, "tile"_a = 1, "threads"_a = 0,
         "The texels of rows [row0, row1) covered by triangles in UV space: (texel int64[k], triangle "
         "int32[k], barycentrics float64[k, 3]), tile by tile; see gamma/uv_raster.h.");
 
@@ -96,7 +96,7 @@ void bind_image_helpers(nb::module_& m) {
     m.def(
         "fill_charts",
         [](nb::handle values, nb::handle texels, size_t rows, size_t cols, nb::handle texel_chart, int passes,
-           int threads) {
+           int threads, bool with_charts) -> nb::object {
             using I64 = nb::ndarray<const int64_t, nb::c_contig, nb::device::cpu>;
             F32 v = as_f32(values);
             I64 t = nb::cast<I64>(numpy_asarray(texels, "int64"));
@@ -118,11 +118,15 @@ void bind_image_helpers(nb::module_& m) {
                 nb::gil_scoped_release nogil;
                 gammart::dilate_charts(image.data(), label.data(), rows, cols, C, passes, threads);
             }
-            return to_numpy(std::move(image), {rows, cols, C});
+            if (with_charts)
+                return nb::make_tuple(to_numpy(std::move(image), {rows, cols, C}), to_numpy(std::move(label), {rows, cols}));
+            return nb::cast(to_numpy(std::move(image), {rows, cols, C}));
         },
         "values"_a, "texels"_a, "rows"_a, "columns"_a, "texel_chart"_a, "passes"_a, "threads"_a,
+        "with_charts"_a = false,
         "A float32[rows, columns, C] image with `values` at the flat `texels` (0 elsewhere), its gutters "
-        "filled by dilate_charts from each texel's chart (texel_chart, >= 0).");
+        "filled by dilate_charts from each texel's chart (texel_chart, >= 0); with_charts: (the image, "
+        "int32[rows, columns]: the chart each texel holds after the filling, -1: none).");
 
     m.def(
         "encode_pngs",

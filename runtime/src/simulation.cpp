@@ -415,9 +415,9 @@ int32_t Simulation::look_at(uint32_t triangle, const float p[3], const float n[3
 }
 
 void Simulation::bake_texels(const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
-                             const TexelGrid* grid, int iteration, int threads, float* rows_out, float* look_out,
-                             const CancelToken& cancel) const {
-    gammart::bake_texels(render_scene(cancel), layout, k, tris, bary, grid, iteration, threads, rows_out, look_out);
+                             const TexelGrid* grid, const ChannelSlots& slots, int iteration, int threads,
+                             float* channels_out, const CancelToken& cancel) const {
+    gammart::bake_texels(render_scene(cancel), layout, k, tris, bary, grid, slots, iteration, threads, channels_out);
 }
 
 void Simulation::bake_points(size_t k, const float* positions, const float* normals, const int32_t* triangles,

@@ -14,31 +14,28 @@
 
 namespace gammart {
 
-UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1, int tile) {
-    if (size < 1 || row0 < 0 || row1 > size || row0 > row1) throw Error("rasterise_uv: rows out of range");
-    if (tile < 1) throw Error("rasterise_uv: the tile must be at least 1 texel");
-    const size_t rows = size_t(row1 - row0), cols = size_t(size);
-    std::vector<int32_t> owner(rows * cols, -1);
-    std::vector<double> found(rows * cols * 3);
-    auto clip = [&](double v) { return int64_t(std::min(std::max(v, 0.0), double(size - 1))); };
-    for (size_t t = 0; t < m; ++t) {
-        const double* c = uvs + 6 * t;
-        double x[3], y[3];
-        bool finite = true;
-        for (int k = 0; k < 3; ++k) {
-            x[k] = c[2 * k] * size - 0.5;
-            y[k] = (1 - c[2 * k + 1]) * size - 0.5;
-            finite = finite && std::isfinite(x[k]) && std::isfinite(y[k]);
-        }
-        if (!finite) continue;
-        const double det = (y[1] - y[2]) * (x[0] - x[2]) + (x[2] - x[1]) * (y[0] - y[2]);
-        if (std::fabs(det) < 1e-18) continue;
-        const int64_t j0 = clip(std::floor(std::min({x[0], x[1], x[2]})));
-        const int64_t j1 = clip(std::ceil(std::max({x[0], x[1], x[2]})));
-        const int64_t i0 = std::max<int64_t>(clip(std::floor(std::min({y[0], y[1], y[2]}))), row0);
-        const int64_t i1 = std::min<int64_t>(clip(std::ceil(std::max({y[0], y[1], y[2]}))), row1 - 1);
+namespace {
+
+// A triangle in texel coordinates, with the texel rows its box covers.
+struct UvTriangle {
+    double x[3], y[3], det;
+    int64_t i0, i1, j0, j1;
+};
+
+// Rows [first, end) of the band (rows local to row0): each texel's owner
+// (the lowest-numbered triangle covering it, triangles taken in increasing
+// order) and barycentrics.
+void rasterise_rows(const std::vector<UvTriangle>& tris, const std::vector<int32_t>& order, int row0, size_t first,
+                    size_t end, size_t cols, int32_t* owner, double* found) {
+    for (int32_t t : order) {
+        const UvTriangle& g = tris[size_t(t)];
+        const int64_t i0 = std::max<int64_t>(g.i0, int64_t(row0) + int64_t(first));
+        const int64_t i1 = std::min<int64_t>(g.i1, int64_t(row0) + int64_t(end) - 1);
+        const double* x = g.x;
+        const double* y = g.y;
+        const double det = g.det;
         for (int64_t i = i0; i <= i1; ++i)
-            for (int64_t j = j0; j <= j1; ++j) {
+            for (int64_t j = g.j0; j <= g.j1; ++j) {
                 const size_t at = size_t(i - row0) * cols + size_t(j);
                 if (owner[at] >= 0) continue;  // a lower-numbered triangle has it
                 const double px = double(j), py = double(i);
@@ -53,18 +50,79 @@ UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1,
                 }
             }
     }
-    UvRaster out;
-    auto take = [&](size_t at) {
-        if (owner[at] < 0) return;
-        out.texels.push_back(int64_t(row0) * int64_t(cols) + int64_t(at));
-        out.tris.push_back(owner[at]);
-        out.bary.insert(out.bary.end(), found.begin() + 3 * at, found.begin() + 3 * at + 3);
-    };
+}
+
+}  // namespace
+
+UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1, int tile, int threads) {
+    if (size < 1 || row0 < 0 || row1 > size || row0 > row1) throw Error("rasterise_uv: rows out of range");
+    if (tile < 1) throw Error("rasterise_uv: the tile must be at least 1 texel");
+    const size_t rows = size_t(row1 - row0), cols = size_t(size);
+    auto clip = [&](double v) { return int64_t(std::min(std::max(v, 0.0), double(size - 1))); };
+    std::vector<UvTriangle> tris(m);
+    // Rows are rasterised in strips of whole tiles, in parallel: each strip
+    // takes the triangles whose boxes reach it, in increasing order.
     const size_t T = size_t(tile);
-    for (size_t ti = 0; ti < rows; ti += T)
-        for (size_t tj = 0; tj < cols; tj += T)
-            for (size_t i = ti; i < std::min(rows, ti + T); ++i)
-                for (size_t j = tj; j < std::min(cols, tj + T); ++j) take(i * cols + j);
+    const size_t strip = std::max<size_t>(T, (16 + T - 1) / T * T);
+    const size_t strips = (rows + strip - 1) / strip;
+    std::vector<std::vector<int32_t>> in_strip(strips);
+    for (size_t t = 0; t < m; ++t) {
+        const double* c = uvs + 6 * t;
+        UvTriangle& g = tris[t];
+        bool finite = true;
+        for (int k = 0; k < 3; ++k) {
+            g.x[k] = c[2 * k] * size - 0.5;
+            g.y[k] = (1 - c[2 * k + 1]) * size - 0.5;
+            finite = finite && std::isfinite(g.x[k]) && std::isfinite(g.y[k]);
+        }
+        if (!finite) continue;
+        const double* x = g.x;
+        const double* y = g.y;
+        g.det = (y[1] - y[2]) * (x[0] - x[2]) + (x[2] - x[1]) * (y[0] - y[2]);
+        if (std::fabs(g.det) < 1e-18) continue;
+        g.j0 = clip(std::floor(std::min({x[0], x[1], x[2]})));
+        g.j1 = clip(std::ceil(std::max({x[0], x[1], x[2]})));
+        g.i0 = std::max<int64_t>(clip(std::floor(std::min({y[0], y[1], y[2]}))), row0);
+        g.i1 = std::min<int64_t>(clip(std::ceil(std::max({y[0], y[1], y[2]}))), row1 - 1);
+        if (g.i0 > g.i1) continue;
+        for (size_t s = size_t(g.i0 - row0) / strip; s <= size_t(g.i1 - row0) / strip; ++s)
+            in_strip[s].push_back(int32_t(t));
+    }
+    std::vector<int32_t> owner(rows * cols, -1);
+    std::vector<double> found(rows * cols * 3);
+    std::vector<UvRaster> parts(strips);
+    run_with_threads(threads, [&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, strips, 1), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t s = r.begin(); s < r.end(); ++s) {
+                const size_t first = s * strip, end = std::min(rows, first + strip);
+                rasterise_rows(tris, in_strip[s], row0, first, end, cols, owner.data(), found.data());
+                // the strip's texels tile by tile (strips are whole tiles, so in the band's order)
+                UvRaster& out = parts[s];
+                for (size_t ti = first; ti < end; ti += T)
+                    for (size_t tj = 0; tj < cols; tj += T)
+                        for (size_t i = ti; i < std::min(end, ti + T); ++i)
+                            for (size_t j = tj; j < std::min(cols, tj + T); ++j) {
+                                const size_t at = i * cols + j;
+                                if (owner[at] < 0) continue;
+                                out.texels.push_back(int64_t(row0) * int64_t(cols) + int64_t(at));
+                                out.tris.push_back(owner[at]);
+                                out.bary.insert(out.bary.end(), found.begin() + long(3 * at),
+                                                found.begin() + long(3 * at + 3));
+                            }
+            }
+        });
+    });
+    UvRaster out;
+    size_t total = 0;
+    for (const UvRaster& p : parts) total += p.tris.size();
+    out.texels.reserve(total);
+    out.tris.reserve(total);
+    out.bary.reserve(3 * total);
+    for (const UvRaster& p : parts) {
+        out.texels.insert(out.texels.end(), p.texels.begin(), p.texels.end());
+        out.tris.insert(out.tris.end(), p.tris.begin(), p.tris.end());
+        out.bary.insert(out.bary.end(), p.bary.begin(), p.bary.end());
+    }
     return out;
 }
 

@@ -56,28 +56,30 @@ constexpr int kLatticeStride = 4;
 // over a lattice cell.
 constexpr float kLatticeReach = 0.375f;
 
-// bake_points at k texels of a layout, each given by its layout triangle and
-// barycentrics (double): the point, the normal (the vertices' interpolated,
-// normalised) and the lookup uv interpolated in double, then rounded.  With
-// a grid, a texel whose lattice points around it are near enough (see
-// kLatticeReach) takes the bilinear interpolation of their smoothed rows
-// (in double, rounded once) instead of a neighbour search of its own; the
-// look is still the appearance kernel's at the texel.  Lattice points and
-// the other texels are smoothed as bake_points smooths them.
-void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
-                 const TexelGrid* grid, int iteration, int threads, float* rows_out, float* look_out);
-
-// The channels of a texture set at k baked texels (rows k x W, looks k x
-// GAMMA_LOOK_WIDTH, scene triangles k) as export.py stacks them, C = 7 + P
-// floats per texel: base colour (3), occlusion, roughness, metallic, the
-// displacement, then P properties: property p of a texel on surface s is
-// its row's slot slots[s * P + p], or 0 where slots holds -1 (the surface
-// has no such property).  surface_of_triangle: the surface of each scene
-// triangle (surfaces entries below `surfaces`).
+// The texture channels of a texel, C = kTextureChannels + P floats: base
+// colour (3), occlusion, roughness, metallic, the displacement, then P
+// properties: property p of a texel on surface s is its smoothed row's slot
+// slots[s * P + p], or 0 where that is -1 (the surface has no such
+// property).  surface_of_triangle: the surface of each scene triangle.
 constexpr size_t kTextureChannels = 7;
-void texture_channels(size_t k, size_t W, const float* rows, const float* looks, const int32_t* scene_triangles,
-                      const int32_t* surface_of_triangle, const int32_t* slots, size_t surfaces, size_t P,
-                      int threads, float* out);
+struct ChannelSlots {
+    const int32_t* surface_of_triangle = nullptr;
+    size_t triangles = 0;
+    const int32_t* slots = nullptr;
+    size_t surfaces = 0, properties = 0;
+};
+
+// The texture channels (k x C) at k texels of a layout, each given by its
+// layout triangle and barycentrics (double): the point, the normal (the
+// vertices' interpolated, normalised) and the lookup uv interpolated in
+// double, then rounded; the smoothed row and look there as bake_points makes
+// them.  With a grid, a texel whose lattice points around it are near enough
+// (see kLatticeReach) takes the bilinear interpolation of their smoothed
+// rows (in double, rounded once) instead of a neighbour search of its own;
+// its look is still the appearance kernel's at the texel.  Throws
+// gammart::Error for a triangle or texel out of range.
+void bake_texels(const RenderScene& rs, const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
+                 const TexelGrid* grid, const ChannelSlots& slots, int iteration, int threads, float* channels_out);
 
 // Surface points baked again and again while the surfels stay (the live
 // viewer's vertices, every iteration): their smoothing neighbours and

@@ -173,8 +173,8 @@ public:
                      const CancelToken& cancel = CancelToken::never()) const;
     // bake_points at texels of a texture layout (gammart::bake_texels).
     void bake_texels(const TexelLayout& layout, size_t k, const int32_t* tris, const double* bary,
-                     const TexelGrid* grid, int iteration, int threads, float* rows_out, float* look_out,
-                     const CancelToken& cancel = CancelToken::never()) const;
+                     const TexelGrid* grid, const ChannelSlots& slots, int iteration, int threads,
+                     float* channels_out, const CancelToken& cancel = CancelToken::never()) const;
     float smoothing_sigma() const;
     // bake_points for points baked again and again (the live viewer's
     // vertices): prepare_points finds their neighbours once; bake_prepared

@@ -23,8 +23,9 @@ struct UvRaster {
 // The texels come tile by tile (tiles of tile x tile texels in row-major
 // order, row-major inside a tile; tile = 1: in increasing index order), so
 // that consecutive texels lie close together on the surface (the baker
-// shares one neighbour search among a run of them).
-UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1, int tile = 1);
+// shares one neighbour search among a run of them).  On `threads` threads
+// (0: all), with the same result.
+UvRaster rasterise_uv(const double* uvs, size_t m, int size, int row0, int row1, int tile = 1, int threads = 0);
 
 }  // namespace gammart
 

@@ -338,9 +338,9 @@ def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns: Property
     lookup_uvs = None if piece.own_uvs is None else np.ascontiguousarray(piece.own_uvs, np.float32)
     tris = np.ascontiguousarray(tris, np.int32)
     stack = np.asarray(sim.bake_texels(lay.positions, lay.normals, corners, lookup_uvs, scene_triangle, tris,
-                                       np.ascontiguousarray(bary), iteration, threads, cancel=cancel, texels=texels,
-                                       band_width=shape[1], band_rows=shape[0], first_row=top,
-                                       surface_of_triangle=columns.surface_of_triangle, slots=columns.slots))
+                                       np.ascontiguousarray(bary), columns.surface_of_triangle, columns.slots,
+                                       iteration, threads, cancel=cancel, texels=texels, band_width=shape[1],
+                                       band_rows=shape[0], first_row=top))
     own = None
     if normal_map is not None:
         own = np.zeros((len(texels), 3), np.float32)
@@ -352,12 +352,22 @@ def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns: Property
             if mine is not None:
                 own[part] = mine
     charts = None if lay.chart is None else np.ascontiguousarray(lay.chart[tris], np.int32)
-    image = fill(stack, texels, shape, charts, threads)
+    if charts is None:
+        image, filled = fill(stack, texels, shape, None, threads), None
+    else:
+        from ..running.common import runtime_module
+
+        image, filled = runtime_module().fill_charts(stack, texels, shape[0], shape[1], charts, BLEED_PASSES,
+                                                     threads, with_charts=True)
     del stack
     height = image[..., 6]
-    tangent = tangent_normals(lay, height, texels, tris, own)
-    return (image[..., 0:3], image[..., 3:6], fill(tangent, texels, shape, charts, threads), height,
-            image[..., 7:])
+    if own is None and filled is not None and not np.any(height):
+        # flat everywhere: the texels the filling reaches hold (0, 0, 1), exactly what filling it gives
+        normal = np.zeros(shape + (3,), np.float32)
+        normal[..., 2] = filled >= 0
+    else:
+        normal = fill(tangent_normals(lay, height, texels, tris, own), texels, shape, charts, threads)
+    return image[..., 0:3], image[..., 3:6], normal, height, image[..., 7:]
 
 
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -458,10 +468,10 @@ PNG16_STRATEGY = 3
 def png16(values: np.ndarray, span: tuple[float, float] | None = None) -> tuple[bytes, float, float]:
     """A property as a 16-bit grey PNG, 0..65535 spanning [low, high] (returned):
     ``span``, else the values' own range."""
-    finite = values[np.isfinite(values)]
     if span is not None:
         low, high = (float(span[0]), float(span[1]))
     else:
+        finite = values[np.isfinite(values)]
         low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
     return png16_encode(grey16(values, low, high)), low, high
 
@@ -851,9 +861,9 @@ class Exporter:
         rgb = pool.submit(encode_rgb8, [ts.base_color, ts.orm, ts.normal], 1)
         grey = {}
         if not self.float_maps:
-            grey["Height"] = pool.submit(png16_encode, grey16(ts.height, -reach, reach))
+            grey["Height"] = pool.submit(png16, ts.height, (-reach, reach))
             for prop, values in ts.properties.items():
-                grey[prop] = pool.submit(png16_encode, grey16(values, *spans[prop]))
+                grey[prop] = pool.submit(png16, values, spans[prop])
         keep = ts if (self.float_maps or self.preset in ("unity", "unreal")) else None
         properties = list(ts.properties)
         del ts
@@ -894,7 +904,7 @@ class Exporter:
                 sidecar["images"]["Height"] = {"file": file, "holds": CHANNELS["Height"], "min": -reach,
                                                "max": reach, "unit": "scene units along the normal (32-bit float)"}
             else:
-                image("Height", grey["Height"].result(), min=-reach, max=reach,
+                image("Height", grey["Height"].result()[0], min=-reach, max=reach,
                       unit="scene units along the normal (0 is mid-grey)")
             for prop in properties:
                 low, high = spans[prop]
@@ -904,7 +914,7 @@ class Exporter:
                     scale = "the values themselves (32-bit float); min..max over the whole run"
                 else:
                     file = f"{part_name}_{prop}_{stem}{tile}.png"
-                    atomic_write(folder / file, grey[prop].result())
+                    atomic_write(folder / file, grey[prop].result()[0])
                     scale = "0..65535 spans min..max over the whole run"
                 sidecar["properties"][prop] = {"file": file, "min": low, "max": high, "scale": scale}
             primitives = []
