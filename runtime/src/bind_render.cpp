@@ -221,6 +221,67 @@ void bind_simulation_render(nb::class_<gammart::Simulation>& simulation) {
         .def_prop_ro("num_textures", [](const gammart::Simulation& s) { return s.textures().size(); });
 }
 
+namespace {
+
+// Simulation.bake_texels: the arguments checked, the texture channels baked without the GIL.
+nb::ndarray<nb::numpy, float> bake_texels(const gammart::Simulation& s, nb::handle positions, nb::handle normals,
+                                          nb::handle corners, nb::handle lookup_uvs, nb::handle scene_triangle,
+                                          nb::handle tris, nb::handle bary, nb::handle surface_of_triangle,
+                                          nb::handle slots, int iteration, int threads,
+                                          const gammart::CancelToken* cancel, nb::handle texels, size_t band_width,
+                                          size_t band_rows, size_t first_row) {
+    using F64 = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+    F32 p = as_f32(positions), n = as_f32(normals);
+    I32 c = as_i32(corners), st = as_i32(scene_triangle), t = as_i32(tris);
+    F64 b = nb::cast<F64>(numpy_asarray(bary, "float64"));
+    const size_t nv = p.ndim() == 2 ? p.shape(0) : 0, m = st.ndim() == 1 ? st.shape(0) : 0;
+    const size_t k = t.ndim() == 1 ? t.shape(0) : 0;
+    if (p.ndim() != 2 || p.shape(1) != 3 || n.ndim() != 2 || n.shape(0) != nv || n.shape(1) != 3 ||
+        c.ndim() != 2 || c.shape(0) != m || c.shape(1) != 3 || t.ndim() != 1 || b.ndim() != 2 ||
+        b.shape(0) != k || b.shape(1) != 3)
+        throw Error("bake_texels: positions (n,3), normals (n,3), corners (m,3), scene_triangle (m,), "
+                    "tris (k,) and bary (k,3) expected");
+    for (size_t i = 0; i < 3 * m; ++i)
+        if (c.data()[i] < 0 || size_t(c.data()[i]) >= nv)
+            throw Error("bake_texels: a corner names no vertex");
+    F32 uv;
+    gammart::TexelLayout layout;
+    if (!lookup_uvs.is_none()) {
+        uv = as_f32(lookup_uvs);
+        if (uv.ndim() != 3 || uv.shape(0) != m || uv.shape(1) != 3 || uv.shape(2) != 2)
+            throw Error("bake_texels: lookup uvs (m,3,2) expected");
+        layout.lookup_uvs = uv.data();
+    }
+    layout.positions = p.data();
+    layout.normals = n.data();
+    layout.corners = c.data();
+    layout.scene_triangle = st.data();
+    layout.faces = m;
+    gammart::TexelGrid grid;
+    nb::ndarray<const int64_t, nb::c_contig, nb::device::cpu> where;
+    if (!texels.is_none()) {
+        where = nb::cast<nb::ndarray<const int64_t, nb::c_contig, nb::device::cpu>>(
+            numpy_asarray(texels, "int64"));
+        if (where.ndim() != 1 || where.shape(0) != k || band_width == 0)
+            throw Error("bake_texels: texels (k,) and a band width expected");
+        grid = {where.data(), band_width, band_rows, first_row};
+    }
+    I32 surface_of = as_i32(surface_of_triangle), slot = as_i32(slots);
+    if (slot.ndim() != 2 || surface_of.ndim() != 1)
+        throw Error("bake_texels: slots (surfaces, P) and surface_of_triangle (n,) expected");
+    const gammart::ChannelSlots channel_slots{surface_of.data(), surface_of.shape(0), slot.data(),
+                                              slot.shape(0), slot.shape(1)};
+    std::vector<float> channels(k * (gammart::kTextureChannels + slot.shape(1)));
+    {
+        nb::gil_scoped_release nogil;
+        s.bake_texels(layout, k, t.data(), b.data(), texels.is_none() ? nullptr : &grid, channel_slots,
+                      iteration, threads, channels.data(), token_or_never(cancel));
+    }
+    return to_numpy(std::move(channels), {k, gammart::kTextureChannels + slot.shape(1)});
+}
+
+}  // namespace
+
 void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
     simulation
         .def("bake_points",
@@ -246,60 +307,7 @@ void bind_simulation_bake(nb::class_<gammart::Simulation>& simulation) {
              "At surface points: (smoothed rows float32[k, W], looks float32[k, L]: colour, roughness, "
              "metallic, displacement, occlusion as abi.APPEARANCE_OUTPUTS).")
         .def("bake_texels",
-             [](const gammart::Simulation& s, nb::handle positions, nb::handle normals, nb::handle corners,
-                nb::handle lookup_uvs, nb::handle scene_triangle, nb::handle tris, nb::handle bary,
-                nb::handle surface_of_triangle, nb::handle slots, int iteration, int threads,
-                const gammart::CancelToken* cancel, nb::handle texels, size_t band_width, size_t band_rows,
-                size_t first_row) {
-                 using F64 = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
-                 F32 p = as_f32(positions), n = as_f32(normals);
-                 I32 c = as_i32(corners), st = as_i32(scene_triangle), t = as_i32(tris);
-                 F64 b = nb::cast<F64>(numpy_asarray(bary, "float64"));
-                 const size_t nv = p.ndim() == 2 ? p.shape(0) : 0, m = st.ndim() == 1 ? st.shape(0) : 0;
-                 const size_t k = t.ndim() == 1 ? t.shape(0) : 0;
-                 if (p.ndim() != 2 || p.shape(1) != 3 || n.ndim() != 2 || n.shape(0) != nv || n.shape(1) != 3 ||
-                     c.ndim() != 2 || c.shape(0) != m || c.shape(1) != 3 || t.ndim() != 1 || b.ndim() != 2 ||
-                     b.shape(0) != k || b.shape(1) != 3)
-                     throw Error("bake_texels: positions (n,3), normals (n,3), corners (m,3), scene_triangle (m,), "
-                                 "tris (k,) and bary (k,3) expected");
-                 for (size_t i = 0; i < 3 * m; ++i)
-                     if (c.data()[i] < 0 || size_t(c.data()[i]) >= nv)
-                         throw Error("bake_texels: a corner names no vertex");
-                 F32 uv;
-                 gammart::TexelLayout layout;
-                 if (!lookup_uvs.is_none()) {
-                     uv = as_f32(lookup_uvs);
-                     if (uv.ndim() != 3 || uv.shape(0) != m || uv.shape(1) != 3 || uv.shape(2) != 2)
-                         throw Error("bake_texels: lookup uvs (m,3,2) expected");
-                     layout.lookup_uvs = uv.data();
-                 }
-                 layout.positions = p.data();
-                 layout.normals = n.data();
-                 layout.corners = c.data();
-                 layout.scene_triangle = st.data();
-                 layout.faces = m;
-                 gammart::TexelGrid grid;
-                 nb::ndarray<const int64_t, nb::c_contig, nb::device::cpu> where;
-                 if (!texels.is_none()) {
-                     where = nb::cast<nb::ndarray<const int64_t, nb::c_contig, nb::device::cpu>>(
-                         numpy_asarray(texels, "int64"));
-                     if (where.ndim() != 1 || where.shape(0) != k || band_width == 0)
-                         throw Error("bake_texels: texels (k,) and a band width expected");
-                     grid = {where.data(), band_width, band_rows, first_row};
-                 }
-                 I32 surface_of = as_i32(surface_of_triangle), slot = as_i32(slots);
-                 if (slot.ndim() != 2 || surface_of.ndim() != 1)
-                     throw Error("bake_texels: slots (surfaces, P) and surface_of_triangle (n,) expected");
-                 const gammart::ChannelSlots channel_slots{surface_of.data(), surface_of.shape(0), slot.data(),
-                                                           slot.shape(0), slot.shape(1)};
-                 std::vector<float> channels(k * (gammart::kTextureChannels + slot.shape(1)));
-                 {
-                     nb::gil_scoped_release nogil;
-                     s.bake_texels(layout, k, t.data(), b.data(), texels.is_none() ? nullptr : &grid, channel_slots,
-                                   iteration, threads, channels.data(), token_or_never(cancel));
-                 }
-                 return to_numpy(std::move(channels), {k, gammart::kTextureChannels + slot.shape(1)});
-             },
+             &bake_texels,
              "positions"_a, "normals"_a, "corners"_a, "lookup_uvs"_a.none(), "scene_triangle"_a, "tris"_a, "bary"_a,
              "surface_of_triangle"_a, "slots"_a, "iteration"_a, "threads"_a, "cancel"_a.none() = nb::none(),
              "texels"_a.none() = nb::none(), "band_width"_a = 0, "band_rows"_a = 0, "first_row"_a = 0,

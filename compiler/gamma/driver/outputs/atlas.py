@@ -37,8 +37,9 @@ PIECE_TRIANGLES = 8000
 #: Packing attempts before the charts are scaled to fit with a thinner gutter.
 PACK_ATTEMPTS = 8
 #: Largest texture xatlas packs at (each attempt's time grows with the
-#: texture); larger ones get that packing scaled up.
-PACK_LIMIT = 4096
+#: texture); larger ones get that packing scaled up, gutters with it (the
+#: charts then sit on a coarser grid: a little less of the texture is used).
+PACK_LIMIT = 2048
 
 
 @dataclass
