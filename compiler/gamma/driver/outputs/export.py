@@ -352,13 +352,7 @@ def _bake_band(sim, lay: Layout, iteration: int, threads: int, columns: Property
             if mine is not None:
                 own[part] = mine
     charts = None if lay.chart is None else np.ascontiguousarray(lay.chart[tris], np.int32)
-    if charts is None:
-        image, filled = fill(stack, texels, shape, None, threads), None
-    else:
-        from ..running.common import runtime_module
-
-        image, filled = runtime_module().fill_charts(stack, texels, shape[0], shape[1], charts, BLEED_PASSES,
-                                                     threads, with_charts=True)
+    image, filled = fill(stack, texels, shape, charts, threads, with_charts=True)
     del stack
     height = image[..., 6]
     if own is None and filled is not None and not np.any(height):
@@ -387,24 +381,28 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 def fill(values: np.ndarray, texels: np.ndarray, shape: tuple, charts: np.ndarray | None,
-         threads: int = 0) -> np.ndarray:
+         threads: int = 0, with_charts: bool = False):
     """A (rows, columns, C) image (``shape``) with ``values`` at ``texels``,
     its gutters filled from the same chart (``charts``: the chart of each
     texel of ``texels``; None: from any neighbour).  With charts, the
-    runtime's ``fill_charts`` (atlas.dilate's rings) on ``threads`` threads."""
+    runtime's ``fill_charts`` (atlas.dilate's rings) on ``threads`` threads.
+    ``with_charts``: (the image, the chart each texel holds after the
+    filling, -1: none; None without charts)."""
     values = np.asarray(values, np.float32)
     channels = values.shape[1] if values.ndim == 2 else 1
     values = values.reshape(len(texels), channels)
     if charts is not None:
         from ..running.common import runtime_module
 
-        return runtime_module().fill_charts(values, texels, shape[0], shape[1], charts, BLEED_PASSES, threads)
+        return runtime_module().fill_charts(values, texels, shape[0], shape[1], charts, BLEED_PASSES, threads,
+                                            with_charts=with_charts)
     image = np.zeros((shape[0] * shape[1], channels), np.float32)
     image[texels] = values
     image = image.reshape(shape[0], shape[1], -1)
     covered = np.zeros(shape[0] * shape[1], bool)
     covered[texels] = True
-    return bleed(image, covered.reshape(shape))
+    image = bleed(image, covered.reshape(shape))
+    return (image, None) if with_charts else image
 
 
 def tangent_normals(lay: Layout, height: np.ndarray, texels, tris, own_normals) -> np.ndarray:
